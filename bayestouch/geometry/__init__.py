@@ -1,0 +1,1 @@
+"""Geometry: n-ellipsoids (eq. 2, 4–6), meshes and sampling, surface integrals (eq. 11–13), FFD (eq. 9–10)."""

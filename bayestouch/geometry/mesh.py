@@ -1,0 +1,217 @@
+"""Triangulated surfaces: watertight cube-sphere meshes of n-ellipsoids, area-uniform sampling,
+closest points on a mesh, and conversion to trimesh.
+
+Meshes are plain arrays: ``vertices (V, 3) float, metres`` and ``faces (F, 3) int`` with outward
+(counter-clockwise seen from outside) orientation. NumPy at this edge; trimesh is imported lazily.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+
+from bayestouch._jax import jnp
+from bayestouch.geometry.nellipsoid import NEllipsoid, project_to_surface, surface_point, unit_nsphere
+
+__all__ = [
+    "cube_sphere",
+    "nellipsoid_mesh",
+    "triangle_areas",
+    "sample_mesh",
+    "sample_surface",
+    "closest_points",
+    "to_trimesh",
+    "as_rng",
+]
+
+
+def as_rng(seed) -> np.random.Generator:
+    """A ``np.random.Generator`` from an int seed, a Generator (returned as is) or None (fresh entropy)."""
+    if isinstance(seed, np.random.Generator):
+        return seed
+    return np.random.default_rng(seed)
+
+
+@lru_cache(maxsize=32)
+def _cube_topology(res: int) -> tuple[np.ndarray, np.ndarray]:
+    """Integer lattice points on the surface of the cube {0..res}³ and outward triangles."""
+    if res < 1:
+        raise ValueError(f"resolution must be a positive integer, got {res}")
+    i, j = np.meshgrid(np.arange(res + 1), np.arange(res + 1), indexing="ij")
+    quads = []
+    pts = []
+    offset = 0
+    for axis in range(3):
+        u_ax, v_ax = [a for a in range(3) if a != axis]
+        for side in (0, res):
+            p = np.zeros((res + 1, res + 1, 3), dtype=np.int64)
+            p[..., axis] = side
+            p[..., u_ax] = i
+            p[..., v_ax] = j
+            idx = offset + np.arange((res + 1) ** 2).reshape(res + 1, res + 1)
+            a, b = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel()
+            c, d = idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+            t = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+            # orientation: (u, v, axis) right-handed ⇒ CCW seen from +axis; flip for the low side
+            right_handed = (u_ax, v_ax, axis) in ((0, 1, 2), (1, 2, 0), (2, 0, 1))
+            if right_handed != (side == res):
+                t = t[:, ::-1]
+            quads.append(t)
+            pts.append(p.reshape(-1, 3))
+            offset += (res + 1) ** 2
+    pts = np.concatenate(pts)
+    tris = np.concatenate(quads)
+    uniq, inverse = np.unique(pts, axis=0, return_inverse=True)
+    return uniq, inverse.ravel()[tris]
+
+
+def cube_sphere(res: int) -> tuple[np.ndarray, np.ndarray]:
+    """Directions on the cube [−1, 1]³ (equi-angular grid) and outward faces; a watertight sphere topology.
+
+    Parameters
+    ----------
+    res : int
+        Cells per cube edge; the mesh has 6·res² quads (12·res² triangles) and 6·res² + 2 vertices.
+
+    Returns
+    -------
+    directions : (V, 3) float
+    faces : (F, 3) int
+    """
+    lattice, faces = _cube_topology(int(res))
+    t = np.tan(np.pi / 4 * (2.0 * lattice / res - 1.0))
+    t[np.abs(lattice * 2 - res) == res] = np.sign(lattice * 2 - res)[np.abs(lattice * 2 - res) == res]
+    return t, faces.copy()
+
+
+def nellipsoid_mesh(s: NEllipsoid, res: int = 32) -> tuple[np.ndarray, np.ndarray]:
+    """Watertight triangle mesh of the n-ellipsoid ``s`` (eq. 4–6), metres.
+
+    Returns
+    -------
+    vertices : (6·res² + 2, 3) float, metres
+    faces : (12·res², 3) int, outward
+    """
+    d, faces = cube_sphere(res)
+    Y = unit_nsphere(jnp.asarray(d), s.n)
+    return np.asarray(surface_point(s, Y)), faces
+
+
+def triangle_areas(vertices, faces) -> np.ndarray:
+    """Areas (F,) of the triangles, m²."""
+    v = np.asarray(vertices)
+    e1 = v[faces[:, 1]] - v[faces[:, 0]]
+    e2 = v[faces[:, 2]] - v[faces[:, 0]]
+    return 0.5 * np.linalg.norm(np.cross(e1, e2), axis=1)
+
+
+def sample_mesh(vertices, faces, count: int, seed=None) -> tuple[np.ndarray, np.ndarray]:
+    """Points uniform by area on a triangle mesh.
+
+    Returns
+    -------
+    points : (count, 3) float, metres
+    face_index : (count,) int
+    """
+    rng = as_rng(seed)
+    v = np.asarray(vertices)
+    w = triangle_areas(v, faces)
+    fi = rng.choice(len(faces), size=count, p=w / w.sum())
+    r1, r2 = rng.random(count), rng.random(count)
+    s1 = np.sqrt(r1)
+    b0, b1, b2 = 1 - s1, s1 * (1 - r2), s1 * r2
+    tri = v[faces[fi]]
+    pts = b0[:, None] * tri[:, 0] + b1[:, None] * tri[:, 1] + b2[:, None] * tri[:, 2]
+    return pts, fi
+
+
+def sample_surface(s: NEllipsoid, count: int, seed=None, res: int = 48) -> np.ndarray:
+    """Points uniform by surface area on the n-ellipsoid ``s`` (not uniform in its parameters).
+
+    Draws uniformly on a fine inscribed mesh, then moves each point radially onto the exact surface;
+    the density error is of the order of the mesh's relative area error (≈ 1e-3 at ``res = 48``).
+
+    Returns
+    -------
+    (count, 3) float, metres
+    """
+    v, f = nellipsoid_mesh(s, res)
+    pts, _ = sample_mesh(v, f, count, seed)
+    return np.asarray(project_to_surface(s, jnp.asarray(pts)))
+
+
+def _closest_on_triangles(p, a, b, c):
+    """Closest points on triangles (a, b, c) to points p, all (N, 3); Ericson, RTCD §5.1.5."""
+    ab, ac, ap = b - a, c - a, p - a
+    d1, d2 = np.einsum("ij,ij->i", ab, ap), np.einsum("ij,ij->i", ac, ap)
+    bp = p - b
+    d3, d4 = np.einsum("ij,ij->i", ab, bp), np.einsum("ij,ij->i", ac, bp)
+    cp = p - c
+    d5, d6 = np.einsum("ij,ij->i", ab, cp), np.einsum("ij,ij->i", ac, cp)
+    va = d3 * d6 - d5 * d4
+    vb = d5 * d2 - d1 * d6
+    vc = d1 * d4 - d3 * d2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        denom = va + vb + vc
+        v = np.where(denom != 0, vb / denom, 0.0)
+        w = np.where(denom != 0, vc / denom, 0.0)
+        out = a + ab * v[:, None] + ac * w[:, None]
+        # edge regions
+        vab = d1 / (d1 - d3)
+        e_ab = (vc <= 0) & (d1 >= 0) & (d3 <= 0)
+        out = np.where(e_ab[:, None], a + ab * vab[:, None], out)
+        wac = d2 / (d2 - d6)
+        e_ac = (vb <= 0) & (d2 >= 0) & (d6 <= 0)
+        out = np.where(e_ac[:, None], a + ac * wac[:, None], out)
+        wbc = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        e_bc = (va <= 0) & ((d4 - d3) >= 0) & ((d5 - d6) >= 0)
+        out = np.where(e_bc[:, None], b + (c - b) * wbc[:, None], out)
+    # vertex regions
+    out = np.where(((d1 <= 0) & (d2 <= 0))[:, None], a, out)
+    out = np.where(((d3 >= 0) & (d4 <= d3))[:, None], b, out)
+    out = np.where(((d6 >= 0) & (d5 <= d6))[:, None], c, out)
+    return out
+
+
+def closest_points(vertices, faces, points, k: int = 12) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Closest points on a triangle mesh to query points.
+
+    Candidates are the ``k`` triangles whose centroids are nearest (exact for meshes whose triangles
+    are small compared with the distance structure, as ours are; raise ``k`` for coarse meshes).
+
+    Parameters
+    ----------
+    vertices : (V, 3) float, metres
+    faces : (F, 3) int
+    points : (N, 3) float, metres
+    k : int
+
+    Returns
+    -------
+    closest : (N, 3) float, metres
+    distance : (N,) float, metres
+    face_index : (N,) int
+    """
+    from scipy.spatial import cKDTree
+
+    v = np.asarray(vertices, dtype=float)
+    p = np.asarray(points, dtype=float)
+    tri = v[faces]
+    k = int(min(k, len(faces)))
+    _, cand = cKDTree(tri.mean(axis=1)).query(p, k=k)
+    cand = cand.reshape(len(p), k)
+    P = np.repeat(p, k, axis=0)
+    T = tri[cand.ravel()]
+    q = _closest_on_triangles(P, T[:, 0], T[:, 1], T[:, 2]).reshape(len(p), k, 3)
+    d = np.linalg.norm(q - p[:, None, :], axis=2)
+    best = np.argmin(d, axis=1)
+    rows = np.arange(len(p))
+    return q[rows, best], d[rows, best], cand[rows, best]
+
+
+def to_trimesh(vertices, faces):
+    """A ``trimesh.Trimesh`` (imported lazily) from vertices in metres and faces."""
+    import trimesh
+
+    return trimesh.Trimesh(vertices=np.asarray(vertices), faces=np.asarray(faces), process=False)

@@ -1,0 +1,183 @@
+"""The n-ellipsoid of eq. 4–6: the unit n-sphere |Y1|^n + |Y2|^n + |Y3|^n = 1 mapped by
+y = u + R diag(a, b, c) Y, with R from eq. 2.
+
+All functions are pure JAX functions of a :class:`NEllipsoid` (a NamedTuple, hence a pytree: it can
+be batched with ``vmap`` and differentiated) and of point arrays in metres.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+from bayestouch._jax import jax, jnp
+from bayestouch.geometry.rotation import rotation_matrix
+
+__all__ = [
+    "NEllipsoid",
+    "from_vector",
+    "to_vector",
+    "to_local",
+    "to_world",
+    "inside_outside",
+    "radial_distance",
+    "unit_nsphere",
+    "surface_point",
+    "project_to_surface",
+    "normals",
+    "volume",
+    "second_moment",
+    "PARAM_NAMES",
+]
+
+_TINY = 1e-300
+
+#: names of the ten geometric parameters d1..d10, in the order of :func:`to_vector`.
+PARAM_NAMES = ("x_G", "y_G", "z_G", "a", "b", "c", "xi", "psi", "zeta", "n")
+
+
+class NEllipsoid(NamedTuple):
+    """Parameters of an n-ellipsoid (d1..d10 of the paper; p, q of eq. 3 live with J(I)).
+
+    Attributes
+    ----------
+    centre : (3,) float, metres
+        ``(x_G, y_G, z_G)``.
+    axes : (3,) float, metres
+        Semi-axes ``(a, b, c)``, all > 0.
+    angles : (3,) float, radians
+        Euler angles ``(xi, psi, zeta)``; R = R(z, ζ) R(x, ξ) R(z, ψ).
+    n : float, dimensionless
+        Exponent, > 0; 2 is an ellipsoid, n → ∞ a box.
+    """
+
+    centre: jax.Array
+    axes: jax.Array
+    angles: jax.Array
+    n: jax.Array
+
+    @property
+    def rotation(self):
+        """(3, 3) rotation matrix of eq. 2."""
+        return rotation_matrix(self.angles)
+
+
+def from_vector(v) -> NEllipsoid:
+    """Build from the 10-vector ``(x_G, y_G, z_G, a, b, c, xi, psi, zeta, n)`` (SI units)."""
+    v = jnp.asarray(v, dtype=jnp.float64)
+    return NEllipsoid(v[..., 0:3], v[..., 3:6], v[..., 6:9], v[..., 9])
+
+
+def to_vector(s: NEllipsoid):
+    """The 10-vector of :func:`from_vector`."""
+    return jnp.concatenate([s.centre, s.axes, s.angles, jnp.atleast_1d(s.n)], axis=-1)
+
+
+def to_local(s: NEllipsoid, points):
+    """World points (…, 3) in metres → the principal frame of ``s``: R^T (x − u)."""
+    return (jnp.asarray(points) - s.centre) @ s.rotation
+
+
+def to_world(s: NEllipsoid, local):
+    """Principal-frame points (…, 3) in metres → world: u + R x'."""
+    return jnp.asarray(local) @ s.rotation.T + s.centre
+
+
+def _abs_pow(x, n):
+    # |x|^n that is finite, with finite gradients in x and n, also at x = 0
+    return jnp.exp(n * jnp.log(jnp.maximum(jnp.abs(x), _TINY)))
+
+
+def inside_outside(s: NEllipsoid, points):
+    """Inside–outside function F(x) = Σ |x'_i / a_i|^n.
+
+    Parameters
+    ----------
+    s : NEllipsoid
+    points : (..., 3) float, metres
+
+    Returns
+    -------
+    (...,) float
+        < 1 inside, 1 on the surface, > 1 outside.
+    """
+    loc = to_local(s, points) / s.axes
+    return jnp.sum(_abs_pow(loc, s.n), axis=-1)
+
+
+def radial_distance(s: NEllipsoid, points):
+    """Signed radial distance to the surface along the ray from the centre, metres.
+
+    d = |x − u| (1 − F^(−1/n)): exact for spheres and a close, smooth approximation of the Euclidean
+    distance elsewhere (Jaklič, Leonardis & Solina 2000, §2.4). Positive outside, negative inside.
+
+    Parameters
+    ----------
+    points : (..., 3) float, metres
+
+    Returns
+    -------
+    (...,) float, metres
+    """
+    loc = to_local(s, points)
+    r = jnp.sqrt(jnp.sum(loc * loc, axis=-1) + _TINY)
+    u = loc / r[..., None]
+    # radius of the surface along the unit direction u: (Σ |u_i/a_i|^n)^(-1/n)
+    g = jnp.sum(_abs_pow(u / s.axes, s.n), axis=-1)
+    rho = jnp.exp(-jnp.log(g) / s.n)
+    return r - rho
+
+
+def unit_nsphere(directions, n):
+    """Project directions (…, 3) radially onto the unit n-sphere |Y1|^n + |Y2|^n + |Y3|^n = 1 (eq. 4)."""
+    d = jnp.asarray(directions)
+    g = jnp.sum(_abs_pow(d, n), axis=-1, keepdims=True)
+    return d * jnp.exp(-jnp.log(g) / n)
+
+
+def surface_point(s: NEllipsoid, Y):
+    """Eq. 5–6: points Y (…, 3) of the unit n-sphere → world surface points, metres."""
+    return to_world(s, jnp.asarray(Y) * s.axes)
+
+
+def project_to_surface(s: NEllipsoid, points):
+    """Move points (…, 3) in metres radially (through the centre) onto the surface."""
+    loc = to_local(s, points) / s.axes
+    return to_world(s, unit_nsphere(loc, s.n) * s.axes)
+
+
+def normals(s: NEllipsoid, points):
+    """Outward unit normals (…, 3): ∇F normalised, at (or near) the surface points given in metres."""
+    loc = to_local(s, points)
+    q = loc / s.axes
+    g = s.n * jnp.sign(q) * _abs_pow(q, s.n - 1.0) / s.axes
+    g = g @ s.rotation.T
+    return g / jnp.sqrt(jnp.sum(g * g, axis=-1, keepdims=True) + _TINY)
+
+
+def _dirichlet(alpha, n):
+    # ∫ over the positive octant of the unit n-ball of Π x_i^(α_i − 1) dx  (Dirichlet's integral)
+    from jax.scipy.special import gammaln
+
+    alpha = jnp.asarray(alpha, dtype=jnp.float64)
+    return jnp.exp(jnp.sum(gammaln(alpha / n)) - gammaln(1.0 + jnp.sum(alpha) / n)) / n**3
+
+
+def volume(s: NEllipsoid):
+    """Closed-form volume 8abc Γ(1+1/n)³ / Γ(1+3/n), m³ (eq. 11 for the undeformed surface)."""
+    return 8.0 * jnp.prod(s.axes) * _dirichlet(jnp.array([1.0, 1.0, 1.0]), s.n)
+
+
+def second_moment(s: NEllipsoid):
+    """Closed-form I_ij = ∫_V y_i y_j dV about the world origin (eq. 13), m⁵; (3, 3).
+
+    Eq. 13's boundary integral (1/5)∮ y_i y_j y_k n_k dS equals this volume integral by the
+    divergence theorem, since ∂_k(y_i y_j y_k) = 5 y_i y_j.
+    """
+    a = s.axes
+    m = jnp.stack([
+        8.0 * a[0] ** 3 * a[1] * a[2] * _dirichlet(jnp.array([3.0, 1.0, 1.0]), s.n),
+        8.0 * a[0] * a[1] ** 3 * a[2] * _dirichlet(jnp.array([1.0, 3.0, 1.0]), s.n),
+        8.0 * a[0] * a[1] * a[2] ** 3 * _dirichlet(jnp.array([1.0, 1.0, 3.0]), s.n),
+    ])
+    R = s.rotation
+    return (R * m) @ R.T + volume(s) * jnp.outer(s.centre, s.centre)
