@@ -7,7 +7,10 @@ be batched with ``vmap`` and differentiated) and of point arrays in metres.
 
 from __future__ import annotations
 
+from functools import partial
 from typing import NamedTuple
+
+import numpy as np
 
 from bayestouch._jax import jax, jnp
 from bayestouch.geometry.rotation import rotation_matrix
@@ -26,6 +29,7 @@ __all__ = [
     "normals",
     "volume",
     "second_moment",
+    "evaluate",
     "PARAM_NAMES",
 ]
 
@@ -181,3 +185,35 @@ def second_moment(s: NEllipsoid):
     ])
     R = s.rotation
     return (R * m) @ R.T + volume(s) * jnp.outer(s.centre, s.centre)
+
+
+@partial(jax.jit, static_argnums=0)
+def _evaluate(fn, vec, pts):
+    return fn(from_vector(vec), pts)
+
+
+def evaluate(fn, s: NEllipsoid, points, min_size: int = 256) -> np.ndarray:
+    """NumPy edge: ``fn(s, points)`` compiled once per power-of-two batch size.
+
+    Point arrays of varying length (finger paths, data sets) are padded to the next power of two, so
+    repeated calls reuse a handful of compiled programs instead of tracing every new length.
+
+    Parameters
+    ----------
+    fn : callable
+        A pure function of this module taking ``(s, points)``, e.g. :func:`normals`.
+    s : NEllipsoid
+    points : (N, 3) float, metres
+
+    Returns
+    -------
+    np.ndarray
+        ``fn``'s output for the N points.
+    """
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    m = len(p)
+    size = max(min_size, 1 << max(m - 1, 1).bit_length())
+    pad = np.empty((size, 3))
+    pad[:m] = p
+    pad[m:] = p[0] if m else 1.0
+    return np.asarray(_evaluate(fn, to_vector(s), jnp.asarray(pad)))[:m]

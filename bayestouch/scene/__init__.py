@@ -1,0 +1,1 @@
+"""Objects to touch: n-ellipsoids with surface defects, the paper's damaged graphite plate, stroke paths."""

@@ -1,0 +1,119 @@
+"""Finger paths over an object: plane sections of the surface walked at constant speed.
+
+A path is the curve where a plane cuts the object, followed from a start angle over a given arc, sampled
+at ``rate`` samples per second while the finger moves at ``speed`` (the paper's 1 cm/s).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from bayestouch._jax import jax, jnp
+from bayestouch.geometry import nellipsoid as ne
+from bayestouch.geometry.mesh import as_rng
+from bayestouch.scene.objects import SceneObject
+
+__all__ = ["Path", "ray_hits", "section_path", "random_paths"]
+
+
+class Path(NamedTuple):
+    """A sampled finger path.
+
+    Attributes
+    ----------
+    points : (N, 3) float, metres
+        Contact points on the true (displaced) surface.
+    time : (N,) float, seconds
+    normals : (N, 3) float
+        Outward normals of the base surface at the contacts.
+    """
+
+    points: np.ndarray
+    time: np.ndarray
+    normals: np.ndarray
+
+
+@jax.jit
+def _ray_t(vec, origin, dirs):
+    s = ne.from_vector(vec)
+    # the origin is inside a convex body, so F(origin + t d) − 1 has one root in t > 0: bisection
+    hi = jnp.full(dirs.shape[0], 4.0 * jnp.max(s.axes))
+    lo = jnp.zeros(dirs.shape[0])
+
+    def body(_, lh):
+        lo, hi = lh
+        mid = 0.5 * (lo + hi)
+        out = ne.inside_outside(s, origin + mid[:, None] * dirs) > 1.0
+        return jnp.where(out, lo, mid), jnp.where(out, mid, hi)
+
+    lo, hi = jax.lax.fori_loop(0, 60, body, (lo, hi))
+    return 0.5 * (lo + hi)
+
+
+def ray_hits(shape: ne.NEllipsoid, origin, dirs) -> np.ndarray:
+    """Points (N, 3), metres, where rays from ``origin`` (inside the shape) along ``dirs (N, 3)`` leave it."""
+    dirs = np.asarray(dirs, dtype=np.float64).reshape(-1, 3)
+    m = len(dirs)
+    size = max(256, 1 << max(m - 1, 1).bit_length())  # a few compiled sizes, not one per path length
+    pad = np.tile(dirs[:1] if m else np.array([[1.0, 0.0, 0.0]]), (size, 1))
+    pad[:m] = dirs
+    t = np.asarray(_ray_t(ne.to_vector(shape), jnp.asarray(origin, dtype=jnp.float64), jnp.asarray(pad)))[:m]
+    return np.asarray(origin, dtype=np.float64) + t[:, None] * dirs
+
+
+def section_path(obj: SceneObject, normal, offset: float = 0.0, start: float = 0.0,
+                 arc: float = 2 * np.pi, speed: float = 0.01, rate: float = 20.0) -> Path:
+    """The finger path along the section of ``obj`` by a plane.
+
+    Parameters
+    ----------
+    obj : SceneObject
+    normal : (3,) float
+        Normal of the cutting plane, in the object's principal frame.
+    offset : float, metres
+        Distance of the plane from the object's centre (must stay inside the object).
+    start, arc : float, radians
+        Start angle and angular extent of the walk around the section.
+    speed : float, m/s
+        Finger speed along the surface (the paper: 1 cm/s).
+    rate : float, Hz
+        Samples per second.
+    """
+    s = obj.shape
+    R = np.asarray(s.rotation)
+    nrm = np.asarray(normal, float)
+    nrm = nrm / np.linalg.norm(nrm)
+    e1 = np.cross(nrm, [0.0, 0.0, 1.0] if abs(nrm[2]) < 0.9 else [1.0, 0.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(nrm, e1)
+    origin_local = offset * nrm
+    phi = start + np.linspace(0.0, arc, 2048)
+    dirs_local = np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2
+    origin = np.asarray(s.centre) + R @ origin_local
+    fine = ray_hits(s, origin, dirs_local @ R.T)
+    seg = np.linalg.norm(np.diff(fine, axis=0), axis=1)
+    arclen = np.concatenate([[0.0], np.cumsum(seg)])
+    t = np.arange(0.0, arclen[-1] / speed, 1.0 / rate)
+    at = t * speed
+    base = np.stack([np.interp(at, arclen, fine[:, i]) for i in range(3)], axis=1)
+    # back onto the surface along rays from the plane's origin, so the points stay in the section plane
+    dirs = base - origin
+    base = ray_hits(s, origin, dirs / np.linalg.norm(dirs, axis=1, keepdims=True))
+    normals = ne.evaluate(ne.normals, s, base)
+    return Path(obj.displace(base), t, normals)
+
+
+def random_paths(obj: SceneObject, count: int, seed=None, *, arc: float = 2 * np.pi, speed: float = 0.01,
+                 rate: float = 20.0, max_offset: float = 0.3) -> list[Path]:
+    """``count`` section paths with random plane orientations and offsets (a fraction of the smallest
+    semi-axis), as the paper's "arbitrary paths"."""
+    rng = as_rng(seed)
+    out = []
+    amin = float(np.min(np.asarray(obj.shape.axes)))
+    for _ in range(count):
+        nrm = rng.normal(size=3)
+        off = rng.uniform(-max_offset, max_offset) * amin
+        out.append(section_path(obj, nrm, off, rng.uniform(0, 2 * np.pi), arc, speed, rate))
+    return out

@@ -1,0 +1,112 @@
+"""Scene objects (TOML, defects) and finger paths."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bayestouch._jax import jnp
+from bayestouch.errors import BadInput
+from bayestouch.geometry import nellipsoid as ne
+from bayestouch.scene.objects import Defect, SceneObject, load_object, object_from_dict
+from bayestouch.scene.paths import random_paths, ray_hits, section_path
+
+OBJECTS = sorted((Path(__file__).parent.parent / "models" / "objects").glob("*.toml"))
+
+
+@pytest.mark.parametrize("path", OBJECTS, ids=lambda p: p.stem)
+def test_shipped_objects_load(path):
+    obj = load_object(path)
+    assert obj.name and float(obj.shape.n) >= 1.0
+    assert np.all(np.asarray(obj.shape.axes) < 0.2)  # metres, hand-sized
+    v, f = obj.mesh(12)
+    assert v.shape[1] == 3 and np.isfinite(v).all()
+
+
+def test_plate_matches_paper_size():
+    plate = load_object(OBJECTS[0].parent / "graphite_plate.toml")
+    assert np.allclose(2 * np.asarray(plate.shape.axes), [0.09, 0.05, 0.01])  # 9 × 5 × 1 cm (Sec. 3)
+    kinds = sorted({d.kind for d in plate.defects})
+    assert kinds == ["bump", "crack", "shallow"]
+
+
+GOOD = {"shape": {"centre_m": [0, 0, 0], "axes_m": [0.03, 0.02, 0.01], "n": 2.0}}
+
+
+@pytest.mark.parametrize("doc,needle", [
+    ({}, "[shape]"),
+    ({"shape": {**GOOD["shape"], "axes_m": [30, 20, 10]}}, "millimetres"),
+    ({"shape": {**GOOD["shape"], "axes_m": [0.03, 0.02]}}, "axes_m"),
+    ({"shape": {**GOOD["shape"], "axes_m": [0.03, -0.02, 0.01]}}, "axes_m"),
+    ({"shape": {**GOOD["shape"], "n": 0.5}}, "'n'"),
+    ({"shape": {**GOOD["shape"], "n": "two"}}, "'n'"),
+    ({**GOOD, "defects": [{"kind": "dent", "centre_m": [0, 0, 0.01], "radius_m": 0.001, "depth_m": 1e-4}]},
+     "kind"),
+    ({**GOOD, "defects": [{"kind": "crack", "centre_m": [0, 0, 0.01], "radius_m": 0.001, "depth_m": 1e-4}]},
+     "end_m"),
+    ({**GOOD, "defects": [{"kind": "bump", "centre_m": [0, 0, 0.01], "radius_m": 0.0, "depth_m": 1e-4}]},
+     "radius_m"),
+])
+def test_bad_object_documents(doc, needle):
+    with pytest.raises(BadInput) as e:
+        object_from_dict(doc, "obj.toml")
+    msg = str(e.value)
+    assert needle in msg and "\n" not in msg and msg.startswith("obj.toml")
+
+
+def test_bad_object_files(tmp_path):
+    with pytest.raises(BadInput, match="does not exist"):
+        load_object(tmp_path / "nope.toml")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[shape\ncentre_m = [")
+    with pytest.raises(BadInput, match="not valid TOML"):
+        load_object(bad)
+
+
+def test_defect_heights():
+    y = np.array([[0.0, 0.0, 0.01], [0.003, 0.0, 0.01], [0.05, 0.0, 0.01]])
+    bump = Defect("bump", (0.0, 0.0, 0.01), 0.003, 5e-4)
+    h = bump.height(y)
+    assert h[0] == pytest.approx(5e-4) and h[1] == pytest.approx(5e-4 * np.exp(-0.5)) and h[2] < 1e-12
+    shallow = Defect("shallow", (0.0, 0.0, 0.01), 0.003, 5e-4)
+    assert np.allclose(shallow.height(y), -h)
+    crack = Defect("crack", (-0.01, 0.0, 0.01), 0.001, 4e-4, end=(0.01, 0.0, 0.01))
+    along = np.array([[x, 0.0, 0.01] for x in np.linspace(-0.01, 0.01, 5)])
+    assert np.allclose(crack.height(along), -4e-4)  # full depth anywhere on the segment
+    assert crack.height(np.array([[0.0, 0.001, 0.01]]))[0] == pytest.approx(-4e-4 * np.exp(-0.5))
+
+
+def test_ray_hits_sphere_exact():
+    s = ne.NEllipsoid(jnp.array([0.01, 0.0, 0.0]), jnp.full(3, 0.02), jnp.zeros(3), jnp.array(2.0))
+    dirs = np.random.default_rng(0).normal(size=(50, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    hits = ray_hits(s, np.array([0.01, 0.0, 0.0]), dirs)
+    assert np.allclose(np.linalg.norm(hits - [0.01, 0.0, 0.0], axis=1), 0.02, atol=1e-12)
+
+
+def test_section_path_on_surface_at_speed(shape):
+    obj = SceneObject("t", shape)
+    rate, speed = 20.0, 0.01
+    path = section_path(obj, [0.2, 0.3, 1.0], offset=0.003, arc=np.pi, speed=speed, rate=rate)
+    F = np.asarray(ne.inside_outside(shape, jnp.asarray(path.points)))
+    assert np.allclose(F, 1.0, atol=1e-9)
+    step = np.linalg.norm(np.diff(path.points, axis=0), axis=1)
+    # chords of a curve walked at 1 cm/s, sampled at 20 Hz: 0.5 mm apart (chord ≤ arc)
+    assert np.all(step <= speed / rate * (1 + 1e-6)) and np.median(step) == pytest.approx(speed / rate, rel=0.02)
+    assert np.allclose(np.diff(path.time), 1 / rate)
+    # all points lie in one plane (a section)
+    c = path.points - path.points.mean(axis=0)
+    assert np.linalg.svd(c, compute_uv=False)[-1] < 1e-9
+
+
+def test_defects_displace_paths_along_normal():
+    plate = load_object(OBJECTS[0].parent / "graphite_plate.toml")
+    base = SceneObject("base", plate.shape)
+    p_def = random_paths(plate, 3, seed=7, arc=np.pi)
+    p_base = random_paths(base, 3, seed=7, arc=np.pi)
+    for a, b in zip(p_def, p_base, strict=True):
+        d = a.points - b.points
+        h = np.einsum("ij,ij->i", d, b.normals)
+        assert np.allclose(d, h[:, None] * b.normals, atol=1e-15)  # displacement along the normal
+        assert np.allclose(h, plate.height(b.points))
+    assert max(np.abs(plate.height(p.points)).max() for p in p_base) > 1e-5  # the paths do cross defects
