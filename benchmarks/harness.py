@@ -1,0 +1,99 @@
+"""A small benchmark harness.
+
+Every ``benchmarks/bench_*.py`` module defines functions ``bench_*()`` that return a list of result
+dicts ``{"metric": str, "value": float, "unit": str, ...extra}``. The harness runs them, adds the
+machine description, and writes ``benchmarks/results/<module>.json`` plus one Markdown table
+``benchmarks/results/README.md`` over all modules.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import os
+import platform
+import resource
+import sys
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+RESULTS = HERE / "results"
+
+
+def machine() -> dict:
+    import jax
+    import numpy
+
+    return {
+        "python": platform.python_version(),
+        "platform": platform.platform(),
+        "cpu_count": os.cpu_count(),
+        "jax": jax.__version__,
+        "jax_backend": jax.default_backend(),
+        "numpy": numpy.__version__,
+        "date": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+    }
+
+
+def best_of(fn, repeat: int = 5, number: int = 1) -> float:
+    """Best wall-clock seconds per call of ``fn`` over ``repeat`` rounds of ``number`` calls."""
+    best = float("inf")
+    for _ in range(repeat):
+        t = time.perf_counter()
+        for _ in range(number):
+            fn()
+        best = min(best, (time.perf_counter() - t) / number)
+    return best
+
+
+def peak_rss_mib() -> float:
+    """Peak resident memory of this process so far, MiB (Linux reports KiB)."""
+    r = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return r / 1024.0 if sys.platform != "darwin" else r / 2**20
+
+
+def _atomic(path: Path, text: str) -> None:
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def run(names: list[str] | None = None) -> dict[str, list[dict]]:
+    RESULTS.mkdir(exist_ok=True)
+    mods = sorted(p.stem for p in HERE.glob("bench_*.py"))
+    if names:
+        unknown = sorted(set(names) - set(mods))
+        if unknown:
+            raise SystemExit(f"benchmarks: unknown module(s) {unknown}; have {mods}")
+        mods = [m for m in mods if m in names]
+    info = machine()
+    for m in mods:
+        mod = importlib.import_module(f"benchmarks.{m}")
+        results = []
+        for fname in sorted(n for n in dir(mod) if n.startswith("bench_")):
+            print(f"[bench] {m}.{fname} ...", flush=True)
+            t0 = time.perf_counter()
+            for r in getattr(mod, fname)():
+                results.append({"benchmark": fname, **r})
+            print(f"[bench] {m}.{fname} done in {time.perf_counter() - t0:.1f} s", flush=True)
+        _atomic(RESULTS / f"{m}.json", json.dumps({"machine": info, "results": results}, indent=2) + "\n")
+    table = _markdown(info)
+    _atomic(RESULTS / "README.md", table)
+    print(table)
+    return {}
+
+
+def _markdown(info: dict) -> str:
+    lines = ["# Benchmark results", "",
+             f"Machine: {info['platform']}, {info['cpu_count']} CPUs, Python {info['python']}, "
+             f"JAX {info['jax']} ({info['jax_backend']}); {info['date']}. Written by `make bench`.", "",
+             "| module | benchmark | metric | value | unit | notes |", "|---|---|---|---|---|---|"]
+    for path in sorted(RESULTS.glob("bench_*.json")):
+        doc = json.loads(path.read_text())
+        for r in doc["results"]:
+            extra = {k: v for k, v in r.items() if k not in ("benchmark", "metric", "value", "unit")}
+            notes = ", ".join(f"{k}={v}" for k, v in extra.items())
+            v = r["value"]
+            lines.append(f"| {path.stem} | {r['benchmark']} | {r['metric']} | {v:.4g} | {r['unit']} | {notes} |")
+    return "\n".join(lines) + "\n"
