@@ -118,8 +118,11 @@ def _cmd_reproduce_paper(args) -> int:
                             seed=args.seed, n_paths=args.paths, rate=args.rate, res=args.res,
                             progress=not args.quiet)
     md = write_table2(rows, out)
+    from bayestouch.report import plot_table2
+
+    fig = plot_table2(rows, out)
     print(md)
-    print(f"wrote {out / 'table2.csv'} and {out / 'table2.md'} in {time.perf_counter() - t0:.1f} s")
+    print(f"wrote {out / 'table2.csv'}, {out / 'table2.md'} and {fig} in {time.perf_counter() - t0:.1f} s")
     return 0
 
 

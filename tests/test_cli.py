@@ -67,6 +67,7 @@ def test_reproduce_paper_small_run_writes_contract_files(tmp_path, capsys):
         assert float(r["defect_free_bp_minus_x_percent"]) < float(r["bp_minus_x_percent"])
     md = (out / "table2.md").read_text()
     assert "| 0.001 | 6x6x3 |" in md and "[3]" in md  # the paper's 3 % beside ours
+    assert (out / "table2.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_console_script_runs_without_traceback(tmp_path):
