@@ -1,0 +1,367 @@
+"""bayestouch.io: exact CSV round trips, one-line errors for bad contact files, atomic writers."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+
+import numpy as np
+import pytest
+
+from bayestouch import io as bio
+from bayestouch.errors import BadInput
+from bayestouch.io import (
+    ContactPoints,
+    load_contact_points,
+    read_csv_rows,
+    save_contact_points,
+    write_csv_rows,
+    write_json,
+)
+
+
+def _random_contacts(n: int = 50):
+    """Points (metres, a few cm around the origin), non-unit normals, forces (newtons); seeded."""
+    rng = np.random.default_rng(0)
+    pts = rng.normal(0.0, 0.03, (n, 3))
+    # values whose decimal text is the hard part of a bitwise round trip
+    pts[0] = [-0.0, 5e-324, 0.1]
+    pts[1] = [1 / 3, 2e-8 / 3, -1e-300]
+    nrm = rng.normal(size=(n, 3)) * rng.uniform(0.1, 10.0, (n, 1))
+    force = rng.uniform(0.0, 3.0, n)
+    force[0] = 0.0
+    return pts, nrm, force
+
+
+def _unit(v):
+    return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+def _same_bits(a, b) -> bool:
+    a, b = np.asarray(a), np.asarray(b)
+    return a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+
+
+# ---------------------------------------------------------------------------------------------------------
+# round trips
+
+
+def test_round_trip_with_normals_and_force_is_bitwise(tmp_path):
+    pts, nrm, force = _random_contacts()
+    path = tmp_path / "new" / "folder" / "cp.csv"
+    assert save_contact_points(path, pts, nrm, force) == path
+    assert path.read_text(encoding="utf-8").splitlines()[0] == "x,y,z,nx,ny,nz,force"
+
+    cp = load_contact_points(path)
+    assert isinstance(cp, ContactPoints) and cp.source == str(path)
+    assert _same_bits(cp.points, pts) and _same_bits(cp.force, force)
+    assert cp.points.shape == (50, 3) and cp.normals.shape == (50, 3) and cp.force.shape == (50,)
+    np.testing.assert_allclose(np.linalg.norm(cp.normals, axis=1), 1.0, rtol=0, atol=4e-16)
+    np.testing.assert_allclose(cp.normals, _unit(nrm), rtol=0, atol=4e-16)
+
+
+def test_saving_loaded_points_again_reproduces_them_exactly(tmp_path):
+    pts, nrm, force = _random_contacts()
+    cp = load_contact_points(save_contact_points(tmp_path / "a.csv", pts, nrm, force))
+    again = load_contact_points(save_contact_points(tmp_path / "b.csv", cp))
+    assert _same_bits(again.points, cp.points) and _same_bits(again.force, cp.force)
+    assert _same_bits(again.normals, cp.normals)  # unit normals are not re-normalised
+    assert (tmp_path / "a.csv").read_bytes() != (tmp_path / "b.csv").read_bytes()  # a.csv had raw normals
+
+
+def test_round_trip_without_optional_columns(tmp_path):
+    pts, _, force = _random_contacts(20)
+    cp = load_contact_points(save_contact_points(tmp_path / "p.csv", pts))
+    assert (tmp_path / "p.csv").read_text().splitlines()[0] == "x,y,z"
+    assert _same_bits(cp.points, pts) and cp.normals is None and cp.force is None
+
+    cp = load_contact_points(save_contact_points(tmp_path / "f.csv", ContactPoints(pts, force=force)))
+    assert (tmp_path / "f.csv").read_text().splitlines()[0] == "x,y,z,force"
+    assert cp.normals is None and _same_bits(cp.force, force)
+
+
+def test_header_case_whitespace_bom_extra_columns_blank_lines_crlf(tmp_path):
+    pts, nrm, force = _random_contacts(15)
+    header = " Label ,\tX ,Nz, y,FORCE ,nY, Z,t,NX"
+    lines = [header] + [
+        f"p{i},{p[0]!r},{n[2]!r},{p[1]!r},{f!r},{n[1]!r},{p[2]!r},not a number,{n[0]!r}"
+        for i, (p, n, f) in enumerate(zip(pts.tolist(), nrm.tolist(), force.tolist(), strict=True))
+    ]
+    lines.insert(5, "")
+    path = tmp_path / "excel.csv"
+    path.write_bytes(("\r\n".join(lines) + "\r\n\r\n").encode("utf-8-sig"))
+    assert path.read_bytes()[:3] == b"\xef\xbb\xbf"
+    cp = load_contact_points(path)
+    assert _same_bits(cp.points, pts) and _same_bits(cp.force, force)
+    np.testing.assert_allclose(cp.normals, _unit(nrm), rtol=0, atol=4e-16)
+
+
+def test_min_points_is_adjustable(tmp_path):
+    path = tmp_path / "five.csv"
+    save_contact_points(path, _random_contacts(5)[0])
+    assert load_contact_points(path, min_points=5).points.shape == (5, 3)
+    with pytest.raises(BadInput, match=r"has 5 point\(s\); need at least 6 points;") as e:
+        load_contact_points(path, min_points=6)
+    assert "n-ellipsoid" not in str(e.value)
+    with pytest.raises(BadInput, match="min_points"):
+        load_contact_points(path, min_points=-1)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# bad contact files
+
+
+#: 20 valid contact rows (metres): a helix of radius 3 cm
+RING = [f"{0.03 * math.cos(t)!r},{0.03 * math.sin(t)!r},{0.002 * t!r}"
+        for t in np.linspace(0, 6, 20).tolist()]
+
+
+def _csv(rows, header="x,y,z", at=None, bad=None):
+    """CSV text; with ``bad``, that line is put in as data row ``at`` (1-based) = file line ``at + 1``."""
+    rows = list(rows)
+    if bad is not None:
+        rows.insert(at - 1, bad)
+    return header + "\n" + "\n".join(rows) + "\n"
+
+
+BAD_FILES = {
+    "empty file": ("", "is empty (no header line)"),
+    "blank lines only": ("\n \n,,\n", "is empty (no header line)"),
+    "no header": (_csv(RING[1:], header=RING[0]), "has no header line"),
+    "missing z": (_csv(RING, "x,y"), "missing column(s) z (found 'x,y')"),
+    "missing all": (_csv(RING, "a,b,c"), "missing column(s) x,y,z"),
+    "semicolons": (_csv([r.replace(",", ";") for r in RING], "x;y;z"), "separated by ';'"),
+    "partial normals": (
+        _csv([r + ",1,0" for r in RING], "x,y,z,nx,ny"),
+        "has normal column(s) nx,ny but not nz; expected all of nx,ny,nz or none",
+    ),
+    "duplicate column": (_csv([r + ",0" for r in RING], "x,y,z,X"), "column 'x' appears twice"),
+    "non-numeric": (
+        _csv(RING, at=3, bad="0.01,abc,0.0"),
+        "data row 3, file line 4, column y: 'abc' is not a number",
+    ),
+    "empty cell": (_csv(RING, at=3, bad="0.01,0.02,"), "data row 3, file line 4, column z is empty"),
+    "nan": (_csv(RING, at=3, bad="0.01,nan,0.0"), "data row 3, file line 4, column y is nan (not finite)"),
+    "inf": (_csv(RING, at=7, bad="0.01,0.0,-inf"), "data row 7, file line 8, column z is -inf (not finite)"),
+    "ragged short": (_csv(RING, at=3, bad="0.01,0.0"), "file line 4 has 2 fields but the header has 3"),
+    "ragged long": (_csv(RING, at=3, bad="0.01,0.0,0.0,9"), "file line 4 has 4 fields"),
+    "newline in a cell": (_csv(RING, at=2, bad='0.01,"1\n2",0.0'), r"column y: '1\n2' is not a number"),
+    "too few points": (
+        _csv(RING[:11]),
+        "has 11 point(s); need at least 12 points (the 12 parameters of the n-ellipsoid)",
+    ),
+    "millimetres": (
+        _csv(["45.0,0.0,0.0"] + [",".join(repr(float(v) * 1000) for v in r.split(",")) for r in RING[1:]]),
+        "x,y,z look like millimetres (largest |value| 45.0",
+    ),
+    "millimetres by diagonal": (
+        _csv([f"{s * 1.5},{t * 1.5},{u * 0.1}" for s in (-1, 1) for t in (-1, 1) for u in range(4)]),
+        "look like millimetres (largest |value| 1.5, bounding-box diagonal 4.2",
+    ),
+    "identical points": (_csv(["0.01,0.02,0.03"] * 20), "all 20 points are identical (0.01, 0.02, 0.03)"),
+    "zero normal": (
+        _csv([r + ",0,0,1" for r in RING], "x,y,z,nx,ny,nz", at=3, bad="0.01,0.0,0.0,0,0,0"),
+        "data row 3, file line 4, columns nx,ny,nz: normal has zero length",
+    ),
+    "negative force": (
+        _csv([r + ",0.5" for r in RING], "x,y,z,force", at=3, bad="0.01,0.0,0.0,-0.5"),
+        "data row 3, file line 4, column force is -0.5 N, negative",
+    ),
+    "not UTF-8": (b"x,y,z\n0.1,0.2,\xff\n", "is not UTF-8 text"),
+}
+
+
+@pytest.mark.parametrize("content,needle", list(BAD_FILES.values()), ids=list(BAD_FILES))
+def test_bad_files_raise_one_line_naming_file_and_problem(tmp_path, content, needle):
+    path = tmp_path / "bad.csv"
+    if isinstance(content, bytes):
+        path.write_bytes(content)
+    else:
+        path.write_text(content, encoding="utf-8")
+    with pytest.raises(BadInput) as e:
+        load_contact_points(path)
+    msg = str(e.value)
+    assert "\n" not in msg and "\r" not in msg
+    assert msg.startswith(f"{path}: ")
+    assert needle in msg, msg
+    assert "expected" in msg or "give metres" in msg  # every message says what form is wanted
+
+
+def test_missing_file_and_folder(tmp_path):
+    with pytest.raises(BadInput, match=r"none\.csv: no such file") as e:
+        load_contact_points(tmp_path / "none.csv")
+    assert "\n" not in str(e.value)
+    with pytest.raises(BadInput, match="is a folder, not a file"):
+        load_contact_points(tmp_path)
+
+
+def test_millimetre_check_spares_a_large_object_in_metres(tmp_path):
+    """Negative control: a 1.5 m × 1.0 m × 0.6 m object, off-centre, in metres, is accepted as it is.
+
+    The same points in millimetres are refused, so the control is not passing for another reason.
+    """
+    rng = np.random.default_rng(0)
+    half = np.array([0.75, 0.5, 0.3])
+    centre = np.array([0.2, -0.1, 0.05])
+    pts = centre + rng.uniform(-half, half, (30, 3))
+    pts[:2] = [centre - half, centre + half]  # the full extent: bounding-box diagonal 1.90 m
+    assert np.linalg.norm(np.ptp(pts, axis=0)) == pytest.approx(1.9)
+    cp = load_contact_points(save_contact_points(tmp_path / "big.csv", pts))
+    assert _same_bits(cp.points, pts)
+    assert np.ptp(cp.points, axis=0).max() == pytest.approx(1.5)
+    with pytest.raises(BadInput, match="millimetres"):
+        load_contact_points(save_contact_points(tmp_path / "big_mm.csv", pts * 1000))
+
+
+# ---------------------------------------------------------------------------------------------------------
+# saving contact points: validation
+
+
+@pytest.mark.parametrize("kwargs,needle", [
+    ({"cp_or_points": np.zeros((5, 2))}, "points must be an (N, 3) array"),
+    ({"cp_or_points": np.zeros(3)}, "points must be"),
+    ({"cp_or_points": [["a", "b", "c"]]}, "points must be"),
+    ({"cp_or_points": np.array([[0.0, 0.0, 0.0], [0.0, np.nan, 0.0]])}, "points must be finite, row 2"),
+    ({"cp_or_points": np.ones((5, 3)), "normals": np.ones((4, 3))}, "normals must be"),
+    ({"cp_or_points": np.ones((5, 3)), "normals": np.zeros((5, 3))}, "normals must have non-zero length"),
+    ({"cp_or_points": np.ones((5, 3)), "force": np.ones(4)}, "force must be"),
+    ({"cp_or_points": np.ones((5, 3)), "force": -np.ones(5)}, "force must be ≥ 0"),
+    ({"cp_or_points": ContactPoints(np.ones((5, 3)), force=np.ones(5)), "force": np.ones(5)},
+     "force given both"),
+])
+def test_save_rejects_bad_arrays_and_writes_nothing(tmp_path, kwargs, needle):
+    path = tmp_path / "out" / "a.csv"
+    with pytest.raises(BadInput) as e:
+        save_contact_points(path, **kwargs)
+    assert needle in str(e.value) and "\n" not in str(e.value)
+    assert not path.exists()
+
+
+# ---------------------------------------------------------------------------------------------------------
+# atomic writing
+
+
+def _leftovers(folder):
+    return sorted(p.name for p in folder.iterdir())
+
+
+def test_failure_mid_write_leaves_old_file_and_no_temp(tmp_path):
+    path = tmp_path / "t.csv"
+    write_csv_rows(path, [{"a": 1, "b": 0.1}])
+    before = path.read_bytes()
+    rows = [{"a": 2, "b": 0.2}] * 500 + [{"a": 3, "b": object()}]  # fails after 500 rows are written
+    with pytest.raises(TypeError, match="column 'b'"):
+        write_csv_rows(path, rows)
+    assert path.read_bytes() == before
+    assert _leftovers(tmp_path) == ["t.csv"]
+
+
+@pytest.mark.parametrize("writer", [
+    lambda p: save_contact_points(p, np.ones((3, 3)) * [1, 2, 3]),
+    lambda p: write_csv_rows(p, [{"a": 9}]),
+    lambda p: write_json(p, {"a": 9}),
+], ids=["save_contact_points", "write_csv_rows", "write_json"])
+def test_failed_replace_leaves_old_file_and_no_temp(tmp_path, monkeypatch, writer):
+    path = tmp_path / "t.txt"
+    path.write_text("old content\n")
+    seen = []
+
+    def failing_replace(src, dst):
+        with open(src, encoding="utf-8") as f:  # the new file is complete before the rename
+            seen.append(f.read())
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(bio.os, "replace", failing_replace)
+    with pytest.raises(OSError, match="No space left"):
+        writer(path)
+    assert path.read_text() == "old content\n"
+    assert _leftovers(tmp_path) == ["t.txt"]
+    assert len(seen) == 1 and ("9" in seen[0] or "1.0,2.0,3.0" in seen[0])
+
+
+def test_new_files_get_normal_permissions_and_replacements_keep_theirs(tmp_path):
+    umask = os.umask(0)
+    os.umask(umask)
+    new = write_json(tmp_path / "new.json", 1)
+    assert new.stat().st_mode & 0o777 == 0o666 & ~umask  # not mkstemp's 0600
+    old = tmp_path / "old.json"
+    old.write_text("0")
+    old.chmod(0o640)
+    write_json(old, 2)
+    assert old.stat().st_mode & 0o777 == 0o640 and old.read_text() == "2\n"
+
+
+# ---------------------------------------------------------------------------------------------------------
+# generic CSV rows and JSON
+
+
+def test_write_csv_rows_format_and_column_order(tmp_path):
+    rows = [
+        {"name": "a,b", "eps": 0.1 + 0.2, "ok": True, "n": np.int64(3)},
+        {"eps": float("nan"), "extra": None, "ok": np.bool_(False), "name": "c"},
+        {"eps": np.float32(0.1), "n": -0.0, "extra": 1e-300},
+    ]
+    path = write_csv_rows(tmp_path / "deep" / "r.csv", rows)
+    assert path.read_text().splitlines() == [
+        "name,eps,ok,n,extra",
+        '"a,b",0.30000000000000004,true,3,',
+        "c,nan,false,,",
+        ",0.10000000149011612,,-0.0,1e-300",
+    ]
+    back = read_csv_rows(path)
+    assert list(back[0]) == ["name", "eps", "ok", "n", "extra"] and back[0]["name"] == "a,b"
+    assert float(back[0]["eps"]) == 0.1 + 0.2 and np.float32(float(back[2]["eps"])) == np.float32(0.1)
+    assert math.isnan(float(back[1]["eps"])) and back[1]["extra"] == ""
+
+    write_csv_rows(path, rows[:1], columns=["ok", "missing", "name", "eps", "n"])
+    assert read_csv_rows(path) == [{"ok": "true", "missing": "", "name": "a,b", "eps": "0.30000000000000004",
+                                    "n": "3"}]
+    with pytest.raises(ValueError, match="not in columns"):
+        write_csv_rows(path, rows, columns=["name"])
+
+
+def test_read_csv_rows_bom_empty_missing_and_ragged(tmp_path):
+    path = tmp_path / "r.csv"
+    path.write_bytes("\ufeffa,b\r\n1,x\r\n\r\n2,y\r\n".encode())
+    assert read_csv_rows(path) == [{"a": "1", "b": "x"}, {"a": "2", "b": "y"}]
+    path.write_text("")
+    assert read_csv_rows(path) == []
+    path.write_text("a,b\n1,2\n3\n")
+    with pytest.raises(BadInput, match="file line 3 has 1 field but the header has 2"):
+        read_csv_rows(path)
+    with pytest.raises(BadInput, match="no such file"):
+        read_csv_rows(tmp_path / "none.csv")
+
+
+def test_write_json_numpy_types_and_nan_to_null(tmp_path):
+    obj = {
+        "a": np.arange(3),
+        "b": np.float32(0.5),
+        "c": float("nan"),
+        "d": (np.bool_(True), np.float64(np.inf), None),
+        "e": np.array([[1.5, np.nan], [-np.inf, 2.0]]),
+        "f": {"g": np.int32(-7), np.int64(4): "numpy key", "h": [np.float64(0.1)]},
+        "i": np.str_("text"),
+    }
+    path = write_json(tmp_path / "x" / "y.json", obj)
+    text = path.read_text(encoding="utf-8")
+
+    def no_constants(name):
+        raise AssertionError(f"non-standard JSON constant {name}")
+
+    back = json.loads(text, parse_constant=no_constants)
+    assert back == {
+        "a": [0, 1, 2],
+        "b": 0.5,
+        "c": None,
+        "d": [True, None, None],
+        "e": [[1.5, None], [None, 2.0]],
+        "f": {"g": -7, "4": "numpy key", "h": [0.1]},
+        "i": "text",
+    }
+    assert text.startswith('{\n  "a": [\n    0,') and text.endswith("}\n")  # indent=2, trailing newline
+    with pytest.raises(TypeError, match="object"):
+        write_json(path, {"bad": object()})
+    assert json.loads(path.read_text()) == back
+    assert _leftovers(path.parent) == ["y.json"]
