@@ -156,6 +156,9 @@ def main(argv: list[str] | None = None) -> int:
     except BadInput as e:
         print(f"bayestouch {args.command}: error: {e}", file=sys.stderr)
         return 2
+    except (PermissionError, FileNotFoundError, IsADirectoryError, NotADirectoryError) as e:
+        print(f"bayestouch {args.command}: error: {e.strerror or e}: {e.filename}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print(f"bayestouch {args.command}: interrupted", file=sys.stderr)
         return 130

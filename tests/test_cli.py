@@ -76,3 +76,12 @@ def test_console_script_runs_without_traceback(tmp_path):
     assert r.returncode == 2 and "Traceback" not in r.stderr
     r = subprocess.run([str(exe), "--help"], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0 and "reproduce-paper" in r.stdout and "experiment" in r.stdout
+
+
+def test_out_below_a_file_exits_2(tmp_path, capsys):
+    blocker = tmp_path / "blocker"
+    blocker.write_text("a file, not a folder")
+    assert main(["reproduce-paper", "--out", str(blocker / "sub"), "--paths", "1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "blocker" in err and "\n" not in err and "internal error" not in err
+    assert blocker.read_text() == "a file, not a folder"
