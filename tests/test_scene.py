@@ -110,3 +110,18 @@ def test_defects_displace_paths_along_normal():
         assert np.allclose(d, h[:, None] * b.normals, atol=1e-15)  # displacement along the normal
         assert np.allclose(h, plate.height(b.points))
     assert max(np.abs(plate.height(p.points)).max() for p in p_base) > 1e-5  # the paths do cross defects
+
+
+def test_public_api_resolves_lazily():
+    import subprocess
+    import sys
+
+    import bayestouch
+
+    code = "import sys, bayestouch; print('jax' in sys.modules)"
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.stdout.strip() == "False"  # importing the package does not load JAX
+    for name in bayestouch.__all__:
+        assert getattr(bayestouch, name) is not None
+    with pytest.raises(AttributeError):
+        bayestouch.no_such_thing  # noqa: B018

@@ -13,12 +13,15 @@ from pathlib import Path
 
 import numpy as np
 
-from bayestouch._jax import jnp
+from bayestouch._jax import jax, jnp
 from bayestouch.errors import BadInput
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.mesh import nellipsoid_mesh
+from bayestouch.scene.surface import Defects, Surface, Texture, ffd_displacement
+from bayestouch.scene.surface import height as _surface_height
 
-__all__ = ["Defect", "SceneObject", "load_object", "object_from_dict", "DEFECT_KINDS"]
+__all__ = ["Defect", "TextureSpec", "FFDSpec", "SceneObject", "build_surface", "load_object", "object_from_dict",
+           "DEFECT_KINDS"]
 
 DEFECT_KINDS = ("bump", "shallow", "crack")
 
@@ -61,6 +64,30 @@ class Defect:
 
 
 @dataclass(frozen=True)
+class TextureSpec:
+    """Texture of an object (see :class:`bayestouch.scene.surface.Texture`): metres and radians; the
+    roughness is a sum of ``modes`` cosines with random directions, wavelengths around ``wavelength``
+    and phases drawn from ``seed``."""
+
+    amplitude: float
+    wavelength: float
+    orientation: float = 0.0
+    roughness: float = 0.0
+    seed: int = 0
+    modes: int = 16
+
+
+@dataclass(frozen=True)
+class FFDSpec:
+    """An FFD lattice of the true surface: ``dims`` control points, box = principal extent × (1 + margin),
+    displacements (l, m, k, 3) metres in the principal frame."""
+
+    dims: tuple[int, int, int]
+    displacement: np.ndarray
+    margin: float = 0.15
+
+
+@dataclass(frozen=True)
 class SceneObject:
     """An object to touch: n-ellipsoid base plus defects.
 
@@ -80,27 +107,89 @@ class SceneObject:
     defects: tuple[Defect, ...] = field(default=())
     description: str = ""
     source: Path | None = None
+    texture: TextureSpec | None = None
+    ffd: FFDSpec | None = None
+
+    def surface(self) -> Surface:
+        """The true surface as a JAX pytree (for :func:`bayestouch.scene.surface.signed_distance`)."""
+        return build_surface(self)
 
     def height(self, y) -> np.ndarray:
-        """Total defect height (N,) in metres at base-surface points ``y (N, 3)``."""
-        y = np.asarray(y, float)
-        h = np.zeros(len(y))
-        for d in self.defects:
-            h += d.height(y)
-        return h
+        """Total height (N,) in metres (texture + defects) at base-surface points ``y (N, 3)`` (world)."""
+        y = np.asarray(y, float).reshape(-1, 3)
+        if not self.defects and self.texture is None:
+            return np.zeros(len(y))
+        surf = self.surface()
+        return _padded(_height_jit, surf, y)
 
     def displace(self, y) -> np.ndarray:
-        """Base-surface points (N, 3) in metres → points of the displaced (true) surface."""
-        y = np.asarray(y, float)
-        if not self.defects:
-            return y
-        nrm = ne.evaluate(ne.normals, self.shape, y)
-        return y + self.height(y)[:, None] * nrm
+        """Base-surface points (N, 3) in metres → points of the true surface (heights along the base
+        normal, then the FFD lattice)."""
+        y = np.asarray(y, float).reshape(-1, 3)
+        if self.defects or self.texture is not None:
+            nrm = ne.evaluate(ne.normals, self.shape, y)
+            y = y + self.height(y)[:, None] * nrm
+        if self.ffd is not None:
+            y = _padded(_ffd_world_jit, self.surface(), y)
+        return y
 
     def mesh(self, res: int = 64) -> tuple[np.ndarray, np.ndarray]:
         """Watertight mesh of the true surface: (vertices (V, 3) metres, faces (F, 3))."""
         v, f = nellipsoid_mesh(self.shape, res)
         return self.displace(v), f
+
+
+@jax.jit
+def _height_jit(surf: Surface, y):
+    return _surface_height(surf, ne.to_local(surf.shape, y))
+
+
+@jax.jit
+def _ffd_world_jit(surf: Surface, y):
+    loc = ne.to_local(surf.shape, y)
+    return ne.to_world(surf.shape, loc + ffd_displacement(surf, loc))
+
+
+def _padded(fn, surf: Surface, y: np.ndarray) -> np.ndarray:
+    """Call a jitted ``fn(surf, points)`` on points padded to a power of two (few compiled sizes)."""
+    m = len(y)
+    size = max(256, 1 << max(m - 1, 1).bit_length())
+    pad = np.tile(y[:1] if m else np.ones((1, 3)), (size, 1))
+    pad[:m] = y
+    return np.asarray(fn(surf, jnp.asarray(pad)))[:m]
+
+
+def build_surface(obj: SceneObject) -> Surface:
+    """:class:`Surface` pytree of a scene object."""
+    s = obj.shape
+    axes = np.asarray(s.axes)
+    if obj.ffd is not None:
+        half = axes * (1.0 + obj.ffd.margin)
+        disp = jnp.asarray(obj.ffd.displacement)
+    else:
+        half = axes * 1.15
+        disp = jnp.zeros((2, 2, 2, 3))
+    t = obj.texture
+    if t is None:
+        tex = Texture(jnp.array(0.0), jnp.array(1.0), jnp.array(0.0), jnp.array(0.0), jnp.zeros((0, 3)),
+                      jnp.zeros(0))
+    else:
+        rng = np.random.default_rng(t.seed)
+        k = rng.normal(size=(t.modes, 3))
+        k /= np.linalg.norm(k, axis=1, keepdims=True)
+        k *= (2 * np.pi / t.wavelength) * rng.uniform(0.5, 2.0, size=(t.modes, 1))
+        tex = Texture(jnp.array(t.amplitude), jnp.array(t.wavelength), jnp.array(t.orientation),
+                      jnp.array(t.roughness), jnp.asarray(k), jnp.asarray(rng.uniform(0, 2 * np.pi, t.modes)))
+    d = obj.defects
+    defects = Defects(
+        jnp.array([1.0 if x.kind == "bump" else -1.0 for x in d]).reshape(-1),
+        jnp.array([1.0 if x.kind == "crack" else 0.0 for x in d]).reshape(-1),
+        jnp.array([x.centre for x in d]).reshape(-1, 3),
+        jnp.array([x.end if x.end is not None else x.centre for x in d]).reshape(-1, 3),
+        jnp.array([x.radius for x in d]).reshape(-1),
+        jnp.array([x.depth for x in d]).reshape(-1),
+    )
+    return Surface(s, jnp.asarray(-half), jnp.asarray(half), disp, tex, defects)
 
 
 def _vec3(d: dict, key: str, where: str) -> tuple[float, float, float]:
@@ -144,8 +233,27 @@ def object_from_dict(doc: dict, where: str = "object", source: Path | None = Non
         end = _vec3(d, "end_m", w) if kind == "crack" else None
         defects.append(Defect(kind, _vec3(d, "centre_m", w), _num(d, "radius_m", w), _num(d, "depth_m", w), end))
     s = ne.NEllipsoid(jnp.array(centre), jnp.array(axes), jnp.array(angles), jnp.array(n))
+    texture = None
+    if "texture" in doc:
+        t, w = doc["texture"], f"{where} [texture]"
+        texture = TextureSpec(_num(t, "amplitude_m", w, positive=False, default=0.0), _num(t, "wavelength_m", w),
+                              _num(t, "orientation_rad", w, positive=False, default=0.0),
+                              _num(t, "roughness_m", w, positive=False, default=0.0),
+                              int(_num(t, "seed", w, positive=False, default=0)),
+                              int(_num(t, "modes", w, positive=False, default=16)))
+        if max(texture.amplitude, texture.roughness) > 0.2 * min(axes):
+            raise BadInput(f"{w}: amplitude_m/roughness_m must stay below a fifth of the smallest axis (metres)")
+    ffd = None
+    if "ffd" in doc:
+        f, w = doc["ffd"], f"{where} [ffd]"
+        dims = f.get("dims")
+        if not (isinstance(dims, list) and len(dims) == 3 and all(isinstance(x, int) and x >= 2 for x in dims)):
+            raise BadInput(f"{w}: 'dims' must be three integers ≥ 2 like [4, 4, 3], got {dims!r}")
+        amp = _num(f, "amplitude_m", w, positive=False, default=0.0)
+        rng = np.random.default_rng(int(_num(f, "seed", w, positive=False, default=0)))
+        ffd = FFDSpec(tuple(dims), amp * rng.standard_normal((*dims, 3)), _num(f, "margin", w, default=0.15))
     return SceneObject(str(meta.get("name", source.stem if source else "object")), s, tuple(defects),
-                       str(meta.get("description", "")), source)
+                       str(meta.get("description", "")), source, texture, ffd)
 
 
 def load_object(path) -> SceneObject:
