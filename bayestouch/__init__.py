@@ -17,6 +17,7 @@ _API = {
     "surface_integrals": "bayestouch.geometry.integrals",
     "fit_two_step": "bayestouch.geometry.ffd",
     "texture_indicator": "bayestouch.geometry.texture",
+    "compare_shapes": "bayestouch.geometry.compare",
     "SceneObject": "bayestouch.scene.objects",
     "load_object": "bayestouch.scene.objects",
     "random_paths": "bayestouch.scene.paths",

@@ -1,0 +1,252 @@
+"""Symmetry-aware shape comparison: canonical form, parameter distance, IoU, Chamfer, winding numbers."""
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+
+from bayestouch._jax import jnp
+from bayestouch.geometry import compare as cmp
+from bayestouch.geometry import mesh
+from bayestouch.geometry import nellipsoid as ne
+from bayestouch.geometry.integrals import surface_integrals
+from bayestouch.geometry.rotation import euler_from_matrix
+
+# one Monte-Carlo size and one mesh resolution throughout, so that JAX compiles each function once
+N_MC = 2**15
+RES = 12
+
+
+def make(axes, n, angles=(0.0, 0.0, 0.0), centre=(0.0, 0.0, 0.0)):
+    return ne.NEllipsoid(jnp.array(centre, float), jnp.array(axes, float), jnp.array(angles, float),
+                         jnp.array(float(n)))
+
+
+def F(s, pts):
+    """Inside–outside function, compiled once per power-of-two batch size."""
+    return ne.evaluate(ne.inside_outside, s, pts)
+
+
+def with_rotation(s, axes, R):
+    """The same centre and n, new semi-axes and rotation matrix (Euler angles via euler_from_matrix)."""
+    return ne.NEllipsoid(s.centre, jnp.asarray(axes, float), euler_from_matrix(jnp.asarray(R)), s.n)
+
+
+def aliases(s):
+    """Parameter sets of the same surface: axis permutations (det fixed by a column flip), pair flips,
+    and the Euler alias (ξ, ψ, ζ) → (−ξ, ψ + π, ζ + π)."""
+    R, a = np.asarray(s.rotation), np.asarray(s.axes)
+    out = []
+    for perm in itertools.permutations(range(3)):
+        Rp = R[:, list(perm)]
+        if np.linalg.det(Rp) < 0:
+            Rp = Rp * np.array([1.0, 1.0, -1.0])
+        for flip in ([1, 1, 1], [-1, -1, 1], [-1, 1, -1], [1, -1, -1]):
+            out.append(with_rotation(s, a[list(perm)], Rp * np.array(flip, float)))
+    xi, psi, zeta = np.asarray(s.angles)
+    out.append(s._replace(angles=jnp.array([-xi, psi + math.pi, zeta + math.pi])))
+    return out
+
+
+def sphere(r, centre=(0.0, 0.0, 0.0)):
+    # a tilted frame: the sphere's bounding box is then the rotated box's, a looser one
+    return make((r, r, r), 2.0, angles=(0.3, 0.2, 0.1), centre=centre)
+
+
+# ---------------------------------------------------------------------------------------- canonical form
+
+def test_canonicalize_is_rule_on_a_hand_example():
+    s = make((0.01, 0.02, 0.03), 3.0)  # R = I
+    c = cmp.canonicalize(s)
+    np.testing.assert_allclose(c.axes, [0.03, 0.02, 0.01])
+    # columns: ±e_z → +e_z, ±e_y → +e_y, third = e_z × e_y = −e_x
+    np.testing.assert_allclose(c.rotation, [[0, 0, -1], [0, 1, 0], [1, 0, 0]], atol=1e-15)
+
+
+def test_aliases_canonicalise_to_one_vector_and_one_surface(shape, rng):
+    pts = np.asarray(shape.centre) + 0.03 * rng.normal(size=(512, 3))
+    f0 = np.asarray(F(shape, pts))
+    al = aliases(shape)
+    raw = np.array([np.asarray(ne.to_vector(s)) for s in al])
+    assert np.ptp(raw, axis=0).max() > 1.0  # the aliases really do differ in their parameters
+    ref = np.asarray(ne.to_vector(cmp.canonicalize(shape)))
+    for s in al:
+        np.testing.assert_allclose(F(s, pts), f0, rtol=1e-9)  # the aliases are aliases
+        c = cmp.canonicalize(s)
+        np.testing.assert_allclose(np.asarray(ne.to_vector(c)), ref, atol=1e-9)
+        np.testing.assert_allclose(F(c, pts), f0, rtol=1e-9)
+    assert np.all(np.diff(ref[3:6]) <= 0)  # a ≥ b ≥ c
+
+
+def test_canonicalize_idempotent_proper_and_sign_rule(shape, rng):
+    for _ in range(20):
+        s = make(rng.uniform(0.01, 0.04, 3), rng.uniform(1.5, 5.0),
+                 angles=(rng.uniform(0, math.pi), rng.uniform(-3, 3), rng.uniform(-3, 3)))
+        c = cmp.canonicalize(s)
+        np.testing.assert_allclose(ne.to_vector(cmp.canonicalize(c)), ne.to_vector(c), atol=1e-9)
+        R = np.asarray(c.rotation)
+        assert np.linalg.det(R) == pytest.approx(1.0)
+        for j in (0, 1):
+            assert R[np.argmax(np.abs(R[:, j])), j] > 0
+        pts = rng.normal(size=(256, 3)) * 0.03
+        np.testing.assert_allclose(F(c, pts), F(s, pts), rtol=1e-9)
+
+
+def test_canonicalize_batch_matches_rows(shape, rng):
+    rows = [np.asarray(ne.to_vector(s)) for s in aliases(shape)]
+    for _ in range(10):
+        rows.append(np.concatenate([rng.normal(size=3) * 0.01, rng.uniform(0.01, 0.04, 3),
+                                    rng.uniform(-4, 4, 3), [rng.uniform(1.5, 5.0)]]))
+    V = np.array(rows)
+    out = cmp.canonicalize_batch(V)
+    assert isinstance(out, np.ndarray) and out.shape == V.shape
+    for v, o in zip(V, out, strict=True):
+        np.testing.assert_allclose(o, ne.to_vector(cmp.canonicalize(ne.from_vector(v))), atol=1e-12)
+    np.testing.assert_allclose(cmp.canonicalize_batch(V[:12].reshape(3, 4, 10)), out[:12].reshape(3, 4, 10))
+    np.testing.assert_allclose(out[:25], np.broadcast_to(out[0], (25, 10)), atol=1e-9)  # the aliases
+
+
+# ---------------------------------------------------------------------------------------- parameter distance
+
+def test_param_distance_of_aliases_is_zero(shape):
+    for s in aliases(shape):
+        d = cmp.param_distance(shape, s)
+        assert max(d.values()) < 1e-9, d
+
+
+def test_param_distance_components(shape):
+    d = cmp.param_distance(shape, shape._replace(centre=shape.centre + jnp.array([0.0, 1e-3, 0.0])))
+    assert d["centre"] == pytest.approx(1e-3, rel=1e-9)
+    assert d["axes"] < 1e-12 and d["rotation"] < 1e-7 and d["n"] == 0.0
+    # a world rotation by 0.1 rad about an arbitrary axis, given in an aliased parameterisation
+    k = np.array([1.0, -2.0, 0.5]) / np.linalg.norm([1.0, -2.0, 0.5])
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    Q = np.eye(3) + math.sin(0.1) * K + (1 - math.cos(0.1)) * K @ K
+    R = np.asarray(shape.rotation)
+    turned = with_rotation(shape, np.asarray(shape.axes)[[1, 0, 2]], Q @ R[:, [1, 0, 2]] * [1, 1, -1])
+    d = cmp.param_distance(shape, turned)
+    assert d["rotation"] == pytest.approx(0.1, rel=1e-9)
+    assert d["centre"] == 0.0 and d["axes"] < 1e-12
+    d = cmp.param_distance(shape, shape._replace(axes=shape.axes * 1.01, n=shape.n + 0.5))
+    assert d["axes"] == pytest.approx(0.01 / 1.01, rel=1e-9) and d["n"] == pytest.approx(0.5)
+
+
+def test_param_distance_equal_axes_permutation():
+    # square cross-section (a = b, n = 4): a quarter turn about the c axis is a symmetry
+    s = make((0.02, 0.02, 0.01), 4.0, angles=(0.4, 0.3, -0.2))
+    R = np.asarray(s.rotation)
+    quarter = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    t = with_rotation(s, s.axes, R @ quarter)
+    pts = np.random.default_rng(3).normal(size=(256, 3)) * 0.02
+    np.testing.assert_allclose(F(t, pts), F(s, pts), rtol=1e-9)
+    assert cmp.param_distance(s, t)["rotation"] < 1e-7
+    # with unequal axes the same turn is a real rotation of π/2
+    u = make((0.03, 0.02, 0.01), 4.0, angles=(0.4, 0.3, -0.2))
+    assert cmp.param_distance(u, with_rotation(u, u.axes, R @ quarter))["rotation"] == pytest.approx(math.pi / 2)
+
+
+# ---------------------------------------------------------------------------------------- IoU
+
+def test_iou_of_a_shape_with_itself_and_its_alias_is_one(shape):
+    assert cmp.iou(shape, shape, count=N_MC) == (1.0, 0.0)
+    assert cmp.iou(shape, aliases(shape)[7], count=N_MC) == (1.0, 0.0)
+
+
+def test_iou_concentric_and_offset_spheres():
+    # seed 0: the estimates must lie within 4 standard errors of the exact values
+    j, se = cmp.iou(sphere(0.02), sphere(0.03), count=4 * N_MC, seed=0)
+    assert 0 < se < 0.01
+    assert abs(j - (2 / 3) ** 3) < 4 * se
+    # two spheres of radius r a distance d apart: lens volume π (4r + d)(2r − d)² / 12
+    r, d = 0.02, 0.015
+    lens = math.pi * (4 * r + d) * (2 * r - d) ** 2 / 12
+    exact = lens / (2 * 4 / 3 * math.pi * r**3 - lens)
+    j, se = cmp.iou(sphere(r), sphere(r, centre=(d, 0.0, 0.0)), count=4 * N_MC, seed=0)
+    assert abs(j - exact) < 4 * se
+
+
+def test_iou_of_disjoint_shapes_is_zero(shape):
+    far = shape._replace(centre=shape.centre + jnp.array([0.07, 0.0, 0.0]))  # > 2 √(a² + b² + c²)
+    assert cmp.iou(shape, far, count=N_MC) == (0.0, 0.0)
+
+
+# ---------------------------------------------------------------------------------------- Chamfer
+
+def test_chamfer_identical_and_translated_points(rng):
+    p = rng.normal(size=(512, 3))
+    assert cmp.chamfer(p, p) == 0.0
+    assert cmp.chamfer(p, p[::-1]) == 0.0
+    # each point's translate is within |t|, so every nearest-neighbour distance is at most |t|
+    t = np.array([0.003, -0.004, 0.0])
+    assert 0 < cmp.chamfer(p, p + t) <= 0.005
+    # by hand: A = {0}, B = {1, 3} on a line: ½ (1 + (1 + 3) / 2) = 1.5
+    assert cmp.chamfer([[0.0, 0, 0]], [[1.0, 0, 0], [3.0, 0, 0]]) == pytest.approx(1.5)
+
+
+def test_chamfer_of_concentric_spheres():
+    r1, r2, n = 0.02, 0.03, 4000
+    gap = r2 - r1
+    ch = cmp.chamfer_shapes(sphere(r1), sphere(r2), count=n, seed=0)
+    # every inner point is at least `gap` from the outer sphere; sampling adds A / (2π n gap) per direction
+    excess = (4 * math.pi * (r1**2 + r2**2) / 2) / (2 * math.pi * n * gap)
+    assert gap - 1e-12 <= ch <= gap + 2 * excess
+    assert 2 * excess < 0.01 * gap
+
+
+# ---------------------------------------------------------------------------------------- winding numbers
+
+def test_mesh_inside_sphere_away_from_the_surface(rng):
+    r = 0.03
+    v, f = mesh.nellipsoid_mesh(sphere(r, centre=(0.01, 0.0, -0.02)), RES)
+    p = rng.uniform(-1.25 * r, 1.25 * r, size=(4000, 3))
+    rad = np.linalg.norm(p, axis=1)
+    p = p[np.abs(rad - r) > 0.02 * r] + [0.01, 0.0, -0.02]  # the inscribed mesh lies within 0.3 % of r
+    truth = np.linalg.norm(p - [0.01, 0.0, -0.02], axis=1) < r
+    assert 0.2 < truth.mean() < 0.8
+    np.testing.assert_array_equal(cmp.mesh_inside(v, f, p), truth)
+    np.testing.assert_array_equal(cmp.mesh_inside(v, f, p[:500], beta=None), truth[:500])
+    w = cmp.winding_number(v, f[:, ::-1], p)  # inward orientation: −1 inside
+    np.testing.assert_allclose(w, -truth.astype(float), atol=0.02)
+
+
+def test_fast_winding_number_matches_exact(shape, rng):
+    v, f = mesh.nellipsoid_mesh(shape, RES)
+    p = np.asarray(shape.centre) + rng.normal(size=(800, 3)) * 0.02
+    exact = cmp.winding_number(v, f, p, beta=None)
+    np.testing.assert_allclose(exact, np.round(exact), atol=1e-9)  # closed mesh: integers
+    np.testing.assert_allclose(cmp.winding_number(v, f, p), exact, atol=0.02)
+    np.testing.assert_allclose(cmp.winding_number(v, f, p, beta=4.0), exact, atol=2e-3)
+    # an open mesh (a hole of 200 triangles): fractional values, still matched
+    fo = f[:-200]
+    exact = cmp.winding_number(v, fo, p, beta=None)
+    assert np.abs(exact - np.round(exact)).max() > 0.1
+    np.testing.assert_allclose(cmp.winding_number(v, fo, p), exact, atol=0.02)
+
+
+def test_iou_of_inscribed_mesh_is_its_volume_fraction(shape):
+    # the mesh's vertices lie on the convex solid, so mesh ⊂ solid and IoU = V_mesh / V_solid
+    v, f = mesh.nellipsoid_mesh(shape, RES)
+    frac = surface_integrals(v, f).volume / float(ne.volume(shape))
+    j, se = cmp.iou_mesh(v, f, shape, count=N_MC, seed=0)
+    assert 1 - frac > 5 * se  # coarse enough for the deficit to be resolved
+    assert abs(j - frac) < 4 * se
+
+
+# ---------------------------------------------------------------------------------------- everything
+
+def test_compare_shapes(shape):
+    out = cmp.compare_shapes(shape, aliases(shape)[5], count=N_MC)
+    assert max(abs(out[k]) for k in ("eps_v", "eps_a", "eps_i")) < 1e-3
+    assert (out["iou"], out["iou_se"]) == (1.0, 0.0)
+    assert max(out["param_distance"].values()) < 1e-9
+    assert 0 < out["chamfer"] < 1e-3  # independent samples of one surface: about their spacing
+    big = shape._replace(axes=shape.axes * 1.01)
+    out = cmp.compare_shapes(big, shape, count=N_MC)
+    assert out["eps_v"] == pytest.approx(1.01**3 - 1, rel=1e-3)
+    assert out["eps_a"] == pytest.approx(1.01**2 - 1, rel=1e-3)
+    assert out["iou"] == pytest.approx(1 / 1.01**3, abs=4 * out["iou_se"])
+    v, f = mesh.nellipsoid_mesh(shape, RES)
+    out = cmp.compare_shapes((v, f), shape, count=N_MC)
+    assert "param_distance" not in out
+    assert out["eps_v"] < 0 and out["iou"] < 1
