@@ -146,12 +146,13 @@ def _signed_mesh_distance(vertices, faces, points) -> np.ndarray:
     return d * np.where(sign == 0, 1.0, sign)
 
 
-def refine_ffd(shape: ne.NEllipsoid, data, dims, *, res: int = 40, margin: float = 0.15,
+def refine_ffd(shape: ne.NEllipsoid, data, dims, *, res: int = 40, margin: float = 0.15, ridge: float = 1e-4,
                max_iter: int = 200, tol: float = 1e-3):
     """FFD refinement of a fitted n-ellipsoid (eq. 8–10), in its principal frame.
 
     The lattice box is aligned with the n-ellipsoid's principal axes and covers it and the data with a
-    relative ``margin``; ``dims`` = (l, m, k) control points along its a, b, c axes.
+    relative ``margin``; ``dims`` = (l, m, k) control points along its a, b, c axes. ``ridge``, ``max_iter``
+    and ``tol`` go to :func:`~bayestouch.geometry.ffd.fit_two_step` (the ridge is the prior on δP).
 
     Returns
     -------
@@ -164,7 +165,7 @@ def refine_ffd(shape: ne.NEllipsoid, data, dims, *, res: int = 40, margin: float
     v_loc = np.asarray(ne.to_local(shape, jnp.asarray(v_world)))
     d_loc = np.asarray(ne.to_local(shape, jnp.asarray(data)))
     half = np.maximum(np.abs(v_loc).max(axis=0), np.abs(d_loc).max(axis=0)) * (1.0 + margin)
-    fit = fit_two_step(v_loc, faces, d_loc, -half, half, dims, max_iter=max_iter, tol=tol)
+    fit = fit_two_step(v_loc, faces, d_loc, -half, half, dims, max_iter=max_iter, tol=tol, ridge=ridge)
     return fit, np.asarray(ne.to_world(shape, jnp.asarray(fit.vertices))), faces
 
 

@@ -58,9 +58,10 @@ def test_table2_row_defect_free_plate_is_near_exact():
     assert row["bp_minus_x_percent"] < 0.05
     assert abs(row["eps_v"]) < 0.01 and abs(row["eps_a"]) < 0.01
     assert row["paper_bp_minus_x_percent"] == 0.05
-    # with the defects back, the residual is much larger: the lattice cannot follow 1.2 mm cracks
-    data_d = plate_data(plate, 6, seed=0, rate=10.0)
-    row_d = table2_row(plate, data_d, truth, "6x6x3", 0.0, seed=0, res=24)
+    # with deep defects, the residual is much larger: the lattice cannot follow 1.2 mm wide cracks
+    deep = load_object(ROOT / "models" / "objects" / "graphite_plate_deep.toml")
+    data_d = plate_data(deep, 6, seed=0, rate=10.0)
+    row_d = table2_row(deep, data_d, truth, "6x6x3", 0.0, seed=0, res=24)
     assert row_d["bp_minus_x_percent"] > 3 * row["bp_minus_x_percent"]
     assert 0.0 < row_d["j_ratio"] < 1.0  # refinement explains part of the misfit
 
