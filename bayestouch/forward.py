@@ -1,0 +1,192 @@
+"""The forward model: object surface + stroke + finger → taxel currents (physics.md §6).
+
+Chain, per frame (pure JAX; ``jit``-able, ``vmap``-able over surfaces, differentiable in the surface):
+
+1. pad geometry: the fingertip is a sphere of radius ``tip_radius`` (rod radius + skin). At each stroke
+   sample its lowest point is pressed ``depth`` below the contact point along −normal; the taxels sit on
+   that sphere at geodesic pad coordinates (u, v), u along the direction of motion;
+2. contact (eq. 14–15): penetration δ_j = s·softplus(−φ(x_j)/s) from the object's signed distance φ;
+3. skin: pressure map p = blur(σ_foam(δ/h)) (physics.md §3), force Σ p·pitch² with Hunt–Crossley damping;
+4. taxels: p and the skin temperature → current (physics or empirical mode), unloaded reference rows
+   see no pressure; first-order response lag;
+5. noise (shot, amplifier, 1/f, drift, fixed pattern, outliers, ADC), seeded by a JAX key.
+
+The finger's orientation follows the surface normal, as the wires are driven to keep the pad flat on the
+surface (the hold currents and the resulting wire and skin temperatures come from
+:func:`bayestouch.finger.drive`), and the stroke's pressing depth is imposed (position control).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from bayestouch._jax import jax, jnp
+from bayestouch.physics import noise as nz
+from bayestouch.physics import skin as sk
+from bayestouch.physics import taxel as tx
+from bayestouch.scene.surface import Surface, signed_distance
+
+__all__ = ["Finger", "Frames", "pad_points", "contact_frame", "simulate", "clean_currents", "make_finger"]
+
+
+class Finger(NamedTuple):
+    """Everything about the finger the forward model needs (a pytree).
+
+    skin : SkinParams
+    taxels : TaxelParams
+    noise : NoiseParams
+    grid : (H, W, 2) float, metres
+        Pad coordinates (u, v) of the taxels; u along the stroke direction.
+    reference : (H, W) bool
+        Unloaded reference taxels (drift compensation).
+    gains : (H·W,) float
+        Fixed-pattern gains of this device.
+    tip_radius : float, metres
+        Radius of the fingertip's outer (skin) surface.
+    """
+
+    skin: sk.SkinParams
+    taxels: tx.TaxelParams
+    noise: nz.NoiseParams
+    grid: jnp.ndarray
+    reference: jnp.ndarray
+    gains: jnp.ndarray
+    tip_radius: jnp.ndarray
+
+
+class Frames(NamedTuple):
+    """Output of :func:`simulate` (T frames, N = H·W taxels).
+
+    taxel_current : (T, N) float, amperes
+        Measured (lagged, noisy, quantised) currents.
+    clean_current : (T, N) float, amperes
+        Lagged currents without noise.
+    pressure : (T, H, W) float, pascals
+    penetration : (T, H, W) float, metres
+    force : (T,) float, newtons
+        Normal contact force (elastic + Hunt–Crossley damping).
+    taxel_position : (T, N, 3) float, metres
+    """
+
+    taxel_current: jnp.ndarray
+    clean_current: jnp.ndarray
+    pressure: jnp.ndarray
+    penetration: jnp.ndarray
+    force: jnp.ndarray
+    taxel_position: jnp.ndarray
+
+
+def make_finger(skin: sk.SkinParams, taxels: tx.TaxelParams, noise: nz.NoiseParams, *, tip_radius: float,
+                seed: int = 0) -> Finger:
+    """Assemble a :class:`Finger` (NumPy edge): taxel grid from ``taxels``, fixed pattern from ``seed``.
+
+    Parameters
+    ----------
+    tip_radius : float, metres
+    seed : int
+        Draws this device's fixed-pattern gains.
+    """
+    lay = tx.layout(taxels)
+    grid = lay.positions.reshape(lay.rows, lay.cols, 2)
+    ref = lay.reference.reshape(lay.rows, lay.cols)
+    gains = nz.fixed_pattern(jax.random.PRNGKey(seed), noise, lay.rows * lay.cols)
+    return Finger(skin, taxels, noise, jnp.asarray(grid), jnp.asarray(ref), jnp.asarray(gains),
+                  jnp.asarray(float(tip_radius)))
+
+
+def pad_points(finger: Finger, contact, normal, tangent, depth):
+    """Taxel positions (H, W, 3) in metres for one frame.
+
+    Parameters
+    ----------
+    contact : (3,) float, metres
+        Where the pad centre touches the (undeformed) surface.
+    normal : (3,) float
+        Outward unit surface normal there.
+    tangent : (3,) float
+        Direction of motion.
+    depth : float, metres
+        Pressing depth of the pad centre.
+    """
+    n = normal / jnp.linalg.norm(normal)
+    t = tangent - jnp.dot(tangent, n) * n
+    e1 = t / jnp.sqrt(jnp.sum(t * t) + 1e-30)
+    e2 = jnp.cross(n, e1)
+    R = finger.tip_radius
+    centre = contact + (R - depth) * n
+    u, v = finger.grid[..., 0], finger.grid[..., 1]
+    rho = jnp.sqrt(u * u + v * v + 1e-30)
+    th = rho / R
+    side = (u[..., None] * e1 + v[..., None] * e2) / rho[..., None]
+    return centre + R * (-jnp.cos(th)[..., None] * n + jnp.sin(th)[..., None] * side)
+
+
+def contact_frame(surf: Surface, finger: Finger, contact, normal, tangent, depth):
+    """One frame of contact: (taxel positions (H, W, 3) m, penetration (H, W) m, pressure (H, W) Pa)."""
+    x = pad_points(finger, contact, normal, tangent, depth)
+    delta = sk.penetration(signed_distance(surf, x), finger.skin.s)
+    p = sk.pressure_map(finger.skin, delta, finger.taxels.pitch)
+    return x, delta, p
+
+
+def clean_currents(surf: Surface, finger: Finger, stroke_arrays, skin_temperature, dt: float, mode: str):
+    """Noise-free part of :func:`simulate`: (lagged currents (T, N) A, pressure, penetration, force, x)."""
+    contact, normal, tangent, depth = stroke_arrays
+    x, delta, p = jax.vmap(lambda c, n, t: contact_frame(surf, finger, c, n, t, depth))(contact, normal, tangent)
+    p = jnp.where(finger.reference, 0.0, p)
+    f_el = sk.total_force(p, finger.taxels.pitch)
+    d_centre = jnp.max(delta, axis=(-2, -1))
+    d_dot = jnp.gradient(d_centre, dt) if d_centre.shape[0] > 1 else jnp.zeros_like(d_centre)
+    force = sk.damped_contact_force(f_el, finger.skin.hc_damping, d_dot)
+    nT = p.shape[0]
+    temp = jnp.broadcast_to(jnp.asarray(skin_temperature), (nT,))[:, None]
+    cur = tx.taxel_current(finger.taxels, p.reshape(nT, -1), temp, mode=mode)
+    cur = tx.first_order_lag(cur, dt, finger.taxels.lag)
+    return cur, p, delta, force, x.reshape(nT, -1, 3)
+
+
+def simulate(surf: Surface, stroke_arrays, finger: Finger, key, *, skin_temperature=300.0, dt: float = 0.02,
+             mode: str = "physics", noise: bool = True) -> Frames:
+    """The whole chain for one stroke.
+
+    Parameters
+    ----------
+    surf : Surface
+        The object (shape, FFD, texture, defects): what inference is about.
+    stroke_arrays : tuple (contact (T, 3) m, normal (T, 3), tangent (T, 3), depth m)
+        From a :class:`~bayestouch.scene.strokes.Stroke` (see :func:`stroke_arrays`).
+    finger : Finger
+    key : JAX PRNG key
+        Noise draws.
+    skin_temperature : float or (T,) float, kelvin
+    dt : float, seconds
+        Frame interval.
+    mode : {"physics", "empirical"}
+        Taxel response (static).
+    noise : bool
+        Add the noise model (static).
+
+    Returns
+    -------
+    Frames
+    """
+    cur, p, delta, force, x = clean_currents(surf, finger, stroke_arrays, skin_temperature, dt, mode)
+    meas = nz.add_noise(key, finger.noise, cur, dt, finger.gains) if noise else cur
+    return Frames(meas, cur, p, delta, force, x)
+
+
+def stroke_arrays(stroke) -> tuple:
+    """JAX arrays of a :class:`~bayestouch.scene.strokes.Stroke` for :func:`simulate`."""
+    return (jnp.asarray(stroke.contact), jnp.asarray(stroke.normal), jnp.asarray(stroke.tangent),
+            jnp.asarray(float(stroke.depth)))
+
+
+simulate_jit = jax.jit(simulate, static_argnames=("mode", "noise", "dt"))
+
+
+def frame_rate_dt(stroke) -> float:
+    """Frame interval (s) of a stroke's samples."""
+    t = np.asarray(stroke.time)
+    return float(np.median(np.diff(t))) if len(t) > 1 else 0.02

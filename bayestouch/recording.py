@@ -1,0 +1,91 @@
+"""Recordings: simulated (or measured) strokes as netCDF files via xarray, with units on every variable.
+
+Layout: dimension ``frame`` (all strokes one after another), ``taxel``, ``wire``, ``xyz``, ``stroke``.
+Variables (SI units in the ``units`` attribute): ``time`` s, ``stroke_index``, ``taxel_current`` A
+(measured), ``taxel_current_clean`` A (noise-free, simulations only), ``pressure`` Pa, ``contact_force`` N,
+``contact_point`` m, ``contact_normal`` 1, ``wire_current`` A, ``wire_temperature`` K,
+``skin_temperature`` K, ``finger_tip_position`` m (finger-base frame), ``finger_curvature`` 1/m,
+``taxel_u``/``taxel_v`` m (pad coordinates), ``taxel_reference`` (1 = unloaded reference taxel),
+``stroke_depth`` m.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["UNITS", "build_dataset", "write_recording", "read_recording"]
+
+UNITS = {
+    "time": "s", "stroke_index": "1", "taxel_current": "A", "taxel_current_clean": "A", "pressure": "Pa",
+    "contact_force": "N", "contact_point": "m", "contact_normal": "1", "wire_current": "A",
+    "wire_temperature": "K", "skin_temperature": "K", "finger_tip_position": "m", "finger_curvature": "1/m",
+    "taxel_u": "m", "taxel_v": "m", "taxel_reference": "1", "stroke_depth": "m",
+}
+
+DESCRIPTIONS = {
+    "taxel_current": "measured taxel current (lagged, noisy, quantised)",
+    "taxel_current_clean": "taxel current before noise (simulation only)",
+    "pressure": "contact pressure at each taxel",
+    "contact_force": "normal contact force of the pad",
+    "contact_point": "commanded contact point of the pad centre on the surface",
+    "contact_normal": "outward surface normal at the contact point",
+    "wire_current": "current in each NiTi wire",
+    "wire_temperature": "temperature of each NiTi wire",
+    "skin_temperature": "temperature of the skin at the taxels",
+    "finger_tip_position": "fingertip position in the finger-base frame (constant-curvature model)",
+    "finger_curvature": "rod curvature vector (u_x, u_y)",
+    "taxel_reference": "1 for unloaded reference taxels used for drift compensation",
+    "stroke_depth": "pressing depth of each stroke",
+}
+
+
+def build_dataset(frames: dict[str, np.ndarray], taxel_u, taxel_v, reference, depths, attrs: dict):
+    """An ``xarray.Dataset`` from per-frame arrays (keys of :data:`UNITS`, first axis = frame)."""
+    import xarray as xr
+
+    dims = {
+        "time": ("frame",), "stroke_index": ("frame",), "taxel_current": ("frame", "taxel"),
+        "taxel_current_clean": ("frame", "taxel"), "pressure": ("frame", "taxel"), "contact_force": ("frame",),
+        "contact_point": ("frame", "xyz"), "contact_normal": ("frame", "xyz"), "wire_current": ("frame", "wire"),
+        "wire_temperature": ("frame", "wire"), "skin_temperature": ("frame",),
+        "finger_tip_position": ("frame", "xyz"), "finger_curvature": ("frame", "uv"),
+    }
+    data = {}
+    for k, v in frames.items():
+        data[k] = xr.Variable(dims[k], np.asarray(v), {"units": UNITS[k], "long_name": DESCRIPTIONS.get(k, k)})
+    data["taxel_u"] = xr.Variable(("taxel",), np.asarray(taxel_u), {"units": "m"})
+    data["taxel_v"] = xr.Variable(("taxel",), np.asarray(taxel_v), {"units": "m"})
+    data["taxel_reference"] = xr.Variable(("taxel",), np.asarray(reference, dtype=np.int8),
+                                          {"units": "1", "long_name": DESCRIPTIONS["taxel_reference"]})
+    data["stroke_depth"] = xr.Variable(("stroke",), np.asarray(depths, float),
+                                       {"units": "m", "long_name": DESCRIPTIONS["stroke_depth"]})
+    coords = {"xyz": ["x", "y", "z"], "wire": [1, 2, 3], "uv": ["u_x", "u_y"]}
+    return xr.Dataset(data, coords=coords, attrs={k: str(v) for k, v in attrs.items()})
+
+
+def write_recording(ds, path) -> Path:
+    """Write a dataset as netCDF (h5netcdf engine) atomically: an existing file is replaced only when the
+    new one is complete."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
+    try:
+        ds.to_netcdf(tmp, engine="h5netcdf")
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return path
+
+
+def read_recording(path):
+    """Open a recording (``xarray.Dataset``, loaded into memory)."""
+    import xarray as xr
+
+    with xr.open_dataset(path, engine="h5netcdf") as ds:
+        return ds.load()

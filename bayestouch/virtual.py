@@ -1,0 +1,82 @@
+"""The virtual experiment: strokes of the simulated finger over an object, recorded (NumPy edge).
+
+Loads the finger's parameter files, draws strokes, drives the wires, runs the forward model for every
+stroke and returns the per-frame arrays of :mod:`bayestouch.recording`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from bayestouch._jax import jax
+from bayestouch.errors import BadInput
+from bayestouch.params import MODELS
+
+__all__ = ["VirtualFinger", "load_finger", "record_strokes"]
+
+
+class VirtualFinger(NamedTuple):
+    """The simulated finger: forward-model pytree, wire and rod parameters, default taxel mode."""
+
+    finger: object
+    wire: object
+    rod: object
+    mode: str
+
+
+def load_finger(models: Path = MODELS, seed: int = 0) -> VirtualFinger:
+    """Read ``finger.toml``, ``skin.toml``, ``taxels.toml``, ``noise.toml`` from ``models``; ``seed`` draws the
+    device's fixed pattern."""
+    from bayestouch.forward import make_finger
+    from bayestouch.physics import bending, noise, skin, sma, taxel
+
+    rod = bending.load_rod(models / "finger.toml")
+    wire = sma.load_wire(models / "finger.toml")
+    sk = skin.load_skin(models / "skin.toml")
+    fg = make_finger(sk, taxel.load_taxels(models / "taxels.toml"), noise.load_noise(models / "noise.toml"),
+                     tip_radius=float(rod.radius) + float(sk.h), seed=seed)
+    return VirtualFinger(fg, wire, rod, taxel.load_taxel_mode(models / "taxels.toml"))
+
+
+def record_strokes(obj, strokes, vf: VirtualFinger, seed: int, *, hold_currents=(0.15, 0.05, 0.05),
+                   mode: str | None = None, progress: bool = False) -> dict[str, np.ndarray]:
+    """Simulate ``strokes`` over ``obj`` and collect the recording arrays (frames of all strokes in order)."""
+    from tqdm.auto import tqdm
+
+    from bayestouch import forward as fw
+    from bayestouch.finger import drive
+
+    mode = mode or vf.mode
+    if mode not in ("physics", "empirical"):
+        raise BadInput(f"--mode must be physics or empirical, got {mode!r}")
+    surf = obj.surface()
+    keys = jax.random.split(jax.random.PRNGKey(seed), len(strokes))
+    cols: dict[str, list] = {k: [] for k in (
+        "time", "stroke_index", "taxel_current", "taxel_current_clean", "pressure", "contact_force",
+        "contact_point", "contact_normal", "wire_current", "wire_temperature", "skin_temperature",
+        "finger_tip_position", "finger_curvature")}
+    t0 = 0.0
+    for i, st in enumerate(tqdm(strokes, desc="strokes", unit="stroke", disable=not progress)):
+        dt = fw.frame_rate_dt(st)
+        dr = drive(vf.wire, vf.rod, hold_currents, len(st.time), dt)
+        fr = fw.simulate_jit(surf, fw.stroke_arrays(st), vf.finger, keys[i], skin_temperature=dr.skin_temperature,
+                             dt=dt, mode=mode)
+        n = len(st.time)
+        cols["time"].append(t0 + st.time)
+        t0 += float(st.time[-1]) + dt
+        cols["stroke_index"].append(np.full(n, i))
+        cols["taxel_current"].append(np.asarray(fr.taxel_current))
+        cols["taxel_current_clean"].append(np.asarray(fr.clean_current))
+        cols["pressure"].append(np.asarray(fr.pressure).reshape(n, -1))
+        cols["contact_force"].append(np.asarray(fr.force))
+        cols["contact_point"].append(st.contact)
+        cols["contact_normal"].append(st.normal)
+        cols["wire_current"].append(dr.wire_current)
+        cols["wire_temperature"].append(dr.wire_temperature)
+        cols["skin_temperature"].append(dr.skin_temperature)
+        cols["finger_tip_position"].append(dr.tip_position)
+        cols["finger_curvature"].append(dr.curvature)
+    return {k: np.concatenate(v) for k, v in cols.items()}
