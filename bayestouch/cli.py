@@ -140,7 +140,15 @@ def _cmd_reproduce_paper(args) -> int:
 
     fig = plot_table2(rows, out)
     print(md)
-    print(f"wrote {out / 'table2.csv'}, {out / 'table2.md'} and {fig} in {time.perf_counter() - t0:.1f} s")
+    from bayestouch.paper import reproduce_table1
+    from bayestouch.report_tables import write_table1
+    from bayestouch.virtual import load_finger
+
+    rows1 = reproduce_table1(obj, load_finger(seed=args.seed), seed=args.seed, n_paths=max(args.paths, 21),
+                             rate=args.rate, progress=not args.quiet)
+    print(write_table1(rows1, out))
+    print(f"wrote table2.csv, table2.md, {fig.name}, table1.csv and table1.md in {out} "
+          f"in {time.perf_counter() - t0:.1f} s")
     return 0
 
 

@@ -33,6 +33,9 @@ __all__ = [
     "table2_row",
     "reproduce_table2",
     "plate_data",
+    "PAPER_TABLE1",
+    "depth_for_load",
+    "reproduce_table1",
 ]
 
 #: Table 2 of the paper: (epsilon, size) → iterations, ‖BP−X‖ %, J_fin/J0 ×1e-7, ε_V ×1e-7, ε_A ×1e-6,
@@ -265,4 +268,91 @@ def reproduce_table2(obj: SceneObject, *, sizes=TABLE2_SIZES, epsilons=(0.0, 1e-
     for row, ctl in zip(rows, results.get("defect_free_", []), strict=False):
         row["defect_free_bp_minus_x_percent"] = ctl["bp_minus_x_percent"]
         row["defect_free_eps_v"] = ctl["eps_v"]
+    return rows
+
+
+#: Table 1 of the paper: path → ((load N, a mm, b mm, n), ...) for the four touch forces.
+PAPER_TABLE1 = {
+    3: ((0.04, 5.5, 4.3, 2.0), (0.06, 4.4, 5.9, 2.1), (0.07, 5.4, 6.9, 2.4), (0.09, 6.7, 7.6, 2.6)),
+    4: ((0.04, 5.7, 4.6, 2.2), (0.06, 4.9, 6.1, 2.4), (0.07, 5.6, 7.2, 2.8), (0.09, 6.8, 7.7, 3.2)),
+    6: ((0.04, 5.9, 5.3, 2.3), (0.06, 6.4, 6.2, 2.7), (0.07, 7.4, 7.1, 2.7), (0.09, 8.1, 8.2, 3.3)),
+    7: ((0.04, 5.8, 4.7, 2.1), (0.06, 4.9, 6.3, 2.0), (0.07, 5.6, 7.1, 2.7), (0.09, 6.9, 7.8, 3.3)),
+    14: ((0.04, 6.5, 6.7, 2.5), (0.06, 7.4, 7.8, 3.4), (0.07, 7.8, 7.9, 3.2), (0.09, 8.7, 8.6, 3.3)),
+    15: ((0.04, 6.4, 6.5, 2.5), (0.06, 7.3, 7.6, 3.3), (0.07, 7.8, 7.9, 3.2), (0.09, 8.5, 8.5, 3.3)),
+    20: ((0.04, 6.5, 6.9, 3.5), (0.06, 7.9, 7.7, 3.6), (0.07, 7.9, 8.3, 3.6), (0.09, 8.8, 8.8, 3.3)),
+    21: ((0.04, 6.7, 7.6, 3.4), (0.06, 8.2, 8.5, 3.5), (0.07, 8.4, 8.4, 3.6), (0.09, 8.9, 8.9, 3.5)),
+}
+
+
+def depth_for_load(surf, finger, contact, normal, tangent, load: float, *, max_depth: float = 1.5e-3,
+                   iters: int = 40) -> float:
+    """Pressing depth (m) at which the pad's normal force equals ``load`` (N), by bisection."""
+    from bayestouch.forward import contact_frame
+    from bayestouch.physics.skin import total_force
+
+    @jax.jit
+    def force(d):
+        _, _, p = contact_frame(surf, finger, contact, normal, tangent, d)
+        return total_force(jnp.where(finger.reference, 0.0, p), finger.taxels.pitch)
+
+    lo, hi = 0.0, max_depth
+    if float(force(hi)) < load:
+        raise ValueError(f"load {load} N not reached at {max_depth * 1e3:.1f} mm depth")
+    for _ in range(iters):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if float(force(mid)) < load else (lo, mid)
+    return 0.5 * (lo + hi)
+
+
+def reproduce_table1(obj: SceneObject, vf, *, seed: int = 0, n_paths: int = 25, rate: float = 20.0,
+                     paths=tuple(PAPER_TABLE1), loads=(0.04, 0.06, 0.07, 0.09), threshold: float = 100.0,
+                     progress: bool = False) -> list[dict]:
+    """Table 1: the contact patch (eq. 16) of the virtual finger on the paper's paths and loads.
+
+    The paths are those of :func:`plate_data` (same seed, numbered from 1); on each, the pad touches at
+    the sample with the deepest defect (the midpoint when the path crosses none), is pressed until the
+    normal force equals each load, and the superellipse is fitted to the taxels whose pressure exceeds
+    ``threshold`` (Pa; 100 Pa changes an empirical-mode taxel's ln I by 0.005, about 25 times its noise),
+    i.e. the patch as the taxel array sees it.
+
+    Returns
+    -------
+    list of dict
+        ``path, load_N, a_mm, b_mm, n`` (the contract's columns), then ``area_mm2``, ``depth_mm``,
+        ``angle_rad``, ``peak_pressure_Pa`` and the paper's ``paper_a_mm, paper_b_mm, paper_n``.
+    """
+    from tqdm.auto import tqdm
+
+    from bayestouch.forward import contact_frame
+    from bayestouch.physics.patch import fit_patch
+
+    finger = vf.finger
+    surf = obj.surface()
+    all_paths = random_paths(obj, n_paths, seed=seed, rate=rate, arc=np.pi)
+    grid = np.asarray(finger.grid)
+    xs, ys = grid[0, :, 0], grid[:, 0, 1]
+    rows = []
+    bar = tqdm(total=len(paths) * len(loads), desc="Table 1", unit="patch", disable=not progress)
+    for k in paths:
+        path = all_paths[k - 1]
+        h = np.abs(obj.height(path.points)) if obj.defects or obj.texture is not None else np.zeros(len(path.time))
+        i = int(np.argmax(h)) if h.max() > 0 else len(path.time) // 2
+        tang = path.points[min(i + 1, len(path.time) - 1)] - path.points[max(i - 1, 0)]
+        c, n, t = jnp.asarray(path.points[i]), jnp.asarray(path.normals[i]), jnp.asarray(tang)
+        paper = {row[0]: row[1:] for row in PAPER_TABLE1.get(k, ())}
+        for load in loads:
+            d = depth_for_load(surf, finger, c, n, t, load)
+            _, _, p = contact_frame(surf, finger, c, n, t, d)
+            p = np.asarray(jnp.where(finger.reference, 0.0, p))
+            patch = fit_patch(p, xs, ys, threshold)
+            pa = paper.get(load)
+            rows.append({
+                "path": k, "load_N": load, "a_mm": 1e3 * patch.a, "b_mm": 1e3 * patch.b, "n": patch.n,
+                "area_mm2": 1e6 * patch.area, "depth_mm": 1e3 * d, "angle_rad": patch.angle,
+                "peak_pressure_Pa": float(p.max()),
+                "paper_a_mm": pa[0] if pa else None, "paper_b_mm": pa[1] if pa else None,
+                "paper_n": pa[2] if pa else None,
+            })
+            bar.update()
+    bar.close()
     return rows

@@ -68,6 +68,12 @@ def test_reproduce_paper_small_run_writes_contract_files(tmp_path, capsys):
     md = (out / "table2.md").read_text()
     assert "| 0.001 | 6x6x3 |" in md and "[3]" in md  # the paper's 3 % beside ours
     assert (out / "table2.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    with open(out / "table1.csv", newline="") as fh:
+        t1 = list(csv.DictReader(fh))
+    assert list(t1[0])[:5] == ["path", "load_N", "a_mm", "b_mm", "n"] and len(t1) == 32
+    for path in {r["path"] for r in t1}:
+        areas = [float(r["area_mm2"]) for r in t1 if r["path"] == path]
+        assert areas == sorted(areas)  # the patch grows with the load on every path
 
 
 def test_console_script_runs_without_traceback(tmp_path):

@@ -85,3 +85,25 @@ def test_sphere_object_is_recovered_by_pipeline():
     assert fit.rms < 1e-5
     r = float(np.asarray(sphere.shape.axes)[0])
     assert float(ne.volume(fit.shape)) == pytest.approx(4 / 3 * np.pi * r**3, rel=0.02)
+
+
+def test_table1_patch_grows_with_load():
+    from bayestouch.forward import contact_frame
+    from bayestouch.paper import depth_for_load, reproduce_table1
+    from bayestouch.physics.skin import total_force
+    from bayestouch.virtual import load_finger
+
+    plate = load_object(ROOT / "models" / "objects" / "graphite_plate.toml")
+    vf = load_finger()
+    rows = reproduce_table1(plate, vf, paths=(3, 14), loads=(0.04, 0.09))
+    assert [(r["path"], r["load_N"]) for r in rows] == [(3, 0.04), (3, 0.09), (14, 0.04), (14, 0.09)]
+    for lo, hi in ((rows[0], rows[1]), (rows[2], rows[3])):
+        assert hi["area_mm2"] > lo["area_mm2"] and hi["depth_mm"] > lo["depth_mm"]
+        assert hi["a_mm"] >= lo["a_mm"] and hi["b_mm"] >= lo["b_mm"]
+    assert rows[0]["paper_a_mm"] == 5.5 and 1.5 < rows[0]["n"] < 3.0
+    # the depth found by bisection gives the requested force
+    f = vf.finger
+    c, n, t = jnp.array([0.0, 0.0, 0.005]), jnp.array([0.0, 0.0, 1.0]), jnp.array([1.0, 0.0, 0.0])
+    d = depth_for_load(replace(plate, defects=()).surface(), f, c, n, t, 0.07)
+    _, _, p = contact_frame(replace(plate, defects=()).surface(), f, c, n, t, d)
+    assert float(total_force(jnp.where(f.reference, 0.0, p), f.taxels.pitch)) == pytest.approx(0.07, rel=1e-6)
