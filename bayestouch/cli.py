@@ -102,8 +102,9 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--quiet", action="store_true", help="no progress bar")
 
     dp = sub.add_parser("demo", help="run the main job on the built-in default (what exists so far)",
-                        description="End-to-end run of what this version provides: the paper pipeline on the "
-                        "damaged graphite plate at a reduced size, written to --out.")
+                        description="End-to-end run of what this version provides: simulated strokes of the "
+                        "virtual finger over the egg, and the paper pipeline on the damaged graphite plate at a "
+                        "reduced size, written to --out.")
     dp.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder (default out/demo)")
     dp.add_argument("--seed", type=int, default=0)
     return p
@@ -156,8 +157,14 @@ def _cmd_demo(args) -> int:
     ns = argparse.Namespace(out=args.out, seed=args.seed, object=DEFAULT_OBJECTS / "graphite_plate.toml",
                             paths=25, rate=10.0, sizes=["6x6x3", "6x5x5"], epsilons=[0.0, 1e-3], res=32,
                             quiet=False)
-    print("bayestouch demo: the paper pipeline on the damaged graphite plate (reduced size).")
-    print("The virtual-finger exploration of the full demo arrives with the physics, inference and planning work.")
+    print("bayestouch demo: 1) the virtual finger strokes the egg (recording), 2) the paper pipeline on the "
+          "damaged graphite plate (reduced size).")
+    sim = argparse.Namespace(object=DEFAULT_OBJECTS / "egg.toml", strokes=3, seed=args.seed,
+                             out=args.out / "egg_strokes.nc", duration=2.0, rate=50.0, depth=3e-4, mode=None,
+                             currents="0.15,0.05,0.05", models=DEFAULT_OBJECTS.parent, quiet=False)
+    _check_out(args.out)
+    _cmd_simulate(sim)
+    print("The Bayesian fit and the exploration loop of the full demo arrive with the inference and planning work.")
     return _cmd_reproduce_paper(ns)
 
 

@@ -28,7 +28,8 @@ from bayestouch.physics import skin as sk
 from bayestouch.physics import taxel as tx
 from bayestouch.scene.surface import Surface, signed_distance
 
-__all__ = ["Finger", "Frames", "pad_points", "contact_frame", "simulate", "clean_currents", "make_finger"]
+__all__ = ["Finger", "Frames", "pad_points", "contact_frame", "simulate", "clean_currents", "friction_force",
+           "make_finger", "stroke_arrays"]
 
 
 class Finger(NamedTuple):
@@ -68,6 +69,9 @@ class Frames(NamedTuple):
     force : (T,) float, newtons
         Normal contact force (elastic + Hunt–Crossley damping).
     taxel_position : (T, N, 3) float, metres
+    friction : (T,) float, newtons
+        Tangential force resisting the motion (eq. 20 with the smooth Coulomb cap): the skin shears by the
+        distance slid since the stroke started, k_t = G A_c / h, capped at μ F_n.
     """
 
     taxel_current: jnp.ndarray
@@ -76,6 +80,7 @@ class Frames(NamedTuple):
     penetration: jnp.ndarray
     force: jnp.ndarray
     taxel_position: jnp.ndarray
+    friction: jnp.ndarray
 
 
 def make_finger(skin: sk.SkinParams, taxels: tx.TaxelParams, noise: nz.NoiseParams, *, tip_radius: float,
@@ -147,6 +152,16 @@ def clean_currents(surf: Surface, finger: Finger, stroke_arrays, skin_temperatur
     return cur, p, delta, force, x.reshape(nT, -1, 3)
 
 
+def friction_force(finger: Finger, stroke_arrays, force, delta):
+    """Tangential force (T,) N of a stroke: eq. 20's smooth Coulomb cap on the skin's shear spring."""
+    contact = stroke_arrays[0]
+    step = jnp.sqrt(jnp.sum(jnp.diff(contact, axis=0) ** 2, axis=-1) + 1e-30)
+    slid = jnp.concatenate([jnp.zeros(1), jnp.cumsum(step)])
+    area = jnp.sum(jax.nn.sigmoid((delta - 2 * finger.skin.s) / finger.skin.s), axis=(-2, -1)) * finger.taxels.pitch**2
+    kt = sk.tangential_stiffness(finger.skin, area)
+    return sk.friction(finger.skin.mu, jnp.maximum(force, 1e-12), kt, slid)
+
+
 def simulate(surf: Surface, stroke_arrays, finger: Finger, key, *, skin_temperature=300.0, dt: float = 0.02,
              mode: str = "physics", noise: bool = True) -> Frames:
     """The whole chain for one stroke.
@@ -174,7 +189,7 @@ def simulate(surf: Surface, stroke_arrays, finger: Finger, key, *, skin_temperat
     """
     cur, p, delta, force, x = clean_currents(surf, finger, stroke_arrays, skin_temperature, dt, mode)
     meas = nz.add_noise(key, finger.noise, cur, dt, finger.gains) if noise else cur
-    return Frames(meas, cur, p, delta, force, x)
+    return Frames(meas, cur, p, delta, force, x, friction_force(finger, stroke_arrays, force, delta))
 
 
 def stroke_arrays(stroke) -> tuple:

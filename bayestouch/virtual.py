@@ -55,7 +55,7 @@ def record_strokes(obj, strokes, vf: VirtualFinger, seed: int, *, hold_currents=
     surf = obj.surface()
     keys = jax.random.split(jax.random.PRNGKey(seed), len(strokes))
     cols: dict[str, list] = {k: [] for k in (
-        "time", "stroke_index", "taxel_current", "taxel_current_clean", "pressure", "contact_force",
+        "time", "stroke_index", "taxel_current", "taxel_current_clean", "pressure", "contact_force", "friction_force",
         "contact_point", "contact_normal", "wire_current", "wire_temperature", "skin_temperature",
         "finger_tip_position", "finger_curvature")}
     t0 = 0.0
@@ -72,6 +72,7 @@ def record_strokes(obj, strokes, vf: VirtualFinger, seed: int, *, hold_currents=
         cols["taxel_current_clean"].append(np.asarray(fr.clean_current))
         cols["pressure"].append(np.asarray(fr.pressure).reshape(n, -1))
         cols["contact_force"].append(np.asarray(fr.force))
+        cols["friction_force"].append(np.asarray(fr.friction))
         cols["contact_point"].append(st.contact)
         cols["contact_normal"].append(st.normal)
         cols["wire_current"].append(dr.wire_current)

@@ -33,5 +33,5 @@ def bench_table2_rows():
                     "iterations": row["iterations"]})
     out.append({"metric": "Table 2 row, mean over sizes (DE fit shared per ε)", "value": float(np.mean(secs)),
                 "unit": "s"})
-    out.append({"metric": "peak memory", "value": peak_rss_mib(), "unit": "MiB"})
+    out.append({"metric": "peak memory of the benchmark process so far", "value": peak_rss_mib(), "unit": "MiB"})
     return out

@@ -148,3 +148,12 @@ def test_simulate_cli_writes_recording(tmp_path, capsys):
         err = capsys.readouterr().err.strip()
         assert needle in err and "\n" not in err
     assert out.read_bytes() == before
+
+
+def test_friction_sticks_then_slides():
+    surf = PLATE.surface()
+    st = _flat_stroke(3e-4, n=40)
+    fr = fw.simulate(surf, st, F, jax.random.PRNGKey(0), dt=0.02, noise=False)
+    ft, fn = np.asarray(fr.friction), np.asarray(fr.force)
+    assert ft[0] == 0.0 and np.all(np.diff(ft[:5]) > 0)  # stuck: grows with the distance slid
+    assert ft[-1] == pytest.approx(float(F.skin.mu) * fn[-1], rel=1e-3)  # sliding: Coulomb cap μ F_n
