@@ -94,6 +94,8 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--duration", type=float, default=2.0, help="seconds per stroke at 1 cm/s (default 2)")
     sp.add_argument("--rate", type=float, default=50.0, help="taxel frames per second (default 50)")
     sp.add_argument("--depth", type=float, default=3e-4, help="pressing depth in metres (default 3e-4)")
+    sp.add_argument("--force", type=float, default=None,
+                    help="force-controlled strokes: normal force in newtons (replaces --depth), e.g. 0.07")
     sp.add_argument("--mode", choices=["physics", "empirical"], default=None,
                     help="taxel response (default: models/taxels.toml)")
     sp.add_argument("--currents", default="0.15,0.05,0.05",
@@ -160,7 +162,8 @@ def _cmd_demo(args) -> int:
     print("bayestouch demo: 1) the virtual finger strokes the egg (recording), 2) the paper pipeline on the "
           "damaged graphite plate (reduced size).")
     sim = argparse.Namespace(object=DEFAULT_OBJECTS / "egg.toml", strokes=3, seed=args.seed,
-                             out=args.out / "egg_strokes.nc", duration=2.0, rate=50.0, depth=3e-4, mode=None,
+                             out=args.out / "egg_strokes.nc", duration=2.0, rate=50.0, depth=3e-4, force=None,
+                             mode=None,
                              currents="0.15,0.05,0.05", models=DEFAULT_OBJECTS.parent, quiet=False)
     _check_out(args.out)
     _cmd_simulate(sim)
@@ -186,6 +189,8 @@ def _cmd_simulate(args) -> int:
             from None
     if len(currents) != 3:
         raise BadInput(f"--currents must be three numbers in amperes, got {len(currents)}")
+    if args.force is not None and not (0 < args.force <= 2.0):
+        raise BadInput(f"--force must be in (0, 2] newtons, got {args.force}")
     from bayestouch import __version__
     from bayestouch.recording import build_dataset, write_recording
     from bayestouch.scene.objects import load_object
@@ -197,7 +202,7 @@ def _cmd_simulate(args) -> int:
     strokes = random_strokes(obj, args.strokes, seed=args.seed, duration=args.duration, rate=args.rate,
                              depth=args.depth)
     t0 = time.perf_counter()
-    rec = record_strokes(obj, strokes, vf, args.seed, hold_currents=currents, mode=args.mode,
+    rec = record_strokes(obj, strokes, vf, args.seed, hold_currents=currents, mode=args.mode, force=args.force,
                          progress=not args.quiet)
     lay_u = np.asarray(vf.finger.grid[..., 0]).ravel()
     lay_v = np.asarray(vf.finger.grid[..., 1]).ravel()

@@ -29,7 +29,7 @@ from bayestouch.physics import taxel as tx
 from bayestouch.scene.surface import Surface, signed_distance
 
 __all__ = ["Finger", "Frames", "pad_points", "contact_frame", "simulate", "clean_currents", "friction_force",
-           "make_finger", "stroke_arrays"]
+           "make_finger", "stroke_arrays", "depths_for_force"]
 
 
 class Finger(NamedTuple):
@@ -139,7 +139,8 @@ def contact_frame(surf: Surface, finger: Finger, contact, normal, tangent, depth
 def clean_currents(surf: Surface, finger: Finger, stroke_arrays, skin_temperature, dt: float, mode: str):
     """Noise-free part of :func:`simulate`: (lagged currents (T, N) A, pressure, penetration, force, x)."""
     contact, normal, tangent, depth = stroke_arrays
-    x, delta, p = jax.vmap(lambda c, n, t: contact_frame(surf, finger, c, n, t, depth))(contact, normal, tangent)
+    depth = jnp.broadcast_to(jnp.asarray(depth), contact.shape[:1])
+    x, delta, p = jax.vmap(lambda c, n, t, d: contact_frame(surf, finger, c, n, t, d))(contact, normal, tangent, depth)
     p = jnp.where(finger.reference, 0.0, p)
     f_el = sk.total_force(p, finger.taxels.pitch)
     d_centre = jnp.max(delta, axis=(-2, -1))
@@ -170,7 +171,7 @@ def simulate(surf: Surface, stroke_arrays, finger: Finger, key, *, skin_temperat
     ----------
     surf : Surface
         The object (shape, FFD, texture, defects): what inference is about.
-    stroke_arrays : tuple (contact (T, 3) m, normal (T, 3), tangent (T, 3), depth m)
+    stroke_arrays : tuple (contact (T, 3) m, normal (T, 3), tangent (T, 3), depth m or (T,) m)
         From a :class:`~bayestouch.scene.strokes.Stroke` (see :func:`stroke_arrays`).
     finger : Finger
     key : JAX PRNG key
@@ -190,6 +191,31 @@ def simulate(surf: Surface, stroke_arrays, finger: Finger, key, *, skin_temperat
     cur, p, delta, force, x = clean_currents(surf, finger, stroke_arrays, skin_temperature, dt, mode)
     meas = nz.add_noise(key, finger.noise, cur, dt, finger.gains) if noise else cur
     return Frames(meas, cur, p, delta, force, x, friction_force(finger, stroke_arrays, force, delta))
+
+
+@jax.jit
+def depths_for_force(surf: Surface, finger: Finger, stroke_arrays, force, max_depth=1.5e-3):
+    """Per-frame pressing depths (T,) m that make the elastic normal force equal ``force`` (N, scalar or
+    (T,)): force control, by 40 bisection steps per frame (vectorised, differentiable only through the
+    final midpoint). Frames where even ``max_depth`` cannot reach the force get ``max_depth``."""
+    contact, normal, tangent, _ = stroke_arrays
+    target = jnp.broadcast_to(jnp.asarray(force, dtype=float), contact.shape[:1])
+
+    def f_el(c, n, t, d):
+        _, _, p = contact_frame(surf, finger, c, n, t, d)
+        return sk.total_force(jnp.where(finger.reference, 0.0, p), finger.taxels.pitch)
+
+    def one(c, n, t, F):
+        def body(_, lh):
+            lo, hi = lh
+            mid = 0.5 * (lo + hi)
+            below = f_el(c, n, t, mid) < F
+            return jnp.where(below, mid, lo), jnp.where(below, hi, mid)
+
+        lo, hi = jax.lax.fori_loop(0, 40, body, (jnp.asarray(0.0), jnp.asarray(max_depth)))
+        return 0.5 * (lo + hi)
+
+    return jax.vmap(one)(contact, normal, tangent, target)
 
 
 def stroke_arrays(stroke) -> tuple:

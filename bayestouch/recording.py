@@ -21,7 +21,8 @@ __all__ = ["UNITS", "build_dataset", "write_recording", "read_recording"]
 
 UNITS = {
     "time": "s", "stroke_index": "1", "taxel_current": "A", "taxel_current_clean": "A", "pressure": "Pa",
-    "contact_force": "N", "friction_force": "N", "contact_point": "m", "contact_normal": "1", "wire_current": "A",
+    "contact_force": "N", "friction_force": "N", "pressing_depth": "m",
+    "contact_point": "m", "contact_normal": "1", "wire_current": "A",
     "wire_temperature": "K", "skin_temperature": "K", "finger_tip_position": "m", "finger_curvature": "1/m",
     "taxel_u": "m", "taxel_v": "m", "taxel_reference": "1", "stroke_depth": "m",
 }
@@ -31,6 +32,7 @@ DESCRIPTIONS = {
     "taxel_current_clean": "taxel current before noise (simulation only)",
     "pressure": "contact pressure at each taxel",
     "contact_force": "normal contact force of the pad",
+    "pressing_depth": "depth of the pad centre below the surface (imposed, or solved for the force)",
     "friction_force": "tangential force resisting the motion (eq. 20, smooth Coulomb cap)",
     "contact_point": "commanded contact point of the pad centre on the true surface",
     "contact_normal": "outward surface normal at the contact point",
@@ -51,7 +53,7 @@ def build_dataset(frames: dict[str, np.ndarray], taxel_u, taxel_v, reference, de
     dims = {
         "time": ("frame",), "stroke_index": ("frame",), "taxel_current": ("frame", "taxel"),
         "taxel_current_clean": ("frame", "taxel"), "pressure": ("frame", "taxel"), "contact_force": ("frame",),
-        "friction_force": ("frame",),
+        "friction_force": ("frame",), "pressing_depth": ("frame",),
         "contact_point": ("frame", "xyz"), "contact_normal": ("frame", "xyz"), "wire_current": ("frame", "wire"),
         "wire_temperature": ("frame", "wire"), "skin_temperature": ("frame",),
         "finger_tip_position": ("frame", "xyz"), "finger_curvature": ("frame", "uv"),

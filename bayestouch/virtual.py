@@ -42,8 +42,13 @@ def load_finger(models: Path = MODELS, seed: int = 0) -> VirtualFinger:
 
 
 def record_strokes(obj, strokes, vf: VirtualFinger, seed: int, *, hold_currents=(0.15, 0.05, 0.05),
-                   mode: str | None = None, progress: bool = False) -> dict[str, np.ndarray]:
-    """Simulate ``strokes`` over ``obj`` and collect the recording arrays (frames of all strokes in order)."""
+                   mode: str | None = None, force: float | None = None,
+                   progress: bool = False) -> dict[str, np.ndarray]:
+    """Simulate ``strokes`` over ``obj`` and collect the recording arrays (frames of all strokes in order).
+
+    With ``force`` (N) the strokes are force-controlled: each frame's depth is solved for that normal force
+    (the strokes' own depths are ignored); otherwise they are pressed to their depth.
+    """
     from tqdm.auto import tqdm
 
     from bayestouch import forward as fw
@@ -57,12 +62,15 @@ def record_strokes(obj, strokes, vf: VirtualFinger, seed: int, *, hold_currents=
     cols: dict[str, list] = {k: [] for k in (
         "time", "stroke_index", "taxel_current", "taxel_current_clean", "pressure", "contact_force", "friction_force",
         "contact_point", "contact_normal", "wire_current", "wire_temperature", "skin_temperature",
-        "finger_tip_position", "finger_curvature")}
+        "finger_tip_position", "finger_curvature", "pressing_depth")}
     t0 = 0.0
     for i, st in enumerate(tqdm(strokes, desc="strokes", unit="stroke", disable=not progress)):
         dt = fw.frame_rate_dt(st)
         dr = drive(vf.wire, vf.rod, hold_currents, len(st.time), dt)
-        fr = fw.simulate_jit(surf, fw.stroke_arrays(st), vf.finger, keys[i], skin_temperature=dr.skin_temperature,
+        arrs = fw.stroke_arrays(st)
+        if force is not None:
+            arrs = (*arrs[:3], fw.depths_for_force(surf, vf.finger, arrs, force))
+        fr = fw.simulate_jit(surf, arrs, vf.finger, keys[i], skin_temperature=dr.skin_temperature,
                              dt=dt, mode=mode)
         n = len(st.time)
         cols["time"].append(t0 + st.time)
@@ -73,6 +81,7 @@ def record_strokes(obj, strokes, vf: VirtualFinger, seed: int, *, hold_currents=
         cols["pressure"].append(np.asarray(fr.pressure).reshape(n, -1))
         cols["contact_force"].append(np.asarray(fr.force))
         cols["friction_force"].append(np.asarray(fr.friction))
+        cols["pressing_depth"].append(np.broadcast_to(np.asarray(arrs[3]), (n,)).copy())
         cols["contact_point"].append(st.contact)
         cols["contact_normal"].append(st.normal)
         cols["wire_current"].append(dr.wire_current)

@@ -157,3 +157,21 @@ def test_friction_sticks_then_slides():
     ft, fn = np.asarray(fr.friction), np.asarray(fr.force)
     assert ft[0] == 0.0 and np.all(np.diff(ft[:5]) > 0)  # stuck: grows with the distance slid
     assert ft[-1] == pytest.approx(float(F.skin.mu) * fn[-1], rel=1e-3)  # sliding: Coulomb cap μ F_n
+
+
+def test_force_controlled_stroke_holds_the_force(tmp_path):
+    egg = load_object(ROOT / "models" / "objects" / "egg.toml")
+    from bayestouch.scene.strokes import random_strokes
+
+    st = fw.stroke_arrays(random_strokes(egg, 1, seed=4, duration=0.3, rate=50.0)[0])
+    surf = egg.surface()
+    d = fw.depths_for_force(surf, F, st, 0.07)
+    _, p, delta, force, _ = fw.clean_currents(surf, F, (*st[:3], d), 300.0, 0.02, "physics")
+    f_el = np.asarray(jnp.sum(p, axis=(-2, -1)) * F.taxels.pitch**2)
+    assert np.allclose(f_el, 0.07, rtol=1e-6)
+    assert np.ptp(np.asarray(d)) > 0  # the egg's curvature changes along the path: so does the depth
+    out = tmp_path / "f.nc"
+    assert main(["simulate", "--object", str(ROOT / "models/objects/egg.toml"), "--out", str(out), "--force",
+                 "0.07", "--duration", "0.2", "--quiet"]) == 0
+    ds = read_recording(out)
+    assert ds["pressing_depth"].attrs["units"] == "m" and float(ds["pressing_depth"].min()) > 0
