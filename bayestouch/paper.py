@@ -284,24 +284,18 @@ PAPER_TABLE1 = {
 }
 
 
-def depth_for_load(surf, finger, contact, normal, tangent, load: float, *, max_depth: float = 1.5e-3,
-                   iters: int = 40) -> float:
-    """Pressing depth (m) at which the pad's normal force equals ``load`` (N), by bisection."""
-    from bayestouch.forward import contact_frame
+def depth_for_load(surf, finger, contact, normal, tangent, load: float, *, max_depth: float = 1.5e-3) -> float:
+    """Pressing depth (m) at which the pad's elastic normal force equals ``load`` (N), by bisection
+    (:func:`bayestouch.forward.depths_for_force` on one frame; compiled once)."""
+    from bayestouch.forward import contact_frame, depths_for_force
     from bayestouch.physics.skin import total_force
 
-    @jax.jit
-    def force(d):
-        _, _, p = contact_frame(surf, finger, contact, normal, tangent, d)
-        return total_force(jnp.where(finger.reference, 0.0, p), finger.taxels.pitch)
-
-    lo, hi = 0.0, max_depth
-    if float(force(hi)) < load:
+    arrs = (jnp.asarray(contact)[None], jnp.asarray(normal)[None], jnp.asarray(tangent)[None], jnp.asarray(0.0))
+    d = float(depths_for_force(surf, finger, arrs, load, max_depth)[0])
+    _, _, p = contact_frame(surf, finger, arrs[0][0], arrs[1][0], arrs[2][0], max_depth)
+    if float(total_force(jnp.where(finger.reference, 0.0, p), finger.taxels.pitch)) < load:
         raise ValueError(f"load {load} N not reached at {max_depth * 1e3:.1f} mm depth")
-    for _ in range(iters):
-        mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if float(force(mid)) < load else (lo, mid)
-    return 0.5 * (lo + hi)
+    return d
 
 
 def reproduce_table1(obj: SceneObject, vf, *, seed: int = 0, n_paths: int = 25, rate: float = 20.0,
