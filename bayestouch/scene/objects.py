@@ -168,7 +168,7 @@ def build_surface(obj: SceneObject) -> Surface:
         disp = jnp.asarray(obj.ffd.displacement)
     else:
         half = axes * 1.15
-        disp = jnp.zeros((2, 2, 2, 3))
+        disp = jnp.zeros((1, 1, 1, 3))  # no lattice
     t = obj.texture
     if t is None:
         tex = Texture(jnp.array(0.0), jnp.array(1.0), jnp.array(0.0), jnp.array(0.0), jnp.zeros((0, 3)),

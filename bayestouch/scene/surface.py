@@ -70,7 +70,8 @@ class Surface(NamedTuple):
     lower, upper : (3,) float, metres
         FFD box in the principal frame.
     displacement : (l, m, k, 3) float, metres
-        Control-point displacements from the identity lattice (zeros: no deformation).
+        Control-point displacements from the identity lattice (zeros: no deformation; shape (1, 1, 1, 3):
+        no lattice at all, which skips the FFD inversion).
     texture : Texture
     defects : Defects
     """
@@ -95,6 +96,8 @@ def _bernstein(deg: int, s):
 def ffd_displacement(surf: Surface, y):
     """FFD displacement D(y) = Σ B(y) ΔP at principal-frame points ``y (..., 3)`` metres → (..., 3)."""
     l, m, k, _ = surf.displacement.shape
+    if min(l, m, k) < 2:
+        return jnp.zeros_like(y)
     s = (y - surf.lower) / (surf.upper - surf.lower)
     bu, bv, bw = _bernstein(l - 1, s[..., 0]), _bernstein(m - 1, s[..., 1]), _bernstein(k - 1, s[..., 2])
     return jnp.einsum("...i,...j,...k,ijkd->...d", bu, bv, bw, surf.displacement)
@@ -138,10 +141,12 @@ def _base_distance(shape: ne.NEllipsoid, y):
 def signed_distance(surf: Surface, x, ffd_steps: int = 6):
     """Signed distance φ (...,) in metres of world points ``x (..., 3)`` to the true surface (> 0 outside)."""
     xl = ne.to_local(surf.shape, x)
+    if min(surf.displacement.shape[:3]) < 2:  # no lattice (static shape): nothing to invert
+        y = xl
+    else:
+        def step(y, _):
+            return xl - ffd_displacement(surf, y), None
 
-    def step(y, _):
-        return xl - ffd_displacement(surf, y), None
-
-    y, _ = jax.lax.scan(step, xl, None, length=ffd_steps)
+        y, _ = jax.lax.scan(step, xl, None, length=ffd_steps)
     dist, foot = _base_distance(surf.shape, y)
     return dist - height(surf, foot)
