@@ -6,7 +6,8 @@ Chain, per frame (pure JAX; ``jit``-able, ``vmap``-able over surfaces, different
    sample its lowest point is pressed ``depth`` below the contact point along −normal; the taxels sit on
    that sphere at geodesic pad coordinates (u, v), u along the direction of motion;
 2. contact (eq. 14–15): penetration δ_j = s·softplus(−φ(x_j)/s) from the object's signed distance φ;
-3. skin: pressure map p = blur(σ_foam(δ/h)) (physics.md §3), force Σ p·pitch² with Hunt–Crossley damping;
+3. skin: pressure p = blur(σ_foam(δ/h)) (physics.md §3) with a Gaussian kernel between the taxels (hexagonal
+   pores or square grid), force Σ p·A_cell with Hunt–Crossley damping;
 4. taxels: p and the skin temperature → current (physics or empirical mode), unloaded reference rows
    see no pressure; first-order response lag;
 5. noise (shot, amplifier, 1/f, drift, fixed pattern, outliers, ADC), seeded by a JAX key.
@@ -29,7 +30,7 @@ from bayestouch.physics import taxel as tx
 from bayestouch.scene.surface import Surface, signed_distance
 
 __all__ = ["Finger", "Frames", "pad_points", "contact_frame", "simulate", "clean_currents", "friction_force",
-           "make_finger", "stroke_arrays", "depths_for_force"]
+           "make_finger", "stroke_arrays", "depths_for_force", "elastic_force"]
 
 
 class Finger(NamedTuple):
@@ -46,6 +47,10 @@ class Finger(NamedTuple):
         Fixed-pattern gains of this device.
     tip_radius : float, metres
         Radius of the fingertip's outer (skin) surface.
+    kernel : (N, N) float
+        Pressure blur between taxels (:func:`~bayestouch.physics.skin.blur_kernel`; any layout).
+    cell_area : float, m²
+        Skin area per taxel: force = Σ p · cell_area.
     """
 
     skin: sk.SkinParams
@@ -55,6 +60,8 @@ class Finger(NamedTuple):
     reference: jnp.ndarray
     gains: jnp.ndarray
     tip_radius: jnp.ndarray
+    kernel: jnp.ndarray
+    cell_area: jnp.ndarray
 
 
 class Frames(NamedTuple):
@@ -97,8 +104,15 @@ def make_finger(skin: sk.SkinParams, taxels: tx.TaxelParams, noise: nz.NoisePara
     grid = lay.positions.reshape(lay.rows, lay.cols, 2)
     ref = lay.reference.reshape(lay.rows, lay.cols)
     gains = nz.fixed_pattern(jax.random.PRNGKey(seed), noise, lay.rows * lay.cols)
+    area = tx.cell_area(taxels)
+    kernel = sk.blur_kernel(lay.positions, sk.blur_width(skin), area)
     return Finger(skin, taxels, noise, jnp.asarray(grid), jnp.asarray(ref), jnp.asarray(gains),
-                  jnp.asarray(float(tip_radius)))
+                  jnp.asarray(float(tip_radius)), kernel, jnp.asarray(area))
+
+
+def elastic_force(finger: Finger, pressure):
+    """Normal force (...,) N of a pressure map (..., H, W) Pa: Σ p · cell_area."""
+    return jnp.sum(pressure, axis=(-2, -1)) * finger.cell_area
 
 
 def pad_points(finger: Finger, contact, normal, tangent, depth):
@@ -132,7 +146,7 @@ def contact_frame(surf: Surface, finger: Finger, contact, normal, tangent, depth
     """One frame of contact: (taxel positions (H, W, 3) m, penetration (H, W) m, pressure (H, W) Pa)."""
     x = pad_points(finger, contact, normal, tangent, depth)
     delta = sk.penetration(signed_distance(surf, x), finger.skin.s)
-    p = sk.pressure_map(finger.skin, delta, finger.taxels.pitch)
+    p = sk.pressure_at_taxels(finger.skin, delta.reshape(-1), finger.kernel).reshape(delta.shape)
     return x, delta, p
 
 
@@ -142,7 +156,7 @@ def clean_currents(surf: Surface, finger: Finger, stroke_arrays, skin_temperatur
     depth = jnp.broadcast_to(jnp.asarray(depth), contact.shape[:1])
     x, delta, p = jax.vmap(lambda c, n, t, d: contact_frame(surf, finger, c, n, t, d))(contact, normal, tangent, depth)
     p = jnp.where(finger.reference, 0.0, p)
-    f_el = sk.total_force(p, finger.taxels.pitch)
+    f_el = elastic_force(finger, p)
     d_centre = jnp.max(delta, axis=(-2, -1))
     d_dot = jnp.gradient(d_centre, dt) if d_centre.shape[0] > 1 else jnp.zeros_like(d_centre)
     force = sk.damped_contact_force(f_el, finger.skin.hc_damping, d_dot)
@@ -158,7 +172,7 @@ def friction_force(finger: Finger, stroke_arrays, force, delta):
     contact = stroke_arrays[0]
     step = jnp.sqrt(jnp.sum(jnp.diff(contact, axis=0) ** 2, axis=-1) + 1e-30)
     slid = jnp.concatenate([jnp.zeros(1), jnp.cumsum(step)])
-    area = jnp.sum(jax.nn.sigmoid((delta - 2 * finger.skin.s) / finger.skin.s), axis=(-2, -1)) * finger.taxels.pitch**2
+    area = jnp.sum(jax.nn.sigmoid((delta - 2 * finger.skin.s) / finger.skin.s), axis=(-2, -1)) * finger.cell_area
     kt = sk.tangential_stiffness(finger.skin, area)
     return sk.friction(finger.skin.mu, jnp.maximum(force, 1e-12), kt, slid)
 
@@ -203,7 +217,7 @@ def depths_for_force(surf: Surface, finger: Finger, stroke_arrays, force, max_de
 
     def f_el(c, n, t, d):
         _, _, p = contact_frame(surf, finger, c, n, t, d)
-        return sk.total_force(jnp.where(finger.reference, 0.0, p), finger.taxels.pitch)
+        return elastic_force(finger, jnp.where(finger.reference, 0.0, p))
 
     def one(c, n, t, F):
         def body(_, lh):

@@ -287,13 +287,12 @@ PAPER_TABLE1 = {
 def depth_for_load(surf, finger, contact, normal, tangent, load: float, *, max_depth: float = 1.5e-3) -> float:
     """Pressing depth (m) at which the pad's elastic normal force equals ``load`` (N), by bisection
     (:func:`bayestouch.forward.depths_for_force` on one frame; compiled once)."""
-    from bayestouch.forward import contact_frame, depths_for_force
-    from bayestouch.physics.skin import total_force
+    from bayestouch.forward import contact_frame, depths_for_force, elastic_force
 
     arrs = (jnp.asarray(contact)[None], jnp.asarray(normal)[None], jnp.asarray(tangent)[None], jnp.asarray(0.0))
     d = float(depths_for_force(surf, finger, arrs, load, max_depth)[0])
     _, _, p = contact_frame(surf, finger, arrs[0][0], arrs[1][0], arrs[2][0], max_depth)
-    if float(total_force(jnp.where(finger.reference, 0.0, p), finger.taxels.pitch)) < load:
+    if float(elastic_force(finger, jnp.where(finger.reference, 0.0, p))) < load:
         raise ValueError(f"load {load} N not reached at {max_depth * 1e3:.1f} mm depth")
     return d
 
@@ -305,7 +304,8 @@ def reproduce_table1(obj: SceneObject, vf, *, seed: int = 0, n_paths: int = 25, 
 
     The paths are those of :func:`plate_data` (same seed, numbered from 1); on each, the pad touches at
     the sample with the deepest defect (the midpoint when the path crosses none), is pressed until the
-    normal force equals each load, and the superellipse is fitted to the taxels whose pressure exceeds
+    normal force equals each load, and the superellipse is fitted (on a square resampling of the hexagonal
+    pore lattice, linear interpolation) to the region whose pressure exceeds
     ``threshold`` (Pa; 100 Pa changes an empirical-mode taxel's ln I by 0.005, about 25 times its noise),
     i.e. the patch as the taxel array sees it.
 
@@ -324,7 +324,14 @@ def reproduce_table1(obj: SceneObject, vf, *, seed: int = 0, n_paths: int = 25, 
     surf = obj.surface()
     all_paths = random_paths(obj, n_paths, seed=seed, rate=rate, arc=np.pi)
     grid = np.asarray(finger.grid)
-    xs, ys = grid[0, :, 0], grid[:, 0, 1]
+    pos = grid.reshape(-1, 2)
+    hexagonal = bool(round(float(finger.taxels.hexagonal)))
+    if hexagonal:  # resample the pore lattice onto a square grid of half a pitch for the fit
+        step = 0.5 * float(finger.taxels.pitch)
+        xs = np.arange(pos[:, 0].min(), pos[:, 0].max() + 1e-12, step)
+        ys = np.arange(pos[:, 1].min(), pos[:, 1].max() + 1e-12, step)
+    else:
+        xs, ys = grid[0, :, 0], grid[:, 0, 1]
     rows = []
     bar = tqdm(total=len(paths) * len(loads), desc="Table 1", unit="patch", disable=not progress)
     for k in paths:
@@ -338,6 +345,11 @@ def reproduce_table1(obj: SceneObject, vf, *, seed: int = 0, n_paths: int = 25, 
             d = depth_for_load(surf, finger, c, n, t, load)
             _, _, p = contact_frame(surf, finger, c, n, t, d)
             p = np.asarray(jnp.where(finger.reference, 0.0, p))
+            if hexagonal:
+                from scipy.interpolate import griddata
+
+                X, Y = np.meshgrid(xs, ys)
+                p = griddata(pos, p.ravel(), (X, Y), method="linear", fill_value=0.0)
             patch = fit_patch(p, xs, ys, threshold)
             pa = paper.get(load)
             rows.append({

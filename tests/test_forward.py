@@ -19,6 +19,7 @@ from bayestouch.virtual import load_finger
 ROOT = Path(__file__).parent.parent
 VF = load_finger(seed=0)
 F = VF.finger
+RHO_MIN = float(np.min(np.linalg.norm(np.asarray(F.grid), axis=-1)))
 PLATE = replace(load_object(ROOT / "models" / "objects" / "graphite_plate.toml"), defects=())
 
 
@@ -35,12 +36,12 @@ def test_pad_geometry():
     R = float(F.tip_radius)
     centre = np.array([0.0, 0.0, R - 3e-4])
     assert np.allclose(np.linalg.norm(x - centre, axis=-1), R, atol=1e-15)  # on the tip sphere
-    # the pad centre is pressed 0.3 mm deep; with an even grid the innermost taxels sit ρ = pitch/√2 off it
-    lift = R * (1 - np.cos(float(F.taxels.pitch) / np.sqrt(2) / R))
+    # the pad centre is pressed 0.3 mm deep; the innermost taxels sit ρ_min off it
+    lift = R * (1 - np.cos(RHO_MIN / R))
     assert x[..., 2].min() == pytest.approx(-3e-4 + lift, abs=1e-12)
     # u runs along the direction of motion
     row = x[8]
-    assert np.all(np.diff(row[:, 0]) > 0) and np.all(row[:, 1] > 0)  # row 8 has v = +pitch/2
+    assert np.all(np.diff(row[:, 0]) > 0) and np.all(row[:, 1] > 0)  # row 8 lies at v > 0
 
 
 def test_no_contact_gives_unstrained_current():
@@ -56,7 +57,7 @@ def test_force_grows_with_depth_and_centre_penetration_equals_depth():
     forces = []
     for d in (1e-4, 2e-4, 3e-4, 4e-4):
         _, p, delta, force, _ = fw.clean_currents(surf, F, _flat_stroke(d), 300.0, 0.02, "physics")
-        lift = float(F.tip_radius) * (1 - np.cos(float(F.taxels.pitch) / np.sqrt(2) / float(F.tip_radius)))
+        lift = float(F.tip_radius) * (1 - np.cos(RHO_MIN / float(F.tip_radius)))
         assert float(jnp.max(delta)) == pytest.approx(d - lift, abs=1e-6)  # flat face: penetration = depth
         forces.append(float(force[2]))
     assert np.all(np.diff(forces) > 0)
@@ -167,7 +168,7 @@ def test_force_controlled_stroke_holds_the_force(tmp_path):
     surf = egg.surface()
     d = fw.depths_for_force(surf, F, st, 0.07)
     _, p, delta, force, _ = fw.clean_currents(surf, F, (*st[:3], d), 300.0, 0.02, "physics")
-    f_el = np.asarray(jnp.sum(p, axis=(-2, -1)) * F.taxels.pitch**2)
+    f_el = np.asarray(fw.elastic_force(F, p))
     assert np.allclose(f_el, 0.07, rtol=1e-6)
     assert np.ptp(np.asarray(d)) > 0  # the egg's curvature changes along the path: so does the depth
     out = tmp_path / "f.nc"

@@ -246,3 +246,31 @@ def test_friction_linear_then_capped(params):
     assert float(S.friction(mu, 0.0, kt, small)) == 0.0
     g = jax.grad(lambda f, d: S.friction(mu, f, kt, d), argnums=(0, 1))(0.0, small)
     assert all(np.isfinite(float(x)) for x in g)
+
+
+def test_dense_blur_matches_square_grid_and_conserves_force_on_hexagonal_pores():
+    from bayestouch.physics import skin as sk_
+    from bayestouch.physics import taxel as tx_
+
+    params = sk_.load_skin()
+    tp = tx_.load_taxels()
+    w = sk_.blur_width(params)
+    # square grid: the dense kernel reproduces the separable blur
+    sq = tp._replace(hexagonal=0.0)
+    lay = tx_.layout(sq)
+    rng = np.random.default_rng(0)
+    delta = np.zeros((16, 16))
+    delta[6:10, 5:11] = rng.uniform(0, 3e-4, (4, 6))
+    K = sk_.blur_kernel(lay.positions, w, tx_.cell_area(sq))
+    dense = np.asarray(sk_.pressure_at_taxels(params, delta.ravel(), K)).reshape(16, 16)
+    sep = np.asarray(sk_.pressure_map(params, delta, sq.pitch))
+    np.testing.assert_allclose(dense, sep, rtol=1e-6, atol=1e-9 * sep.max())
+    # hexagonal pores: a point load far (> 10 w) from the edges keeps its force (Σ p A_cell) to 1e-6
+    tp = tp._replace(rows=40.0, cols=40.0)
+    lay = tx_.layout(tp)
+    K = np.asarray(sk_.blur_kernel(lay.positions, w, tx_.cell_area(tp)))
+    centre = int(np.argmin(np.linalg.norm(lay.positions, axis=1)))
+    assert K[:, centre].sum() == pytest.approx(1.0, abs=1e-6)
+    # negative control: the wrong cell area (square) breaks the conservation by √3/2
+    K_bad = np.asarray(sk_.blur_kernel(lay.positions, w, tp.pitch**2))
+    assert K_bad[:, centre].sum() == pytest.approx(2 / np.sqrt(3), rel=1e-4)

@@ -53,13 +53,30 @@ def test_bad_toml_raises_badinput(tmp_path, params, old, new, needle):
 
 
 def test_layout_square_grid_and_reference_row(params):
-    lay = tx.layout(params)
+    lay = tx.layout(params._replace(hexagonal=0.0))
     assert lay.positions.shape == (256, 2) and lay.reference.shape == (256,)
-    np.testing.assert_allclose(lay.positions.mean(axis=0), 0.0, atol=1e-18)
+    np.testing.assert_allclose(lay.positions.mean(axis=0), 0.0, atol=1e-15)
     # neighbours along a row are one pitch apart in u; along a column one pitch apart in v
     np.testing.assert_allclose(lay.positions[1] - lay.positions[0], [params.pitch, 0.0], rtol=1e-12)
     np.testing.assert_allclose(lay.positions[16] - lay.positions[0], [0.0, params.pitch], rtol=1e-12)
     assert lay.reference.sum() == 16 and lay.reference[:16].all() and not lay.reference[16:].any()
+    assert tx.cell_area(params._replace(hexagonal=0.0)) == pytest.approx(params.pitch**2)
+
+
+def test_layout_hexagonal_pores(params):
+    assert params.hexagonal == 1.0  # the shipped finger: taxels in the skin's hexagonal pores
+    lay = tx.layout(params)
+    pos = lay.positions
+    # every interior taxel has six nearest neighbours, all one pitch away
+    d = np.linalg.norm(pos[:, None] - pos[None], axis=-1)
+    interior = (np.abs(pos[:, 0]) < 5 * params.pitch) & (np.abs(pos[:, 1]) < 5 * params.pitch)
+    for i in np.flatnonzero(interior):
+        near = np.sort(d[i])[1:8]
+        np.testing.assert_allclose(near[:6], params.pitch, rtol=1e-12)
+        assert near[6] > 1.5 * params.pitch
+    np.testing.assert_allclose(pos[16, 0] - pos[0, 0], params.pitch / 2, rtol=1e-12)  # odd rows shifted
+    assert tx.cell_area(params) == pytest.approx(np.sqrt(3) / 2 * params.pitch**2)
+    assert lay.reference.sum() == 16 and lay.reference[:16].all()
 
 
 def test_msm_limits():

@@ -38,6 +38,8 @@ __all__ = [
     "foam_stress",
     "blur_width",
     "gaussian_blur",
+    "blur_kernel",
+    "pressure_at_taxels",
     "pressure_map",
     "total_force",
     "cosserat_stiffening",
@@ -440,3 +442,31 @@ def friction(mu, Fn, kt, delta_t):
     ok = cap > 0.0
     safe = jnp.where(ok, cap, 1.0)
     return jnp.where(ok, safe * jnp.tanh(kt * delta_t / safe), 0.0)
+
+
+def blur_kernel(positions, w, cell_area):
+    """Dense Gaussian blur matrix (N, N) for taxels at arbitrary ``positions (N, 2)`` m (e.g. hexagonal pores).
+
+    K_ij = A_cell/(2π w²) · exp(−|x_i − x_j|²/2w²): the continuous unit-mass Gaussian sampled on the array,
+    each taxel standing for ``cell_area`` m² of skin. Σ_i K_ij = 1 to within the lattice-sum error (< 1e-9 for
+    w > pitch) for loads a few w inside the array, so the blur conserves force there, as
+    :func:`gaussian_blur` does on a square grid.
+
+    Parameters
+    ----------
+    positions : (N, 2) float, m
+    w : float, m
+        Gaussian standard deviation (:func:`blur_width`).
+    cell_area : float, m²
+        Skin area per taxel.
+    """
+    x = jnp.asarray(positions, dtype=jnp.float64)
+    d2 = jnp.sum((x[:, None, :] - x[None, :, :]) ** 2, axis=-1)
+    return cell_area / (2.0 * jnp.pi * w**2) * jnp.exp(-0.5 * d2 / w**2)
+
+
+def pressure_at_taxels(params: SkinParams, delta, kernel):
+    """Contact pressure (..., N) Pa at taxels from penetrations ``delta (..., N)`` m: the foam law, then the
+    blur ``kernel`` of :func:`blur_kernel`. Force = Σ p · cell_area."""
+    local = foam_stress(params, jnp.asarray(delta, dtype=jnp.float64) / params.h)
+    return jnp.einsum("ij,...j->...i", kernel, local)

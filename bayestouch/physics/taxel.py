@@ -26,12 +26,13 @@ default W = 1 nm and φ_load = 0.1 it gives Δ ln I ≈ 3e-5 at 1 kPa, orders of
 device sensitivities. ``"empirical"`` keeps the same unstrained M–S–M current and temperature dependence
 and replaces steps 1–3 by a calibrated log-sensitivity, Δ ln I = s S_p p.
 
-Layout. Taxels sit on a **square** grid (the crossbar matrix of Wu et al. 2013) in skin-local
-coordinates (u, v) in metres, centred on the origin, row-major. The first ``reference_rows`` rows are
-*reference* taxels: they have no load path (no top pillar/electrode transferring pressure, physics.md
-§4 "nanowires sitting freely carry no load"), so they see temperature and drift but no pressure and are
-used for drift compensation (:func:`bayestouch.physics.noise.drift_compensate`). The caller passes zero
-pressure to them.
+Layout. Taxels sit in the skin's hexagonal pores: rows ``pitch·√3/2`` apart, every other row shifted by
+half a pitch (``hexagonal = 1``), or on a square grid (``hexagonal = 0``, the crossbar matrix of Wu et al.
+2013), in skin-local coordinates (u, v) in metres, centred on the origin, row-major. The first
+``reference_rows`` rows are *reference* taxels: they have no load path (no top pillar/electrode
+transferring pressure, physics.md §4 "nanowires sitting freely carry no load"), so they see
+temperature and drift but no pressure and are used for drift compensation
+(:func:`bayestouch.physics.noise.drift_compensate`). The caller passes zero pressure to them.
 
 Everything here is a pure JAX function of arrays and the :class:`TaxelParams` pytree, except
 :func:`layout` and the loaders, which build static (NumPy/Python) data outside ``jit``.
@@ -58,6 +59,7 @@ __all__ = [
     "load_taxels",
     "load_taxel_mode",
     "layout",
+    "cell_area",
     "thermal_voltage",
     "saturation_current",
     "axial_modulus",
@@ -89,9 +91,11 @@ class TaxelParams(NamedTuple):
     rows, cols : float
         Array size (integers stored as floats; used only by :func:`layout`, outside ``jit``).
     pitch : float, m
-        Centre-to-centre spacing of the square grid.
+        Centre-to-centre spacing of neighbouring taxels (along a row).
     reference_rows : float
         Number of unloaded reference rows at the array's first edge (integer stored as float).
+    hexagonal : float
+        1: hexagonal (pore) layout, rows √3/2·pitch apart and odd rows shifted by pitch/2; 0: square grid.
     bias : float, V
         Bias V across the M–S–M taxel.
     barrier : float, V
@@ -122,6 +126,7 @@ class TaxelParams(NamedTuple):
     cols: float
     pitch: float
     reference_rows: float
+    hexagonal: float
     bias: float
     barrier: float
     contact_area: float
@@ -146,6 +151,7 @@ TAXEL_SPECS: dict[str, Spec] = {
     "cols": Spec("1", 1, 4096),
     "pitch": Spec("m", 1e-6, 1e-2),
     "reference_rows": Spec("1", 0, 4096),
+    "hexagonal": Spec("1", 0, 1),
     "bias": Spec("V", -20.0, 20.0),
     "barrier": Spec("V", 0.05, 2.0),
     "contact_area": Spec("m^2", 1e-18, 1e-4),
@@ -219,7 +225,7 @@ def load_taxel_mode(path=MODELS / "taxels.toml") -> str:
 
 
 def layout(params: TaxelParams) -> TaxelLayout:
-    """Taxel positions on a square grid and the reference (unloaded) mask.
+    """Taxel positions (hexagonal or square layout) and the reference (unloaded) mask.
 
     Call outside ``jit`` (the array size is static).
 
@@ -230,15 +236,24 @@ def layout(params: TaxelParams) -> TaxelLayout:
     Returns
     -------
     TaxelLayout
-        ``positions (rows·cols, 2)`` in metres, centred on the origin, u along columns and v along rows;
+        ``positions (rows·cols, 2)`` in metres, centred on the origin (the bounding box's centre), u along
+        columns and v along rows;
         ``reference (rows·cols,)`` true on the first ``reference_rows`` rows (most negative v).
     """
     rows, cols, nref = int(params.rows), int(params.cols), int(params.reference_rows)
     pitch = float(params.pitch)
+    hexa = bool(round(float(params.hexagonal)))
     r, c = np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij")
-    u = (c.ravel() - (cols - 1) / 2.0) * pitch
-    v = (r.ravel() - (rows - 1) / 2.0) * pitch
-    return TaxelLayout(np.stack([u, v], axis=1), r.ravel() < nref, rows, cols)
+    u = (c.ravel() + (0.5 * (r.ravel() % 2) if hexa else 0.0)) * pitch
+    v = r.ravel() * pitch * (np.sqrt(3.0) / 2.0 if hexa else 1.0)
+    pos = np.stack([u, v], axis=1)
+    pos -= 0.5 * (pos.max(axis=0) + pos.min(axis=0))
+    return TaxelLayout(pos, r.ravel() < nref, rows, cols)
+
+
+def cell_area(params: TaxelParams) -> float:
+    """Skin area per taxel, m²: pitch² (square) or √3/2·pitch² (hexagonal)."""
+    return float(params.pitch) ** 2 * (np.sqrt(3.0) / 2.0 if round(float(params.hexagonal)) else 1.0)
 
 
 def thermal_voltage(temperature):
