@@ -1,0 +1,1 @@
+"""Bayesian inference: priors, likelihoods (contact level; raw-current level to come), samplers."""
