@@ -18,7 +18,6 @@ __all__ = ["main", "build_parser"]
 
 #: subcommands that later work fills in, with where they are specified
 PLANNED = {
-    "fit": "the inference engine (issue 4)",
     "explore": "the active probing planner (issue 5)",
     "experiment": "the exploration experiments (issue 5)",
     "device": "the hardware adapter (issue 6)",
@@ -83,6 +82,19 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--epsilons", type=_eps_list, default=None, help="perturbation levels (default 0,0.001)")
     rp.add_argument("--res", type=_positive_int, default=40, help="model mesh cells per cube edge (default 40)")
     rp.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    fp = sub.add_parser("fit", help="posterior over the object's shape from contact points (emcee)",
+                        description="Contact-level Bayesian fit: Student-t residuals of the contact points against "
+                        "an n-ellipsoid, sampled with emcee; writes summary.json, posterior.nc (ArviZ), "
+                        "mean_shape.ply and the resumable chain.h5.")
+    fp.add_argument("points", type=Path, help="contact points CSV: x,y,z in metres (optional nx,ny,nz,force)")
+    fp.add_argument("--out", required=True, type=Path, help="output folder")
+    fp.add_argument("--seed", type=int, default=0, help="seed of the initial fit, walkers and emcee (default 0)")
+    fp.add_argument("--walkers", type=_positive_int, default=32, help="emcee walkers (default 32)")
+    fp.add_argument("--steps", type=_positive_int, default=4000, help="chain length in steps (default 4000)")
+    fp.add_argument("--resume", action="store_true", help="continue the chain in OUT/chain.h5")
+    fp.add_argument("--budget", type=float, default=None, help="wall-clock budget for sampling, seconds")
+    fp.add_argument("--quiet", action="store_true", help="no progress bar")
 
     sp = sub.add_parser("simulate", help="simulate strokes of the virtual finger over an object (netCDF)",
                         description="Run the physics forward model (SMA wires, auxetic skin, piezotronic taxels, "
@@ -217,7 +229,32 @@ def _cmd_simulate(args) -> int:
     return 0
 
 
-COMMANDS = {"reproduce-paper": _cmd_reproduce_paper, "demo": _cmd_demo, "simulate": _cmd_simulate}
+def _cmd_fit(args) -> int:
+    from bayestouch.errors import BadInput
+    from bayestouch.inference.run import run_contact_fit
+    from bayestouch.io import load_contact_points
+
+    if args.points.suffix == ".nc":
+        raise BadInput(f"{args.points}: the raw-current fit of recordings is not available in this version yet "
+                       "(issue 4); give a contact points CSV")
+    if args.walkers < 24 or args.walkers % 2:
+        raise BadInput(f"--walkers must be an even number ≥ 24 (twice the 11 parameters, plus a margin), "
+                       f"got {args.walkers}")
+    cp = load_contact_points(args.points)
+    if args.out.exists() and not args.out.is_dir():
+        raise BadInput(f"--out {args.out} exists and is not a folder")
+    s = run_contact_fit(cp.points, args.out, seed=args.seed, walkers=args.walkers, steps=args.steps,
+                        resume=args.resume, budget_s=args.budget, progress=not args.quiet)
+    d = s["diagnostics"]
+    v = s["derived"]["volume_m3"]
+    print(f"wrote {args.out}/summary.json, posterior.nc, mean_shape.ply: volume {v['mean'] * 1e6:.3f} ± "
+          f"{v['sd'] * 1e6:.3f} cm³, max R-hat {d['max_r_hat']:.3f}, min ESS {d['min_ess_bulk']:.0f}, "
+          f"{'converged' if d['converged'] else 'NOT converged'} ({d['seconds']:.1f} s)")
+    return 0
+
+
+COMMANDS = {"reproduce-paper": _cmd_reproduce_paper, "demo": _cmd_demo, "simulate": _cmd_simulate,
+            "fit": _cmd_fit}
 
 
 def main(argv: list[str] | None = None) -> int:

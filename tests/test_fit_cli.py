@@ -1,0 +1,56 @@
+"""`bayestouch fit` on contact points: outputs, resumable chain, bad input."""
+
+import json
+
+import numpy as np
+import pytest
+
+from bayestouch._jax import jnp
+from bayestouch.cli import main
+from bayestouch.geometry import nellipsoid as ne
+from bayestouch.geometry.mesh import sample_surface
+from bayestouch.io import save_contact_points
+
+TRUE = ne.NEllipsoid(jnp.array([0.004, -0.002, 0.001]), jnp.array([0.03, 0.022, 0.015]),
+                     jnp.array([0.4, 0.3, -0.5]), jnp.array(3.0))
+
+
+@pytest.fixture(scope="module")
+def points_csv(tmp_path_factory):
+    rng = np.random.default_rng(0)
+    on = sample_surface(TRUE, 200, seed=0)
+    n = np.asarray(ne.normals(TRUE, jnp.asarray(on)))
+    path = tmp_path_factory.mktemp("fit") / "pts.csv"
+    save_contact_points(path, on + rng.normal(0, 3e-4, (200, 1)) * n)
+    return path
+
+
+@pytest.mark.slow
+def test_fit_writes_outputs_and_resumes(points_csv, tmp_path):
+    import emcee
+
+    out = tmp_path / "run"
+    assert main(["fit", str(points_csv), "--out", str(out), "--steps", "200", "--walkers", "24", "--quiet"]) == 0
+    s = json.loads((out / "summary.json").read_text())
+    for k in ("mean", "sd", "q05", "q95", "r_hat", "ess_bulk"):
+        assert np.isfinite(s["parameters"]["a"][k])
+    v = s["derived"]["volume_m3"]
+    assert v["q05"] < float(ne.volume(TRUE)) * 1.02 and v["q95"] > float(ne.volume(TRUE)) * 0.98
+    assert s["diagnostics"]["n_samples"] > 0 and s["diagnostics"]["converged"] is False  # 200 steps: too short
+    assert (out / "posterior.nc").is_file() and (out / "mean_shape.ply").read_bytes()[:3] == b"ply"
+    first = emcee.backends.HDFBackend(str(out / "chain.h5"), read_only=True).get_chain()
+    # resume to 300 steps: the first 200 are kept bit for bit
+    assert main(["fit", str(points_csv), "--out", str(out), "--steps", "300", "--walkers", "24", "--resume",
+                 "--quiet"]) == 0
+    chain = emcee.backends.HDFBackend(str(out / "chain.h5"), read_only=True).get_chain()
+    assert chain.shape == (300, 24, 11) and np.array_equal(chain[:200], first)
+
+
+def test_fit_bad_inputs_exit_2(tmp_path, capsys, points_csv):
+    bad = tmp_path / "bad.csv"
+    bad.write_text("x,y\n1,2\n")
+    assert main(["fit", str(bad), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "z" in err and "\n" not in err
+    assert main(["fit", str(points_csv), "--out", str(tmp_path / "o"), "--walkers", "10"]) == 2
+    assert "--walkers" in capsys.readouterr().err
