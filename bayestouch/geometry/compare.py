@@ -26,7 +26,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from bayestouch._jax import jax, jnp
+from bayestouch._jax import jax, jnp, pad_pow2
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.integrals import relative_errors, surface_integrals
 from bayestouch.geometry.mesh import as_rng, nellipsoid_mesh, sample_mesh, sample_surface
@@ -61,9 +61,7 @@ _euler_batch = jax.jit(lambda R: euler_from_matrix(jnp.moveaxis(R, 0, -1)).T)
 def _rotations(angles) -> np.ndarray:
     """(S, 3) Euler angles (ξ, ψ, ζ) in radians → (S, 3, 3) rotation matrices of eq. 2."""
     angles = np.asarray(angles, dtype=np.float64)
-    size = 1 << max(len(angles) - 1, 0).bit_length()
-    padded = np.concatenate([angles, np.zeros((size - len(angles), 3))])
-    return np.asarray(_rotation_batch(jnp.asarray(padded)))[:len(angles)]
+    return np.asarray(_rotation_batch(jnp.asarray(pad_pow2(angles, fill=0.0))))[:len(angles)]
 
 
 def _canonical_rotation(axes: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -83,9 +81,7 @@ def _canonical_rows(flat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(S, 10) parameter vectors → canonical (S, 10) vectors and their (S, 3, 3) rotation matrices."""
     axes, R = _canonical_rotation(flat[:, 3:6], _rotations(flat[:, 6:9]))
     # pad to a power of two so that the compiled Euler extraction is reused across batch sizes
-    size = 1 << max(len(R) - 1, 0).bit_length()
-    padded = np.concatenate([R, np.broadcast_to(np.eye(3), (size - len(R), 3, 3))])
-    angles = np.asarray(_euler_batch(jnp.asarray(padded)))[:len(R)]
+    angles = np.asarray(_euler_batch(jnp.asarray(pad_pow2(R, fill=np.eye(3)))))[:len(R)]
     return np.concatenate([flat[:, 0:3], axes, angles, flat[:, 9:10]], axis=1), R
 
 

@@ -12,7 +12,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from bayestouch._jax import jax, jnp
+from bayestouch._jax import jax, jnp, pad_pow2
 from bayestouch.geometry.rotation import rotation_matrix
 
 __all__ = [
@@ -211,9 +211,4 @@ def evaluate(fn, s: NEllipsoid, points, min_size: int = 256) -> np.ndarray:
         ``fn``'s output for the N points.
     """
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    m = len(p)
-    size = max(min_size, 1 << max(m - 1, 1).bit_length())
-    pad = np.empty((size, 3))
-    pad[:m] = p
-    pad[m:] = p[0] if m else 1.0
-    return np.asarray(_evaluate(fn, to_vector(s), jnp.asarray(pad)))[:m]
+    return np.asarray(_evaluate(fn, to_vector(s), jnp.asarray(pad_pow2(p, min_size=min_size))))[:len(p)]

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bayestouch._jax import jax, jnp
+from bayestouch._jax import jax, jnp, pad_pow2
 from bayestouch.errors import BadInput
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.mesh import nellipsoid_mesh
@@ -152,11 +152,7 @@ def _ffd_world_jit(surf: Surface, y):
 
 def _padded(fn, surf: Surface, y: np.ndarray) -> np.ndarray:
     """Call a jitted ``fn(surf, points)`` on points padded to a power of two (few compiled sizes)."""
-    m = len(y)
-    size = max(256, 1 << max(m - 1, 1).bit_length())
-    pad = np.tile(y[:1] if m else np.ones((1, 3)), (size, 1))
-    pad[:m] = y
-    return np.asarray(fn(surf, jnp.asarray(pad)))[:m]
+    return np.asarray(fn(surf, jnp.asarray(pad_pow2(y, min_size=256))))[:len(y)]
 
 
 def build_surface(obj: SceneObject) -> Surface:

@@ -10,7 +10,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from bayestouch._jax import jax, jnp
+from bayestouch._jax import jax, jnp, pad_pow2
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.mesh import as_rng
 from bayestouch.scene.objects import SceneObject
@@ -55,11 +55,8 @@ def _ray_t(vec, origin, dirs):
 def ray_hits(shape: ne.NEllipsoid, origin, dirs) -> np.ndarray:
     """Points (N, 3), metres, where rays from ``origin`` (inside the shape) along ``dirs (N, 3)`` leave it."""
     dirs = np.asarray(dirs, dtype=np.float64).reshape(-1, 3)
-    m = len(dirs)
-    size = max(256, 1 << max(m - 1, 1).bit_length())  # a few compiled sizes, not one per path length
-    pad = np.tile(dirs[:1] if m else np.array([[1.0, 0.0, 0.0]]), (size, 1))
-    pad[:m] = dirs
-    t = np.asarray(_ray_t(ne.to_vector(shape), jnp.asarray(origin, dtype=jnp.float64), jnp.asarray(pad)))[:m]
+    pad = pad_pow2(dirs, min_size=256)  # a few compiled sizes, not one per path length
+    t = np.asarray(_ray_t(ne.to_vector(shape), jnp.asarray(origin, dtype=jnp.float64), jnp.asarray(pad)))[:len(dirs)]
     return np.asarray(origin, dtype=np.float64) + t[:, None] * dirs
 
 
