@@ -41,6 +41,7 @@ __all__ = [
     "write_csv_rows",
     "read_csv_rows",
     "write_json",
+    "write_text",
 ]
 
 #: Above either limit (metres) the coordinates are taken to be millimetres.
@@ -354,6 +355,11 @@ def _atomic_write(path: str | os.PathLike[str], write: Callable[[IO[str]], None]
         raise
     _fsync_dir(target.parent)
     return target
+
+
+def write_text(path: str | os.PathLike[str], text: str) -> Path:
+    """Write a UTF-8 text file atomically (see :func:`_atomic_write`), creating parent folders."""
+    return _atomic_write(path, lambda f: f.write(text))
 
 
 def _fsync_dir(folder: Path) -> None:

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import csv
 import math
-import os
-import tempfile
 from pathlib import Path
+
+from bayestouch.io import write_text
 
 __all__ = ["write_table2", "write_table1", "TABLE2_COLUMNS", "TABLE1_COLUMNS"]
 
@@ -15,13 +15,6 @@ TABLE2_COLUMNS = ["epsilon", "ffd_size", "iterations", "bp_minus_x_percent", "j_
                   "converged", "de_generations", "de_rms_m", "n_points", "seconds", "object",
                   "paper_iterations", "paper_bp_minus_x_percent", "paper_j_ratio", "paper_eps_v", "paper_eps_a",
                   "paper_eps_i", "defect_free_bp_minus_x_percent", "defect_free_eps_v"]
-
-
-def _atomic_write(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    with os.fdopen(fd, "w", newline="") as fh:
-        fh.write(text)
-    os.replace(tmp, path)
 
 
 def _fmt(x, digits=3) -> str:
@@ -41,7 +34,7 @@ def write_table2(rows: list[dict], out: Path) -> str:
     w.writeheader()
     for r in rows:
         w.writerow({k: r.get(k, "") for k in TABLE2_COLUMNS})
-    _atomic_write(out / "table2.csv", buf.getvalue())
+    write_text(out / "table2.csv", buf.getvalue())
     control = any("defect_free_bp_minus_x_percent" in r for r in rows)
     head = "| ε | FFD | iterations | ‖BP − X‖ % | J_fin/J₀ | ε_V | ε_A | ε_I |"
     rule = "|---|---|---|---|---|---|---|---|"
@@ -82,7 +75,7 @@ def write_table2(rows: list[dict], out: Path) -> str:
             "of ‖BP − X‖ that comes from cracks and shallows narrower than the lattice spacing, which no lattice "
             "of these sizes can follow.")
     md = "\n".join(lines) + "\n"
-    _atomic_write(out / "table2.md", md)
+    write_text(out / "table2.md", md)
     return md
 
 
@@ -99,7 +92,7 @@ def write_table1(rows: list[dict], out: Path) -> str:
     w.writeheader()
     for r in rows:
         w.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in TABLE1_COLUMNS})
-    _atomic_write(out / "table1.csv", buf.getvalue())
+    write_text(out / "table1.csv", buf.getvalue())
     lines = [
         "# Table 1 — contact patches (eq. 16), ours beside the paper's (paper in brackets)",
         "",
@@ -124,5 +117,5 @@ def write_table1(rows: list[dict], out: Path) -> str:
         "finger's geometry (see README, 'Where we depart from the paper').",
     ]
     md = "\n".join(lines) + "\n"
-    _atomic_write(out / "table1.md", md)
+    write_text(out / "table1.md", md)
     return md

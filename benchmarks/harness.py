@@ -17,6 +17,8 @@ import sys
 import time
 from pathlib import Path
 
+from bayestouch.io import write_text
+
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results"
 
@@ -53,12 +55,6 @@ def peak_rss_mib() -> float:
     return r / 1024.0 if sys.platform != "darwin" else r / 2**20
 
 
-def _atomic(path: Path, text: str) -> None:
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
-
-
 def run(names: list[str] | None = None) -> dict[str, list[dict]]:
     RESULTS.mkdir(exist_ok=True)
     mods = sorted(p.stem for p in HERE.glob("bench_*.py"))
@@ -77,9 +73,9 @@ def run(names: list[str] | None = None) -> dict[str, list[dict]]:
             for r in getattr(mod, fname)():
                 results.append({"benchmark": fname, **r})
             print(f"[bench] {m}.{fname} done in {time.perf_counter() - t0:.1f} s", flush=True)
-        _atomic(RESULTS / f"{m}.json", json.dumps({"machine": info, "results": results}, indent=2) + "\n")
+        write_text(RESULTS / f"{m}.json", json.dumps({"machine": info, "results": results}, indent=2) + "\n")
     table = _markdown(info)
-    _atomic(RESULTS / "README.md", table)
+    write_text(RESULTS / "README.md", table)
     print(table)
     return {}
 
