@@ -27,6 +27,7 @@ __all__ = [
     "surface_point",
     "project_to_surface",
     "normals",
+    "first_order_distance",
     "volume",
     "second_moment",
     "evaluate",
@@ -156,6 +157,44 @@ def normals(s: NEllipsoid, points):
     g = s.n * jnp.sign(q) * _abs_pow(q, s.n - 1.0) / s.axes
     g = g @ s.rotation.T
     return g / jnp.sqrt(jnp.sum(g * g, axis=-1, keepdims=True) + _TINY)
+
+
+def first_order_distance(s: NEllipsoid, local):
+    """First-order Euclidean distance to the surface, for points given in the principal frame.
+
+    d = (G − 1)/|∇G| with G = (Σ|y_i/a_i|^n)^(1/n), which is homogeneous of degree 1: exact to first order
+    near the surface for any n (Taubin 1991), unlike :func:`radial_distance`, which overstates distances
+    near the flat faces of box-like shapes. Written with one log and one exp per coordinate (|q|^n and
+    |q|^(n−1) = |q|^n/|q|) plus one of each per point, as it sits in the likelihood's inner loop.
+
+    Parameters
+    ----------
+    local : (..., 3) float, metres
+        Points in the principal frame (:func:`to_local`).
+
+    Returns
+    -------
+    d : (...,) float, metres
+        Signed, positive outside.
+    grad : (..., 3) float, 1/metres
+        ∇G in the principal frame (the outward normal direction); the foot point is y − (d/|∇G|) ∇G.
+    gnorm : (...,) float, 1/metres
+        |∇G|, floored at 1/max(a, b, c) deep inside, where ∇G → 0.
+    """
+    q = local / s.axes
+    aq = jnp.abs(q) + _TINY
+    t = jnp.exp(s.n * jnp.log(aq))  # |q_i|^n
+    S = jnp.sum(t, axis=-1) + _TINY
+    G = jnp.exp(jnp.log(S) / s.n)
+    # ∂G/∂y_i = S^(1/n − 1) |q_i|^(n−1) sign(q_i) / a_i, with S^(1/n − 1) = G/S; the norm is taken
+    # before the per-point factor G/S and the signs (fewer operations in the hot path, where only d is used)
+    w = t / (aq * s.axes)
+    ss = jnp.sum(w * w, axis=-1)
+    pos = ss > 0.0  # 0 only at the very centre; the double where keeps the gradient finite there
+    gnorm = jnp.where(pos, G / S * jnp.sqrt(jnp.where(pos, ss, 1.0)), 0.0)
+    gnorm = jnp.maximum(gnorm, 1.0 / jnp.max(s.axes))
+    grad = (G / S)[..., None] * w * jnp.sign(q)
+    return (G - 1.0) / gnorm, grad, gnorm
 
 
 def _dirichlet(alpha, n):

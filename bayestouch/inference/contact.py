@@ -81,19 +81,7 @@ def residuals(theta, points):
     """First-order signed distances (M,) m of ``points (M, 3)`` to the surface of θ (> 0 outside)."""
     s = shape_of(theta)
     y = (points - s.centre) @ s.rotation  # principal frame
-    q = y / s.axes
-    aq = jnp.abs(q) + 1e-300
-    L = jnp.log(aq)
-    n = s.n
-    t = jnp.exp(n * L)  # |q_i|^n: the three powers per point
-    S = jnp.sum(t, axis=-1) + 1e-300
-    logS = jnp.log(S)
-    G = jnp.exp(logS / n)
-    # |∇G| = S^(1/n − 1) · sqrt(Σ (|q_i|^(n−1) / a_i)²) with |q_i|^(n−1) = t_i / |q_i| and S^(1/n−1) = G/S
-    g = jnp.sqrt(jnp.sum((t / (aq * s.axes)) ** 2, axis=-1))
-    gn = G / S * g
-    gn = jnp.maximum(gn, 1.0 / jnp.max(s.axes))
-    return (G - 1.0) / gn
+    return ne.first_order_distance(s, y)[0]
 
 
 def log_likelihood(theta, points, nu: float):

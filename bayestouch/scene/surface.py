@@ -122,22 +122,6 @@ def height(surf: Surface, foot_local):
     return h
 
 
-def _base_distance(shape: ne.NEllipsoid, y):
-    """First-order Euclidean distance (G − 1)/|∇G| with G = (Σ|y_i/a_i|^n)^(1/n) (degree-1 homogeneous),
-    and the foot point y − d ∇G/|∇G|. Exact on the surface to first order for any n (Taubin 1991), unlike
-    the radial distance, which overstates distances near the flat faces of box-like shapes."""
-    q = y / shape.axes
-    aq = jnp.abs(q) + 1e-300
-    S = jnp.sum(aq**shape.n, -1) + 1e-200
-    G = S ** (1.0 / shape.n)
-    # ∂G/∂y_i = S^(1/n − 1) |q_i|^(n−1) sign(q_i) / a_i
-    grad = S[..., None] ** (1.0 / shape.n - 1.0) * aq ** (shape.n - 1.0) * jnp.sign(q) / shape.axes
-    gn = jnp.sqrt(jnp.sum(grad * grad, -1) + 1e-300)
-    gn = jnp.maximum(gn, 1.0 / jnp.max(shape.axes))  # deep inside, where ∇G → 0
-    d = (G - 1.0) / gn
-    return d, y - (d / gn)[..., None] * grad
-
-
 def signed_distance(surf: Surface, x, ffd_steps: int = 6):
     """Signed distance φ (...,) in metres of world points ``x (..., 3)`` to the true surface (> 0 outside)."""
     xl = ne.to_local(surf.shape, x)
@@ -148,5 +132,6 @@ def signed_distance(surf: Surface, x, ffd_steps: int = 6):
             return xl - ffd_displacement(surf, y), None
 
         y, _ = jax.lax.scan(step, xl, None, length=ffd_steps)
-    dist, foot = _base_distance(surf.shape, y)
+    dist, grad, gnorm = ne.first_order_distance(surf.shape, y)
+    foot = y - (dist / gnorm)[..., None] * grad
     return dist - height(surf, foot)
