@@ -336,7 +336,7 @@ def reproduce_table1(obj: SceneObject, vf, *, seed: int = 0, n_paths: int = 25, 
     bar = tqdm(total=len(paths) * len(loads), desc="Table 1", unit="patch", disable=not progress)
     for k in paths:
         path = all_paths[k - 1]
-        h = np.abs(obj.height(path.points)) if obj.defects or obj.texture is not None else np.zeros(len(path.time))
+        h = np.abs(obj.height(path.points))
         i = int(np.argmax(h)) if h.max() > 0 else len(path.time) // 2
         tang = path.points[min(i + 1, len(path.time) - 1)] - path.points[max(i - 1, 0)]
         c, n, t = jnp.asarray(path.points[i]), jnp.asarray(path.normals[i]), jnp.asarray(tang)

@@ -17,11 +17,11 @@ from bayestouch._jax import jax, jnp, pad_pow2
 from bayestouch.errors import BadInput
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.mesh import nellipsoid_mesh
-from bayestouch.scene.surface import Defects, Surface, Texture, ffd_displacement
+from bayestouch.scene.surface import Defects, Surface, Texture, defect_height, ffd_displacement
 from bayestouch.scene.surface import height as _surface_height
 
-__all__ = ["Defect", "TextureSpec", "FFDSpec", "SceneObject", "build_surface", "load_object", "object_from_dict",
-           "DEFECT_KINDS"]
+__all__ = ["Defect", "TextureSpec", "FFDSpec", "SceneObject", "build_surface", "defect_arrays", "load_object",
+           "object_from_dict", "DEFECT_KINDS"]
 
 DEFECT_KINDS = ("bump", "shallow", "crack")
 
@@ -51,16 +51,7 @@ class Defect:
 
     def height(self, y: np.ndarray) -> np.ndarray:
         """Height (N,) in metres, outward positive, at base-surface points ``y (N, 3)`` in metres."""
-        c = np.asarray(self.centre)
-        if self.kind == "crack":
-            e = np.asarray(self.end)
-            d = e - c
-            t = np.clip(((y - c) @ d) / (d @ d), 0.0, 1.0)
-            r2 = np.sum((y - (c + t[:, None] * d)) ** 2, axis=1)
-        else:
-            r2 = np.sum((y - c) ** 2, axis=1)
-        g = np.exp(-0.5 * r2 / self.radius**2)
-        return self.depth * g if self.kind == "bump" else -self.depth * g
+        return np.asarray(defect_height(defect_arrays((self,)), jnp.asarray(y, dtype=jnp.float64)))
 
 
 @dataclass(frozen=True)
@@ -119,18 +110,20 @@ class SceneObject:
         y = np.asarray(y, float).reshape(-1, 3)
         if not self.defects and self.texture is None:
             return np.zeros(len(y))
-        surf = self.surface()
-        return _padded(_height_jit, surf, y)
+        return _padded(_height_jit, self.surface(), y)
 
     def displace(self, y) -> np.ndarray:
         """Base-surface points (N, 3) in metres → points of the true surface (heights along the base
         normal, then the FFD lattice)."""
         y = np.asarray(y, float).reshape(-1, 3)
-        if self.defects or self.texture is not None:
-            nrm = ne.evaluate(ne.normals, self.shape, y)
-            y = y + self.height(y)[:, None] * nrm
+        heights = bool(self.defects) or self.texture is not None
+        if not heights and self.ffd is None:
+            return y
+        surf = self.surface()
+        if heights:
+            y = y + _padded(_height_jit, surf, y)[:, None] * ne.evaluate(ne.normals, self.shape, y)
         if self.ffd is not None:
-            y = _padded(_ffd_world_jit, self.surface(), y)
+            y = _padded(_ffd_world_jit, surf, y)
         return y
 
     def mesh(self, res: int = 64) -> tuple[np.ndarray, np.ndarray]:
@@ -176,8 +169,12 @@ def build_surface(obj: SceneObject) -> Surface:
         k *= (2 * np.pi / t.wavelength) * rng.uniform(0.5, 2.0, size=(t.modes, 1))
         tex = Texture(jnp.array(t.amplitude), jnp.array(t.wavelength), jnp.array(t.orientation),
                       jnp.array(t.roughness), jnp.asarray(k), jnp.asarray(rng.uniform(0, 2 * np.pi, t.modes)))
-    d = obj.defects
-    defects = Defects(
+    return Surface(s, jnp.asarray(-half), jnp.asarray(half), disp, tex, defect_arrays(obj.defects))
+
+
+def defect_arrays(d: tuple[Defect, ...]) -> Defects:
+    """The :class:`~bayestouch.scene.surface.Defects` arrays of a tuple of :class:`Defect`."""
+    return Defects(
         jnp.array([1.0 if x.kind == "bump" else -1.0 for x in d]).reshape(-1),
         jnp.array([1.0 if x.kind == "crack" else 0.0 for x in d]).reshape(-1),
         jnp.array([x.centre for x in d]).reshape(-1, 3),
@@ -185,7 +182,6 @@ def build_surface(obj: SceneObject) -> Surface:
         jnp.array([x.radius for x in d]).reshape(-1),
         jnp.array([x.depth for x in d]).reshape(-1),
     )
-    return Surface(s, jnp.asarray(-half), jnp.asarray(half), disp, tex, defects)
 
 
 def _vec3(d: dict, key: str, where: str) -> tuple[float, float, float]:

@@ -20,9 +20,7 @@ from typing import NamedTuple
 from bayestouch._jax import jax, jnp
 from bayestouch.geometry import nellipsoid as ne
 
-__all__ = ["Texture", "Defects", "Surface", "height", "signed_distance", "ffd_displacement", "DEFECT_CODES"]
-
-DEFECT_CODES = {"bump": 1.0, "shallow": -1.0, "crack": -2.0}
+__all__ = ["Texture", "Defects", "Surface", "height", "defect_height", "signed_distance", "ffd_displacement"]
 
 
 class Texture(NamedTuple):
@@ -111,15 +109,20 @@ def height(surf: Surface, foot_local):
     kk = t.rough_k.shape[0]
     if kk:
         h = h + t.roughness * jnp.sqrt(2.0 / kk) * jnp.sum(jnp.cos(foot_local @ t.rough_k.T + t.rough_phase), -1)
-    df = surf.defects
-    if df.sign.shape[0]:
-        y = ne.to_world(surf.shape, foot_local)[..., None, :]  # (..., 1, 3)
-        seg = df.end - df.centre
-        tt = jnp.sum((y - df.centre) * seg, -1) / jnp.maximum(jnp.sum(seg * seg, -1), 1e-30)
-        tt = jnp.clip(tt, 0.0, 1.0) * df.segment
-        r2 = jnp.sum((y - (df.centre + tt[..., None] * seg)) ** 2, -1)
-        h = h + jnp.sum(df.sign * df.depth * jnp.exp(-0.5 * r2 / df.radius**2), -1)
+    if surf.defects.sign.shape[0]:
+        h = h + defect_height(surf.defects, ne.to_world(surf.shape, foot_local))
     return h
+
+
+def defect_height(df: Defects, y):
+    """Summed height (...,) in metres, outward positive, of the defects at world points ``y (..., 3)`` m:
+    Gaussian bumps and shallows around their centre, cracks around their segment."""
+    y = y[..., None, :]  # (..., 1, 3) against (D, 3)
+    seg = df.end - df.centre
+    tt = jnp.sum((y - df.centre) * seg, -1) / jnp.maximum(jnp.sum(seg * seg, -1), 1e-30)
+    tt = jnp.clip(tt, 0.0, 1.0) * df.segment
+    r2 = jnp.sum((y - (df.centre + tt[..., None] * seg)) ** 2, -1)
+    return jnp.sum(df.sign * df.depth * jnp.exp(-0.5 * r2 / df.radius**2), -1)
 
 
 def signed_distance(surf: Surface, x, ffd_steps: int = 6):
