@@ -168,19 +168,18 @@ def _cmd_reproduce_paper(args) -> int:
 
 
 def _cmd_demo(args) -> int:
-    ns = argparse.Namespace(out=args.out, seed=args.seed, object=DEFAULT_OBJECTS / "graphite_plate.toml",
-                            paths=25, rate=10.0, sizes=["6x6x3", "6x5x5"], epsilons=[0.0, 1e-3], res=32,
-                            quiet=False)
+    # the subcommands' own parser supplies every default the demo does not set
+    parser = build_parser()
+    sim = parser.parse_args(["simulate", "--object", str(DEFAULT_OBJECTS / "egg.toml"), "--strokes", "3",
+                             "--seed", str(args.seed), "--out", str(args.out / "egg_strokes.nc")])
+    paper = parser.parse_args(["reproduce-paper", "--out", str(args.out), "--seed", str(args.seed), "--rate", "10",
+                               "--sizes", "6x6x3,6x5x5", "--res", "32"])
     print("bayestouch demo: 1) the virtual finger strokes the egg (recording), 2) the paper pipeline on the "
           "damaged graphite plate (reduced size).")
-    sim = argparse.Namespace(object=DEFAULT_OBJECTS / "egg.toml", strokes=3, seed=args.seed,
-                             out=args.out / "egg_strokes.nc", duration=2.0, rate=50.0, depth=3e-4, force=None,
-                             mode=None,
-                             currents="0.15,0.05,0.05", models=DEFAULT_OBJECTS.parent, quiet=False)
     _check_out(args.out)
     _cmd_simulate(sim)
     print("The Bayesian fit and the exploration loop of the full demo arrive with the inference and planning work.")
-    return _cmd_reproduce_paper(ns)
+    return _cmd_reproduce_paper(paper)
 
 
 def _cmd_simulate(args) -> int:
