@@ -1,26 +1,202 @@
-"""Contact-level posterior run: initialise, sample with emcee (HDF5 checkpoints, resumable), diagnose,
-summarise (canonicalised draws), write the outputs. The stateful edge of the inference package.
+"""Posterior runs: initialise, sample with emcee (HDF5 checkpoints, resumable), diagnose, summarise
+(canonicalised draws), write the outputs. The stateful edge of the inference package.
 
-Outputs in the run folder: ``chain.h5`` (emcee backend, the checkpoint), ``posterior.nc`` (ArviZ
-InferenceData: posterior and observed data), ``summary.json`` and ``mean_shape.ply``.
+Every likelihood level describes itself with a :class:`PosteriorModel` and hands its chain to
+:func:`write_posterior`, which writes the run folder:
+
+* ``chain.h5`` — the emcee backend (the checkpoint; written by :func:`bayestouch.inference.sampler.sample`);
+* ``posterior.nc`` — ArviZ InferenceData: ``posterior`` (every kept draw, canonicalised natural parameters),
+  ``log_likelihood`` and ``posterior_predictive`` (on thinned draws), ``observed_data``;
+* ``summary.json`` — parameters (mean, sd, q05, q95, R-hat, bulk ESS), derived volume, area and inertia (eq. 11–13)
+  with intervals, diagnostics (converged or not, and why), the model;
+* ``mean_shape.ply`` — the posterior-mean surface; ``uncertainty_mesh.ply`` — the same mesh coloured by the
+  per-vertex posterior spread of the surface along its normal (the spread in metres is in the vertex property
+  ``spread``, also summarised in ``summary.json``).
 """
 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
-from bayestouch._jax import jnp
-from bayestouch.errors import BadInput
+from bayestouch._jax import jax, jnp
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.inference import contact as cm
 
-__all__ = ["initial_theta", "run_contact_fit", "NATURAL_NAMES"]
+__all__ = ["PosteriorModel", "write_posterior", "initial_theta", "run_contact_fit", "contact_model",
+           "NATURAL_NAMES", "interval", "uncertainty_spread"]
 
-#: summary names (natural units) of the 11 sampled parameters
+#: summary names (natural units) of the 11 sampled contact-level parameters
 NATURAL_NAMES = ("x_G", "y_G", "z_G", "a", "b", "c", "xi", "psi", "zeta", "n", "sigma")
+
+#: draws kept for the log-likelihood and posterior-predictive groups (memory: draws × observations × 8 bytes)
+PREDICTIVE_DRAWS = 1000
+#: draws used for the derived quantities and the uncertainty mesh
+DERIVED_DRAWS = 400
+
+
+class PosteriorModel(NamedTuple):
+    """How a likelihood level's chain becomes outputs.
+
+    names : tuple of str
+        Natural (summary) names of the columns :attr:`natural` returns.
+    natural : callable
+        ``(N, D) sampled → (N, K) natural``, canonicalised (axis order, signs, angle aliases).
+    shape_vectors : callable
+        ``(N, K) natural → (N, 10)`` n-ellipsoid vectors (centre m, axes m, angles rad, n).
+    pointwise_log_lik : callable or None
+        ``(N, D) sampled → (N, M)`` log-likelihood of each observation (ArviZ ``log_likelihood`` group).
+    predictive : callable or None
+        ``((N, D) sampled, np.random.Generator) → {name: (N, ...) array}`` replicated data.
+    observed : dict
+        ``{name: array}`` the data (ArviZ ``observed_data`` group); names match :attr:`predictive`'s.
+    info : dict
+        Written as ``summary["model"]``.
+    """
+
+    names: tuple
+    natural: Callable
+    shape_vectors: Callable
+    pointwise_log_lik: Callable | None
+    predictive: Callable | None
+    observed: dict
+    info: dict
+
+
+def interval(x) -> dict:
+    """Mean, sd and the central 90 % interval (q05, q95) of draws ``x`` (N,)."""
+    x = np.asarray(x, float)
+    return {"mean": float(x.mean()), "sd": float(x.std(ddof=1)) if x.size > 1 else 0.0,
+            "q05": float(np.quantile(x, 0.05)), "q95": float(np.quantile(x, 0.95))}
+
+
+def _thin_rows(n_steps: int, per_walker: int) -> np.ndarray:
+    return np.unique(np.linspace(0, n_steps - 1, max(1, min(n_steps, per_walker))).round().astype(int))
+
+
+def uncertainty_spread(mean_vertices, mean_normals, shape_vectors) -> np.ndarray:
+    """Per-vertex posterior spread (V,) m of the surface: the sd over draws of where each draw's surface crosses
+    the line through a mean-mesh vertex along its normal (first-order distance, so exact near the surface).
+
+    Parameters
+    ----------
+    mean_vertices : (V, 3) float, metres
+    mean_normals : (V, 3) float
+        Unit normals of the mean surface (used only to define the lines; the first-order distance is taken
+        along the draw's own gradient, which agrees to first order).
+    shape_vectors : (N, 10) float
+        Posterior draws as n-ellipsoid vectors.
+    """
+    del mean_normals  # the first-order distance is already along the normal to first order
+    pts = jnp.asarray(mean_vertices)
+
+    @jax.jit
+    def dist(v):
+        s = ne.from_vector(v)
+        return ne.first_order_distance(s, ne.to_local(s, pts))[0]
+
+    d = np.stack([np.asarray(dist(jnp.asarray(v))) for v in np.asarray(shape_vectors)])
+    return d.std(axis=0, ddof=1)
+
+
+def _spread_colours(spread: np.ndarray) -> np.ndarray:
+    import matplotlib
+
+    cmap = matplotlib.colormaps["viridis"]
+    hi = float(np.quantile(spread, 0.99)) or 1.0
+    return (np.asarray(cmap(np.clip(spread / hi, 0.0, 1.0))) * 255).round().astype(np.uint8)
+
+
+def write_posterior(out: Path, chain, model: PosteriorModel, *, seed: int, t0: float) -> dict:
+    """Summarise a chain (:class:`~bayestouch.inference.sampler.Chain`) and write the run folder ``out``.
+
+    Returns the summary written to ``summary.json``.
+    """
+    import arviz as az
+    import xarray as xr
+
+    from bayestouch.geometry.integrals import surface_integrals
+    from bayestouch.geometry.mesh import nellipsoid_mesh, to_trimesh
+    from bayestouch.inference.sampler import convergence
+    from bayestouch.io import write_json
+
+    out = Path(out)
+    kept = chain.kept  # (S, W, D)
+    S, W, D = kept.shape
+    nat = model.natural(kept.reshape(-1, D)).reshape(S, W, -1)
+    post = xr.Dataset({name: (("chain", "draw"), np.swapaxes(nat[..., i], 0, 1))
+                       for i, name in enumerate(model.names)},
+                      coords={"chain": np.arange(W), "draw": np.arange(S)})
+    ess = az.ess(post, method="bulk")
+    rhat = az.rhat(post)
+    params = {name: {**interval(nat[..., i]), "r_hat": float(rhat[name]), "ess_bulk": float(ess[name])}
+              for i, name in enumerate(model.names)}
+    rng = np.random.default_rng(seed)
+    groups = {"posterior": post}
+    rows = _thin_rows(S, max(1, PREDICTIVE_DRAWS // W))
+    sub = kept[rows]  # (s, W, D)
+    flat_sub = np.swapaxes(sub, 0, 1).reshape(-1, D)  # chain-major, matching (chain, draw)
+    coords = {"chain": np.arange(W), "draw": rows}
+    if model.pointwise_log_lik is not None:
+        ll = np.asarray(model.pointwise_log_lik(flat_sub))
+        groups["log_likelihood"] = xr.Dataset({"obs": (("chain", "draw", "obs_id"), ll.reshape(W, len(rows), -1))},
+                                              coords=coords)
+    if model.predictive is not None:
+        rep = model.predictive(flat_sub, rng)
+        groups["posterior_predictive"] = xr.Dataset(
+            {k: (("chain", "draw", *[f"{k}_dim_{j}" for j in range(v.ndim - 1)]), v.reshape(W, len(rows), *v.shape[1:]))
+             for k, v in rep.items()}, coords=coords)
+    if model.observed:
+        groups["observed_data"] = xr.Dataset(
+            {k: ([f"{k}_dim_{j}" for j in range(np.ndim(v))], np.asarray(v)) for k, v in model.observed.items()})
+    idata = az.InferenceData(**groups)
+
+    flat = nat.reshape(-1, nat.shape[-1])
+    draws = flat[rng.choice(len(flat), min(DERIVED_DRAWS, len(flat)), replace=False)]
+    vecs = np.asarray(model.shape_vectors(draws))
+    vols, areas, inertia = [], [], []
+    for v in vecs:
+        ints = surface_integrals(*nellipsoid_mesh(ne.from_vector(jnp.asarray(v)), 16))
+        vols.append(ints.volume)
+        areas.append(ints.area)
+        inertia.append(np.linalg.eigvalsh(ints.inertia)[::-1])  # principal moments, largest first
+    vols, areas, inertia = np.array(vols), np.array(areas), np.array(inertia)
+    # the mesh at res 16 under-estimates the volume slightly; the exact n-ellipsoid volume is closed-form
+    exact_vols = np.array([float(ne.volume(ne.from_vector(jnp.asarray(v)))) for v in vecs])
+
+    mean_vec = np.asarray(model.shape_vectors(flat.mean(axis=0)[None]))[0]
+    mean = ne.from_vector(jnp.asarray(mean_vec))
+    verts, faces = nellipsoid_mesh(mean, 32)
+    nrm = np.asarray(ne.normals(mean, jnp.asarray(verts)))
+    spread = uncertainty_spread(verts, nrm, vecs[: min(200, len(vecs))])
+    to_trimesh(verts, faces).export(str(out / "mean_shape.ply"))
+    um = to_trimesh(verts, faces)
+    um.visual.vertex_colors = _spread_colours(spread)
+    um.vertex_attributes["spread"] = spread.astype(np.float32)
+    um.export(str(out / "uncertainty_mesh.ply"))
+
+    diag = convergence([p["r_hat"] for p in params.values()], [p["ess_bulk"] for p in params.values()], chain)
+    summary = {
+        "parameters": params,
+        "derived": {
+            "volume_m3": interval(exact_vols),
+            "area_m2": interval(areas),
+            "inertia_principal_m5": {k: [interval(inertia[:, i])[k] for i in range(3)]
+                                     for k in ("mean", "sd", "q05", "q95")},
+            "surface_spread_m": {"mean": float(spread.mean()), "max": float(spread.max()),
+                                 "q95": float(np.quantile(spread, 0.95))},
+        },
+        "diagnostics": {**diag, "seconds": time.perf_counter() - t0},
+        "model": {**model.info, "seed": seed},
+        "files": ["summary.json", "posterior.nc", "chain.h5", "mean_shape.ply", "uncertainty_mesh.ply"],
+    }
+    idata.to_netcdf(str(out / "posterior.nc"))
+    write_json(out / "summary.json", summary)
+    return summary
 
 
 def initial_theta(points, seed: int, priors: cm.PriorParams) -> np.ndarray:
@@ -48,6 +224,46 @@ def _natural(flat: np.ndarray) -> np.ndarray:
     return np.column_stack([canonicalize_batch(v), np.exp(flat[:, 10])])
 
 
+def contact_model(points, priors: cm.PriorParams, nu: float) -> PosteriorModel:
+    """The contact level as a :class:`PosteriorModel` (pointwise Student-t log-likelihood; replicated points are
+    surface points of each draw displaced along the normal by Student-t noise of scale σ)."""
+    pts = jnp.asarray(points, dtype=jnp.float64)
+    m = len(points)
+
+    def pointwise(theta):
+        r = cm.residuals(theta, pts)
+        sigma = jnp.exp(theta[10])
+        z2 = (r / sigma) ** 2
+        if np.isinf(nu):
+            return -0.5 * z2 - theta[10] - 0.5 * jnp.log(2 * jnp.pi)
+        from jax.scipy.special import gammaln
+
+        c = gammaln((nu + 1) / 2) - gammaln(nu / 2) - 0.5 * jnp.log(nu * jnp.pi)
+        return c - theta[10] - 0.5 * (nu + 1) * jnp.log1p(z2 / nu)
+
+    @jax.jit
+    @jax.vmap
+    def foot_and_normal(theta):
+        s = cm.shape_of(theta)
+        foot = ne.project_to_surface(s, pts)
+        return foot, ne.normals(s, foot)
+
+    def predictive(thetas, rng):
+        foot, nrm = (np.asarray(a) for a in foot_and_normal(jnp.asarray(thetas)))
+        e = rng.standard_normal((len(thetas), m)) if np.isinf(nu) else rng.standard_t(nu, (len(thetas), m))
+        return {"points": foot + (np.exp(thetas[:, 10])[:, None] * e)[..., None] * nrm}
+
+    batched = jax.jit(jax.vmap(pointwise))
+
+    def ll(thetas):
+        return np.asarray(batched(jnp.asarray(thetas)))
+
+    return PosteriorModel(
+        NATURAL_NAMES, _natural, lambda nat: nat[:, :10], ll, predictive, {"points": np.asarray(points)},
+        {"level": "contact", "likelihood": "Gaussian" if np.isinf(nu) else f"Student-t, nu = {nu:g}",
+         "n_points": int(m), "parameters_sampled": list(cm.PARAM_NAMES)})
+
+
 def run_contact_fit(points, out: Path, *, seed: int = 0, walkers: int = 32, steps: int = 4000,
                     resume: bool = False, budget_s: float | None = None, progress: bool = True) -> dict:
     """Sample the contact-level posterior of ``points (M, 3)`` m and write the run folder ``out``.
@@ -68,92 +284,17 @@ def run_contact_fit(points, out: Path, *, seed: int = 0, walkers: int = 32, step
     dict
         The summary written to ``summary.json``.
     """
-    import arviz as az
-    import emcee
-
-    from bayestouch.io import write_json
+    from bayestouch.inference.sampler import sample
 
     t0 = time.perf_counter()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     priors = cm.load_priors()
     logp, bounds = cm.make_log_prob(points, priors)
-    ndim = 11
-    backend = emcee.backends.HDFBackend(str(out / "chain.h5"))
-    rng = np.random.default_rng(seed)
-    if resume and (out / "chain.h5").exists() and backend.iteration > 0:
-        if backend.shape != (walkers, ndim):
-            raise BadInput(f"--resume: {out / 'chain.h5'} has {backend.shape[0]} walkers, not {walkers}")
-        start = None
-    else:
-        backend.reset(walkers, ndim)
-        theta0 = initial_theta(points, seed, priors)
-        start = _walkers(theta0, bounds, walkers, rng)
-    moves = [(emcee.moves.DEMove(), 0.8), (emcee.moves.DESnookerMove(), 0.2)]  # strongly correlated shape params
-    sampler = emcee.EnsembleSampler(walkers, ndim, logp, vectorize=True, backend=backend, moves=moves)
-    state = np.random.RandomState(seed).get_state()
-    sampler.random_state = state
-    if not np.array_equal(sampler.random_state[1], state[1]):
-        raise RuntimeError("emcee did not take the random state")
-    todo = steps - backend.iteration
-    stopped_by_budget = False
-    if todo > 0:
-        for _ in sampler.sample(start if start is not None else backend.get_last_sample(), iterations=todo,
-                                progress=progress):
-            if budget_s is not None and time.perf_counter() - t0 > budget_s:
-                stopped_by_budget = True
-                break
-    chain = backend.get_chain()  # (steps, walkers, 11)
-    n_done = chain.shape[0]
-    try:
-        tau = backend.get_autocorr_time(tol=0)
-    except Exception:  # too short a chain
-        tau = np.full(ndim, np.nan)
-    tau_max = float(np.nanmax(tau)) if np.isfinite(tau).any() else float("nan")
-    burn = int(min(n_done // 2, max(2 * tau_max, n_done // 4))) if np.isfinite(tau_max) else n_done // 2
-    kept = chain[burn:]
-    nat = _natural(kept.reshape(-1, ndim)).reshape(kept.shape)  # (draws, walkers, 11)
-    post = {name: np.swapaxes(nat[..., i], 0, 1) for i, name in enumerate(NATURAL_NAMES)}
-    idata = az.from_dict(posterior=post, observed_data={"points": np.asarray(points)})
-    ess = az.ess(idata, method="bulk")
-    rhat = az.rhat(idata)
-    params = {}
-    for i, name in enumerate(NATURAL_NAMES):
-        x = nat[..., i].ravel()
-        params[name] = {"mean": float(x.mean()), "sd": float(x.std(ddof=1)), "q05": float(np.quantile(x, 0.05)),
-                        "q95": float(np.quantile(x, 0.95)), "r_hat": float(rhat[name]),
-                        "ess_bulk": float(ess[name])}
-    flat = nat.reshape(-1, ndim)
-    thin = flat[np.random.default_rng(seed).choice(len(flat), min(400, len(flat)), replace=False)]
-    shapes = [ne.from_vector(jnp.asarray(v[:10])) for v in thin]
-    vols = np.array([float(ne.volume(s)) for s in shapes])
-    from bayestouch.geometry.integrals import surface_integrals
-    from bayestouch.geometry.mesh import nellipsoid_mesh
 
-    areas = np.array([surface_integrals(*nellipsoid_mesh(s, 12)).area for s in shapes[:200]])
+    def start():
+        return _walkers(initial_theta(points, seed, priors), bounds, walkers, np.random.default_rng(seed))
 
-    def stats(x):
-        return {"mean": float(x.mean()), "sd": float(x.std(ddof=1)), "q05": float(np.quantile(x, 0.05)),
-                "q95": float(np.quantile(x, 0.95))}
-
-    max_rhat = max(p["r_hat"] for p in params.values())
-    min_ess = min(p["ess_bulk"] for p in params.values())
-    converged = bool(max_rhat < 1.01 and min_ess > 400 and np.isfinite(tau_max) and n_done > 50 * tau_max)
-    summary = {
-        "parameters": params,
-        "derived": {"volume_m3": stats(vols), "area_m2": stats(areas)},
-        "diagnostics": {"converged": converged, "max_r_hat": max_rhat, "min_ess_bulk": min_ess,
-                        "n_samples": int(flat.shape[0]), "seconds": time.perf_counter() - t0,
-                        "steps": int(n_done), "burn_in": burn, "walkers": walkers,
-                        "autocorr_time_max": tau_max, "acceptance": float(np.mean(sampler.acceptance_fraction))
-                        if todo > 0 else None, "stopped_by_budget": stopped_by_budget},
-        "model": {"level": "contact", "likelihood": f"Student-t, nu = {priors.student_nu:g}", "seed": seed,
-                  "n_points": int(len(points))},
-    }
-    idata.to_netcdf(str(out / "posterior.nc"))
-    mean = ne.from_vector(jnp.asarray(flat[:, :10].mean(axis=0)))
-    from bayestouch.geometry.mesh import to_trimesh
-
-    to_trimesh(*nellipsoid_mesh(mean, 32)).export(str(out / "mean_shape.ply"))
-    write_json(out / "summary.json", summary)
-    return summary
+    ch = sample(logp, start, out / "chain.h5", walkers=walkers, ndim=len(cm.PARAM_NAMES), seed=seed, steps=steps,
+                resume=resume, budget_s=budget_s, progress=progress, t0=t0)
+    return write_posterior(out, ch, contact_model(points, priors, float(priors.student_nu)), seed=seed, t0=t0)
