@@ -45,6 +45,13 @@ def _size_list(text: str) -> list[str]:
     return sizes
 
 
+def _one_size(text: str) -> tuple[int, int, int]:
+    sizes = _size_list(text)
+    if len(sizes) != 1:
+        raise argparse.ArgumentTypeError(f"expected one lattice size like 3x3x3, got {text!r}")
+    return tuple(int(p) for p in sizes[0].split("x"))
+
+
 def _eps_list(text: str) -> list[float]:
     try:
         eps = [float(s) for s in text.split(",") if s.strip()]
@@ -83,17 +90,25 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--res", type=_positive_int, default=40, help="model mesh cells per cube edge (default 40)")
     rp.add_argument("--quiet", action="store_true", help="no progress bar")
 
-    fp = sub.add_parser("fit", help="posterior over the object's shape from contact points (emcee)",
-                        description="Contact-level Bayesian fit: Student-t residuals of the contact points against "
-                        "an n-ellipsoid, sampled with emcee; writes summary.json, posterior.nc (ArviZ), "
-                        "mean_shape.ply and the resumable chain.h5.")
-    fp.add_argument("points", type=Path, help="contact points CSV: x,y,z in metres (optional nx,ny,nz,force)")
+    fp = sub.add_parser("fit", help="posterior over the object's shape from contact points or a recording (emcee)",
+                        description="Bayesian shape fit sampled with emcee. Contact level (a .csv of contact points): "
+                        "Student-t residuals of the points against an n-ellipsoid. Raw-current level (a .nc "
+                        "recording from `bayestouch simulate` or `bayestouch device run`): the forward model "
+                        "predicts every taxel's current. Writes summary.json, posterior.nc (ArviZ), mean_shape.ply, "
+                        "uncertainty_mesh.ply and the resumable chain.h5.")
+    fp.add_argument("points", type=Path, help="contact points CSV (x,y,z in metres; optional nx,ny,nz,force) or a "
+                    "recording .nc")
     fp.add_argument("--out", required=True, type=Path, help="output folder")
     fp.add_argument("--seed", type=int, default=0, help="seed of the initial fit, walkers and emcee (default 0)")
     fp.add_argument("--walkers", type=_positive_int, default=32, help="emcee walkers (default 32)")
     fp.add_argument("--steps", type=_positive_int, default=4000, help="chain length in steps (default 4000)")
     fp.add_argument("--resume", action="store_true", help="continue the chain in OUT/chain.h5")
     fp.add_argument("--budget", type=float, default=None, help="wall-clock budget for sampling, seconds")
+    fp.add_argument("--ffd", type=_one_size, default=None, metavar="LxMxK",
+                    help="contact level: refine the n-ellipsoid with an FFD lattice of this size, marginalised "
+                    "analytically (Gaussian noise), e.g. 3x3x3")
+    fp.add_argument("--ffd-tau", type=float, default=None,
+                    help="prior sd of the FFD control-point displacements, metres (default 5e-4)")
     fp.add_argument("--quiet", action="store_true", help="no progress bar")
 
     sp = sub.add_parser("simulate", help="simulate strokes of the virtual finger over an object (netCDF)",
@@ -230,25 +245,40 @@ def _cmd_simulate(args) -> int:
 
 def _cmd_fit(args) -> int:
     from bayestouch.errors import BadInput
-    from bayestouch.inference.run import run_contact_fit
-    from bayestouch.io import load_contact_points
 
-    if args.points.suffix == ".nc":
-        raise BadInput(f"{args.points}: the raw-current fit of recordings is not available in this version yet "
-                       "(issue 4); give a contact points CSV")
     if args.walkers < 24 or args.walkers % 2:
-        raise BadInput(f"--walkers must be an even number ≥ 24 (twice the 11 parameters, plus a margin), "
+        raise BadInput(f"--walkers must be an even number ≥ 24 (twice the parameters, plus a margin), "
                        f"got {args.walkers}")
-    cp = load_contact_points(args.points)
+    if args.budget is not None and not args.budget > 0:
+        raise BadInput(f"--budget must be > 0 seconds, got {args.budget}")
     if args.out.exists() and not args.out.is_dir():
         raise BadInput(f"--out {args.out} exists and is not a folder")
-    s = run_contact_fit(cp.points, args.out, seed=args.seed, walkers=args.walkers, steps=args.steps,
+    if not args.points.is_file():
+        raise BadInput(f"{args.points}: no such file (expected a contact points CSV or a recording .nc)")
+    if args.ffd_tau is not None and not (0 < args.ffd_tau < 0.1):
+        raise BadInput(f"--ffd-tau must be in (0, 0.1) metres, got {args.ffd_tau}")
+    if args.points.suffix == ".nc":
+        if args.ffd is not None:
+            raise BadInput("--ffd applies to contact points (.csv), not to a recording (.nc)")
+        from bayestouch.inference.raw import run_raw_fit
+
+        s = run_raw_fit(args.points, args.out, seed=args.seed, walkers=args.walkers, steps=args.steps,
                         resume=args.resume, budget_s=args.budget, progress=not args.quiet)
+    else:
+        from bayestouch.inference.run import run_contact_fit
+        from bayestouch.io import load_contact_points
+
+        cp = load_contact_points(args.points)
+        s = run_contact_fit(cp.points, args.out, seed=args.seed, walkers=args.walkers, steps=args.steps,
+                            resume=args.resume, budget_s=args.budget, progress=not args.quiet, ffd=args.ffd,
+                            ffd_tau=args.ffd_tau)
     d = s["diagnostics"]
     v = s["derived"]["volume_m3"]
-    print(f"wrote {args.out}/summary.json, posterior.nc, mean_shape.ply: volume {v['mean'] * 1e6:.3f} ± "
-          f"{v['sd'] * 1e6:.3f} cm³, max R-hat {d['max_r_hat']:.3f}, min ESS {d['min_ess_bulk']:.0f}, "
-          f"{'converged' if d['converged'] else 'NOT converged'} ({d['seconds']:.1f} s)")
+    print(f"wrote {args.out}/summary.json, posterior.nc, mean_shape.ply, uncertainty_mesh.ply: volume "
+          f"{v['mean'] * 1e6:.3f} ± {v['sd'] * 1e6:.3f} cm³ (90 % {v['q05'] * 1e6:.3f}–{v['q95'] * 1e6:.3f}), "
+          f"max R-hat {d['max_r_hat']:.3f}, min ESS {d['min_ess_bulk']:.0f}, "
+          f"{'converged' if d['converged'] else 'NOT converged'}"
+          f"{' (stopped by --budget)' if d.get('stopped_by_budget') else ''} ({d['seconds']:.1f} s)")
     return 0
 
 

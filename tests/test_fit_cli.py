@@ -56,6 +56,14 @@ def test_fit_bad_inputs_exit_2(tmp_path, capsys, points_csv):
     assert "z" in err and "\n" not in err
     assert main(["fit", str(points_csv), "--out", str(tmp_path / "o"), "--walkers", "10"]) == 2
     assert "--walkers" in capsys.readouterr().err
+    assert main(["fit", str(points_csv), "--out", str(tmp_path / "o"), "--ffd-tau", "-1"]) == 2
+    assert "--ffd-tau" in capsys.readouterr().err
+    assert main(["fit", str(tmp_path / "missing.csv"), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "no such file" in err and "\n" not in err
+    with pytest.raises(SystemExit) as e:  # argparse: a malformed lattice size is a usage error (exit 2)
+        main(["fit", str(points_csv), "--out", str(tmp_path / "o"), "--ffd", "3x3"])
+    assert e.value.code == 2 and "3x3" in capsys.readouterr().err
 
 
 def _check_posterior_file(out, n_points):
@@ -91,3 +99,36 @@ def _check_uncertainty_mesh(out, summary):
     assert spread.max() < 3e-4 and summary["derived"]["surface_spread_m"]["mean"] < 1.5e-4
     inertia = summary["derived"]["inertia_principal_m5"]
     assert inertia["q05"][0] <= inertia["mean"][0] <= inertia["q95"][0]
+
+
+@pytest.mark.slow
+def test_fit_with_ffd_lattice_follows_a_dented_surface(tmp_path):
+    """Data on an n-ellipsoid moved by a lattice displacement: the --ffd run's mean mesh lies closer to the data
+    than the rigid n-ellipsoid of the same posterior (negative control)."""
+    import trimesh
+
+    from bayestouch.geometry.mesh import closest_points, nellipsoid_mesh
+    from bayestouch.inference import ffd_marginal as fm
+
+    theta = np.concatenate([np.asarray(TRUE.centre), np.log(np.asarray(TRUE.axes)), np.asarray(TRUE.angles),
+                            [np.log(3.0)], [np.log(1e-4)]])
+    rng = np.random.default_rng(7)
+    local = np.asarray(ne.to_local(TRUE, jnp.asarray(sample_surface(TRUE, 300, seed=7))))
+    moved = np.asarray(fm.deformed_points(jnp.asarray(theta), jnp.asarray(rng.normal(0, 2e-3, (27, 3))),
+                                          jnp.asarray(local), (3, 3, 3)))
+    pts = moved + rng.normal(0, 1e-4, moved.shape)
+    path = tmp_path / "dented.csv"
+    save_contact_points(path, pts)
+    out = tmp_path / "ffd"
+    assert main(["fit", str(path), "--out", str(out), "--steps", "150", "--walkers", "24", "--ffd", "3x3x3",
+                 "--ffd-tau", "2e-3", "--quiet"]) == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["model"]["ffd_size"] == "3x3x3"
+    refined = trimesh.load(str(out / "mean_shape.ply"), process=False)
+    p = s["parameters"]
+    rigid = ne.NEllipsoid(jnp.array([p[k]["mean"] for k in ("x_G", "y_G", "z_G")]),
+                          jnp.array([p[k]["mean"] for k in ("a", "b", "c")]),
+                          jnp.array([p[k]["mean"] for k in ("xi", "psi", "zeta")]), jnp.array(p["n"]["mean"]))
+    d_ref = closest_points(np.asarray(refined.vertices), np.asarray(refined.faces), pts)[1]
+    d_rig = closest_points(*nellipsoid_mesh(rigid, 32), pts)[1]
+    assert np.sqrt(np.mean(d_ref**2)) < 0.5 * np.sqrt(np.mean(d_rig**2))

@@ -56,6 +56,9 @@ class PosteriorModel(NamedTuple):
         ``{name: array}`` the data (ArviZ ``observed_data`` group); names match :attr:`predictive`'s.
     info : dict
         Written as ``summary["model"]``.
+    refine_mesh : callable, optional
+        ``((K,) natural posterior mean, (V, 3) mean-shape vertices m) → (V, 3) m``: moves the mean mesh (e.g. by
+        the lattice displacements of an FFD model); default: the n-ellipsoid mesh as it is.
     """
 
     names: tuple
@@ -65,6 +68,7 @@ class PosteriorModel(NamedTuple):
     predictive: Callable | None
     observed: dict
     info: dict
+    refine_mesh: Callable | None = None
 
 
 def interval(x) -> dict:
@@ -168,11 +172,13 @@ def write_posterior(out: Path, chain, model: PosteriorModel, *, seed: int, t0: f
     # the mesh at res 16 under-estimates the volume slightly; the exact n-ellipsoid volume is closed-form
     exact_vols = np.array([float(ne.volume(ne.from_vector(jnp.asarray(v)))) for v in vecs])
 
-    mean_vec = np.asarray(model.shape_vectors(flat.mean(axis=0)[None]))[0]
-    mean = ne.from_vector(jnp.asarray(mean_vec))
+    mean_nat = flat.mean(axis=0)
+    mean = ne.from_vector(jnp.asarray(np.asarray(model.shape_vectors(mean_nat[None]))[0]))
     verts, faces = nellipsoid_mesh(mean, 32)
     nrm = np.asarray(ne.normals(mean, jnp.asarray(verts)))
     spread = uncertainty_spread(verts, nrm, vecs[: min(200, len(vecs))])
+    if model.refine_mesh is not None:
+        verts = np.asarray(model.refine_mesh(mean_nat, verts))
     to_trimesh(verts, faces).export(str(out / "mean_shape.ply"))
     um = to_trimesh(verts, faces)
     um.visual.vertex_colors = _spread_colours(spread)
@@ -264,8 +270,55 @@ def contact_model(points, priors: cm.PriorParams, nu: float) -> PosteriorModel:
          "n_points": int(m), "parameters_sampled": list(cm.PARAM_NAMES)})
 
 
+def _theta_of_natural(nat) -> np.ndarray:
+    """Natural contact-level parameters (11,) → the sampled θ (11,)."""
+    nat = np.asarray(nat, float)
+    return np.concatenate([nat[:3], np.log(nat[3:6]), nat[6:9], [np.log(nat[9])], [np.log(nat[10])]])
+
+
+def ffd_contact_model(points, dims, tau: float) -> PosteriorModel:
+    """The contact level with a Gaussian likelihood and the FFD lattice marginalised
+    (:mod:`bayestouch.inference.ffd_marginal`). The pointwise log-likelihood and the replicated points are taken
+    conditional on the lattice's posterior mean at each draw; the mean mesh is moved by that mean lattice."""
+    from bayestouch.inference import ffd_marginal as fm
+
+    pts = jnp.asarray(points, dtype=jnp.float64)
+    m = len(points)
+
+    @jax.jit
+    @jax.vmap
+    def conditional(theta):
+        dP, _ = fm.conditional_lattice(theta, pts, dims, tau=tau)
+        r, A = fm.design_matrix(theta, pts, dims)
+        resid = r - A @ dP.T.reshape(-1)
+        sigma = jnp.exp(theta[10])
+        ll = -0.5 * (resid / sigma) ** 2 - theta[10] - 0.5 * jnp.log(2 * jnp.pi)
+        s = cm.shape_of(theta)
+        nrm = ne.normals(s, pts)
+        return ll, pts - resid[:, None] * nrm  # conditional surface points nearest the data
+
+    def ll(thetas):
+        return np.asarray(conditional(jnp.asarray(thetas))[0])
+
+    def predictive(thetas, rng):
+        foot = np.asarray(conditional(jnp.asarray(thetas))[1])
+        return {"points": foot + np.exp(thetas[:, 10])[:, None, None] * rng.standard_normal(foot.shape)}
+
+    def refine(mean_nat, verts):
+        th = jnp.asarray(_theta_of_natural(mean_nat))
+        dP, _ = fm.conditional_lattice(th, pts, dims, tau=tau)
+        s = cm.shape_of(th)
+        return np.asarray(fm.deformed_points(th, dP, ne.to_local(s, jnp.asarray(verts)), dims))
+
+    return PosteriorModel(
+        NATURAL_NAMES, _natural, lambda nat: nat[:, :10], ll, predictive, {"points": np.asarray(points)},
+        {"level": "contact", "likelihood": "Gaussian, FFD lattice marginalised", "ffd_size": "x".join(map(str, dims)),
+         "ffd_tau_m": tau, "n_points": int(m), "parameters_sampled": list(cm.PARAM_NAMES)}, refine)
+
+
 def run_contact_fit(points, out: Path, *, seed: int = 0, walkers: int = 32, steps: int = 4000,
-                    resume: bool = False, budget_s: float | None = None, progress: bool = True) -> dict:
+                    resume: bool = False, budget_s: float | None = None, progress: bool = True,
+                    ffd: tuple[int, int, int] | None = None, ffd_tau: float | None = None) -> dict:
     """Sample the contact-level posterior of ``points (M, 3)`` m and write the run folder ``out``.
 
     Parameters
@@ -278,6 +331,9 @@ def run_contact_fit(points, out: Path, *, seed: int = 0, walkers: int = 32, step
         Continue the chain in ``out/chain.h5`` up to ``steps`` (nothing already sampled is lost).
     budget_s : float, seconds
         Stop sampling after this wall-clock time (the summary says so).
+    ffd : (l, m, k) int, optional
+        Refine the n-ellipsoid with an FFD lattice of this size, marginalised analytically (Gaussian noise);
+        ``ffd_tau`` (m) is the prior sd of the control-point displacements.
 
     Returns
     -------
@@ -290,11 +346,19 @@ def run_contact_fit(points, out: Path, *, seed: int = 0, walkers: int = 32, step
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     priors = cm.load_priors()
-    logp, bounds = cm.make_log_prob(points, priors)
+    if ffd is None:
+        logp, bounds = cm.make_log_prob(points, priors)
+        model = contact_model(points, priors, float(priors.student_nu))
+    else:
+        from bayestouch.inference import ffd_marginal as fm
+
+        tau = fm.DEFAULT_TAU if ffd_tau is None else float(ffd_tau)
+        logp, bounds = fm.make_ffd_log_prob(points, ffd, tau=tau, priors=priors)
+        model = ffd_contact_model(points, tuple(ffd), tau)
 
     def start():
         return _walkers(initial_theta(points, seed, priors), bounds, walkers, np.random.default_rng(seed))
 
     ch = sample(logp, start, out / "chain.h5", walkers=walkers, ndim=len(cm.PARAM_NAMES), seed=seed, steps=steps,
                 resume=resume, budget_s=budget_s, progress=progress, t0=t0)
-    return write_posterior(out, ch, contact_model(points, priors, float(priors.student_nu)), seed=seed, t0=t0)
+    return write_posterior(out, ch, model, seed=seed, t0=t0)
