@@ -93,7 +93,13 @@ def sample(logp, start, chain_path, *, walkers: int, ndim: int, seed: int, steps
     t0 = time.perf_counter() if t0 is None else t0
     chain_path = Path(chain_path)
     backend = emcee.backends.HDFBackend(str(chain_path))
-    if resume and chain_path.exists() and backend.iteration > 0:
+    if resume and chain_path.exists():
+        try:
+            done = backend.iteration
+        except (OSError, KeyError) as e:  # a file that is not an emcee chain, or one damaged mid-write
+            raise BadInput(f"--resume: {chain_path} cannot be read as an emcee chain ({type(e).__name__}); "
+                           "remove it to start afresh") from None
+    if resume and chain_path.exists() and done > 0:
         if tuple(backend.shape) != (walkers, ndim):
             raise BadInput(f"--resume: {chain_path} has {backend.shape[0]} walkers × {backend.shape[1]} parameters, "
                            f"not {walkers} × {ndim}")
