@@ -104,6 +104,12 @@ def build_parser() -> argparse.ArgumentParser:
     fp.add_argument("--steps", type=_positive_int, default=4000, help="chain length in steps (default 4000)")
     fp.add_argument("--resume", action="store_true", help="continue the chain in OUT/chain.h5")
     fp.add_argument("--budget", type=float, default=None, help="wall-clock budget for sampling, seconds")
+    fp.add_argument("--noise", choices=["student", "gaussian", "multiplicative", "mixture"], default="student",
+                    help="contact level residual model: Student-t (default, robust), Gaussian, the paper's "
+                    "multiplicative (1 + r) perturbation, or Gaussian + uniform outliers")
+    fp.add_argument("--nu", type=float, default=None, help="Student-t degrees of freedom (default: models/priors.toml)")
+    fp.add_argument("--ignore-normals", action="store_true",
+                    help="do not use the file's nx,ny,nz columns (by default they add a von Mises-Fisher term)")
     fp.add_argument("--ffd", type=_one_size, default=None, metavar="LxMxK",
                     help="contact level: refine the n-ellipsoid with an FFD lattice of this size, marginalised "
                     "analytically (Gaussian noise), e.g. 3x3x3")
@@ -269,8 +275,12 @@ def _cmd_fit(args) -> int:
         from bayestouch.io import load_contact_points
 
         cp = load_contact_points(args.points)
+        if args.nu is not None and (args.noise != "student" or not args.nu > 0):
+            raise BadInput(f"--nu must be > 0 and goes with --noise student, got --nu {args.nu} --noise {args.noise}")
+        noise, nu = ("student", float("inf")) if args.noise == "gaussian" else (args.noise, args.nu)
         s = run_contact_fit(cp.points, args.out, seed=args.seed, walkers=args.walkers, steps=args.steps,
-                            resume=args.resume, budget_s=args.budget, progress=not args.quiet, ffd=args.ffd,
+                            resume=args.resume, budget_s=args.budget, progress=not args.quiet,
+                            normals=None if args.ignore_normals else cp.normals, noise=noise, nu=nu, ffd=args.ffd,
                             ffd_tau=args.ffd_tau)
     d = s["diagnostics"]
     v = s["derived"]["volume_m3"]

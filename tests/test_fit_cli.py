@@ -169,3 +169,33 @@ def test_fit_killed_mid_run_resumes_with_nothing_lost(points_csv, tmp_path):
                  "--quiet"]) == 0
     after = emcee.backends.HDFBackend(str(out / "chain.h5"), read_only=True).get_chain()
     assert after.shape == (done, 24, 11) and np.array_equal(after[: len(before)], before)
+
+
+@pytest.mark.slow
+def test_fit_with_normals_and_outlier_mixture(tmp_path):
+    """Normals in the file add κ; --noise mixture adds the outlier fraction w, whose posterior finds the 15 %
+    outliers; the log-likelihood group has one column per point."""
+    import arviz as az
+
+    rng = np.random.default_rng(3)
+    on = sample_surface(TRUE, 200, seed=3)
+    n = np.asarray(ne.normals(TRUE, jnp.asarray(on)))
+    pts = on + rng.normal(0, 3e-4, (200, 1)) * n
+    bad = rng.choice(200, 30, replace=False)
+    pts[bad] += rng.uniform(0.005, 0.015, (30, 1)) * n[bad]
+    measured_n = n + rng.normal(0, 0.05, n.shape)
+    path = tmp_path / "with_normals.csv"
+    save_contact_points(path, pts, normals=measured_n)
+    out = tmp_path / "mix"
+    assert main(["fit", str(path), "--out", str(out), "--steps", "300", "--walkers", "28", "--noise", "mixture",
+                 "--quiet"]) == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["model"]["normals_used"] is True and s["model"]["noise"] == "mixture"
+    w = s["parameters"]["w_outlier"]
+    # 30 of 200 are outliers: the binomial sd of the fraction is 0.025; the interval must hold 0.15
+    assert w["q05"] < 0.15 < w["q95"] and 0.08 < w["mean"] < 0.25
+    # normals measured with 0.05 rad-ish noise per component: κ ≈ 1/(2·0.05²) = 200, certainly > 50
+    assert s["parameters"]["kappa"]["mean"] > 50
+    idata = az.from_netcdf(str(out / "posterior.nc"))
+    assert idata.log_likelihood["obs"].shape[-1] == 200
+    assert main(["fit", str(path), "--out", str(tmp_path / "x"), "--ffd", "3x3x3"]) == 2

@@ -67,6 +67,7 @@ __all__ = [
     "log_prob",
     "log_prob_batch",
     "make_log_prob",
+    "pointwise_log_likelihood",
 ]
 
 #: the 11 parameters of the default layout (no normals, Student-t or Gaussian noise)
@@ -241,31 +242,47 @@ def _student_const(nu: float) -> float:
     return float(gammaln((nu + 1) / 2) - gammaln(nu / 2) - 0.5 * np.log(nu * np.pi))
 
 
-def _log_lik_batch(th, data: _Data, noise: str, nu: float):
-    m = data.hom.shape[1]
+def _log_lik_terms(th, data: _Data, noise: str, nu: float):
+    """Log-likelihood of each observation (W, M): walkers ``th (W, D)``, the options' terms added per point."""
     want = data.normals is not None or noise == "multiplicative"
     d, nw = _geometry(th, data.hom, want)
-    ls = th[:, 10]
+    ls = th[:, 10][:, None]
     k = 11
-    ll = jnp.zeros(th.shape[0])
+    ll = 0.0
     if data.normals is not None:
-        kappa = jnp.exp(th[:, k])
+        kappa = jnp.exp(th[:, k])[:, None]
         cos = jnp.sum(nw * data.normals[None], axis=1)
-        ll = ll + m * (th[:, k] - _LOG_2PI - jnp.log1p(-jnp.exp(-2.0 * kappa))) + kappa * jnp.sum(cos - 1.0, axis=1)
+        ll = th[:, k][:, None] - _LOG_2PI - jnp.log1p(-jnp.exp(-2.0 * kappa)) + kappa * (cos - 1.0)
         k += 1
     if noise == "student":
-        z2 = d * d * jnp.exp(-2.0 * ls)[:, None]
+        z2 = d * d * jnp.exp(-2.0 * ls)
         if np.isinf(nu):
-            return ll - 0.5 * jnp.sum(z2, axis=1) - m * (ls + 0.5 * _LOG_2PI)
-        return ll + m * (_student_const(nu) - ls) - 0.5 * (nu + 1) * jnp.sum(jnp.log1p(z2 / nu), axis=1)
+            return ll - 0.5 * z2 - (ls + 0.5 * _LOG_2PI)
+        return ll + (_student_const(nu) - ls) - 0.5 * (nu + 1) * jnp.log1p(z2 / nu)
     if noise == "multiplicative":
         eps2 = jnp.exp(2.0 * th[:, k])[:, None]
-        var = jnp.exp(2.0 * ls)[:, None] + eps2 / 3.0 * jnp.sum(nw * nw * data.lever2[None], axis=1)
-        return ll - 0.5 * jnp.sum(d * d / var + jnp.log(var), axis=1) - 0.5 * m * _LOG_2PI
+        var = jnp.exp(2.0 * ls) + eps2 / 3.0 * jnp.sum(nw * nw * data.lever2[None], axis=1)
+        return ll - 0.5 * (d * d / var + jnp.log(var)) - 0.5 * _LOG_2PI
     w = th[:, k][:, None]
-    log_n = -0.5 * d * d * jnp.exp(-2.0 * ls)[:, None] - ls[:, None] - 0.5 * _LOG_2PI
+    log_n = -0.5 * d * d * jnp.exp(-2.0 * ls) - ls - 0.5 * _LOG_2PI
     log_w = jnp.log(jnp.maximum(w, _TINY))
-    return ll + jnp.sum(jnp.logaddexp(jnp.log1p(-w) + log_n, log_w + data.log_u), axis=1)
+    return ll + jnp.logaddexp(jnp.log1p(-w) + log_n, log_w + data.log_u)
+
+
+def _log_lik_batch(th, data: _Data, noise: str, nu: float):
+    return jnp.sum(_log_lik_terms(th, data, noise, nu), axis=1)
+
+
+_log_lik_terms_jit = jax.jit(_log_lik_terms, static_argnums=(2, 3))
+
+
+def pointwise_log_likelihood(thetas, points, nu: float = np.inf, *, normals=None, noise: str = "student",
+                             origin=None) -> np.ndarray:
+    """Log-likelihood of each contact point (W, M) for walkers ``thetas (W, D)`` (NumPy edge; the ArviZ
+    ``log_likelihood`` group). Arguments as :func:`log_prob_batch`; the sum over points is the log-likelihood
+    that :func:`make_log_prob` samples."""
+    data = _prepare(points, normals, _check_noise(noise), origin)
+    return np.asarray(_log_lik_terms_jit(jnp.asarray(thetas, dtype=jnp.float64), data, noise, float(nu)))
 
 
 def log_prior(theta, bounds: Bounds):

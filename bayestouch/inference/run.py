@@ -215,37 +215,52 @@ def initial_theta(points, seed: int, priors: cm.PriorParams) -> np.ndarray:
     return np.concatenate([v[:3], np.log(v[3:6]), v[6:9], [np.log(v[9])], [np.log(sigma)]])
 
 
-def _walkers(theta0, bounds, n, rng) -> np.ndarray:
+def _walkers(theta0, bounds, n, rng, sampled: tuple = cm.PARAM_NAMES) -> np.ndarray:
+    """A small ball of ``n`` walkers around ``theta0`` (optional parameters started at :data:`_EXTRA_START`),
+    inside the prior box."""
     lo, hi = np.asarray(bounds.lower), np.asarray(bounds.upper)
-    scale = np.concatenate([np.full(3, 1e-4), np.full(3, 1e-3), np.full(3, 1e-3), [1e-3], [1e-2]])
-    p = theta0 + scale * rng.normal(size=(n, theta0.size))
+    extra = sampled[11:]
+    theta0 = np.concatenate([theta0[:11], [_EXTRA_START[k] for k in extra]])
+    scale = np.concatenate([np.full(3, 1e-4), np.full(3, 1e-3), np.full(3, 1e-3), [1e-3], [1e-2],
+                            [_EXTRA_SCALE[k] for k in extra]])
+    p = np.clip(theta0, lo, hi) + scale * rng.normal(size=(n, theta0.size))
     return np.clip(p, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
 
 
-def _natural(flat: np.ndarray) -> np.ndarray:
-    """θ draws (S, 11) → canonicalised natural parameters (S, 11): centre, a ≥ b ≥ c, angles, n, σ."""
+#: natural names and transforms of the optional contact-level parameters (after σ)
+_EXTRA_NATURAL = {"log_kappa": ("kappa", np.exp), "log_eps": ("epsilon", np.exp), "w_outlier": ("w_outlier", None)}
+
+
+def _natural(flat: np.ndarray, sampled: tuple = cm.PARAM_NAMES) -> np.ndarray:
+    """θ draws (S, D) with parameter names ``sampled`` → canonicalised natural parameters (S, D): centre,
+    a ≥ b ≥ c, angles, n, σ, then the optional parameters (κ, ε, w) in natural units."""
     from bayestouch.geometry.compare import canonicalize_batch
 
     v = np.column_stack([flat[:, :3], np.exp(flat[:, 3:6]), flat[:, 6:9], np.exp(flat[:, 9])])
-    return np.column_stack([canonicalize_batch(v), np.exp(flat[:, 10])])
+    extra = [np.exp(flat[:, 10])]
+    for j, name in enumerate(sampled[11:], start=11):
+        fn = _EXTRA_NATURAL[name][1]
+        extra.append(fn(flat[:, j]) if fn is not None else flat[:, j])
+    return np.column_stack([canonicalize_batch(v), *extra])
 
 
-def contact_model(points, priors: cm.PriorParams, nu: float) -> PosteriorModel:
-    """The contact level as a :class:`PosteriorModel` (pointwise Student-t log-likelihood; replicated points are
-    surface points of each draw displaced along the normal by Student-t noise of scale σ)."""
+#: starting values of the optional parameters: κ = 100 (normals good to ~6°), ε = 10⁻³ (the paper's), w = 5 %
+_EXTRA_START = {"log_kappa": np.log(100.0), "log_eps": np.log(1e-3), "w_outlier": 0.05}
+_EXTRA_SCALE = {"log_kappa": 1e-2, "log_eps": 1e-2, "w_outlier": 1e-3}
+
+
+def contact_model(points, priors: cm.PriorParams, nu: float, *, normals=None, noise: str = "student") -> PosteriorModel:
+    """The contact level as a :class:`PosteriorModel`: pointwise log-likelihood of each point
+    (:func:`~bayestouch.inference.contact.pointwise_log_likelihood`); replicated points are surface points of each
+    draw displaced along the normal by noise of the model's scale (Student-t or Gaussian σ; σ_i for the
+    multiplicative model; the mixture's outliers are drawn uniformly along the normal within the data's extent)."""
     pts = jnp.asarray(points, dtype=jnp.float64)
     m = len(points)
-
-    def pointwise(theta):
-        r = cm.residuals(theta, pts)
-        sigma = jnp.exp(theta[10])
-        z2 = (r / sigma) ** 2
-        if np.isinf(nu):
-            return -0.5 * z2 - theta[10] - 0.5 * jnp.log(2 * jnp.pi)
-        from jax.scipy.special import gammaln
-
-        c = gammaln((nu + 1) / 2) - gammaln(nu / 2) - 0.5 * jnp.log(nu * jnp.pi)
-        return c - theta[10] - 0.5 * (nu + 1) * jnp.log1p(z2 / nu)
+    sampled = cm.param_names(normals is not None, noise)
+    names = NATURAL_NAMES + tuple(_EXTRA_NATURAL[k][0] for k in sampled[11:])
+    lo, hi = np.asarray(points).min(axis=0), np.asarray(points).max(axis=0)
+    half_diag = 0.5 * float(np.linalg.norm(hi - lo))
+    lever = np.asarray(points) - np.asarray(points).mean(axis=0)
 
     @jax.jit
     @jax.vmap
@@ -255,19 +270,34 @@ def contact_model(points, priors: cm.PriorParams, nu: float) -> PosteriorModel:
         return foot, ne.normals(s, foot)
 
     def predictive(thetas, rng):
-        foot, nrm = (np.asarray(a) for a in foot_and_normal(jnp.asarray(thetas)))
-        e = rng.standard_normal((len(thetas), m)) if np.isinf(nu) else rng.standard_t(nu, (len(thetas), m))
-        return {"points": foot + (np.exp(thetas[:, 10])[:, None] * e)[..., None] * nrm}
-
-    batched = jax.jit(jax.vmap(pointwise))
+        foot, nrm = (np.asarray(a) for a in foot_and_normal(jnp.asarray(thetas[:, :11])))
+        shape = (len(thetas), m)
+        sigma = np.exp(thetas[:, 10])[:, None]
+        if noise == "student":
+            e = sigma * (rng.standard_normal(shape) if np.isinf(nu) else rng.standard_t(nu, shape))
+        elif noise == "multiplicative":
+            k = sampled.index("log_eps")
+            var = sigma**2 + np.exp(2 * thetas[:, k])[:, None] / 3 * np.einsum("wmk,mk->wm", nrm**2, lever**2)
+            e = np.sqrt(var) * rng.standard_normal(shape)
+        else:
+            w = thetas[:, sampled.index("w_outlier")][:, None]
+            e = np.where(rng.random(shape) < w, rng.uniform(-half_diag, half_diag, shape),
+                         sigma * rng.standard_normal(shape))
+        return {"points": foot + e[..., None] * nrm}
 
     def ll(thetas):
-        return np.asarray(batched(jnp.asarray(thetas)))
+        return cm.pointwise_log_likelihood(thetas, points, nu, normals=normals, noise=noise)
 
+    likelihood = {"student": "Gaussian" if np.isinf(nu) else f"Student-t, nu = {nu:g}",
+                  "multiplicative": "Gaussian with the paper's multiplicative (1 + r) perturbation",
+                  "mixture": "Gaussian + uniform outlier mixture"}[noise]
+    if normals is not None:
+        likelihood += "; normals: von Mises-Fisher"
+    observed = {"points": np.asarray(points)}
     return PosteriorModel(
-        NATURAL_NAMES, _natural, lambda nat: nat[:, :10], ll, predictive, {"points": np.asarray(points)},
-        {"level": "contact", "likelihood": "Gaussian" if np.isinf(nu) else f"Student-t, nu = {nu:g}",
-         "n_points": int(m), "parameters_sampled": list(cm.PARAM_NAMES)})
+        names, lambda flat: _natural(flat, sampled), lambda nat: nat[:, :10], ll, predictive, observed,
+        {"level": "contact", "likelihood": likelihood, "noise": noise, "normals_used": normals is not None,
+         "n_points": int(m), "parameters_sampled": list(sampled)})
 
 
 def _theta_of_natural(nat) -> np.ndarray:
@@ -318,6 +348,7 @@ def ffd_contact_model(points, dims, tau: float) -> PosteriorModel:
 
 def run_contact_fit(points, out: Path, *, seed: int = 0, walkers: int = 32, steps: int = 4000,
                     resume: bool = False, budget_s: float | None = None, progress: bool = True,
+                    normals=None, noise: str = "student", nu: float | None = None,
                     ffd: tuple[int, int, int] | None = None, ffd_tau: float | None = None) -> dict:
     """Sample the contact-level posterior of ``points (M, 3)`` m and write the run folder ``out``.
 
@@ -331,34 +362,49 @@ def run_contact_fit(points, out: Path, *, seed: int = 0, walkers: int = 32, step
         Continue the chain in ``out/chain.h5`` up to ``steps`` (nothing already sampled is lost).
     budget_s : float, seconds
         Stop sampling after this wall-clock time (the summary says so).
+    normals : (M, 3) float, optional
+        Measured outward normals: adds the von Mises-Fisher term (and κ).
+    noise : {"student", "multiplicative", "mixture"}
+        Residual model (:mod:`bayestouch.inference.contact`); ``nu`` is Student-t's degrees of freedom
+        (default from ``models/priors.toml``; inf is Gaussian).
     ffd : (l, m, k) int, optional
         Refine the n-ellipsoid with an FFD lattice of this size, marginalised analytically (Gaussian noise);
-        ``ffd_tau`` (m) is the prior sd of the control-point displacements.
+        ``ffd_tau`` (m) is the prior sd of the control-point displacements. Not combined with normals or another
+        noise model.
 
     Returns
     -------
     dict
         The summary written to ``summary.json``.
     """
+    from bayestouch.errors import BadInput
     from bayestouch.inference.sampler import sample
 
     t0 = time.perf_counter()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     priors = cm.load_priors()
+    sampled = cm.PARAM_NAMES
     if ffd is None:
-        logp, bounds = cm.make_log_prob(points, priors)
-        model = contact_model(points, priors, float(priors.student_nu))
+        logp, bounds = cm.make_log_prob(points, priors, nu if noise == "student" else None, normals=normals,
+                                        noise=noise)
+        sampled = cm.param_names(normals is not None, noise)
+        model = contact_model(points, priors, float(priors.student_nu if nu is None else nu), normals=normals,
+                              noise=noise)
     else:
         from bayestouch.inference import ffd_marginal as fm
 
+        if normals is not None or noise != "student" or (nu is not None and not np.isinf(nu)):
+            raise BadInput("--ffd: the lattice is marginalised under Gaussian noise; use it without --noise and "
+                           "--nu, and with --ignore-normals for a file with normals")
         tau = fm.DEFAULT_TAU if ffd_tau is None else float(ffd_tau)
         logp, bounds = fm.make_ffd_log_prob(points, ffd, tau=tau, priors=priors)
         model = ffd_contact_model(points, tuple(ffd), tau)
 
     def start():
-        return _walkers(initial_theta(points, seed, priors), bounds, walkers, np.random.default_rng(seed))
+        theta0 = initial_theta(points, seed, priors)
+        return _walkers(theta0, bounds, walkers, np.random.default_rng(seed), sampled)
 
-    ch = sample(logp, start, out / "chain.h5", walkers=walkers, ndim=len(cm.PARAM_NAMES), seed=seed, steps=steps,
+    ch = sample(logp, start, out / "chain.h5", walkers=walkers, ndim=len(sampled), seed=seed, steps=steps,
                 resume=resume, budget_s=budget_s, progress=progress, t0=t0)
     return write_posterior(out, ch, model, seed=seed, t0=t0)
