@@ -73,8 +73,9 @@ def sample(logp, start, chain_path, *, walkers: int, ndim: int, seed: int, steps
         Initial ensemble; a callable is called only when a new chain starts (not on resume).
     walkers, ndim : int
         Ensemble size W and dimension D; a resumed chain must have the same.
-    chain_path : path
-        emcee HDF5 backend; written every step, so a killed run loses at most the step in flight.
+    chain_path : path or None
+        emcee HDF5 backend; written every step (about 10 ms a step), so a killed run loses at most the step in
+        flight. None samples in memory (no checkpoint, no resume).
     seed : int
         Seeds emcee's random state (checked to have taken effect).
     steps : int
@@ -91,8 +92,12 @@ def sample(logp, start, chain_path, *, walkers: int, ndim: int, seed: int, steps
     import emcee
 
     t0 = time.perf_counter() if t0 is None else t0
-    chain_path = Path(chain_path)
-    backend = emcee.backends.HDFBackend(str(chain_path))
+    if chain_path is None:  # in memory: short runs for which a checkpoint costs more than it saves
+        backend = emcee.backends.Backend()
+        resume = False
+    else:
+        chain_path = Path(chain_path)
+        backend = emcee.backends.HDFBackend(str(chain_path))
     if resume and chain_path.exists():
         try:
             done = backend.iteration

@@ -1,0 +1,706 @@
+"""Per-contact superellipse patch posterior: (a, b, n) of the paper's eq. 16–18 from one taxel frame or a window.
+
+DESIGN.md §3.5: the contact patch is an *output* of the skin model and has its own posterior from the taxel
+currents. :func:`bayestouch.physics.patch.fit_patch` summarises a (noise-free) pressure map by thresholding;
+this module infers the patch from the measured currents instead, with honest uncertainty.
+
+Model
+-----
+Parameters θ (7,): centre (u0, v0) on the pad (m, skin-local taxel coordinates), log semi-axes log a, log b
+(log m), orientation φ (rad, direction of the a-axis from the pad's u-axis), log n (eq. 16's exponent) and
+log V (log m³), the indentation volume V = ∫δ dA = δ0 A n/(n + 2) (A: eq. 18 area, δ0: the skin's penetration
+at the patch centre). The data fix the force, nearly ∝ V, far better than δ0, a, b or n; sampling V instead of
+δ0 puts that direction on an axis and halves emcee's autocorrelation time (≈ 60 → 30 steps, measured).
+
+1. Penetration profile. Inside the Lamé curve L = |x/a|^n + |y/b|^n < 1 (eq. 16, in the patch frame rotated
+   by φ about (u0, v0)) the skin is indented by δ(u, v) = δ0 (1 − L)₊. For a sphere of radius R pressed into
+   the flat skin this is exact at n = 2: the gap is δ0 − r²/2R = δ0 (1 − r²/a²) with a² = 2Rδ0 (the Winkler
+   contact of physics.md §3); n > 2 flattens the profile towards a punch, n < 2 sharpens it. The support
+   {L < 1} is the contact domain D_c of eq. 16, so (a, b, n) are the patch of Table 1 and its area is
+   eq. 18 (:func:`~bayestouch.physics.patch.superellipse_area`).
+2. Pressure. The local foam law and the finger's own blur, exactly as the forward model does it
+   (:func:`bayestouch.forward.contact_frame`): p = K σ_foam(δ/h) at the taxels (K = ``Finger.kernel``),
+   zero on the unloaded reference rows.
+3. Currents. Δ_j(θ) = ln I(p_j, T) − ln I(0, T) from :func:`~bayestouch.physics.taxel.taxel_current`
+   (``"empirical"``: s S_p p_j exactly; ``"physics"``: the piezotronic chain, evaluated at ``temperature``).
+4. Data. The K frames of a window are drift compensated with the reference rows
+   (:func:`~bayestouch.physics.noise.drift_compensate`), their log-currents averaged (√K less white noise)
+   and the fixed-pattern gains divided out (``Finger.gains``, or an unloaded ``baseline`` window instead):
+   y_j = ⟨ln I_kj⟩_k − ln G_j. The model is y_j = c + Δ_j(θ) + ε_j, where the offset c = ln I(0, T) of the
+   unloaded taxel at the unknown skin temperature (≈ 8 %/K, DESIGN.md §3.2) is common to every taxel.
+5. Likelihood. ε_j ~ N(0, σ_j²) independent, with σ_j² the variance of the window mean of the noise model
+   (physics.md §5): white noise (shot + Johnson + ADC, :func:`~bayestouch.physics.noise.noise_std`, relative to
+   the taxel's mean current) divided by K, plus the exact variance of the K-sample mean of the OU-sum 1/f
+   process (:func:`window_flicker_variance`; the slow components do not average out), plus the per-taxel
+   drift random walk accumulated over ``elapsed_s`` since the gains (or baseline) were taken. The offset c
+   has a flat prior and is marginalised analytically: with w_j = 1/σ_j², r_j = y_j − Δ_j and r̄ = Σw r / Σw,
+   log L = −½ Σ w_j (r_j − r̄)² − ½ Σ ln(2πσ_j²) + ½ ln(2π / Σw).
+   Not modelled: the read-out's rare glitches (``outlier_probability``), which a Gaussian likelihood cannot
+   absorb; drop frames with outliers or use a longer window.
+6. Prior. Uniform in θ inside a box (so log-uniform in a, b, n, V): the centre anywhere over the loaded
+   taxels, a, b ∈ [0.2 mm, half the pad], n ∈ [1.2, 10] (the issue's range), and δ0 ∈ [1 µm, h],
+   φ ∈ [−π, π] (the likelihood has period π in φ and is symmetric under (a, b, φ) → (b, a, φ + π/2); the wide
+   box keeps every mode in its interior). Draws are canonicalised to a ≥ b, φ ∈ (−π/2, π/2] before they are
+   summarised.
+
+When the signal is far below the noise (``"physics"`` mode, physics.md §0 finding 2: Δ ln I ≈ 3e-5 at 1 kPa;
+or a frame with no contact) the posterior stays close to the prior, as it should.
+
+Sampling uses the project's emcee engine (:func:`bayestouch.inference.sampler.sample`, HDF5 checkpoint) when
+``chain_path`` is given, else the same seeded emcee set-up with emcee's in-memory backend (the HDF5 writes
+cost ~10 ms a step, more than this log-probability). The start is a Gauss–Newton fit of the same model from a
+moment guess of the signal.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from functools import partial
+from typing import NamedTuple
+
+import numpy as np
+
+from bayestouch._jax import jax, jnp
+from bayestouch.errors import BadInput
+from bayestouch.inference.contact import Bounds
+from bayestouch.physics import noise as nz
+from bayestouch.physics import skin as sk
+from bayestouch.physics import taxel as tx
+from bayestouch.physics.patch import superellipse, superellipse_area
+
+__all__ = [
+    "PARAM_NAMES",
+    "SUMMARY_NAMES",
+    "PatchParams",
+    "PatchModel",
+    "PatchPosterior",
+    "theta_from_params",
+    "params_from_theta",
+    "window_flicker_variance",
+    "make_patch_model",
+    "patch_pressure",
+    "patch_log_current",
+    "patch_log_prob",
+    "patch_force",
+    "make_patch_log_prob",
+    "patch_currents",
+    "initial_patch_theta",
+    "patch_posterior",
+]
+
+#: names of the 7 sampled parameters θ
+PARAM_NAMES = ("u0", "v0", "log_a", "log_b", "angle", "log_n", "log_volume")
+#: names of the summarised natural parameters (canonical a ≥ b)
+SUMMARY_NAMES = ("u0", "v0", "a", "b", "angle", "n", "depth")
+
+#: prior ranges (see the module docstring)
+A_MIN = 2e-4
+N_MIN, N_MAX = 1.2, 10.0
+DEPTH_MIN = 1e-6
+#: floor for log-currents (ADC zeros), A
+FLOOR = 1e-15
+
+
+class PatchParams(NamedTuple):
+    """A contact patch with its indentation (SI units).
+
+    Attributes
+    ----------
+    u0, v0 : float, m
+        Patch centre in skin-local taxel coordinates (``Finger.grid``).
+    a, b : float, m
+        Semi-axes along and across ``angle``.
+    angle : float, rad
+        Direction of the a-axis from the pad's u-axis.
+    n : float, 1
+        Superellipse exponent of eq. 16.
+    depth : float, m
+        Skin penetration δ0 at the patch centre.
+    """
+
+    u0: float
+    v0: float
+    a: float
+    b: float
+    angle: float
+    n: float
+    depth: float
+
+
+class PatchModel(NamedTuple):
+    """The data and fixed model inputs of :func:`patch_log_prob` (a pytree of arrays; N taxels).
+
+    Attributes
+    ----------
+    positions : (N, 2) float, m
+        Taxel positions (u, v).
+    loaded : (N,) float
+        1 on taxels with a load path, 0 on the reference rows.
+    kernel : (N, N) float
+        The skin's pressure blur (``Finger.kernel``).
+    skin : SkinParams
+    taxels : TaxelParams
+    y : (N,) float
+        Observed log-currents, drift compensated, window-averaged, gain corrected (ln A).
+    sigma : (N,) float
+        Standard deviation of ``y`` (dimensionless, natural log).
+    temperature : float, K
+        Temperature at which the pressure response is evaluated (matters in ``"physics"`` mode only).
+    cell_area : float, m²
+        Skin area per taxel (force = Σ p · cell_area).
+    lower, upper : (7,) float
+        Prior box of θ.
+    """
+
+    positions: jnp.ndarray
+    loaded: jnp.ndarray
+    kernel: jnp.ndarray
+    skin: sk.SkinParams
+    taxels: tx.TaxelParams
+    y: jnp.ndarray
+    sigma: jnp.ndarray
+    temperature: jnp.ndarray
+    cell_area: jnp.ndarray
+    lower: jnp.ndarray
+    upper: jnp.ndarray
+
+
+class PatchPosterior(NamedTuple):
+    """Result of :func:`patch_posterior`.
+
+    draws : dict of str → (S·W,) float
+        Canonicalised natural parameters (``SUMMARY_NAMES``, SI units) and the derived ``area_m2`` (eq. 18) and
+        ``force_N`` (Σ p · cell_area of the model's pressure), S kept steps × W walkers, step-major.
+    summary : dict
+        ``parameters.<name>.{mean,sd,q05,q95,r_hat,ess_bulk}``, ``derived.{area_m2,force_N}.{...}``,
+        ``diagnostics`` (:func:`~bayestouch.inference.sampler.convergence` plus ``seconds``), ``model``.
+    chain : Chain
+        The raw chain in θ (:class:`~bayestouch.inference.sampler.Chain`).
+    model : PatchModel
+    theta0 : (7,) float
+        The Gauss–Newton start.
+    """
+
+    draws: dict
+    summary: dict
+    chain: object
+    model: PatchModel
+    theta0: np.ndarray
+
+
+def theta_from_params(p: PatchParams) -> np.ndarray:
+    """θ (7,) of a :class:`PatchParams` (``PARAM_NAMES`` order)."""
+    vol = p.depth * p.a * p.b * float(_volume_factor(p.n))
+    return np.array([p.u0, p.v0, math.log(p.a), math.log(p.b), p.angle, math.log(p.n), math.log(vol)])
+
+
+def params_from_theta(theta) -> PatchParams:
+    """:class:`PatchParams` of θ (7,) (not canonicalised)."""
+    t = [float(x) for x in np.asarray(theta, dtype=float)]
+    a, b, n = math.exp(t[2]), math.exp(t[3]), math.exp(t[5])
+    return PatchParams(t[0], t[1], a, b, t[4], n, math.exp(t[6]) / (a * b * float(_volume_factor(n))))
+
+
+def _volume_factor(n):
+    """V / (δ0 a b) for the profile δ0 (1 − L)₊: ∫(1 − ρ^n)₊ dA = A n/(n + 2), A = 4ab Γ(1+1/n)²/Γ(1+2/n) (eq. 18)."""
+    return superellipse_area(1.0, 1.0, n) * n / (n + 2.0)
+
+
+def _depth(theta):
+    """Centre penetration δ0 (m) of θ (..., 7)."""
+    return jnp.exp(theta[..., 6] - theta[..., 2] - theta[..., 3]) / _volume_factor(jnp.exp(theta[..., 5]))
+
+
+# ---------------------------------------------------------------- noise of a window mean
+
+
+def window_flicker_variance(noise: nz.NoiseParams, k: int, dt: float, n_flicker: int = 9) -> float:
+    """Variance of the mean of ``k`` consecutive samples of the OU-sum 1/f log-fluctuation (dimensionless).
+
+    The 1/f noise of :func:`bayestouch.physics.noise.add_noise` is a sum of ``n_flicker`` independent OU
+    processes with corner frequencies f_c log-spaced over [f_min, f_max], each of variance v = K_f ln r and lag-l
+    correlation a^l, a = exp(−2π f_c dt). The mean of k samples has variance
+    v/k² · (k + 2 Σ_{l=1}^{k−1} (k − l) a^l) per component: v/k for fast components, v for slow ones.
+
+    Parameters
+    ----------
+    noise : NoiseParams
+    k : int
+        Number of frames averaged (≥ 1).
+    dt : float, s
+        Frame interval.
+    n_flicker : int
+        Components of the synthesis (``add_noise``'s ``n_flicker``, ≥ 2).
+
+    Returns
+    -------
+    float
+    """
+    ln_r = math.log(float(noise.flicker_f_max) / float(noise.flicker_f_min)) / (n_flicker - 1)
+    fc = float(noise.flicker_f_min) * np.exp(ln_r * np.arange(n_flicker))
+    v = float(noise.flicker) * ln_r
+    a = np.exp(-2.0 * np.pi * fc * dt)[:, None]
+    lag = np.arange(1, k)[None, :]
+    s = k + 2.0 * np.sum((k - lag) * a**lag, axis=1)
+    return float(np.sum(v * s / k**2))
+
+
+def _log_window(currents, ref_mask):
+    """Drift-compensated mean log-current (N,) and mean current (N,) of a (K, N) window."""
+    comp = np.asarray(nz.drift_compensate(jnp.asarray(currents), jnp.asarray(ref_mask), FLOOR))
+    return np.mean(np.log(np.maximum(comp, FLOOR)), axis=0), np.mean(np.maximum(comp, FLOOR), axis=0)
+
+
+def _as_window(x, n, name):
+    x = np.asarray(x, dtype=float)
+    if x.ndim == 1:
+        x = x[None]
+    if x.ndim != 2 or x.shape[1] != n or x.shape[0] < 1:
+        raise BadInput(f"{name}: expected currents of shape (N,) or (K, N) with N = {n} taxels, got {x.shape}")
+    if not np.all(np.isfinite(x)):
+        raise BadInput(f"{name}: currents must be finite amperes")
+    return x
+
+
+def make_patch_model(
+    currents,
+    finger,
+    *,
+    dt: float = 0.02,
+    temperature: float = 300.0,
+    gains=None,
+    baseline=None,
+    sigma=None,
+    elapsed_s: float = 0.0,
+    n_flicker: int = 9,
+) -> PatchModel:
+    """Turn a window of measured currents into the :class:`PatchModel` of the module docstring (NumPy edge).
+
+    Parameters
+    ----------
+    currents : (N,) or (K, N) float, A
+        One frame or K consecutive frames of the whole array (reference rows included) of a static contact.
+    finger : Finger
+        :class:`bayestouch.forward.Finger` (grid, reference rows, kernel, skin, taxels, noise, gains).
+    dt : float, s
+        Frame interval (for the 1/f variance of the window mean).
+    temperature : float, K
+        Skin temperature for the pressure response (``"physics"`` mode); the unloaded level is marginalised.
+    gains : (N,) float or None
+        Fixed-pattern gains; ``None`` uses ``finger.gains``. Ignored when ``baseline`` is given.
+    baseline : (N,) or (K0, N) float, A, or None
+        An unloaded window; its mean log-current replaces the gains (and adds its own noise).
+    sigma : float or (N,) float or None
+        Standard deviation of each y_j in natural-log units; ``None`` derives it from the noise model.
+    elapsed_s : float, s
+        Time since the gains or baseline were taken (per-taxel drift random walk).
+    n_flicker : int
+        Components of the 1/f synthesis (as in ``add_noise``).
+
+    Returns
+    -------
+    PatchModel
+
+    Raises
+    ------
+    BadInput
+        Wrong shapes, non-finite currents, non-positive ``dt``/``temperature``/``sigma``, negative ``elapsed_s``.
+    """
+    pos = np.asarray(finger.grid, dtype=float).reshape(-1, 2)
+    n = len(pos)
+    ref = np.asarray(finger.reference, dtype=bool).ravel()
+    cur = _as_window(currents, n, "currents")
+    if not (dt > 0 and temperature > 0 and elapsed_s >= 0):
+        raise BadInput(
+            f"patch model: dt > 0 s, temperature > 0 K and elapsed_s ≥ 0 s expected; got dt={dt:g}, "
+            f"temperature={temperature:g}, elapsed_s={elapsed_s:g}"
+        )
+    nzp = finger.noise
+    y, mean_i = _log_window(cur, ref)
+    k = cur.shape[0]
+    var = (np.asarray(nz.noise_std(nzp, mean_i)) / mean_i) ** 2 / k + window_flicker_variance(nzp, k, dt, n_flicker)
+    var = var + float(nzp.drift_local) ** 2 * elapsed_s
+    if baseline is not None:
+        base = _as_window(baseline, n, "baseline")
+        yb, mean_b = _log_window(base, ref)
+        y = y - yb
+        var = var + (np.asarray(nz.noise_std(nzp, mean_b)) / mean_b) ** 2 / len(base)
+        var = var + window_flicker_variance(nzp, len(base), dt, n_flicker)
+    else:
+        g = np.asarray(finger.gains if gains is None else gains, dtype=float).ravel()
+        if g.shape != (n,) or not np.all(g > 0):
+            raise BadInput(f"gains: expected ({n},) positive fixed-pattern gains, got shape {g.shape}")
+        y = y - np.log(g)
+    if sigma is not None:
+        s = np.asarray(sigma, dtype=float)
+        s = np.full(n, float(s)) if s.ndim == 0 else s
+        if s.shape != (n,) or not np.all(np.isfinite(s) & (s > 0)):
+            raise BadInput(f"sigma: expected a positive float or ({n},) positive log-current standard deviations")
+        var = s.astype(float) ** 2
+    loaded_pos = pos[~ref]
+    half = 0.5 * float(np.max(np.ptp(pos, axis=0)))
+    h = float(finger.skin.h)
+    lower = [
+        loaded_pos[:, 0].min(),
+        loaded_pos[:, 1].min(),
+        math.log(A_MIN),
+        math.log(A_MIN),
+        -math.pi,
+        math.log(N_MIN),
+        math.log(DEPTH_MIN * A_MIN**2),
+    ]
+    upper = [
+        loaded_pos[:, 0].max(),
+        loaded_pos[:, 1].max(),
+        math.log(half),
+        math.log(half),
+        math.pi,
+        math.log(N_MAX),
+        math.log(4.0 * h * half**2),
+    ]
+    return PatchModel(
+        jnp.asarray(pos),
+        jnp.asarray((~ref).astype(float)),
+        jnp.asarray(finger.kernel),
+        finger.skin,
+        finger.taxels,
+        jnp.asarray(y),
+        jnp.asarray(np.sqrt(var)),
+        jnp.asarray(float(temperature)),
+        jnp.asarray(finger.cell_area),
+        jnp.asarray(lower),
+        jnp.asarray(upper),
+    )
+
+
+# ---------------------------------------------------------------- the pure model
+
+
+def _local_stress(theta, model: PatchModel):
+    """Unblurred foam stress σ_foam(δ0 (1 − L)₊ / h) (N,) Pa at the taxels of the patch θ (7,)."""
+    theta = jnp.asarray(theta)
+    dx = model.positions[:, 0] - theta[0]
+    dy = model.positions[:, 1] - theta[1]
+    c, s = jnp.cos(theta[4]), jnp.sin(theta[4])
+    lev = superellipse(jnp.exp(theta[2]), jnp.exp(theta[3]), jnp.exp(theta[5]), c * dx + s * dy, -s * dx + c * dy)
+    return sk.foam_stress(model.skin, _depth(theta) * jnp.maximum(1.0 - lev, 0.0) / model.skin.h)
+
+
+def patch_pressure(theta, model: PatchModel):
+    """Pressure (N,) Pa at the taxels of the patch θ (7,): p = K σ_foam(δ0 (1 − L)₊ / h), 0 on reference rows.
+
+    Parameters
+    ----------
+    theta : (7,) float
+        ``PARAM_NAMES``: u0, v0 (m), log a, log b (log m), angle (rad), log n, log V (log m³).
+    model : PatchModel
+
+    Returns
+    -------
+    (N,) float, Pa
+    """
+    p = model.kernel @ _local_stress(theta, model)
+    return p * model.loaded
+
+
+def patch_log_current(theta, model: PatchModel, mode: str = "empirical"):
+    """Predicted Δ ln I (N,) of the patch θ: ln I(p, T) − ln I(0, T) (``mode`` static)."""
+    p = patch_pressure(theta, model)
+    i0 = tx.taxel_current(model.taxels, 0.0, model.temperature, mode=mode)
+    return jnp.log(tx.taxel_current(model.taxels, p, model.temperature, mode=mode)) - jnp.log(i0)
+
+
+def patch_log_prob(theta, model: PatchModel, mode: str = "empirical"):
+    """Log-posterior (up to a constant) of θ (7,): Gaussian likelihood with the offset marginalised, box prior.
+
+    Pure JAX (``mode`` static); −inf outside the prior box or where anything is not finite, never NaN.
+
+    Returns
+    -------
+    () float
+    """
+    theta = jnp.asarray(theta)
+    depth = _depth(theta)
+    inside = jnp.all((theta >= model.lower) & (theta <= model.upper)) & (depth >= DEPTH_MIN) & (depth <= model.skin.h)
+    r = model.y - patch_log_current(theta, model, mode)
+    w = 1.0 / model.sigma**2
+    sw = jnp.sum(w)
+    rbar = jnp.sum(w * r) / sw
+    ll = (
+        -0.5 * jnp.sum(w * (r - rbar) ** 2)
+        - 0.5 * jnp.sum(jnp.log(2.0 * jnp.pi * model.sigma**2))
+        + 0.5 * jnp.log(2.0 * jnp.pi / sw)
+    )
+    return jnp.where(inside & jnp.isfinite(ll), ll, -jnp.inf)
+
+
+def patch_force(theta, model: PatchModel):
+    """Normal force (N) of the patch θ: Σ_j p_j · cell_area over the loaded taxels, as
+    :func:`bayestouch.forward.elastic_force` computes it (evaluated as σ_foam · (Kᵀ loaded), no matrix product)."""
+    local = _local_stress(theta, model)
+    return model.cell_area * (local @ (model.kernel.T @ model.loaded))
+
+
+# compiled once per mode and batch shape, shared by every model (the model is an argument, not a constant)
+_batched_log_prob = jax.jit(jax.vmap(patch_log_prob, in_axes=(0, None, None)), static_argnums=2)
+_batched_force = jax.jit(jax.vmap(patch_force, in_axes=(0, None)))
+
+
+@partial(jax.jit, static_argnums=2)
+def _residual(theta, model: PatchModel, mode: str):
+    return model.y - patch_log_current(theta, model, mode)
+
+
+def make_patch_log_prob(model: PatchModel, mode: str = "empirical"):
+    """Vectorised NumPy log-posterior for emcee: ``(f, bounds)``, ``f(thetas (W, 7)) -> (W,)``, −inf outside.
+
+    Parameters
+    ----------
+    model : PatchModel
+    mode : {"physics", "empirical"}
+
+    Returns
+    -------
+    f : callable
+    bounds : Bounds
+        The prior box (``model.lower``, ``model.upper``).
+    """
+    if mode not in tx.MODES:
+        raise BadInput(f"mode: must be one of {', '.join(tx.MODES)}, got {mode!r}")
+
+    def f(thetas):
+        t = np.atleast_2d(np.asarray(thetas, dtype=float))
+        v = np.asarray(_batched_log_prob(jnp.asarray(t), model, mode))
+        return np.where(np.isfinite(v), v, -np.inf)
+
+    return f, Bounds(model.lower, model.upper)
+
+
+def patch_currents(params: PatchParams, finger, *, mode: str = "empirical", temperature: float = 300.0):
+    """Noise-free currents (N,) A of the patch model (without fixed-pattern gains), for simulation and checks.
+
+    ``add_noise(key, finger.noise, tile(I, (K, 1)), dt, finger.gains)`` turns them into a measured window.
+    """
+    n = int(np.asarray(finger.grid).shape[0] * np.asarray(finger.grid).shape[1])
+    model = make_patch_model(np.ones(n), finger, temperature=temperature, gains=np.ones(n))
+    d = patch_log_current(jnp.asarray(theta_from_params(params)), model, mode)
+    return np.asarray(tx.taxel_current(finger.taxels, 0.0, temperature, mode=mode) * jnp.exp(d))
+
+
+# ---------------------------------------------------------------- start
+
+
+def initial_patch_theta(model: PatchModel, mode: str = "empirical") -> tuple[np.ndarray, np.ndarray]:
+    """Gauss–Newton start θ̂ (7,) and its covariance (7, 7) ((JᵀJ)⁻¹, each sd clipped to ≤ 0.1 of the box).
+
+    A moment guess (centroid and second moments of the signal above 3σ, less the blur variance; δ0 from the
+    signal's total force for an n = 2 paraboloid, F = M δ0 π a b / 2h) refined by ``scipy.optimize.least_squares``
+    on the whitened residuals with the offset profiled out, from n₀ = 2 and 4.
+    """
+    from scipy.optimize import least_squares
+
+    lo, hi = np.asarray(model.lower), np.asarray(model.upper)
+    pos = np.asarray(model.positions)
+    loaded = np.asarray(model.loaded) > 0
+    y, sig = np.asarray(model.y), np.asarray(model.sigma)
+    c0 = np.median(y[~loaded]) if (~loaded).any() else np.median(y)
+    i0 = tx.taxel_current(model.taxels, 0.0, model.temperature, mode=mode)
+    slope = float(jnp.log(tx.taxel_current(model.taxels, 1.0, model.temperature, mode=mode) / i0))  # per Pa
+    s = np.where(loaded, y - c0, 0.0) * np.sign(slope)
+    w = np.maximum(s - 3.0 * sig, 0.0)
+    area_cell = float(model.cell_area)
+    M = float(sk.bonded_layer_modulus(model.skin.E, model.skin.nu))
+    h = float(model.skin.h)
+    if w.sum() > 0:
+        cu, cv = (w @ pos) / w.sum()
+        d = pos - [cu, cv]
+        cov = (w[:, None] * d).T @ d / w.sum()
+        lam, vec = np.linalg.eigh(cov)
+        var_blur = float(sk.blur_width(model.skin)) ** 2
+        a0, b0 = (math.sqrt(6.0 * max(lam[k] - var_blur, A_MIN**2)) for k in (1, 0))
+        ang0 = math.atan2(vec[1, 1], vec[0, 1])
+        force = np.sum(np.maximum(s, 0.0)) / abs(slope) * area_cell
+        d0 = 2.0 * h * force / (M * math.pi * a0 * b0)
+    else:
+        cu, cv, a0, b0, ang0, d0 = 0.0, 0.0, 1e-3, 1e-3, 0.0, 1e-5
+    wts = 1.0 / sig**2
+
+    def resid(t):
+        r = np.asarray(_residual(jnp.asarray(t), model, mode))
+        return (r - np.sum(wts * r) / np.sum(wts)) / sig
+
+    eps = 1e-6 * (hi - lo)
+    best = None
+    for n0 in (2.0, 4.0):
+        t0 = theta_from_params(PatchParams(cu, cv, a0, b0, ang0, n0, min(max(d0, 2 * DEPTH_MIN), 0.5 * h)))
+        t0 = np.clip(t0, lo + eps, hi - eps)
+        r = least_squares(
+            resid, t0, bounds=(lo + eps, hi - eps), x_scale=np.maximum(0.01 * (hi - lo), 1e-6), max_nfev=400
+        )
+        if best is None or r.cost < best.cost:
+            best = r
+    cov = np.linalg.pinv(best.jac.T @ best.jac)
+    sd = np.sqrt(np.abs(np.diag(cov)))
+    sd_ok = np.clip(np.where(np.isfinite(sd), sd, np.inf), 1e-6 * (hi - lo), 0.1 * (hi - lo))
+    shrink = np.where(np.isfinite(sd) & (sd > 0), sd_ok / np.where(sd > 0, sd, 1.0), 0.0)
+    cov = shrink[:, None] * np.where(np.isfinite(cov), cov, 0.0) * shrink[None, :]
+    return best.x, cov + np.diag(np.where(shrink > 0, 0.0, sd_ok**2))
+
+
+# ---------------------------------------------------------------- sampling
+
+
+def _canonical(flat: np.ndarray) -> np.ndarray:
+    """θ draws (M, 7) → natural (M, 7) ``SUMMARY_NAMES`` with a ≥ b and angle in (−π/2, π/2]."""
+    a, b, ang = np.exp(flat[:, 2]), np.exp(flat[:, 3]), flat[:, 4]
+    swap = b > a
+    a, b = np.where(swap, b, a), np.where(swap, a, b)
+    ang = ang + np.where(swap, np.pi / 2, 0.0)
+    ang = np.pi / 2 - np.mod(np.pi / 2 - ang, np.pi)
+    return np.column_stack([flat[:, 0], flat[:, 1], a, b, ang, np.exp(flat[:, 5]), np.asarray(_depth(flat))])
+
+
+def _stats(x: np.ndarray) -> dict:
+    return {
+        "mean": float(x.mean()),
+        "sd": float(x.std(ddof=1)),
+        "q05": float(np.quantile(x, 0.05)),
+        "q95": float(np.quantile(x, 0.95)),
+    }
+
+
+def _axial_stats(x: np.ndarray) -> dict:
+    """Statistics of an axial angle (period π): circular mean and sd of 2φ, halved; quantiles about the mean."""
+    z = np.mean(np.exp(2j * x))
+    m = 0.5 * float(np.angle(z))
+    d = np.pi / 2 - np.mod(np.pi / 2 - (x - m), np.pi)
+    sd = 0.5 * math.sqrt(max(-2.0 * math.log(max(abs(z), 1e-300)), 0.0))
+    return {"mean": m, "sd": sd, "q05": m + float(np.quantile(d, 0.05)), "q95": m + float(np.quantile(d, 0.95))}
+
+
+def _start_ensemble(logp, theta0, cov, lo, hi, walkers, rng) -> np.ndarray:
+    """Walkers drawn from N(θ̂, cov) inside the prior box; draws outside the support (δ0 ∉ [1 µm, h]) are redrawn."""
+    eps = 1e-9 * (hi - lo)
+
+    def draw(k):
+        return np.clip(rng.multivariate_normal(theta0, cov, size=k, method="eigh"), lo + eps, hi - eps)
+
+    start = draw(walkers)
+    for _ in range(200):
+        bad = ~np.isfinite(logp(start))
+        if not bad.any():
+            return start
+        start[bad] = draw(int(bad.sum()))
+    raise RuntimeError("could not place the walkers inside the prior's support around the initial fit")
+
+
+def patch_posterior(
+    currents,
+    finger,
+    *,
+    seed: int,
+    mode: str = "empirical",
+    walkers: int = 32,
+    steps: int = 3000,
+    dt: float = 0.02,
+    temperature: float = 300.0,
+    gains=None,
+    baseline=None,
+    sigma=None,
+    elapsed_s: float = 0.0,
+    chain_path=None,
+    progress: bool = False,
+) -> PatchPosterior:
+    """Posterior of the contact patch (a, b, n, orientation, centre, depth) from a frame or a short window.
+
+    Parameters
+    ----------
+    currents : (N,) or (K, N) float, A
+        Measured taxel currents of a static contact (K consecutive frames are averaged).
+    finger : Finger
+    seed : int
+        Seeds the walkers' start and emcee's random state (checked after setting).
+    mode : {"physics", "empirical"}
+        Taxel response used by the model (the one the data come from).
+    walkers, steps : int
+        Ensemble size (even, ≥ 16) and chain length (≥ 100).
+    dt, temperature, gains, baseline, sigma, elapsed_s
+        See :func:`make_patch_model`.
+    chain_path : path or None
+        emcee HDF5 checkpoint through :func:`bayestouch.inference.sampler.sample`; ``None`` samples in memory.
+    progress : bool
+        Show emcee's progress bar.
+
+    Returns
+    -------
+    PatchPosterior
+
+    Raises
+    ------
+    BadInput
+        Bad currents, mode, walkers or steps (one line).
+    """
+    import arviz as az
+
+    from bayestouch.inference.sampler import convergence, sample
+
+    t0 = time.perf_counter()
+    if mode not in tx.MODES:
+        raise BadInput(f"mode: must be one of {', '.join(tx.MODES)}, got {mode!r}")
+    if walkers < 16 or walkers % 2:
+        raise BadInput(f"walkers: expected an even number ≥ 16, got {walkers}")
+    if steps < 100:
+        raise BadInput(f"steps: expected ≥ 100, got {steps}")
+    model = make_patch_model(
+        currents,
+        finger,
+        dt=dt,
+        temperature=temperature,
+        gains=gains,
+        baseline=baseline,
+        sigma=sigma,
+        elapsed_s=elapsed_s,
+    )
+    logp, bounds = make_patch_log_prob(model, mode)
+    theta0, cov = initial_patch_theta(model, mode)
+    lo, hi = np.asarray(bounds.lower), np.asarray(bounds.upper)
+    rng = np.random.default_rng(seed)
+    start = _start_ensemble(logp, theta0, cov, lo, hi, walkers, rng)
+    ch = sample(logp, start, chain_path, walkers=walkers, ndim=7, seed=seed, steps=steps, progress=progress, t0=t0)
+    kept = ch.kept  # (S, W, 7)
+    flat = kept.reshape(-1, 7)
+    nat = _canonical(flat)
+    draws = {name: nat[:, i] for i, name in enumerate(SUMMARY_NAMES)}
+    draws["area_m2"] = np.asarray(superellipse_area(draws["a"], draws["b"], draws["n"]))
+    draws["force_N"] = np.asarray(_batched_force(jnp.asarray(flat), model))
+    shape = kept.shape[:2]
+    post = {k: np.swapaxes(v.reshape(shape), 0, 1) for k, v in draws.items() if k != "angle"}
+    idata = az.from_dict(posterior=post)
+    ess, rhat = az.ess(idata, method="bulk"), az.rhat(idata)
+    params = {}
+    for name in SUMMARY_NAMES:
+        st = _axial_stats(draws[name]) if name == "angle" else _stats(draws[name])
+        if name != "angle":
+            st.update(r_hat=float(rhat[name]), ess_bulk=float(ess[name]))
+        params[name] = st
+    derived = {
+        k: {**_stats(draws[k]), "r_hat": float(rhat[k]), "ess_bulk": float(ess[k])} for k in ("area_m2", "force_N")
+    }
+    checked = [n for n in SUMMARY_NAMES if n != "angle"]
+    diag = convergence([params[n]["r_hat"] for n in checked], [params[n]["ess_bulk"] for n in checked], ch)
+    k = 1 if np.ndim(currents) == 1 else int(np.shape(currents)[0])
+    summary = {
+        "parameters": params,
+        "derived": derived,
+        "diagnostics": {**diag, "seconds": time.perf_counter() - t0},
+        "model": {
+            "level": "patch",
+            "mode": mode,
+            "frames": k,
+            "seed": seed,
+            "likelihood": "Gaussian on drift-compensated log-currents, offset marginalised",
+            "sigma_median": float(np.median(np.asarray(model.sigma))),
+        },
+    }
+    return PatchPosterior(draws, summary, ch, model, theta0)
