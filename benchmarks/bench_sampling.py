@@ -1,0 +1,113 @@
+"""Sampling efficiency of the contact-level posterior (issue 4's targets): effective samples per second of emcee
+(the project's engine and settings) against numpyro's NUTS on the same log-density and data, and the time to a
+converged contact-level posterior for 1000 points (target < 10 s), with its diagnostics."""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from bayestouch.inference.calibration import simulate_points
+from bayestouch.inference.contact import make_log_prob
+
+# a tilted, unequal-axes n-ellipsoid (centre m, log axes, Euler angles rad, log n, log σ) and 1000 points
+THETA = np.array([0.0, 0.0, 0.0, np.log(0.03), np.log(0.022), np.log(0.015), 0.4, 0.3, -0.5, np.log(2.2), np.log(3e-4)])
+N_POINTS = 1000
+
+
+def _points():
+    return simulate_points(THETA, N_POINTS, np.random.default_rng(0))
+
+
+def _min_ess(chain) -> float:
+    """Smallest ESS over parameters: draws / integrated autocorrelation time (chain (S, W, D))."""
+    from emcee.autocorr import integrated_time
+
+    return float(np.min(chain.shape[0] * chain.shape[1] / integrated_time(chain, tol=0)))
+
+
+def bench_emcee_vs_nuts():
+    from bayestouch.inference.nuts import nuts_contact
+    from bayestouch.inference.run import _walkers
+    from bayestouch.inference.sampler import sample
+
+    pts = _points()
+    logp, bounds = make_log_prob(pts)
+    logp(THETA[None])  # compile outside the timing
+    walkers, steps = 32, 4000  # run_contact_fit's defaults
+    with tempfile.TemporaryDirectory() as tmp:
+        ch = sample(
+            logp,
+            _walkers(THETA, bounds, walkers, np.random.default_rng(0)),
+            Path(tmp) / "c.h5",
+            walkers=walkers,
+            ndim=11,
+            seed=0,
+            steps=steps,
+            progress=False,
+        )
+    ess_e = _min_ess(ch.kept)
+    t = time.perf_counter()
+    out = nuts_contact(pts, seed=0, num_warmup=500, num_samples=1000, init=THETA)
+    t_nuts = time.perf_counter() - t
+    ess_n = _min_ess(np.swapaxes(out["theta"], 0, 1))
+    common = {
+        "points": N_POINTS,
+        "start": "truth (both samplers)",
+        "ess_method": "min over the 11 parameters, draws / integrated autocorrelation time",
+    }
+    return [
+        {
+            "metric": "emcee min ESS/s",
+            "value": ess_e / ch.seconds,
+            "unit": "1/s",
+            "walkers": walkers,
+            "steps": steps,
+            "burn": ch.burn,
+            "ess": round(ess_e),
+            "seconds": round(ch.seconds, 1),
+            "moves": "default_moves (DE + snooker)",
+            "backend": "HDF5 every step",
+            **common,
+        },
+        {
+            "metric": "NUTS min ESS/s",
+            "value": ess_n / t_nuts,
+            "unit": "1/s",
+            "warmup": 500,
+            "samples": 1000,
+            "ess": round(ess_n),
+            "seconds": round(t_nuts, 1),
+            "divergences": int(out["diverging"].sum()),
+            "timing": "includes JIT compilation",
+            **common,
+        },
+        {"metric": "emcee / NUTS ESS/s", "value": (ess_e / ch.seconds) / (ess_n / t_nuts), "unit": "1", "target": 1},
+    ]
+
+
+def bench_time_to_converged():
+    from bayestouch.inference.run import run_contact_fit
+
+    pts = _points()
+    with tempfile.TemporaryDirectory() as tmp:
+        s = run_contact_fit(pts, Path(tmp), seed=0, progress=False)
+    d = s["diagnostics"]
+    return [
+        {
+            "metric": "seconds to a contact-level posterior",
+            "value": d["seconds"],
+            "unit": "s",
+            "points": N_POINTS,
+            "target": 10,
+            "converged": d["converged"],
+            "max_r_hat": round(d["max_r_hat"], 4),
+            "min_ess_bulk": round(d["min_ess_bulk"]),
+            "steps": d["steps"],
+            "autocorr_time_max": round(d["autocorr_time_max"], 1),
+            "includes": "DE initial fit, emcee with HDF5, summary, mesh",
+        }
+    ]
