@@ -312,3 +312,71 @@ def test_outlier_mixture_recovers_fraction_and_scale_where_gaussian_inflates():
     # negative control: the Gaussian's best σ is inflated many times by the same outliers
     g, _ = cm.make_log_prob(pts, nu=np.inf)
     assert np.exp(_mode(g, TRUTH, 10, np.linspace(np.log(1e-5), np.log(1e-2), 401))[0]) > 10 * sig
+
+
+# --- mixed precision (float32 per-point transcendentals, float64 affine map and sum): opt-in, not the default ---
+
+
+def _mixed_case(m, seed):
+    """M points (σ = 0.3 mm, a ≤ 3 cm) and 200 walkers: 100 near the mode (σ from 3 µm to 0.3 mm, where a/σ
+    runs from 100 to 10⁴), 100 anywhere in the prior box."""
+    rng = np.random.default_rng(seed)
+    on = sample_surface(cm.shape_of(jnp.asarray(TRUTH)), m, seed=seed)
+    pts = on + rng.normal(0, 3e-4, on.shape)
+    f, b = cm.make_log_prob(pts)
+    g, _ = cm.make_log_prob(pts, precision="mixed")
+    near = TRUTH + rng.normal(0, 1, (100, 11)) * np.r_[[3e-4] * 3, [0.01] * 3, [0.01] * 3, 0.03, 0.0]
+    near[:, 10] = np.log(3e-4) - rng.uniform(0, np.log(100), 100)
+    far = rng.uniform(np.asarray(b.lower), np.asarray(b.upper), (100, 11))
+    return pts, f, g, np.vstack([near, far])
+
+
+@pytest.mark.parametrize("m", [1000, 10000])
+def test_mixed_precision_error_is_float32_resolution_of_the_residual(m):
+    """float32 resolves G ≈ 1 to ~1e-7, so each point's term is off by ~1e-7 (a/σ) ψ(r/σ) (ψ ≤ ~1 for ν = 4),
+    independently between points: the sum is off by ~1e-7 (a/σ) √M. Assert a bound 10× that, per walker."""
+    pts, f, g, th = _mixed_case(m, 21)
+    ref, out = f(th), g(th)
+    assert not np.isnan(out).any() and np.array_equal(np.isfinite(out), np.isfinite(ref))
+    err = np.abs(out - ref)
+    ok = np.isfinite(ref)
+    near = th[:100]
+    bound = 1e-6 * np.exp(near[:, 3:6]).max(axis=1) / np.exp(near[:, 10]) * np.sqrt(m)
+    assert np.all(err[:100] <= bound), np.max(err[:100] / bound)
+    # where the data are best explained (σ = 0.3 mm, a/σ = 100), M = 1000 meets the 1e-3-nat criterion ...
+    best = np.abs(th[:100, 10] - np.log(3e-4)) < 0.2
+    if m == 1000:
+        assert err[:100][best].max() < 1e-3
+    else:  # ... and M = 10,000 does not: the reason float64 stays the default (flip it if this starts failing)
+        assert err[:100][best].max() > 1e-3
+    # far from the mode the error is small relative to |log p| (there log-probability differences are huge)
+    assert np.all(err[100:][ok[100:]] <= 1e-4 * np.abs(ref[100:][ok[100:]]))
+
+
+def test_mixed_precision_sums_in_float64_and_float32_accumulation_would_not():
+    """Negative control: the same per-point terms, exact but accumulated in float32 (sequentially), miss the sum
+    by far more than the mixed kernel does (a float32 total of ~6e4 nats alone has a 4e-3-nat spacing)."""
+    pts, f, g, th = _mixed_case(10000, 22)
+    near = th[:20].copy()
+    near[:, 10] = np.log(3e-4)  # the data's σ: where the mixed kernel is accurate
+    ref = f(near)
+    terms = cm.pointwise_log_likelihood(near, pts, cm.load_priors().student_nu)
+    f32 = np.cumsum(terms.astype(np.float32), axis=1, dtype=np.float32)[:, -1].astype(float)
+    np.testing.assert_allclose(terms.sum(axis=1), ref, rtol=1e-12)  # the pointwise terms are the float64 sum's
+    err32, err_mixed = np.abs(f32 - ref), np.abs(g(near) - ref)
+    assert np.median(err32) > 1e-2 and np.median(err32) > 10 * np.median(err_mixed)
+
+
+def test_precision_option_checks():
+    from bayestouch.errors import BadInput
+
+    pts = sample_surface(cm.shape_of(jnp.asarray(TRUTH)), 50, seed=23)
+    for kwargs in [{"precision": "float16"}, {"precision": "mixed", "noise": "mixture"}]:
+        with pytest.raises(BadInput, match="^precision: "):
+            cm.make_log_prob(pts, **kwargs)
+    with pytest.raises(BadInput, match="^precision: "):
+        cm.make_log_prob(pts, normals=pts, precision="mixed")
+    # the default is float64: bit-identical to the explicit option
+    f, _ = cm.make_log_prob(pts)
+    f64, _ = cm.make_log_prob(pts, precision="float64")
+    assert np.array_equal(f(TRUTH[None]), f64(TRUTH[None]))
