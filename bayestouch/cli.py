@@ -101,7 +101,10 @@ def build_parser() -> argparse.ArgumentParser:
     fp.add_argument("--out", required=True, type=Path, help="output folder")
     fp.add_argument("--seed", type=int, default=0, help="seed of the initial fit, walkers and emcee (default 0)")
     fp.add_argument("--walkers", type=_positive_int, default=32, help="emcee walkers (default 32)")
-    fp.add_argument("--steps", type=_positive_int, default=4000, help="chain length in steps (default 4000)")
+    fp.add_argument("--steps", type=_positive_int, default=20000,
+                    help="largest chain length in steps (default 20000); sampling stops earlier once the chain is "
+                    "longer than 50 autocorrelation times and their estimate is stable")
+    fp.add_argument("--no-early-stop", action="store_true", help="sample exactly --steps steps")
     fp.add_argument("--resume", action="store_true", help="continue the chain in OUT/chain.h5")
     fp.add_argument("--budget", type=float, default=None, help="wall-clock budget for sampling, seconds")
     fp.add_argument("--noise", choices=["student", "gaussian", "multiplicative", "mixture"], default="student",
@@ -281,7 +284,7 @@ def _cmd_fit(args) -> int:
         s = run_contact_fit(cp.points, args.out, seed=args.seed, walkers=args.walkers, steps=args.steps,
                             resume=args.resume, budget_s=args.budget, progress=not args.quiet,
                             normals=None if args.ignore_normals else cp.normals, noise=noise, nu=nu, ffd=args.ffd,
-                            ffd_tau=args.ffd_tau)
+                            ffd_tau=args.ffd_tau, stop_when_converged=not args.no_early_stop)
     d = s["diagnostics"]
     v = s["derived"]["volume_m3"]
     print(f"wrote {args.out}/summary.json, posterior.nc, mean_shape.ply, uncertainty_mesh.ply: volume "

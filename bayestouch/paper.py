@@ -90,7 +90,8 @@ class DEFit(NamedTuple):
 
 
 def fit_nellipsoid_de(points, seed=0, *, p: float = 1.0, q: float = 2.0, popsize: int = 20,
-                      maxiter: int = 400, tol: float = 1e-8, n_bounds=(1.2, 16.0)) -> DEFit:
+                      maxiter: int = 400, tol: float = 1e-8, n_bounds=(1.2, 16.0), centre_pad: float | None = None,
+                      axis_max: float | None = None) -> DEFit:
     """Fit the n-ellipsoid to points by differential evolution, then polish with L-BFGS-B on exact
     JAX gradients.
 
@@ -104,6 +105,12 @@ def fit_nellipsoid_de(points, seed=0, *, p: float = 1.0, q: float = 2.0, popsize
     popsize, maxiter, tol : DE settings (scipy's meaning)
     n_bounds : (float, float)
         Search range of the exponent n.
+    centre_pad : float, metres, optional
+        Search the centre within the data's bounding box grown by this much on each side (default: the data
+        centroid ± half the data's span, right for data all round the object as the paper's).
+    axis_max : float, metres, optional
+        Largest semi-axis searched (default 1.2 × the data's largest distance from its centroid). Data that
+        cover one side of an object need both wider (:func:`bayestouch.inference.run.initial_theta`).
 
     Returns
     -------
@@ -114,8 +121,12 @@ def fit_nellipsoid_de(points, seed=0, *, p: float = 1.0, q: float = 2.0, popsize
     c = np.asarray(pts.mean(axis=0))
     ext = np.asarray(jnp.max(jnp.linalg.norm(pts - c, axis=1)))
     span = np.ptp(np.asarray(pts), axis=0)
-    bounds = [(c[i] - 0.5 * span[i] - 1e-9, c[i] + 0.5 * span[i] + 1e-9) for i in range(3)]
-    bounds += [(0.02 * ext, 1.2 * ext)] * 3
+    if centre_pad is None:
+        bounds = [(c[i] - 0.5 * span[i] - 1e-9, c[i] + 0.5 * span[i] + 1e-9) for i in range(3)]
+    else:
+        lo, hi = np.asarray(pts.min(axis=0)), np.asarray(pts.max(axis=0))
+        bounds = [(lo[i] - centre_pad, hi[i] + centre_pad) for i in range(3)]
+    bounds += [(0.02 * ext, 1.2 * ext if axis_max is None else float(axis_max))] * 3
     # ξ ∈ [0, π]; ψ ∈ [0, π) suffices (ψ + π flips two local axes, a symmetry); ζ over the full turn
     bounds += [(0.0, np.pi), (0.0, np.pi), (-np.pi, np.pi), tuple(n_bounds)]
     rng = as_rng(seed)

@@ -51,8 +51,10 @@ def surface_integrals(vertices, faces) -> SurfaceIntegrals:
     area2 = np.linalg.norm(cr, axis=1)
     q = np.einsum("qk,fkd->fqd", _B, tri)  # quadrature points (F, 6, 3)
     # ∮ g(y) n dS over a triangle = Σ_q w_q g(y_q) · (cr / 2)
-    vol = np.einsum("q,fqd,fd->", _W, q, cr) / 2.0 / 3.0
-    inert = np.einsum("q,fqi,fqj,fqk,fk->ij", _W, q, q, q, cr) / 2.0 / 5.0
+    vol = np.einsum("q,fqd,fd->", _W, q, cr, optimize=True) / 2.0 / 3.0
+    # Σ_q w_q y_i y_j (y·cr): contract the cheap factor first (the unoptimised 5-operand einsum is ~50× slower)
+    yn = np.einsum("fqk,fk->fq", q, cr) * _W
+    inert = np.einsum("fq,fqi,fqj->ij", yn, q, q, optimize=True) / 2.0 / 5.0
     return SurfaceIntegrals(float(vol), float(area2.sum() / 2.0), 0.5 * (inert + inert.T))
 
 

@@ -36,7 +36,7 @@ NATURAL_NAMES = ("x_G", "y_G", "z_G", "a", "b", "c", "xi", "psi", "zeta", "n", "
 #: draws kept for the log-likelihood and posterior-predictive groups (memory: draws × observations × 8 bytes)
 PREDICTIVE_DRAWS = 1000
 #: draws used for the derived quantities and the uncertainty mesh
-DERIVED_DRAWS = 400
+DERIVED_DRAWS = 200
 
 
 class PosteriorModel(NamedTuple):
@@ -99,12 +99,30 @@ def uncertainty_spread(mean_vertices, mean_normals, shape_vectors) -> np.ndarray
     pts = jnp.asarray(mean_vertices)
 
     @jax.jit
+    @jax.vmap
     def dist(v):
         s = ne.from_vector(v)
         return ne.first_order_distance(s, ne.to_local(s, pts))[0]
 
-    d = np.stack([np.asarray(dist(jnp.asarray(v))) for v in np.asarray(shape_vectors)])
+    d = np.asarray(dist(jnp.asarray(np.asarray(shape_vectors, dtype=float))))
     return d.std(axis=0, ddof=1)
+
+
+def _draw_meshes(shape_vectors, res: int):
+    """Vertices (N, V, 3) m of the n-ellipsoids ``shape_vectors (N, 10)`` on one cube-sphere topology, and its
+    faces (one compiled map for all draws)."""
+    from bayestouch.geometry.mesh import cube_sphere
+
+    dirs, faces = cube_sphere(res)
+    d = jnp.asarray(dirs)
+
+    @jax.jit
+    @jax.vmap
+    def verts(v):
+        s = ne.from_vector(v)
+        return ne.surface_point(s, ne.unit_nsphere(d, s.n))
+
+    return np.asarray(verts(jnp.asarray(np.asarray(shape_vectors, dtype=float)))), faces
 
 
 def _spread_colours(spread: np.ndarray) -> np.ndarray:
@@ -162,15 +180,15 @@ def write_posterior(out: Path, chain, model: PosteriorModel, *, seed: int, t0: f
     flat = nat.reshape(-1, nat.shape[-1])
     draws = flat[rng.choice(len(flat), min(DERIVED_DRAWS, len(flat)), replace=False)]
     vecs = np.asarray(model.shape_vectors(draws))
-    vols, areas, inertia = [], [], []
-    for v in vecs:
-        ints = surface_integrals(*nellipsoid_mesh(ne.from_vector(jnp.asarray(v)), 16))
-        vols.append(ints.volume)
+    meshes, tri = _draw_meshes(vecs, 16)
+    areas, inertia = [], []
+    for v in meshes:
+        ints = surface_integrals(v, tri)
         areas.append(ints.area)
         inertia.append(np.linalg.eigvalsh(ints.inertia)[::-1])  # principal moments, largest first
-    vols, areas, inertia = np.array(vols), np.array(areas), np.array(inertia)
-    # the mesh at res 16 under-estimates the volume slightly; the exact n-ellipsoid volume is closed-form
-    exact_vols = np.array([float(ne.volume(ne.from_vector(jnp.asarray(v)))) for v in vecs])
+    areas, inertia = np.array(areas), np.array(inertia)
+    # the volume is closed-form for an n-ellipsoid (eq. 11 on the exact surface, not the res-16 mesh)
+    exact_vols = np.asarray(jax.jit(jax.vmap(lambda v: ne.volume(ne.from_vector(v))))(jnp.asarray(vecs)))
 
     mean_nat = flat.mean(axis=0)
     mean = ne.from_vector(jnp.asarray(np.asarray(model.shape_vectors(mean_nat[None]))[0]))
@@ -205,14 +223,44 @@ def write_posterior(out: Path, chain, model: PosteriorModel, *, seed: int, t0: f
     return summary
 
 
-def initial_theta(points, seed: int, priors: cm.PriorParams) -> np.ndarray:
-    """A starting point: the evolutionary 10-parameter fit (symmetry-reduced angle ranges), σ from its RMS."""
+def initial_theta(points, seed: int, priors: cm.PriorParams, starts: int = 3) -> np.ndarray:
+    """A starting point that respects the symmetries and survives partial coverage and outliers.
+
+    ``starts`` evolutionary 10-parameter fits (symmetry-reduced angle ranges; the centre searched up to one data
+    span beyond the data's box and the axes up to twice the span, since strokes over one side of an object say
+    little about where its far side is), each polished by L-BFGS-B on the robust (Student-t) log-posterior the
+    sampler uses; the start with the highest log-posterior wins. σ starts from the fit's RMS.
+    """
+    from scipy.optimize import minimize
+
     from bayestouch.paper import fit_nellipsoid_de
 
-    de = fit_nellipsoid_de(points, seed, popsize=12, maxiter=250, n_bounds=(priors.n_min, priors.n_max))
-    v = np.asarray(ne.to_vector(de.shape))
-    sigma = float(np.clip(de.rms, priors.sigma_min * 2, priors.sigma_max / 2))
-    return np.concatenate([v[:3], np.log(v[3:6]), v[6:9], [np.log(v[9])], [np.log(sigma)]])
+    pts = np.asarray(points, float)
+    span = float(np.max(np.ptp(pts, axis=0)))
+    bounds = cm.bounds_for(pts, priors)
+    lo, hi = np.asarray(bounds.lower), np.asarray(bounds.upper)
+    pj = jnp.asarray(pts)
+    nu = float(priors.student_nu)
+    vg = jax.jit(jax.value_and_grad(lambda t: -cm.log_prob(t, pj, bounds, nu)))
+
+    def fg(t):
+        v, g = vg(jnp.asarray(t))
+        return float(v), np.asarray(g)
+
+    best, best_val = None, np.inf
+    for k in range(starts):
+        de = fit_nellipsoid_de(pts, np.random.default_rng([seed, k]), popsize=12, maxiter=250,
+                               n_bounds=(priors.n_min, priors.n_max), centre_pad=span, axis_max=2.0 * span)
+        v = np.asarray(ne.to_vector(de.shape))
+        sigma = float(np.clip(de.rms, priors.sigma_min * 2, priors.sigma_max / 2))
+        t0 = np.clip(np.concatenate([v[:3], np.log(v[3:6]), v[6:9], [np.log(v[9])], [np.log(sigma)]]),
+                     lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
+        res = minimize(fg, t0, jac=True, method="L-BFGS-B", bounds=list(zip(lo, hi, strict=True)),
+                       options={"maxiter": 500})
+        t, val = (res.x, res.fun) if np.isfinite(res.fun) and res.fun <= fg(t0)[0] else (t0, fg(t0)[0])
+        if val < best_val:
+            best, best_val = t, val
+    return best
 
 
 def _walkers(theta0, bounds, n, rng, sampled: tuple = cm.PARAM_NAMES) -> np.ndarray:
@@ -221,7 +269,8 @@ def _walkers(theta0, bounds, n, rng, sampled: tuple = cm.PARAM_NAMES) -> np.ndar
     lo, hi = np.asarray(bounds.lower), np.asarray(bounds.upper)
     extra = sampled[11:]
     theta0 = np.concatenate([theta0[:11], [_EXTRA_START[k] for k in extra]])
-    scale = np.concatenate([np.full(3, 1e-4), np.full(3, 1e-3), np.full(3, 1e-3), [1e-3], [1e-2],
+    # a ball of about the posterior's width for tens to hundreds of points (DE moves adapt from there)
+    scale = np.concatenate([np.full(3, 5e-4), np.full(3, 1e-2), np.full(3, 1e-2), [1e-2], [5e-2],
                             [_EXTRA_SCALE[k] for k in extra]])
     p = np.clip(theta0, lo, hi) + scale * rng.normal(size=(n, theta0.size))
     return np.clip(p, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
@@ -346,10 +395,11 @@ def ffd_contact_model(points, dims, tau: float) -> PosteriorModel:
          "ffd_tau_m": tau, "n_points": int(m), "parameters_sampled": list(cm.PARAM_NAMES)}, refine)
 
 
-def run_contact_fit(points, out: Path, *, seed: int = 0, walkers: int = 32, steps: int = 4000,
+def run_contact_fit(points, out: Path, *, seed: int = 0, walkers: int = 32, steps: int = 20000,
                     resume: bool = False, budget_s: float | None = None, progress: bool = True,
                     normals=None, noise: str = "student", nu: float | None = None,
-                    ffd: tuple[int, int, int] | None = None, ffd_tau: float | None = None) -> dict:
+                    ffd: tuple[int, int, int] | None = None, ffd_tau: float | None = None,
+                    stop_when_converged: bool = True) -> dict:
     """Sample the contact-level posterior of ``points (M, 3)`` m and write the run folder ``out``.
 
     Parameters
@@ -357,11 +407,14 @@ def run_contact_fit(points, out: Path, *, seed: int = 0, walkers: int = 32, step
     seed : int
         Seeds the initial fit, the walkers and emcee's random state (checked after setting).
     walkers, steps : int
-        Ensemble size and the total number of steps of the chain.
+        Ensemble size and the largest number of steps of the chain.
     resume : bool
         Continue the chain in ``out/chain.h5`` up to ``steps`` (nothing already sampled is lost).
     budget_s : float, seconds
         Stop sampling after this wall-clock time (the summary says so).
+    stop_when_converged : bool
+        Stop before ``steps`` once the chain is longer than 50 autocorrelation times and τ is stable
+        (:func:`bayestouch.inference.sampler.sample`).
     normals : (M, 3) float, optional
         Measured outward normals: adds the von Mises-Fisher term (and κ).
     noise : {"student", "multiplicative", "mixture"}
@@ -406,5 +459,5 @@ def run_contact_fit(points, out: Path, *, seed: int = 0, walkers: int = 32, step
         return _walkers(theta0, bounds, walkers, np.random.default_rng(seed), sampled)
 
     ch = sample(logp, start, out / "chain.h5", walkers=walkers, ndim=len(sampled), seed=seed, steps=steps,
-                resume=resume, budget_s=budget_s, progress=progress, t0=t0)
+                resume=resume, budget_s=budget_s, progress=progress, t0=t0, stop_when_converged=stop_when_converged)
     return write_posterior(out, ch, model, seed=seed, t0=t0)

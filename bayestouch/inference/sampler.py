@@ -134,6 +134,26 @@ def _buffered_hdf_backend(path: Path, flush_s: float):
     return Buffered(str(path))
 
 
+def _burn_in(n_done: int, tau_max: float) -> int:
+    """Steps to discard: twice the largest autocorrelation time, at least a quarter and at most half the chain."""
+    return int(min(n_done // 2, max(2 * tau_max, n_done // 4))) if np.isfinite(tau_max) else n_done // 2
+
+
+def _looks_converged(backend, tau, old_tau) -> bool:
+    """The stopping rule: N > 50 τ_max, τ stable within 5 % since the last check, and on the draws after burn-in
+    every R-hat < 1.01 and every bulk ESS > 400 (ArviZ, walkers as chains) — the summary's own criterion."""
+    n = backend.iteration
+    if not (np.all(np.isfinite(tau)) and n > TAU_FACTOR * np.max(tau) and np.all(np.abs(old_tau - tau) < 0.05 * tau)):
+        return False
+    import arviz as az
+    import xarray as xr
+
+    kept = backend.get_chain()[_burn_in(n, float(np.max(tau))):]
+    ds = xr.Dataset({"theta": (("chain", "draw", "dim"), np.swapaxes(kept, 0, 1))})
+    return bool(float(az.rhat(ds)["theta"].max()) < R_HAT_MAX and float(az.ess(ds, method="bulk")["theta"].min())
+                > ESS_MIN)
+
+
 def sample(logp, start, chain_path, *, walkers: int, ndim: int, seed: int, steps: int, resume: bool = False,
            budget_s: float | None = None, progress: bool = True, moves=None, t0: float | None = None,
            stop_when_converged: bool = False, check_every: int = 250, flush_s: float = 1.0) -> Chain:
@@ -163,8 +183,9 @@ def sample(logp, start, chain_path, *, walkers: int, ndim: int, seed: int, steps
     t0 : float, optional
         ``time.perf_counter()`` at the start of the whole run (default: now).
     stop_when_converged : bool
-        Every ``check_every`` steps, stop once the chain is longer than 50 integrated autocorrelation times and
-        the estimate of τ moved less than 1 % since the last check (emcee's documented criterion, with 50 τ).
+        Every ``check_every`` steps, stop once the chain is longer than 50 integrated autocorrelation times, the
+        estimate of τ moved less than 5 % since the last check (emcee's documented criterion) and R-hat and the
+        bulk ESS of the sampled parameters pass (:func:`_looks_converged`).
     flush_s : float, seconds
         Checkpoint interval.
     """
@@ -215,9 +236,7 @@ def sample(logp, start, chain_path, *, walkers: int, ndim: int, seed: int, steps
                 if stop_when_converged and i % check_every == 0:
                     flush()
                     tau = backend.get_autocorr_time(tol=0)
-                    if (old_tau is not None and np.all(np.isfinite(tau))
-                            and backend.iteration > TAU_FACTOR * np.max(tau)
-                            and np.all(np.abs(old_tau - tau) < 0.01 * tau)):
+                    if old_tau is not None and _looks_converged(backend, tau, old_tau):
                         break
                     old_tau = tau
         finally:
@@ -230,7 +249,7 @@ def sample(logp, start, chain_path, *, walkers: int, ndim: int, seed: int, steps
     except Exception:  # emcee raises on chains too short for any estimate
         tau = np.full(ndim, np.nan)
     tau_max = float(np.nanmax(tau)) if np.isfinite(tau).any() else float("nan")
-    burn = int(min(n_done // 2, max(2 * tau_max, n_done // 4))) if np.isfinite(tau_max) else n_done // 2
+    burn = _burn_in(n_done, tau_max)
     acc = float(np.mean(sampler.acceptance_fraction)) if todo > 0 and sampler.iteration > 0 else None
     return Chain(chain[burn:], lp[burn:], int(n_done), burn, tau_max, acc, stopped, time.perf_counter() - t0)
 
