@@ -1,0 +1,114 @@
+"""Raw-current level (issue 4, level 2): log-density throughput at a batch of 32 walkers, and the end-to-end
+``run_raw_fit`` of the standard scenario (the textured egg, 10 strokes, seed 3, empirical taxel mode), with its
+diagnostics and the volume error. Target (issue 4): the posterior in under 2 minutes on 2 cores.
+"""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from bayestouch.params import MODELS
+from benchmarks.harness import best_of
+
+W = 32
+EGG = MODELS / "objects" / "egg.toml"
+
+
+def _recording(mode: str = "empirical", strokes: int = 10, seed: int = 3):
+    """The standard scenario, as ``bayestouch simulate --object egg.toml --strokes 10 --seed 3 --mode MODE``."""
+    from bayestouch.recording import build_dataset
+    from bayestouch.scene.objects import load_object
+    from bayestouch.scene.strokes import random_strokes
+    from bayestouch.virtual import load_finger, record_strokes
+
+    obj = load_object(EGG)
+    vf = load_finger(MODELS, seed=seed)
+    st = random_strokes(obj, strokes, seed=seed)
+    rec = record_strokes(obj, st, vf, seed, mode=mode)
+    g = np.asarray(vf.finger.grid).reshape(-1, 2)
+    ds = build_dataset(
+        rec,
+        g[:, 0],
+        g[:, 1],
+        np.asarray(vf.finger.reference).ravel(),
+        [s.depth for s in st],
+        {"object": "egg", "seed": seed, "mode": mode},
+    )
+    return ds, obj
+
+
+def _truth(obj):
+    s = obj.shape
+    return np.asarray(
+        [*np.asarray(s.centre), *np.log(np.asarray(s.axes)), *np.asarray(s.angles), np.log(float(s.n)), np.log(8.0)]
+    )
+
+
+def bench_raw_log_prob(ds_obj=None):
+    from bayestouch.inference import raw
+
+    ds, obj = ds_obj or _recording()
+    out = []
+    for stride in (5, 1):
+        data, finger = raw.load_raw_data(ds, stride=stride)
+        f, _, _ = raw.make_raw_log_prob(data, finger)
+        th = _truth(obj) + 1e-6 * np.random.default_rng(0).normal(size=(W, 11))
+        f(th)
+        t = best_of(lambda f=f, th=th: f(th), repeat=3, number=3)
+        F, M = data.log_current.shape
+        out.append(
+            {
+                "metric": f"raw-current log-density evaluations/s (stride {stride})",
+                "value": W / t,
+                "unit": "1/s",
+                "batch": W,
+                "frames": int(F),
+                "taxels": int(M),
+                "penetration_taxels": int(data.taxel_position.shape[1]),
+                "seconds_per_batch": t,
+            }
+        )
+    return out
+
+
+def bench_raw_fit(steps: int = 600, ds_obj=None):
+    from bayestouch.geometry import nellipsoid as ne
+    from bayestouch.inference import raw
+
+    ds, obj = ds_obj or _recording()
+    with tempfile.TemporaryDirectory() as tmp:
+        t0 = time.perf_counter()
+        s = raw.run_raw_fit(ds, Path(tmp) / "fit", seed=0, walkers=W, steps=steps, progress=False)
+        secs = time.perf_counter() - t0
+    v_true = float(ne.volume(obj.shape))
+    vol = s["derived"]["volume_m3"]
+    d = s["diagnostics"]
+    return [
+        {
+            "metric": "raw-current posterior, standard scenario (egg, 10 strokes, seed 3, empirical), end to end",
+            "value": secs,
+            "unit": "s",
+            "target": 120.0,
+            "steps": steps,
+            "walkers": W,
+            "converged": d["converged"],
+            "max_r_hat": d["max_r_hat"],
+            "min_ess_bulk": d["min_ess_bulk"],
+            "autocorr_time_max": d["autocorr_time_max"],
+            "volume_rel_error": (vol["mean"] - v_true) / v_true,
+            "volume_rel_sd": vol["sd"] / v_true,
+            "noise_scale_mean": s["parameters"]["noise_scale"]["mean"],
+        }
+    ]
+
+
+if __name__ == "__main__":
+    import json
+
+    rec = _recording()
+    for r in bench_raw_log_prob(rec) + bench_raw_fit(ds_obj=rec):
+        print(json.dumps(r))
