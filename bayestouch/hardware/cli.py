@@ -1,0 +1,380 @@
+"""``bayestouch device simulate`` (the virtual finger on a pty) and ``bayestouch device run`` (strokes on a
+device, written as a recording with the schema of ``bayestouch simulate``).
+
+Also runnable on its own: ``python -m bayestouch.hardware.cli device run --port ... --out rec.nc``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["add_device_parser", "run_device", "load_stroke_file", "main"]
+
+_MODELS = Path(__file__).resolve().parent.parent.parent / "models"
+
+
+def _prob(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a probability in [0, 1), got {text!r}") from None
+    if not 0 <= v < 1:
+        raise argparse.ArgumentTypeError(f"expected a probability in [0, 1), got {v}")
+    return v
+
+
+def add_device_parser(subparsers) -> argparse.ArgumentParser:
+    """Add ``device`` with its ``simulate`` and ``run`` subcommands to an argparse ``subparsers``."""
+    dp = subparsers.add_parser(
+        "device",
+        help="the finger over a serial line: virtual finger and stroke runner",
+        description="Hardware adapter (protocol: bayestouch/hardware/PROTOCOL.md). "
+        "`device simulate` serves a virtual finger on a pseudo-terminal; `device run` drives "
+        "a finger (real port, pty or pyserial URL) and writes a recording.",
+    )
+    sub = dp.add_subparsers(dest="device_command", metavar="DEVICE_COMMAND")
+
+    sp = sub.add_parser(
+        "simulate",
+        help="virtual finger on a pseudo-terminal (forward model behind the protocol)",
+        description="Open a pseudo-terminal and answer the finger protocol with the forward model. "
+        "Runs until interrupted (or --for seconds).",
+    )
+    sp.add_argument("--print-port", action="store_true", help="print the pty path alone on stdout")
+    sp.add_argument(
+        "--link",
+        type=Path,
+        default=None,
+        help="also keep a symbolic link at this path pointing to the pty (survives --disconnect-after)",
+    )
+    sp.add_argument(
+        "--object",
+        type=Path,
+        default=_MODELS / "objects" / "egg.toml",
+        help="object TOML touched (default models/objects/egg.toml)",
+    )
+    sp.add_argument("--models", type=Path, default=_MODELS, help="parameter folder (default models/)")
+    sp.add_argument("--seed", type=int, default=0, help="fixed pattern and noise seed (default 0)")
+    sp.add_argument(
+        "--model",
+        choices=["forward", "synthetic"],
+        default="forward",
+        help="frame model: the physics forward model (default) or a fast synthetic one (tests)",
+    )
+    sp.add_argument("--speed", type=float, default=1.0, help="real-time factor (default 1; 0 = as fast as possible)")
+    sp.add_argument("--max-force", type=float, default=1.0, help="device contact force limit, N (default 1)")
+    sp.add_argument("--watchdog", type=float, default=1.0, help="heartbeat watchdog, seconds (default 1)")
+    sp.add_argument("--drop", type=_prob, default=0.0, help="fault: probability of dropping each byte sent")
+    sp.add_argument("--corrupt", type=_prob, default=0.0, help="fault: probability of corrupting each byte sent")
+    sp.add_argument(
+        "--delay",
+        type=float,
+        default=0.0,
+        help="fault: stall the outgoing stream this many seconds, before 5%% of the packets",
+    )
+    sp.add_argument("--inbound-faults", action="store_true", help="drop/corrupt received bytes too")
+    sp.add_argument(
+        "--disconnect-after",
+        type=int,
+        default=None,
+        metavar="N",
+        help="fault: close the pty after N frames (once) and open a new one",
+    )
+    sp.add_argument("--stuck-heater", action="store_true", help="fault: the wires stay powered after a stroke")
+    sp.add_argument(
+        "--for",
+        dest="run_for",
+        type=float,
+        default=None,
+        metavar="SECONDS",
+        help="stop after this many seconds (default: until interrupted)",
+    )
+
+    rp = sub.add_parser(
+        "run",
+        help="run strokes on a finger and write a recording (.nc)",
+        description="Connect to a finger (a port path, a pty from `device simulate`, or a pyserial "
+        "URL), run strokes, and write a recording with the schema of `bayestouch simulate`. Strokes "
+        "come from --stroke-file or are random sections of --object (like `simulate`).",
+    )
+    rp.add_argument("--port", required=True, help="serial port path or pyserial URL (loop://, socket://HOST:PORT)")
+    rp.add_argument("--out", required=True, type=Path, help="recording to write (.nc)")
+    rp.add_argument("--strokes", type=int, default=1, help="number of random strokes (default 1)")
+    rp.add_argument(
+        "--stroke-file",
+        type=Path,
+        default=None,
+        help='JSON stroke plans: {"strokes": [{"time": [s], "contact": [[x,y,z] m], "normal": '
+        '[[nx,ny,nz]], "depth": m, "hold_currents": [A,A,A] (optional)}]}',
+    )
+    rp.add_argument(
+        "--object",
+        type=Path,
+        default=_MODELS / "objects" / "egg.toml",
+        help="object model the random strokes follow (default models/objects/egg.toml)",
+    )
+    rp.add_argument("--seed", type=int, default=0, help="seed of the random strokes (default 0)")
+    rp.add_argument("--duration", type=float, default=2.0, help="seconds per stroke at 1 cm/s (default 2)")
+    rp.add_argument("--rate", type=float, default=50.0, help="frames per second (default 50)")
+    rp.add_argument("--depth", type=float, default=3e-4, help="pressing depth in metres (default 3e-4)")
+    rp.add_argument("--currents", default="0.15,0.05,0.05", help="wire hold currents, A (default 0.15,0.05,0.05)")
+    rp.add_argument("--timeout", type=float, default=0.3, help="seconds to wait for an answer before a retry")
+    rp.add_argument(
+        "--journal",
+        type=Path,
+        default=None,
+        help="file receiving every packet as it arrives (default OUT.journal, removed on success)",
+    )
+    rp.add_argument("--quiet", action="store_true", help="no progress bar")
+    return dp
+
+
+def load_stroke_file(path: Path, hold_currents) -> list:
+    """Stroke plans from a JSON file (see ``device run --help``); raises BadInput naming the problem."""
+    from bayestouch.errors import BadInput
+    from bayestouch.hardware.safety import StrokePlan
+
+    try:
+        doc = json.loads(Path(path).read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise BadInput(
+            f"--stroke-file {path}: cannot be read as JSON ({type(e).__name__}); expected "
+            '{"strokes": [{"time", "contact", "normal", "depth"}]}'
+        ) from None
+    items = doc.get("strokes") if isinstance(doc, dict) else None
+    if not isinstance(items, list) or not items:
+        raise BadInput(f'--stroke-file {path}: expected an object with a non-empty list "strokes"')
+    plans = []
+    for i, s in enumerate(items):
+        try:
+            plans.append(
+                StrokePlan(
+                    np.asarray(s["time"], float),
+                    np.asarray(s["contact"], float),
+                    np.asarray(s["normal"], float),
+                    float(s["depth"]),
+                    np.asarray(s.get("hold_currents", hold_currents), float),
+                )
+            )
+        except (KeyError, TypeError, ValueError) as e:
+            raise BadInput(
+                f"--stroke-file {path}: stroke {i} needs numeric time, contact, normal and depth "
+                f"({type(e).__name__}: {e})"
+            ) from None
+    return plans
+
+
+def _currents(text: str):
+    from bayestouch.errors import BadInput
+
+    try:
+        cur = [float(x) for x in text.split(",")]
+    except ValueError:
+        raise BadInput(f"--currents must be three numbers in amperes like 0.15,0.05,0.05, got {text!r}") from None
+    if len(cur) != 3:
+        raise BadInput(f"--currents must be three numbers in amperes, got {len(cur)}")
+    return cur
+
+
+def _simulate(args) -> int:
+    from bayestouch.errors import BadInput
+    from bayestouch.hardware.safety import load_limits
+    from bayestouch.hardware.simulator import Faults, ForwardModel, SyntheticModel, VirtualDevice
+
+    if not args.speed >= 0:
+        raise BadInput(f"--speed must be ≥ 0 (0 = as fast as possible), got {args.speed}")
+    if not (0 < args.max_force <= 2.0):
+        raise BadInput(f"--max-force must be in (0, 2] newtons, got {args.max_force}")
+    if not (0.05 <= args.watchdog <= 60):
+        raise BadInput(f"--watchdog must be in [0.05, 60] seconds, got {args.watchdog}")
+    if args.disconnect_after is not None and args.disconnect_after < 1:
+        raise BadInput(f"--disconnect-after must be ≥ 1 frames, got {args.disconnect_after}")
+    if args.delay < 0:
+        raise BadInput(f"--delay must be ≥ 0 seconds, got {args.delay}")
+    faults = Faults(
+        args.drop,
+        args.corrupt,
+        args.delay,
+        0.05,
+        args.disconnect_after,
+        args.stuck_heater,
+        args.inbound_faults,
+        args.seed,
+    )
+    limits = load_limits(args.models, max_force=args.max_force, watchdog=args.watchdog)
+    sim = VirtualDevice(None, limits=limits, speed=args.speed, faults=faults, link=args.link)
+    port = sim.open()
+    if args.print_port:
+        print(port, flush=True)
+    print(
+        f"virtual finger on {port}" + (f" (link {args.link})" if args.link else "") + "; loading the model",
+        file=sys.stderr,
+        flush=True,
+    )
+    stop = threading.Event()
+    old = signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    try:
+        if args.model == "synthetic":
+            sim.model = SyntheticModel(seed=args.seed)
+        else:
+            from bayestouch.scene.objects import load_object
+
+            sim.model = ForwardModel(load_object(args.object), args.models, seed=args.seed)
+            threading.Thread(target=_warm_up, args=(sim.model, args), daemon=True).start()
+        sim.start()
+        print(f"serving {args.model} model, speed {args.speed:g}× (Ctrl-C to stop)", file=sys.stderr, flush=True)
+        t0 = time.monotonic()
+        while not stop.wait(0.2):
+            if args.run_for is not None and time.monotonic() - t0 > args.run_for:
+                break
+    except KeyboardInterrupt:
+        pass
+    finally:
+        signal.signal(signal.SIGTERM, old)
+        sim.close(timeout=2.0)
+    print(f"virtual finger stopped: {sim.stats}", file=sys.stderr)
+    return 0
+
+
+def _warm_up(model, args) -> None:
+    """Compile the forward model for the default stroke shape while no client is connected yet."""
+    from bayestouch.hardware.safety import plan_from_stroke
+    from bayestouch.scene.strokes import random_strokes
+
+    try:
+        st = random_strokes(model.obj, 1, seed=args.seed)[0]
+        model(plan_from_stroke(st), -1)
+    except Exception:  # warming up is optional
+        pass
+
+
+def _run(args) -> int:
+    from bayestouch.errors import BadInput
+
+    if args.out.suffix != ".nc":
+        raise BadInput(f"--out {args.out}: expected a netCDF file name ending in .nc")
+    if args.out.is_dir():
+        raise BadInput(f"--out {args.out} is a folder; expected a .nc file name")
+    if not args.port.strip():
+        raise BadInput("--port: expected a serial port path or a pyserial URL, got an empty string")
+    if args.strokes < 1:
+        raise BadInput(f"--strokes must be ≥ 1, got {args.strokes}")
+    if not (0.01 <= args.timeout <= 60):
+        raise BadInput(f"--timeout must be in [0.01, 60] seconds, got {args.timeout}")
+    if "://" not in args.port and not Path(args.port).exists():
+        raise BadInput(
+            f"--port {args.port}: no such device; expected a serial port path (e.g. the pty printed by "
+            "`bayestouch device simulate`) or a pyserial URL like socket://HOST:PORT"
+        )
+    currents = _currents(args.currents)
+    from bayestouch.hardware.safety import check_plan, load_limits, plan_from_stroke
+
+    limits = load_limits()
+    if args.stroke_file is not None:
+        plans = load_stroke_file(args.stroke_file, currents)
+    else:
+        if not (0 < args.duration <= 600):
+            raise BadInput(f"--duration must be in (0, 600] seconds, got {args.duration}")
+        if not (1 <= args.rate <= 2000):
+            raise BadInput(f"--rate must be in [1, 2000] frames per second, got {args.rate}")
+        from bayestouch.scene.objects import load_object
+        from bayestouch.scene.strokes import random_strokes
+
+        obj = load_object(args.object)
+        plans = [
+            plan_from_stroke(s, currents)
+            for s in random_strokes(
+                obj, args.strokes, seed=args.seed, duration=args.duration, rate=args.rate, depth=args.depth
+            )
+        ]
+    for i, p in enumerate(plans):  # refuse before connecting: nothing is sent for an unsafe plan
+        try:
+            check_plan(p, limits)
+        except BadInput as e:
+            raise type(e)(f"stroke {i}: {e}") from None
+    from bayestouch import __version__
+    from bayestouch.hardware.device import DeviceError, FingerDevice, build_recording
+    from bayestouch.recording import write_recording
+
+    journal = args.journal or args.out.with_name(args.out.name + ".journal")
+    if journal.exists() and args.journal is None:
+        journal.unlink()
+    t0 = time.perf_counter()
+    done = []
+    attrs = {
+        "port": args.port,
+        "seed": args.seed,
+        "wire_hold_currents_A": args.currents,
+        "software": f"bayestouch {__version__}",
+        "conventions": "SI units in 'units'",
+        "object": "unknown (device)" if args.stroke_file else f"device; strokes planned on {args.object}",
+    }
+    dev = FingerDevice(args.port, timeout=args.timeout, journal=journal, limits=limits)
+    try:
+        with dev:
+            from tqdm.auto import tqdm
+
+            for p in tqdm(plans, desc="strokes", unit="stroke", disable=args.quiet):
+                done.append(dev.run_stroke(p))
+            info = dev.info
+    except DeviceError as e:
+        if done:
+            write_recording(build_recording(done, dev.info, {**attrs, "incomplete": "true"}), args.out)
+        print(
+            f"bayestouch device run: error: {e}; {len(done)} complete stroke(s) "
+            + (f"written to {args.out}; " if done else "")
+            + f"everything received is in {journal}",
+            file=sys.stderr,
+        )
+        return 1
+    write_recording(build_recording(done, info, attrs), args.out)
+    if args.journal is None:
+        journal.unlink(missing_ok=True)
+    n = sum(len(s.plan.time) for s in done)
+    print(
+        f"wrote {args.out}: {len(done)} stroke(s), {n} frames × {info.rows * info.cols} taxels from "
+        f"{info.firmware} in {time.perf_counter() - t0:.1f} s (retries {dev.stats['retries']}, resent-frame "
+        f"requests {dev.stats['resend_requests']}, reconnects {dev.stats['reconnects']})"
+    )
+    return 0
+
+
+def run_device(args) -> int:
+    """Run ``device simulate`` or ``device run`` from parsed arguments; returns the exit code."""
+    from bayestouch.errors import BadInput
+
+    if getattr(args, "device_command", None) == "simulate":
+        return _simulate(args)
+    if getattr(args, "device_command", None) == "run":
+        return _run(args)
+    raise BadInput("device: expected a subcommand, simulate or run (see bayestouch device --help)")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Stand-alone entry point (``python -m bayestouch.hardware.cli device ...``)."""
+    p = argparse.ArgumentParser(prog="bayestouch")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+    add_device_parser(sub)
+    args = p.parse_args(argv)
+    if args.command != "device":
+        p.print_help()
+        return 2
+    from bayestouch.errors import BadInput
+
+    try:
+        return run_device(args)
+    except BadInput as e:
+        print(f"bayestouch device: error: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

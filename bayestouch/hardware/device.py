@@ -1,0 +1,553 @@
+"""``FingerDevice``: the pyserial client of the finger (real port, ``loop://``, ``socket://`` or a pty).
+
+Every command carries a sequence number and is retried (same bytes, so the device answers a duplicate
+without executing it twice) until its ACK/NAK arrives, at most ``retries`` times; a lost port is reopened
+(``reconnects`` times, with back-off) and the handshake repeated. Stroke frames are numbered: missing ones
+are requested again (RESEND) until the stroke is complete; a stroke the device lost (watchdog,
+disconnect) is redone with a new id. Everything received is appended to the ``journal`` file as it arrives
+(protocol packets, flushed one by one: :func:`read_journal`), so a run that dies keeps every frame it got.
+
+Safety: :func:`~bayestouch.hardware.safety.check_plan` runs before any byte of a stroke is written, with the
+tighter of the client's and the device's limits; heartbeats are sent every ``watchdog / 4`` seconds during a
+stroke; a heater still on after a stroke ended raises :class:`HeaterFault` (after the stroke is saved).
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from bayestouch.hardware import protocol as pr
+from bayestouch.hardware.safety import Limits, PlanCheck, StrokePlan, UnsafePlan, check_plan, plan_from_stroke
+
+__all__ = [
+    "FingerDevice",
+    "DeviceError",
+    "HeaterFault",
+    "StrokeData",
+    "read_journal",
+    "strokes_to_frames",
+    "build_recording",
+]
+
+
+class DeviceError(RuntimeError):
+    """The device did not do what was asked (no answer after the retries, a refusal, a fault)."""
+
+
+class HeaterFault(DeviceError):
+    """The device reports its heaters on although no stroke runs (stuck heater)."""
+
+
+class _Disconnected(Exception):
+    pass
+
+
+class StrokeData(NamedTuple):
+    """One completed stroke.
+
+    plan : StrokePlan
+    frames : dict of (T, ...) arrays, keys of :data:`bayestouch.hardware.simulator.FRAME_KEYS`
+    device_time : (T,) float, seconds (device clock)
+    stroke_id : int
+    """
+
+    plan: StrokePlan
+    frames: dict
+    device_time: np.ndarray
+    stroke_id: int
+
+
+def read_journal(path) -> list:
+    """Messages of a journal file (the packets :class:`FingerDevice` wrote as they arrived), in order."""
+    dec = pr.Decoder()
+    return [m for _, m in dec.feed(Path(path).read_bytes())]
+
+
+def _frames_to_arrays(frames: list[pr.Frame]) -> tuple[dict, np.ndarray]:
+    f = {
+        "taxel_current": np.stack([x.taxel_current for x in frames]).astype(float),
+        "wire_current": np.stack([x.wire_current for x in frames]).astype(float),
+        "wire_temperature": np.stack([x.wire_temperature for x in frames]).astype(float),
+        "skin_temperature": np.array([x.skin_temperature for x in frames], float),
+        "finger_tip_position": np.stack([x.tip_position for x in frames]).astype(float),
+        "finger_curvature": np.stack([x.curvature for x in frames]).astype(float),
+        "contact_force": np.array([x.contact_force for x in frames], float),
+    }
+    return f, np.array([x.time for x in frames], float)
+
+
+def strokes_to_frames(strokes: list[StrokeData]) -> dict[str, np.ndarray]:
+    """Concatenate strokes into the per-frame arrays of :func:`bayestouch.virtual.record_strokes` (the same
+    keys, less the simulation-only ``taxel_current_clean``, ``pressure`` and ``friction_force``)."""
+    cols: dict[str, list] = {}
+    t0 = 0.0
+    for i, s in enumerate(strokes):
+        t = np.asarray(s.plan.time, float)
+        n = len(t)
+        dt = float(np.median(np.diff(t))) if n > 1 else 0.02
+        add = {
+            "time": t0 + t,
+            "stroke_index": np.full(n, i),
+            "pressing_depth": np.full(n, float(s.plan.depth)),
+            "contact_point": np.asarray(s.plan.contact, float),
+            "contact_normal": np.asarray(s.plan.normal, float),
+            **s.frames,
+        }
+        t0 += float(t[-1]) + dt
+        for k, v in add.items():
+            cols.setdefault(k, []).append(v)
+    return {k: np.concatenate(v) for k, v in cols.items()}
+
+
+def build_recording(strokes: list[StrokeData], info: pr.HelloReply, attrs: dict | None = None):
+    """The ``xarray.Dataset`` of :mod:`bayestouch.recording` (the schema of ``bayestouch simulate``)."""
+    from bayestouch.recording import build_dataset
+
+    uv = np.asarray(info.taxel_uv, float)
+    a = {"device_firmware": info.firmware, "protocol_version": info.protocol, **(attrs or {})}
+    return build_dataset(
+        strokes_to_frames(strokes), uv[:, 0], uv[:, 1], np.asarray(info.reference), [s.plan.depth for s in strokes], a
+    )
+
+
+class FingerDevice:
+    """Client of the finger over ``serial.serial_for_url``.
+
+    Parameters
+    ----------
+    url : str
+        A port path (``/dev/ttyUSB0``, ``/dev/pts/3``) or a pyserial URL (``loop://``, ``socket://host:port``).
+    timeout : float, seconds
+        Wait for one answer before a retry.
+    retries : int
+        Sends of one command before giving up.
+    connect_timeout : float, seconds
+        How long the handshake may take (a device may still be booting).
+    stroke_timeout : float, seconds
+        Longest silence of a running stroke (the device may compute before it streams).
+    reconnects : int
+        Attempts to reopen a lost port, with back-off from ``reconnect_wait`` seconds.
+    redo : int
+        How often a stroke the device lost is run again.
+    journal : path or None
+        File to which every received packet is appended as it arrives.
+    limits : Limits
+        The client's own limits; the tighter of these and the device's apply.
+    handshake : bool
+        Send HELLO on :meth:`open` (off: only for tests of what is written before any handshake).
+    """
+
+    def __init__(
+        self,
+        url: str,
+        *,
+        timeout: float = 0.3,
+        retries: int = 8,
+        connect_timeout: float = 60.0,
+        stroke_timeout: float = 300.0,
+        reconnects: int = 5,
+        reconnect_wait: float = 0.1,
+        redo: int = 2,
+        journal=None,
+        limits: Limits | None = None,
+        handshake: bool = True,
+        baudrate: int = 921600,
+    ):
+        if not url:
+            from bayestouch.errors import BadInput
+
+            raise BadInput("--port: expected a serial port path or a pyserial URL like loop://, got nothing")
+        self.url, self.timeout, self.retries = str(url), float(timeout), int(retries)
+        self.connect_timeout, self.stroke_timeout = float(connect_timeout), float(stroke_timeout)
+        self.reconnects, self.reconnect_wait, self.redo = int(reconnects), float(reconnect_wait), int(redo)
+        self.journal_path = Path(journal) if journal else None
+        self.client_limits = limits or Limits()
+        self.handshake, self.baudrate = handshake, baudrate
+        self.info: pr.HelloReply | None = None
+        self._ser = None
+        self._journal = None
+        self._dec = pr.Decoder()
+        self._seq = int(np.random.default_rng().integers(0, 1 << 16))
+        self._sid = int(time.time()) & 0xFFFFFF
+        self._inbox: list = []
+        self._replies: dict[int, object] = {}
+        self.stats = {
+            "retries": 0,
+            "reconnects": 0,
+            "resend_requests": 0,
+            "redone_strokes": 0,
+            "bad_packets": 0,
+            "frames": 0,
+            "duplicate_frames": 0,
+        }
+
+    # ------------------------------------------------------------ connection
+
+    @property
+    def limits(self) -> Limits:
+        """The tighter of the client's and the device's limits."""
+        c, i = self.client_limits, self.info
+        if i is None:
+            return c
+        return c._replace(
+            max_current=min(c.max_current, i.max_current),
+            max_temperature=min(c.max_temperature, i.max_temperature),
+            max_force=min(c.max_force, i.max_force),
+            watchdog=min(c.watchdog, i.watchdog),
+            max_waypoints=min(c.max_waypoints, i.max_waypoints),
+        )
+
+    def _open_port(self) -> None:
+        import serial
+
+        try:
+            self._ser = serial.serial_for_url(self.url, baudrate=self.baudrate, timeout=0.01, write_timeout=5.0)
+        except (serial.SerialException, OSError, ValueError) as e:
+            raise DeviceError(f"cannot open {self.url}: {e}") from None
+        self._dec = pr.Decoder()
+
+    def open(self) -> FingerDevice:
+        """Open the port (and the journal) and do the handshake."""
+        if self.journal_path is not None and self._journal is None:
+            self.journal_path.parent.mkdir(parents=True, exist_ok=True)
+            self._journal = open(self.journal_path, "ab")  # closed in close()
+        self._open_port()
+        if self.handshake:
+            try:
+                self.hello(self.connect_timeout)
+            except BaseException:
+                self.close()
+                raise
+        return self
+
+    def close(self) -> None:
+        """Close the port and the journal."""
+        if self._ser is not None:
+            try:
+                self._ser.close()
+            except Exception:  # closing a dead port
+                pass
+            self._ser = None
+        if self._journal is not None:
+            self._journal.close()
+            self._journal = None
+
+    def __enter__(self) -> FingerDevice:
+        return self.open()
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _reconnect(self) -> None:
+        import serial
+
+        self.stats["reconnects"] += 1
+        if self._ser is not None:
+            try:
+                self._ser.close()
+            except (serial.SerialException, OSError):
+                pass
+            self._ser = None
+        wait = self.reconnect_wait
+        last = ""
+        for _ in range(self.reconnects):
+            time.sleep(wait)
+            wait *= 2
+            try:
+                self._open_port()
+                self.hello(max(5 * self.timeout, 2.0), reconnect=False)
+                return
+            except (DeviceError, _Disconnected) as e:
+                last = str(e)
+                if self._ser is not None:
+                    self._ser.close()
+                    self._ser = None
+        raise DeviceError(
+            f"lost the device at {self.url} and could not reconnect ({self.reconnects} attempts"
+            f"{': ' + last if last else ''})"
+        )
+
+    # ------------------------------------------------------------ bytes
+
+    def _write(self, raw: bytes) -> None:
+        import serial
+
+        if self._ser is None:
+            raise _Disconnected("port closed")
+        try:
+            self._ser.write(raw)
+        except (serial.SerialException, OSError) as e:
+            raise _Disconnected(str(e)) from None
+
+    def _send(self, msg) -> tuple[int, bytes]:
+        seq = self._seq
+        self._seq = (self._seq + 1) & 0xFFFF
+        raw = pr.encode(msg, seq)
+        self._write(raw)
+        return seq, raw
+
+    def _log(self, msg) -> None:
+        if self._journal is not None:
+            self._journal.write(pr.encode(msg, 0))
+            self._journal.flush()
+
+    def _pump(self, timeout: float) -> None:
+        """Read for up to ``timeout`` seconds (less once something arrived); sort what arrives."""
+        import serial
+
+        if self._ser is None:
+            raise _Disconnected("port closed")
+        end = time.monotonic() + timeout
+        got = False
+        while True:
+            try:
+                n = self._ser.in_waiting
+                data = self._ser.read(n or 1)
+            except (serial.SerialException, OSError, TypeError) as e:
+                raise _Disconnected(str(e)) from None
+            if data:
+                before = self._dec.bad
+                for _, m in self._dec.feed(data):
+                    got = True
+                    if isinstance(m, pr.Frame | pr.StrokeDone):
+                        self._inbox.append(m)
+                    elif hasattr(m, "ack"):
+                        self._replies[m.ack] = m
+                    # anything else (a command echoed by loop://) is not for the client
+                self.stats["bad_packets"] += self._dec.bad - before
+            try:
+                idle = got and not self._ser.in_waiting
+            except (serial.SerialException, OSError, TypeError) as e:
+                raise _Disconnected(str(e)) from None
+            if idle or time.monotonic() >= end:
+                return
+
+    def _command(self, msg, *, reconnect: bool = True, timeout: float | None = None, tries: int | None = None):
+        """Send ``msg`` until its answer (ACK, NAK, HELLO reply or STATUS) arrives; returns the answer."""
+        seq, raw = self._send_safe(msg, reconnect)
+        tries = tries or self.retries
+        for attempt in range(tries):
+            if attempt:
+                self.stats["retries"] += 1
+                try:
+                    self._write(raw)
+                except _Disconnected:
+                    if not reconnect:
+                        raise
+                    self._reconnect()
+                    self._write(raw)
+            end = time.monotonic() + (timeout or self.timeout)
+            while time.monotonic() < end:
+                try:
+                    self._pump(min(0.05, max(end - time.monotonic(), 0.0)))
+                except _Disconnected:
+                    if not reconnect:
+                        raise
+                    self._reconnect()
+                    break
+                if seq in self._replies:
+                    return self._replies.pop(seq)
+        raise DeviceError(f"{self.url}: no answer to {type(msg).__name__} after {tries} tries")
+
+    def _send_safe(self, msg, reconnect: bool):
+        try:
+            return self._send(msg)
+        except _Disconnected:
+            if not reconnect:
+                raise
+            self._reconnect()
+            return self._send(msg)
+
+    # ------------------------------------------------------------ commands
+
+    def hello(self, timeout: float | None = None, *, reconnect: bool = True) -> pr.HelloReply:
+        """Handshake: firmware, layout, rate and limits (stored as ``info``)."""
+        timeout = self.connect_timeout if timeout is None else timeout
+        tries = max(1, int(np.ceil(timeout / max(self.timeout, 0.05))))
+        rep = self._command(pr.Hello(), reconnect=reconnect, tries=tries)
+        if not isinstance(rep, pr.HelloReply):
+            raise DeviceError(f"{self.url}: handshake answered with {type(rep).__name__}")
+        if rep.protocol != pr.PROTOCOL_VERSION:
+            raise DeviceError(f"{self.url}: device speaks protocol {rep.protocol}, this client {pr.PROTOCOL_VERSION}")
+        self.info = rep
+        self._log(rep)
+        return rep
+
+    def status(self) -> pr.Status:
+        """The device's :class:`~bayestouch.hardware.protocol.Status`."""
+        rep = self._command(pr.StatusRequest())
+        if not isinstance(rep, pr.Status):
+            raise DeviceError(f"{self.url}: status request answered with {type(rep).__name__}")
+        return rep
+
+    def heartbeat(self) -> None:
+        """One acknowledged heartbeat."""
+        self._command(pr.Heartbeat())
+
+    def abort(self) -> None:
+        """Stop any stroke and switch the heaters off."""
+        self._command(pr.Abort())
+
+    def check(self, plan: StrokePlan) -> PlanCheck:
+        """:func:`~bayestouch.hardware.safety.check_plan` with this connection's limits (raises UnsafePlan)."""
+        return check_plan(plan, self.limits)
+
+    def run_stroke(self, plan: StrokePlan) -> StrokeData:
+        """Run one stroke and return its frames, complete and in order.
+
+        Raises
+        ------
+        UnsafePlan
+            Before anything is sent, if the plan breaks a limit (or the device refuses it).
+        HeaterFault
+            The heaters stayed on after the stroke (the stroke's data are journaled first).
+        DeviceError
+            The device aborted for over-force or fault, or stayed silent past the retries.
+        """
+        self.check(plan)
+        if self._ser is None:
+            raise DeviceError(f"{self.url}: not open")
+        for attempt in range(self.redo + 1):
+            if attempt:
+                self.stats["redone_strokes"] += 1
+            self._sid = (self._sid + 1) & 0xFFFFFFFF
+            sid = self._sid
+            cmd = pr.StrokeCommand(
+                sid,
+                float(plan.depth),
+                float(self.limits.max_force),
+                np.asarray(plan.hold_currents, float),
+                np.asarray(plan.time, float),
+                np.asarray(plan.contact, float),
+                np.asarray(plan.normal, float),
+            )
+            self._log(cmd)
+            rep = self._command(cmd)
+            if isinstance(rep, pr.Nak):
+                if rep.code == 2:
+                    raise UnsafePlan(f"the device refused the stroke plan: {rep.reason}")
+                raise DeviceError(f"{self.url}: stroke refused ({pr.NAK_CODES.get(rep.code, rep.code)}): {rep.reason}")
+            got = self._collect(sid, len(plan.time))
+            if got is None:
+                continue
+            frames, dev_t = _frames_to_arrays(got)
+            st = self.status()
+            if st.heater_on and st.state == 0:
+                raise HeaterFault(
+                    f"{self.url}: heaters still on after stroke {sid} ended (wire currents "
+                    f"{np.round(st.wire_current, 4).tolist()} A); switch the finger off"
+                )
+            return StrokeData(plan, frames, dev_t, sid)
+        raise DeviceError(f"{self.url}: stroke lost {self.redo + 1} times (watchdog or disconnects)")
+
+    def _collect(self, sid: int, T: int) -> list[pr.Frame] | None:
+        frames: dict[int, pr.Frame] = {}
+        total = reason = None
+        now = time.monotonic()
+        hb_every = self.limits.watchdog / 4
+        next_hb, last_activity, last_resend, silent_since = now, now, 0.0, now
+        resends = 0
+        while True:
+            now = time.monotonic()
+            try:
+                if now >= next_hb:
+                    self._send(pr.Heartbeat())
+                    next_hb = now + hb_every
+                self._pump(0.02)
+            except _Disconnected:
+                self._reconnect()
+                st = self.status()
+                if st.stroke_id != sid or (st.done not in (0, 255)):
+                    return None
+                if st.done == 0:
+                    total, reason = st.frames, 0
+                last_activity = time.monotonic()
+                continue
+            inbox, self._inbox = self._inbox, []
+            for m in inbox:
+                if m.stroke_id != sid:
+                    continue
+                if isinstance(m, pr.Frame):
+                    if m.index in frames:
+                        self.stats["duplicate_frames"] += 1
+                        continue
+                    if m.index >= T:
+                        continue
+                    frames[m.index] = m
+                    self.stats["frames"] += 1
+                    self._log(m)
+                else:
+                    total, reason = m.frames, m.reason
+                    self._log(m)
+                last_activity = silent_since = time.monotonic()
+            self._replies.clear()
+            now = time.monotonic()
+            if total is not None:
+                if reason == 3:
+                    raise DeviceError(
+                        f"{self.url}: stroke {sid} aborted by the device: contact force over "
+                        f"{self.limits.max_force:g} N"
+                    )
+                if reason != 0:
+                    return None  # watchdog or abort: the stroke is incomplete, run it again
+                missing = [i for i in range(min(total, T)) if i not in frames]
+                if not missing:
+                    return [frames[i] for i in range(T)] if total == T else None
+                if now - last_activity > 0.5 * self.timeout and now - last_resend > 0.5 * self.timeout:
+                    resends += 1
+                    if resends > 10 * self.retries:
+                        raise DeviceError(f"{self.url}: {len(missing)} frames of stroke {sid} still missing")
+                    for first, count in _runs(missing):
+                        self.stats["resend_requests"] += 1
+                        try:
+                            self._send(pr.Resend(sid, first, count))
+                        except _Disconnected:
+                            break
+                    last_resend = now
+            elif now - last_activity > max(3 * self.timeout, 3 * hb_every):
+                try:
+                    st = self.status()
+                except _Disconnected:
+                    continue
+                if st.stroke_id != sid:
+                    return None
+                if st.done != 255:
+                    total, reason = st.frames, st.done
+                elif st.state == 3:
+                    raise DeviceError(f"{self.url}: the device reports a fault while preparing stroke {sid}")
+                last_activity = time.monotonic()
+                if st.state == 2 and st.frames == len(frames):
+                    silent_since = last_activity
+            if time.monotonic() - silent_since > self.stroke_timeout:
+                raise DeviceError(f"{self.url}: stroke {sid}: no frames for {self.stroke_timeout:g} s")
+
+    def record_strokes(
+        self, strokes, *, hold_currents=(0.15, 0.05, 0.05), progress: bool = False
+    ) -> dict[str, np.ndarray]:
+        """Run ``strokes`` (:class:`~bayestouch.scene.strokes.Stroke`) on the device; the per-frame arrays of
+        :func:`bayestouch.virtual.record_strokes` (so the exploration loop can drive the device instead)."""
+        return strokes_to_frames(self.run_strokes([plan_from_stroke(s, hold_currents) for s in strokes], progress))
+
+    def run_strokes(self, plans, progress: bool = False) -> list[StrokeData]:
+        """Check every plan first (nothing is sent if any is unsafe), then run them in order."""
+        for p in plans:
+            self.check(p)
+        from tqdm.auto import tqdm
+
+        return [self.run_stroke(p) for p in tqdm(plans, desc="strokes", unit="stroke", disable=not progress)]
+
+
+def _runs(idx: list[int]) -> list[tuple[int, int]]:
+    out = []
+    start = prev = idx[0]
+    for i in idx[1:]:
+        if i != prev + 1:
+            out.append((start, prev - start + 1))
+            start = i
+        prev = i
+    out.append((start, prev - start + 1))
+    return out

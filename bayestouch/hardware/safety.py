@@ -1,0 +1,196 @@
+"""Safety limits of the finger and the checks every stroke plan passes before a byte is sent.
+
+The same :func:`check_plan` runs on both sides: in the client (:class:`~bayestouch.hardware.device.FingerDevice`
+refuses an unsafe plan before writing anything) and in the device (the virtual finger answers an unsafe
+:class:`~bayestouch.hardware.protocol.StrokeCommand` with a NAK). The device also stops heating when heartbeats
+stop (``watchdog``) and aborts a stroke whose measured force exceeds the plan's limit. DESIGN.md §7.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from bayestouch.errors import BadInput
+
+__all__ = [
+    "Limits",
+    "StrokePlan",
+    "PlanCheck",
+    "UnsafePlan",
+    "load_limits",
+    "plan_from_stroke",
+    "check_plan",
+    "predicted_force",
+    "steady_wire_temperature",
+    "FORCE_FACTOR",
+]
+
+
+class UnsafePlan(BadInput):
+    """A stroke plan that would exceed a safety limit (or is malformed); nothing was sent."""
+
+
+class Limits(NamedTuple):
+    """Safety limits.
+
+    Attributes
+    ----------
+    max_current : float, amperes
+        Per-wire current (``models/finger.toml`` ``max_current``: the vendor's ~200 mA for 100 µm Flexinol).
+    max_temperature : float, K
+        Per-wire temperature (``models/finger.toml`` ``max_temperature``).
+    max_force : float, N
+        Normal contact force of the pad. Assumption: 1 N, 7× the ~0.15 N of the default 0.3 mm strokes and
+        below the 2 N ``simulate --force`` accepts.
+    watchdog : float, seconds
+        The device switches the heaters off and aborts the stroke after this long without a valid packet.
+    max_speed : float, m/s
+        Fastest waypoint-to-waypoint speed (assumption: 5 cm/s, five times the paper's 1 cm/s).
+    max_waypoints : int
+        Longest stroke plan (20 s at 50 Hz).
+    max_depth : float, metres
+        Deepest press (the 5 mm of :func:`bayestouch.scene.strokes.stroke_from_path`).
+    """
+
+    max_current: float = 0.2
+    max_temperature: float = 393.15
+    max_force: float = 1.0
+    watchdog: float = 1.0
+    max_speed: float = 0.05
+    max_waypoints: int = 1000
+    max_depth: float = 0.005
+
+
+class StrokePlan(NamedTuple):
+    """What the device is asked to do.
+
+    Attributes
+    ----------
+    time : (T,) float, seconds, increasing from the stroke's start
+    contact : (T, 3) float, metres
+        Contact point of the pad centre on the surface.
+    normal : (T, 3) float
+        Outward unit surface normals (the pad presses along −normal).
+    depth : float, metres
+    hold_currents : (3,) float, amperes
+    """
+
+    time: np.ndarray
+    contact: np.ndarray
+    normal: np.ndarray
+    depth: float
+    hold_currents: np.ndarray
+
+
+class PlanCheck(NamedTuple):
+    """What :func:`check_plan` predicted for an accepted plan.
+
+    peak_temperature : float, K (steady state of the hottest wire)
+    force : float, N (upper bound of the contact force)
+    speed : float, m/s (fastest waypoint-to-waypoint speed)
+    """
+
+    peak_temperature: float
+    force: float
+    speed: float
+
+
+def load_limits(models: Path | None = None, *, max_force: float = 1.0, watchdog: float = 1.0) -> Limits:
+    """Limits from ``models/finger.toml`` (wire current and temperature) plus the force and watchdog settings."""
+    from bayestouch.params import MODELS
+    from bayestouch.physics import sma
+
+    wire = sma.load_wire(Path(models or MODELS) / "finger.toml")
+    return Limits(float(wire.max_current), float(wire.max_temperature), float(max_force), float(watchdog))
+
+
+def plan_from_stroke(stroke, hold_currents=(0.15, 0.05, 0.05)) -> StrokePlan:
+    """A :class:`StrokePlan` from a :class:`~bayestouch.scene.strokes.Stroke` and three hold currents (A)."""
+    return StrokePlan(
+        np.asarray(stroke.time, float),
+        np.asarray(stroke.contact, float),
+        np.asarray(stroke.normal, float),
+        float(stroke.depth),
+        np.asarray(hold_currents, float),
+    )
+
+
+def steady_wire_temperature(hold_currents, wire=None) -> np.ndarray:
+    """Steady-state temperature (K) of each wire at its hold current, austenite resistivity (the higher one,
+    so an upper bound for any stroke length): :func:`bayestouch.physics.sma.steady_state_temperature`."""
+    from bayestouch.physics import sma
+
+    wire = wire if wire is not None else sma.load_wire()
+    return np.asarray(sma.steady_state_temperature(wire, np.asarray(hold_currents, float), 0.0))
+
+
+#: margin on the thin-layer force estimate: the forward model's force on the egg at 0.3 mm (0.149 N, foam
+#: densification and damping included) is 1.42× the Winkler value (0.105 N); 2 covers it
+FORCE_FACTOR = 2.0
+
+
+def predicted_force(depth: float, skin=None, tip_radius: float | None = None) -> float:
+    """Conservative estimate (N) of the pad's contact force at ``depth`` (m): :data:`FORCE_FACTOR` × the
+    fingertip pressed into a flat surface (the largest contact of convex objects) by the thin-layer Winkler
+    model, :func:`bayestouch.physics.skin.winkler_sphere`."""
+    from bayestouch.params import MODELS
+    from bayestouch.physics import skin as sk
+
+    skin = skin if skin is not None else sk.load_skin(MODELS / "skin.toml")
+    if tip_radius is None:
+        from bayestouch.physics import bending
+
+        tip_radius = float(bending.load_rod(MODELS / "finger.toml").radius) + float(skin.h)
+    return FORCE_FACTOR * float(sk.winkler_sphere(float(depth), float(tip_radius), skin)[0])
+
+
+def check_plan(plan: StrokePlan, limits: Limits, *, wire=None, skin=None, tip_radius=None) -> PlanCheck:
+    """Refuse (raise :class:`UnsafePlan`) a plan that is malformed or would exceed a limit.
+
+    Checks: waypoint shapes and finiteness, time increasing, count ≤ ``max_waypoints``, speed ≤ ``max_speed``,
+    0 ≤ hold currents ≤ ``max_current``, steady-state wire temperature ≤ ``max_temperature`` (thermal model),
+    0 < depth ≤ ``max_depth`` and predicted force ≤ ``max_force``.
+    """
+    t = np.asarray(plan.time, float)
+    c = np.asarray(plan.contact, float)
+    n = np.asarray(plan.normal, float)
+    if t.ndim != 1 or len(t) < 2 or c.shape != (len(t), 3) or n.shape != (len(t), 3):
+        raise UnsafePlan(
+            f"stroke plan: time (T ≥ 2,), contact (T, 3) m and normal (T, 3) expected, got shapes "
+            f"{t.shape}, {c.shape}, {n.shape}"
+        )
+    if len(t) > limits.max_waypoints:
+        raise UnsafePlan(f"stroke plan: {len(t)} waypoints exceed the limit of {limits.max_waypoints}")
+    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(c)) and np.all(np.isfinite(n))):
+        raise UnsafePlan("stroke plan: waypoints must be finite numbers")
+    if t[0] < 0 or np.any(np.diff(t) <= 0):
+        raise UnsafePlan("stroke plan: waypoint times must start at ≥ 0 s and increase strictly")
+    if np.any(np.abs(np.linalg.norm(n, axis=1) - 1.0) > 1e-3):
+        raise UnsafePlan("stroke plan: normals must be unit vectors")
+    speed = float(np.max(np.linalg.norm(np.diff(c, axis=0), axis=1) / np.diff(t)))
+    if speed > limits.max_speed:
+        raise UnsafePlan(f"stroke plan: speed {speed:.3g} m/s exceeds the limit of {limits.max_speed:g} m/s")
+    I = np.asarray(plan.hold_currents, float).reshape(-1)
+    if I.shape != (3,) or not np.all(np.isfinite(I)):
+        raise UnsafePlan(f"stroke plan: hold_currents must be three numbers in amperes, got {I.tolist()}")
+    if np.any(I < 0) or np.any(I > limits.max_current):
+        raise UnsafePlan(f"stroke plan: wire currents {I.tolist()} A outside [0, {limits.max_current:g}] A")
+    temp = float(np.max(steady_wire_temperature(I, wire)))
+    if temp > limits.max_temperature:
+        raise UnsafePlan(
+            f"stroke plan: wire temperature would reach {temp:.1f} K, above the limit of "
+            f"{limits.max_temperature:.1f} K (lower the hold currents)"
+        )
+    d = float(plan.depth)
+    if not (0 < d <= limits.max_depth):
+        raise UnsafePlan(f"stroke plan: depth must be in (0, {limits.max_depth:g}] m, got {d:g}")
+    force = predicted_force(d, skin, tip_radius)
+    if force > limits.max_force:
+        raise UnsafePlan(
+            f"stroke plan: contact force up to {force:.3g} N at depth {d:g} m exceeds the limit of "
+            f"{limits.max_force:g} N"
+        )
+    return PlanCheck(temp, force, speed)

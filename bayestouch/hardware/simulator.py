@@ -1,0 +1,547 @@
+"""The virtual finger: a device on a pseudo-terminal that answers the wire protocol with the forward model.
+
+:class:`VirtualDevice` opens a pty (``os.openpty``; the slave is put in raw mode with ``tty.setraw`` and kept
+open so clients may come and go), serves the protocol of :mod:`bayestouch.hardware.protocol` from a thread,
+computes each stroke's frames with a frame model (:class:`ForwardModel`: the physics of
+:func:`bayestouch.virtual.record_strokes`; :class:`SyntheticModel`: a fast stand-in for tests and benchmarks)
+and streams them in real time (``speed = 1``), faster (``speed > 1``) or as fast as the line allows
+(``speed = 0``).
+
+Device-side safety: plans are checked with :func:`~bayestouch.hardware.safety.check_plan` (NAK ``unsafe
+plan``), a stroke whose frame force exceeds the plan's ``max_force`` is aborted, and without a valid packet
+for ``limits.watchdog`` seconds the stroke is aborted and the heaters switched off.
+
+Fault injection (:class:`Faults`): dropped and corrupted bytes (both directions), stalls of the outgoing
+stream (delayed bytes), a disconnect after N frames (the pty is closed and a new one opened; ``link`` is
+re-pointed to it) and a stuck heater (the wires stay powered after a stroke ends).
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import threading
+import time
+import tty
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from bayestouch.hardware import protocol as pr
+from bayestouch.hardware.safety import Limits, StrokePlan, UnsafePlan, check_plan
+
+__all__ = ["Faults", "VirtualDevice", "SyntheticModel", "ForwardModel", "FRAME_KEYS"]
+
+#: per-frame arrays a frame model returns (T frames)
+FRAME_KEYS = (
+    "taxel_current",
+    "wire_current",
+    "wire_temperature",
+    "skin_temperature",
+    "finger_tip_position",
+    "finger_curvature",
+    "contact_force",
+)
+
+
+class Faults(NamedTuple):
+    """Faults to inject.
+
+    Attributes
+    ----------
+    drop : float
+        Probability that a byte is dropped.
+    corrupt : float
+        Probability that a byte is replaced by a random different byte.
+    delay : float, seconds
+        Length of a stall of the outgoing stream ...
+    delay_prob : float
+        ... which starts before a packet with this probability.
+    disconnect_after : int or None
+        Close the pty after this many frames have been sent (once) and open a new one.
+    stuck_heater : bool
+        The wires stay powered at the last hold currents after a stroke ends or is aborted.
+    inbound : bool
+        Drop and corrupt the client's bytes too (by default only the device's outgoing stream).
+    seed : int
+        Seed of the fault draws.
+    """
+
+    drop: float = 0.0
+    corrupt: float = 0.0
+    delay: float = 0.0
+    delay_prob: float = 0.05
+    disconnect_after: int | None = None
+    stuck_heater: bool = False
+    inbound: bool = False
+    seed: int = 0
+
+
+def _grid(rows: int, cols: int, pitch: float = 8e-4):
+    r, c = np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij")
+    uv = np.stack([c.ravel() * pitch, r.ravel() * pitch], axis=1)
+    return uv - uv.mean(axis=0), (r.ravel() < 1).astype(np.uint8)
+
+
+class SyntheticModel:
+    """A fast stand-in for the forward model (tests, benchmarks): a Gaussian pressure spot under the pad
+    centre whose height follows the depth, on a ``rows × cols`` grid; wire temperatures at their steady state.
+
+    Deterministic given ``seed`` and the stroke index (small Gaussian noise on the currents).
+    """
+
+    def __init__(self, rows: int = 16, cols: int = 16, seed: int = 0):
+        self.rows, self.cols, self.seed = int(rows), int(cols), int(seed)
+        self.taxel_uv, self.reference = _grid(self.rows, self.cols)
+
+    def __call__(self, plan: StrokePlan, index: int) -> dict[str, np.ndarray]:
+        from bayestouch.hardware.safety import predicted_force, steady_wire_temperature
+
+        T = len(plan.time)
+        g = np.random.default_rng([self.seed, index])
+        r2 = np.sum(self.taxel_uv**2, axis=1)
+        bump = np.exp(-r2 / (2 * 0.002**2)) * (plan.depth / 3e-4)
+        phase = np.sin(2 * np.pi * np.asarray(plan.time) / 2.0)[:, None]
+        cur = 1e-7 * (1.0 + 0.05 * bump[None, :] * (1 + 0.2 * phase)) * (1 + 1e-3 * g.normal(size=(T, len(r2))))
+        temp = np.broadcast_to(steady_wire_temperature(plan.hold_currents), (T, 3))
+        return {
+            "taxel_current": cur,
+            "wire_current": np.broadcast_to(np.asarray(plan.hold_currents, float), (T, 3)).copy(),
+            "wire_temperature": temp.copy(),
+            "skin_temperature": np.full(T, 293.15 + 0.03 * float(np.mean(temp[0] - 293.15))),
+            "finger_tip_position": np.tile([0.0, 0.0, 0.06], (T, 1)),
+            "finger_curvature": np.zeros((T, 2)),
+            "contact_force": np.full(T, predicted_force(plan.depth) / 2.0),
+        }
+
+
+class ForwardModel:
+    """The physics forward model (:func:`bayestouch.virtual.record_strokes`) over a scene object.
+
+    Parameters
+    ----------
+    obj : SceneObject
+        What the virtual finger touches.
+    models : Path
+        Parameter folder (``finger.toml``, ``skin.toml``, ``taxels.toml``, ``noise.toml``).
+    seed : int
+        Fixed pattern of the device and, with the stroke index, the measurement noise.
+    """
+
+    def __init__(self, obj, models: Path | None = None, seed: int = 0, mode: str | None = None):
+        from bayestouch.params import MODELS
+        from bayestouch.virtual import load_finger
+
+        self.obj, self.seed, self.mode = obj, int(seed), mode
+        self.vf = load_finger(Path(models or MODELS), seed=seed)
+        grid = np.asarray(self.vf.finger.grid)
+        self.rows, self.cols = grid.shape[:2]
+        self.taxel_uv = grid.reshape(-1, 2)
+        self.reference = np.asarray(self.vf.finger.reference).ravel().astype(np.uint8)
+        self._lock = threading.Lock()
+
+    def __call__(self, plan: StrokePlan, index: int) -> dict[str, np.ndarray]:
+        from bayestouch.scene.strokes import stroke_from_path
+        from bayestouch.virtual import record_strokes
+
+        st = stroke_from_path(plan.contact, plan.normal, plan.time, plan.depth)
+        with self._lock:  # one compilation at a time
+            rec = record_strokes(
+                self.obj,
+                [st],
+                self.vf,
+                self.seed * 100003 + index,
+                hold_currents=tuple(np.asarray(plan.hold_currents, float)),
+                mode=self.mode,
+            )
+        return {k: rec[k] for k in FRAME_KEYS}
+
+
+class VirtualDevice:
+    """The virtual finger on a pseudo-terminal.
+
+    Parameters
+    ----------
+    model : callable ``(StrokePlan, stroke_index) -> dict`` of :data:`FRAME_KEYS` arrays, with attributes
+        ``rows``, ``cols``, ``taxel_uv (N, 2)`` m and ``reference (N,)``. May be set after :meth:`open`.
+    limits : Limits or None
+        The device's safety limits (default :class:`Limits`) (reported in the handshake, enforced).
+    speed : float
+        Real-time factor of the frame stream (1: real time; 0: as fast as possible).
+    faults : Faults
+    link : path or None
+        A symbolic link kept pointing at the current pty (it survives injected disconnects).
+    rate : float, Hz
+        Nominal frame rate reported in the handshake.
+
+    Use as a context manager, or call :meth:`open`, :meth:`start` and :meth:`close`. ``port`` is the slave's
+    path; ``stats`` counts packets, frames and faults.
+    """
+
+    firmware = "bayestouch-virtual-1"
+
+    def __init__(
+        self,
+        model=None,
+        *,
+        limits: Limits | None = None,
+        speed: float = 1.0,
+        faults: Faults | None = None,
+        link: str | os.PathLike | None = None,
+        rate: float = 50.0,
+    ):
+        faults = faults or Faults()
+        self.model, self.limits, self.speed, self.faults, self.rate = (
+            model,
+            limits or Limits(),
+            float(speed),
+            faults,
+            rate,
+        )
+        self.link = Path(link) if link else None
+        self.port: str | None = None
+        self._master = self._slave = None
+        self._rng = np.random.default_rng(faults.seed)
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._workers: list[threading.Thread] = []
+        self._dec = pr.Decoder()
+        self._out = bytearray()
+        self._stall_until = 0.0
+        self._seq = 0
+        self._last_packet = b""
+        self._last_reply = b""
+        self._t0 = time.monotonic()
+        self._last_rx = self._t0
+        self.stats = {
+            "rx_packets": 0,
+            "rx_bad": 0,
+            "tx_packets": 0,
+            "tx_frames": 0,
+            "dropped_bytes": 0,
+            "corrupted_bytes": 0,
+            "stalls": 0,
+            "disconnects": 0,
+            "watchdog_trips": 0,
+            "resent_frames": 0,
+            "overflow_bytes": 0,
+        }
+        self._disconnected_once = False
+        # stroke state
+        self.state = 0
+        self.stroke_id = 0
+        self._cmd: pr.StrokeCommand | None = None
+        self._frames: dict | None = None
+        self._n_sent = 0
+        self._done = 255
+        self._started = 0.0
+        self._index = 0
+        self.heater_on = False
+        self.watchdog_tripped = False
+        self._wire_current = np.zeros(3)
+        self._wire_temperature = np.full(3, 293.15)
+        self._result: tuple | None = None
+        self._stamps = np.zeros(0)
+        self._lock = threading.Lock()
+
+    # ------------------------------------------------------------ pty
+
+    def open(self) -> str:
+        """Open the pseudo-terminal; returns the slave's path (what a client opens)."""
+        master, slave = os.openpty()
+        tty.setraw(slave)
+        os.set_blocking(master, False)
+        self._master, self._slave = master, slave
+        self.port = os.ttyname(slave)
+        if self.link is not None:
+            tmp = self.link.with_name(self.link.name + ".tmp")
+            if tmp.is_symlink() or tmp.exists():
+                tmp.unlink()
+            os.symlink(self.port, tmp)
+            os.replace(tmp, self.link)
+        return self.port
+
+    def _close_pty(self) -> None:
+        for fd in (self._master, self._slave):
+            if fd is not None:
+                try:
+                    os.close(fd)
+                except OSError:
+                    pass
+        self._master = self._slave = None
+
+    def start(self) -> VirtualDevice:
+        """Start serving (opens the pty first if needed)."""
+        if self.model is None:
+            raise ValueError("VirtualDevice.start: no frame model set")
+        if self._master is None:
+            self.open()
+        self._last_rx = time.monotonic()
+        self._thread = threading.Thread(target=self._run, name="virtual-finger", daemon=True)
+        self._thread.start()
+        return self
+
+    def close(self, timeout: float = 60.0) -> None:
+        """Stop serving, wait for the threads and close the pty (and remove ``link``)."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout)
+            self._thread = None
+        for w in self._workers:
+            w.join(timeout)
+        self._workers.clear()
+        self._close_pty()
+        if self.link is not None and self.link.is_symlink():
+            self.link.unlink()
+
+    def __enter__(self) -> VirtualDevice:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # ------------------------------------------------------------ bytes with faults
+
+    def _faulty(self, data: bytes) -> bytes:
+        f = self.faults
+        if not (f.drop or f.corrupt) or not data:
+            return data
+        arr = np.frombuffer(data, np.uint8).copy()
+        if f.corrupt:
+            hit = self._rng.random(len(arr)) < f.corrupt
+            arr[hit] ^= self._rng.integers(1, 256, hit.sum()).astype(np.uint8)
+            self.stats["corrupted_bytes"] += int(hit.sum())
+        if f.drop:
+            keep = self._rng.random(len(arr)) >= f.drop
+            self.stats["dropped_bytes"] += int((~keep).sum())
+            arr = arr[keep]
+        return arr.tobytes()
+
+    def _send(self, msg) -> bytes:
+        raw = pr.encode(msg, self._seq)
+        self._seq = (self._seq + 1) & 0xFFFF
+        self.stats["tx_packets"] += 1
+        if self.faults.delay > 0 and self._rng.random() < self.faults.delay_prob:
+            self._stall_until = max(self._stall_until, time.monotonic() + self.faults.delay)
+            self.stats["stalls"] += 1
+        out = self._faulty(raw)
+        if len(self._out) > 4_000_000:  # nobody reads: a real device's buffer overflows too
+            self.stats["overflow_bytes"] += len(out)
+        else:
+            self._out += out
+        return raw
+
+    def _flush(self) -> None:
+        if not self._out or self._master is None or time.monotonic() < self._stall_until:
+            return
+        try:
+            n = os.write(self._master, bytes(self._out[:65536]))
+            del self._out[:n]
+        except BlockingIOError:
+            pass
+        except OSError:  # the other side is gone
+            self._out.clear()
+
+    # ------------------------------------------------------------ protocol
+
+    def _reply(self, packet: bytes, msg) -> None:
+        self._last_packet, self._last_reply = packet, self._send(msg)
+
+    def _handle(self, seq: int, msg, packet: bytes) -> None:
+        now = time.monotonic()
+        self._last_rx = now
+        self.stats["rx_packets"] += 1
+        if packet == self._last_packet and self._last_reply and not isinstance(msg, pr.Heartbeat | pr.StatusRequest):
+            self._out += self._faulty(self._last_reply)  # a retried command: answer again, do not repeat it
+            return
+        if isinstance(msg, pr.Hello):
+            m = self.model
+            L = self.limits
+            self._reply(
+                packet,
+                pr.HelloReply(
+                    seq,
+                    pr.PROTOCOL_VERSION,
+                    self.firmware,
+                    m.rows,
+                    m.cols,
+                    self.rate,
+                    L.max_current,
+                    L.max_temperature,
+                    L.max_force,
+                    L.watchdog,
+                    L.max_waypoints,
+                    np.asarray(m.taxel_uv),
+                    np.asarray(m.reference),
+                ),
+            )
+        elif isinstance(msg, pr.StrokeCommand):
+            if msg.stroke_id == self.stroke_id and self._cmd is not None:
+                self._reply(packet, pr.Ack(seq))  # the stroke id makes the command idempotent: never run twice
+                return
+            if self.state in (1, 2):
+                self._reply(packet, pr.Nak(seq, 3, f"busy with stroke {self.stroke_id}"))
+                return
+            plan = StrokePlan(msg.time, msg.contact, msg.normal, msg.depth, msg.hold_currents)
+            lim = self.limits._replace(max_force=min(self.limits.max_force, float(msg.max_force)))
+            try:
+                check_plan(plan, lim)
+            except UnsafePlan as e:
+                self._reply(packet, pr.Nak(seq, 2, str(e)))
+                return
+            self._reply(packet, pr.Ack(seq))
+            self.stroke_id, self._cmd, self._frames, self._n_sent, self._done = msg.stroke_id, msg, None, 0, 255
+            self.state, self.heater_on, self.watchdog_tripped = 1, True, False
+            self._wire_current = np.asarray(msg.hold_currents, float)
+            self._result = None
+            index = self._index
+            self._index += 1
+            w = threading.Thread(target=self._compute, args=(plan, index, msg.stroke_id), daemon=True)
+            self._workers = [t for t in self._workers if t.is_alive()] + [w]
+            w.start()
+        elif isinstance(msg, pr.Abort):
+            self._reply(packet, pr.Ack(seq))
+            if self.state in (1, 2):
+                self._end(1)
+            self._heater_off()
+        elif isinstance(msg, pr.StatusRequest):
+            self._send(
+                pr.Status(
+                    seq,
+                    self.state,
+                    self.stroke_id,
+                    self._n_sent,
+                    self._done,
+                    self.heater_on,
+                    self.watchdog_tripped,
+                    self._dec.bad,
+                    self._wire_current,
+                    self._wire_temperature,
+                )
+            )
+        elif isinstance(msg, pr.Heartbeat):
+            self._send(pr.Ack(seq))
+        elif isinstance(msg, pr.Resend):
+            if msg.stroke_id != self.stroke_id or self._frames is None:
+                self._reply(packet, pr.Nak(seq, 5, f"stroke {msg.stroke_id} is not in the device's buffer"))
+                return
+            self._reply(packet, pr.Ack(seq))
+            for i in range(msg.first, min(msg.first + msg.count, self._n_sent)):
+                self._send_frame(i)
+                self.stats["resent_frames"] += 1
+        else:  # a reply type sent to the device
+            self._send(pr.Nak(seq, 1, f"{type(msg).__name__} is not a command"))
+
+    def _compute(self, plan, index, sid) -> None:
+        try:
+            res = self.model(plan, index)
+            res = {k: np.asarray(res[k], float) for k in FRAME_KEYS}
+        except Exception as e:  # the device reports a fault instead of dying
+            res = e
+        with self._lock:
+            self._result = (sid, res)
+
+    def _send_frame(self, i: int) -> None:
+        f = self._frames
+        if i == self._n_sent:  # first transmission: stamp the sample time (a resent frame keeps its stamp)
+            self._stamps[i] = time.monotonic() - self._t0
+        self._send(
+            pr.Frame(
+                self.stroke_id,
+                i,
+                float(self._stamps[i]),
+                f["taxel_current"][i],
+                f["wire_current"][i],
+                f["wire_temperature"][i],
+                float(f["skin_temperature"][i]),
+                f["finger_tip_position"][i],
+                f["finger_curvature"][i],
+                float(f["contact_force"][i]),
+            )
+        )
+
+    def _heater_off(self) -> None:
+        if not self.faults.stuck_heater:
+            self.heater_on = False
+            self._wire_current = np.zeros(3)
+
+    def _end(self, reason: int) -> None:
+        self._done = reason
+        self.state = 0
+        if self._frames is None:
+            self._frames = {k: np.zeros((0,)) for k in FRAME_KEYS}
+        self._send(pr.StrokeDone(self.stroke_id, self._n_sent, reason))
+        self._heater_off()
+
+    def _step_stroke(self, now: float) -> None:
+        if self.state == 1:
+            with self._lock:
+                res, self._result = self._result, None
+            if res is not None and res[0] == self.stroke_id:
+                if isinstance(res[1], Exception):
+                    self.state = 3
+                    self._heater_off()
+                    return
+                self._frames, self.state, self._started = res[1], 2, now
+                self._stamps = np.zeros(len(self._cmd.time))
+        if self.state != 2:
+            return
+        t = np.asarray(self._cmd.time)
+        while self._n_sent < len(t):
+            due = self._started + (t[self._n_sent] - t[0]) / self.speed if self.speed > 0 else now
+            if due > now or len(self._out) > 262144:
+                break
+            i = self._n_sent
+            self._wire_temperature = self._frames["wire_temperature"][i]
+            self._send_frame(i)
+            self._n_sent += 1
+            self.stats["tx_frames"] += 1
+            if self._frames["contact_force"][i] > min(self._cmd.max_force, self.limits.max_force):
+                self._end(3)
+                return
+            if (
+                self.faults.disconnect_after is not None
+                and not self._disconnected_once
+                and self.stats["tx_frames"] >= self.faults.disconnect_after
+            ):
+                self._disconnect()
+                return
+        if self._n_sent >= len(t):
+            self._end(0)
+
+    def _disconnect(self) -> None:
+        self._disconnected_once = True
+        self.stats["disconnects"] += 1
+        self._out.clear()
+        self._close_pty()
+        self._dec = pr.Decoder()
+        self.open()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            now = time.monotonic()
+            wait = 0.002 if (self.state in (1, 2) or self._out) else 0.02
+            try:
+                r, _, _ = select.select([self._master], [], [], wait)
+            except (OSError, ValueError):
+                r = []
+            if r:
+                try:
+                    data = os.read(self._master, 65536)
+                except (BlockingIOError, OSError):
+                    data = b""
+                if data:
+                    for seq, msg in self._dec.feed(self._faulty(data) if self.faults.inbound else data):
+                        self._handle(seq, msg, pr.encode(msg, seq))
+                    self.stats["rx_bad"] = self._dec.bad
+            now = time.monotonic()
+            if self.state in (1, 2) or self.heater_on:
+                if now - self._last_rx > self.limits.watchdog and not self.watchdog_tripped:
+                    self.watchdog_tripped = True
+                    self.stats["watchdog_trips"] += 1
+                    if self.state in (1, 2):
+                        self._end(2)
+                    self._heater_off()
+            self._step_stroke(now)
+            self._flush()

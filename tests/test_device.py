@@ -1,0 +1,425 @@
+"""The hardware adapter end to end over real pyserial I/O: the virtual finger on a pty, the client, faults,
+safety refusals, the watchdog and the ``device`` command."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from bayestouch.errors import BadInput
+from bayestouch.hardware import protocol as pr
+from bayestouch.hardware.device import DeviceError, FingerDevice, HeaterFault, read_journal
+from bayestouch.hardware.safety import Limits, StrokePlan, UnsafePlan, check_plan, load_limits
+from bayestouch.hardware.simulator import FRAME_KEYS, Faults, SyntheticModel, VirtualDevice
+
+WIRE_KEYS = {
+    "taxel_current": "taxel_current",
+    "wire_current": "wire_current",
+    "wire_temperature": "wire_temperature",
+    "skin_temperature": "skin_temperature",
+    "finger_tip_position": "finger_tip_position",
+    "finger_curvature": "finger_curvature",
+    "contact_force": "contact_force",
+}
+
+
+class Recorded(SyntheticModel):
+    """The synthetic frame model, remembering what it produced for each stroke index."""
+
+    def __init__(self):
+        super().__init__(seed=3)
+        self.out: dict[int, dict] = {}
+
+    def __call__(self, plan, index):
+        r = super().__call__(plan, index)
+        self.out[index] = r
+        return r
+
+
+def make_plan(T: int = 60, currents=(0.15, 0.05, 0.05), depth: float = 3e-4, speed: float = 0.01) -> StrokePlan:
+    t = np.arange(T) * 0.02
+    contact = np.stack([speed * t, np.zeros(T), np.full(T, 0.02)], axis=1)
+    return StrokePlan(t, contact, np.tile([0.0, 0.0, 1.0], (T, 1)), depth, np.asarray(currents, float))
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _warm_imports():
+    check_plan(make_plan(), Limits())  # import the physics once, outside the timed exchanges
+
+
+@pytest.fixture
+def device(tmp_path):
+    started = []
+
+    def start(faults=None, speed=0.0, limits=None, **client):
+        sim = VirtualDevice(Recorded(), speed=speed, faults=faults, limits=limits, link=tmp_path / "finger")
+        sim.start()
+        started.append(sim)
+        dev = FingerDevice(str(tmp_path / "finger"), journal=tmp_path / "rec.journal", **client)
+        started.append(dev)
+        return sim, dev.open()
+
+    yield start
+    for obj in reversed(started):
+        obj.close()
+
+
+def _matches_model(data, model_out) -> bool:
+    """Every frame equals what the device's model produced (float32 on the wire)."""
+    return all(
+        np.array_equal(data.frames[k], np.asarray(model_out[WIRE_KEYS[k]], np.float32).astype(float))
+        for k in FRAME_KEYS
+    )
+
+
+def test_handshake_stroke_and_status(device, tmp_path):
+    sim, dev = device()
+    info = dev.info
+    assert (info.rows, info.cols, info.protocol) == (16, 16, pr.PROTOCOL_VERSION)
+    assert np.array_equal(info.taxel_uv, sim.model.taxel_uv) and np.array_equal(info.reference, sim.model.reference)
+    assert (info.max_current, info.max_temperature, info.watchdog) == (0.2, 393.15, 1.0)
+    plan = make_plan()
+    data = dev.run_stroke(plan)
+    assert data.frames["taxel_current"].shape == (60, 256)
+    assert _matches_model(data, sim.model.out[0])
+    assert np.all(np.diff(data.device_time) >= 0)
+    st = dev.status()
+    assert (st.state, st.stroke_id, st.frames, st.done, st.heater_on) == (0, data.stroke_id, 60, 0, False)
+    # the journal holds the handshake, the command and every frame as received
+    j = read_journal(tmp_path / "rec.journal")
+    frames = [m for m in j if isinstance(m, pr.Frame)]
+    assert isinstance(j[0], pr.HelloReply) and isinstance(j[1], pr.StrokeCommand)
+    assert sorted(f.index for f in frames) == list(range(60))
+    # negative control: another stroke index gives other currents, so the comparison can fail
+    assert not _matches_model(data, sim.model(plan, 1))
+
+
+# byte-fault rates: a 1.1 kB frame survives 3e-4 per byte with probability e^-0.33 ≈ 0.72, so ~30 of 100 frames
+# need a resend (the check that the fault was exercised cannot fail by chance)
+FAULTS = {
+    "dropped": (Faults(drop=3e-4, seed=1), {}, lambda s, d: d.stats["bad_packets"] > 0 < d.stats["resend_requests"]),
+    "corrupted": (Faults(corrupt=3e-4, seed=2), {}, lambda s, d: d.stats["bad_packets"] > 0),
+    "delayed": (Faults(delay=0.4, delay_prob=0.1, seed=3), {}, lambda s, d: s.stats["stalls"] > 0),
+    "disconnect": (Faults(disconnect_after=45), {}, lambda s, d: d.stats["reconnects"] == 1 == s.stats["disconnects"]),
+    # reconnecting slower than the 0.3 s watchdog, 0.8 s of real-time stroke left: the device abandons the stroke,
+    # the client runs it again
+    "disconnect-redo": (
+        Faults(disconnect_after=20),
+        {"limits": Limits(watchdog=0.3), "reconnect_wait": 0.6, "speed": 1.0},
+        lambda s, d: d.stats["redone_strokes"] == 1 == s.stats["watchdog_trips"],
+    ),
+}
+
+
+@pytest.mark.parametrize("name", list(FAULTS))
+def test_faults_survived_with_nothing_lost(device, tmp_path, name):
+    faults, kw, exercised = FAULTS[name]
+    sim, dev = device(faults, **kw)
+    plans = [make_plan(60), make_plan(40, depth=2e-4)]
+    got = [dev.run_stroke(p) for p in plans]
+    assert exercised(sim, dev), (sim.stats, dev.stats)
+    assert len(sim.model.out) == len(plans) + dev.stats["redone_strokes"]  # no stroke was ever run twice
+    # each returned stroke is complete and equal to what the device produced for it (a redone stroke uses the
+    # model's later index, so compare against the last index whose length matches)
+    for data, plan in zip(got, plans, strict=True):
+        idx = max(i for i, r in sim.model.out.items() if len(r["taxel_current"]) == len(plan.time))
+        assert _matches_model(data, sim.model.out[idx])
+    # and every frame returned is also in the journal, written as it arrived
+    logged = {(m.stroke_id, m.index) for m in read_journal(tmp_path / "rec.journal") if isinstance(m, pr.Frame)}
+    assert all((d.stroke_id, i) in logged for d in got for i in range(len(d.plan.time)))
+
+
+def test_inbound_faults_survived(device):
+    # the device's decoder rejects damaged commands and the client retries them; 1e-4 per byte on a 1.1 kB
+    # command fails ~20 % of tries (8 tries: ~1e-6 of giving up); strokes are repeated until the device has
+    # rejected a packet (expected ~0.2 damaged packets per stroke: P(none in 60) ≈ e^-12)
+    sim, dev = device(Faults(drop=5e-5, corrupt=5e-5, inbound=True, seed=4))
+    n = 0
+    while sim.stats["rx_bad"] == 0 and n < 60:
+        plan = make_plan(20, depth=1e-4 * (1 + n % 4))
+        data = dev.run_stroke(plan)
+        idx = max(sim.model.out)
+        assert _matches_model(data, sim.model.out[idx])
+        n += 1
+    assert sim.stats["rx_bad"] > 0
+    assert len(sim.model.out) == n + dev.stats["redone_strokes"]
+
+
+def test_stuck_heater_detected_after_the_stroke_is_saved(device, tmp_path):
+    sim, dev = device(Faults(stuck_heater=True))
+    with pytest.raises(HeaterFault, match="heaters still on"):
+        dev.run_stroke(make_plan(30))
+    assert sim.heater_on
+    logged = [m for m in read_journal(tmp_path / "rec.journal") if isinstance(m, pr.Frame)]
+    assert sorted(m.index for m in logged) == list(range(30))
+
+
+@pytest.mark.parametrize("stuck", [False, True])
+def test_watchdog_stops_heating_when_heartbeats_stop(device, stuck):
+    lim = Limits(watchdog=0.3)
+    sim, dev = device(Faults(stuck_heater=stuck), speed=1.0, limits=lim)
+    plan = make_plan(150)  # 3 s in real time
+    cmd = pr.StrokeCommand(7, plan.depth, 1.0, plan.hold_currents, plan.time, plan.contact, plan.normal)
+    assert isinstance(dev._command(cmd), pr.Ack)  # start it, then stay silent: no heartbeats
+    assert sim.heater_on
+    t0 = time.monotonic()
+    while sim.stats["watchdog_trips"] == 0 and time.monotonic() - t0 < 3.0:
+        time.sleep(0.02)
+    waited = time.monotonic() - t0
+    assert sim.stats["watchdog_trips"] == 1 and waited < 1.0  # 0.3 s watchdog plus loop slack
+    assert sim.heater_on is stuck  # a stuck heater is the fault the client must detect
+    st = dev.status()
+    assert st.done == 2 and st.frames < 150 and st.watchdog_tripped
+
+
+def test_unsafe_plans_refused_before_any_byte(monkeypatch):
+    dev = FingerDevice("loop://", handshake=False, timeout=0.05, retries=1).open()
+    try:
+        written = []
+        orig = dev._ser.write
+        monkeypatch.setattr(dev._ser, "write", lambda b: written.append(bytes(b)) or orig(b))
+        unsafe = {
+            "current": make_plan(currents=(0.25, 0.0, 0.0)),
+            "temperature": make_plan(currents=(0.19, 0.0, 0.0)),  # ≤ 0.2 A but its steady state > 393 K
+            "force": make_plan(depth=1e-3),
+            "speed": make_plan(speed=0.2),
+            "shape": make_plan()._replace(normal=np.ones((5, 3))),
+        }
+        for why, plan in unsafe.items():
+            with pytest.raises(UnsafePlan):
+                dev.run_stroke(plan)
+            assert written == [] and dev._ser.in_waiting == 0, why
+        # negative control: a safe plan is sent (loop:// only echoes it, so no ACK comes)
+        with pytest.raises(DeviceError, match="no answer"):
+            dev.run_stroke(make_plan())
+        assert written and pr.Decoder().feed(written[0])[0][1].stroke_id > 0
+    finally:
+        dev.close()
+
+
+def test_device_refuses_what_its_own_limits_forbid(device):
+    # the client is misconfigured with looser limits; the device's check answers NAK "unsafe plan"
+    sim, dev = device(limits=Limits(max_current=0.1))
+    dev.info = dev.info._replace(max_current=0.2)
+    with pytest.raises(UnsafePlan, match="device refused"):
+        dev.run_stroke(make_plan(currents=(0.15, 0.0, 0.0)))
+    assert not sim.heater_on and sim.stats["tx_frames"] == 0
+
+
+def test_plan_check_values():
+    lim = load_limits()
+    chk = check_plan(make_plan(), lim)
+    assert chk.speed == pytest.approx(0.01)
+    assert 293.15 < chk.peak_temperature < lim.max_temperature
+    assert 0 < chk.force < lim.max_force
+
+
+def _parser():
+    from bayestouch.hardware.cli import add_device_parser
+
+    p = argparse.ArgumentParser()
+    add_device_parser(p.add_subparsers(dest="command"))
+    return p
+
+
+def test_cli_run_writes_the_simulate_schema(device, tmp_path):
+    from bayestouch.hardware.cli import run_device
+    from bayestouch.recording import read_recording
+
+    sim, dev = device()
+    dev.close()
+    plans = [make_plan(30), make_plan(20)]
+    f = tmp_path / "strokes.json"
+    f.write_text(
+        json.dumps(
+            {
+                "strokes": [
+                    {
+                        "time": p.time.tolist(),
+                        "contact": p.contact.tolist(),
+                        "normal": p.normal.tolist(),
+                        "depth": p.depth,
+                    }
+                    for p in plans
+                ]
+            }
+        )
+    )
+    out = tmp_path / "dev.nc"
+    args = _parser().parse_args(
+        ["device", "run", "--port", str(tmp_path / "finger"), "--stroke-file", str(f), "--out", str(out), "--quiet"]
+    )
+    assert run_device(args) == 0
+    ds = read_recording(out)
+    need = {
+        "time",
+        "stroke_index",
+        "taxel_current",
+        "contact_force",
+        "pressing_depth",
+        "contact_point",
+        "contact_normal",
+        "wire_current",
+        "wire_temperature",
+        "skin_temperature",
+        "finger_tip_position",
+        "finger_curvature",
+        "taxel_u",
+        "taxel_v",
+        "taxel_reference",
+        "stroke_depth",
+    }
+    assert need <= set(ds.variables)
+    assert ds["taxel_current"].shape == (50, 256) and ds["taxel_current"].attrs["units"] == "A"
+    assert np.array_equal(ds["contact_point"].values, np.concatenate([p.contact for p in plans]))
+    assert np.array_equal(ds["stroke_index"].values, np.repeat([0, 1], [30, 20]))
+    assert not (tmp_path / "dev.nc.journal").exists()  # removed after success
+    # random strokes planned on the object model, as `bayestouch simulate` draws them
+    out2 = tmp_path / "rand.nc"
+    argv = ["device", "run", "--port", str(tmp_path / "finger"), "--strokes", "2", "--duration", "0.5"]
+    assert run_device(_parser().parse_args([*argv, "--out", str(out2), "--quiet"])) == 0
+    ds2 = read_recording(out2)
+    assert ds2["taxel_current"].shape == (52, 256) and np.array_equal(np.unique(ds2["stroke_index"]), [0, 1])
+
+
+def test_cli_bad_input(tmp_path):
+    from bayestouch.hardware.cli import run_device
+
+    bad = tmp_path / "bad.json"
+    bad.write_text("{not json")
+    unsafe = tmp_path / "unsafe.json"
+    p = make_plan()
+    unsafe.write_text(
+        json.dumps(
+            {
+                "strokes": [
+                    {
+                        "time": p.time.tolist(),
+                        "contact": p.contact.tolist(),
+                        "normal": p.normal.tolist(),
+                        "depth": p.depth,
+                        "hold_currents": [0.5, 0, 0],
+                    }
+                ]
+            }
+        )
+    )
+    cases = {
+        "cannot be read": ["--stroke-file", str(bad)],
+        "outside": ["--stroke-file", str(unsafe)],
+        "expected a netCDF": ["--out", str(tmp_path / "x.txt")],
+        "empty string": ["--port", " "],
+        "no such device": [],
+    }
+    for msg, extra in cases.items():
+        port = str(tmp_path / "no-such-port") if msg == "no such device" else "loop://"
+        argv = ["device", "run", "--port", port, "--out", str(tmp_path / "x.nc"), *extra]
+        with pytest.raises(BadInput, match=msg):
+            run_device(_parser().parse_args(argv))
+    with pytest.raises(BadInput, match="subcommand"):
+        run_device(_parser().parse_args(["device"]))
+
+
+def test_cli_simulate_process_prints_its_pty_and_exits_cleanly(tmp_path):
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "bayestouch.hardware.cli",
+            "device",
+            "simulate",
+            "--print-port",
+            "--model",
+            "synthetic",
+            "--speed",
+            "0",
+            "--for",
+            "60",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        port = proc.stdout.readline().strip()
+        assert port.startswith("/dev/pts/")
+        with FingerDevice(port, connect_timeout=30) as dev:
+            data = dev.run_stroke(make_plan(20))
+        assert data.frames["taxel_current"].shape == (20, 256)
+        proc.terminate()
+        assert proc.wait(20) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        proc.stdout.close()
+        proc.stderr.close()
+
+
+@pytest.mark.slow
+def test_virtual_finger_streams_the_forward_model(tmp_path):
+    """The physics behind the protocol: frames equal record_strokes for the same stroke and seed."""
+    from bayestouch.hardware.safety import plan_from_stroke
+    from bayestouch.hardware.simulator import ForwardModel
+    from bayestouch.params import MODELS
+    from bayestouch.scene.objects import load_object
+    from bayestouch.scene.strokes import random_strokes
+    from bayestouch.virtual import record_strokes
+
+    obj = load_object(MODELS / "objects" / "egg.toml")
+    model = ForwardModel(obj, seed=2)
+    st = random_strokes(obj, 1, seed=5, duration=0.5)[0]
+    with (
+        VirtualDevice(model, speed=0.0, link=tmp_path / "finger"),
+        FingerDevice(str(tmp_path / "finger"), stroke_timeout=300) as dev,
+    ):
+        data = dev.run_stroke(plan_from_stroke(st))
+    ref = record_strokes(obj, [st], model.vf, 2 * 100003 + 0)  # the device's first stroke: index 0
+    for k in FRAME_KEYS:
+        assert np.array_equal(data.frames[k], np.asarray(ref[k], np.float32).astype(float)), k
+    assert data.frames["contact_force"].max() > 0.01  # the pad touched the egg
+    ref_other = record_strokes(obj, [st], model.vf, 1)  # negative control: other noise, other currents
+    assert not np.array_equal(data.frames["taxel_current"], np.asarray(ref_other["taxel_current"], np.float32))
+
+
+class Spike(Recorded):
+    """A collision in the middle of the stroke: the measured force jumps to 5 N at frame 10."""
+
+    def __call__(self, plan, index):
+        r = dict(super().__call__(plan, index))
+        r["contact_force"] = np.where(np.arange(len(plan.time)) == 10, 5.0, r["contact_force"])
+        return r
+
+
+def test_device_aborts_on_over_force(tmp_path):
+    with (
+        VirtualDevice(Spike(), speed=0.0, link=tmp_path / "finger") as sim,
+        FingerDevice(str(tmp_path / "finger")) as dev,
+    ):
+        with pytest.raises(DeviceError, match="contact force over"):
+            dev.run_stroke(make_plan(40))
+        st = dev.status()
+        assert (st.done, st.frames, st.heater_on) == (3, 11, False)
+        assert sim.stats["tx_frames"] == 11
+
+
+def test_record_strokes_drives_the_device_like_the_simulator(device):
+    from bayestouch.params import MODELS
+    from bayestouch.scene.objects import load_object
+    from bayestouch.scene.strokes import random_strokes
+
+    sim, dev = device()
+    strokes = random_strokes(load_object(MODELS / "objects" / "egg.toml"), 2, seed=1, duration=0.4)
+    rec = dev.record_strokes(strokes)
+    sim_only = {"taxel_current_clean", "pressure", "friction_force"}
+    expect = {"time", "stroke_index", "pressing_depth", "contact_point", "contact_normal", *FRAME_KEYS}
+    assert set(rec) == expect and not sim_only & set(rec)
+    n = sum(len(s.time) for s in strokes)
+    assert all(len(v) == n for v in rec.values())
+    assert np.array_equal(rec["contact_point"], np.concatenate([s.contact for s in strokes]))
