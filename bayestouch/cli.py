@@ -20,7 +20,6 @@ __all__ = ["main", "build_parser"]
 PLANNED = {
     "explore": "the active probing planner (issue 5)",
     "experiment": "the exploration experiments (issue 5)",
-    "device": "the hardware adapter (issue 6)",
 }
 
 DEFAULT_OBJECTS = Path(__file__).resolve().parent.parent / "models" / "objects"
@@ -101,9 +100,10 @@ def build_parser() -> argparse.ArgumentParser:
     fp.add_argument("--out", required=True, type=Path, help="output folder")
     fp.add_argument("--seed", type=int, default=0, help="seed of the initial fit, walkers and emcee (default 0)")
     fp.add_argument("--walkers", type=_positive_int, default=32, help="emcee walkers (default 32)")
-    fp.add_argument("--steps", type=_positive_int, default=20000,
-                    help="largest chain length in steps (default 20000); sampling stops earlier once the chain is "
-                    "longer than 50 autocorrelation times and their estimate is stable")
+    fp.add_argument("--steps", type=_positive_int, default=None,
+                    help="largest chain length in steps (default 20000 for contact points, 1500 for a recording); "
+                    "sampling stops earlier once converged (N > 50 autocorrelation times, R-hat < 1.01, bulk ESS "
+                    "> 400)")
     fp.add_argument("--no-early-stop", action="store_true", help="sample exactly --steps steps")
     fp.add_argument("--resume", action="store_true", help="continue the chain in OUT/chain.h5")
     fp.add_argument("--budget", type=float, default=None, help="wall-clock budget for sampling, seconds")
@@ -145,6 +145,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "reduced size, written to --out.")
     dp.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder (default out/demo)")
     dp.add_argument("--seed", type=int, default=0)
+
+    from bayestouch.hardware.cli import add_device_parser
+
+    add_device_parser(sub)
     return p
 
 
@@ -271,8 +275,9 @@ def _cmd_fit(args) -> int:
             raise BadInput("--ffd applies to contact points (.csv), not to a recording (.nc)")
         from bayestouch.inference.raw import run_raw_fit
 
-        s = run_raw_fit(args.points, args.out, seed=args.seed, walkers=args.walkers, steps=args.steps,
-                        resume=args.resume, budget_s=args.budget, progress=not args.quiet)
+        s = run_raw_fit(args.points, args.out, seed=args.seed, walkers=args.walkers, steps=args.steps or 1500,
+                        resume=args.resume, budget_s=args.budget, progress=not args.quiet,
+                        stop_when_converged=not args.no_early_stop)
     else:
         from bayestouch.inference.run import run_contact_fit
         from bayestouch.io import load_contact_points
@@ -281,7 +286,7 @@ def _cmd_fit(args) -> int:
         if args.nu is not None and (args.noise != "student" or not args.nu > 0):
             raise BadInput(f"--nu must be > 0 and goes with --noise student, got --nu {args.nu} --noise {args.noise}")
         noise, nu = ("student", float("inf")) if args.noise == "gaussian" else (args.noise, args.nu)
-        s = run_contact_fit(cp.points, args.out, seed=args.seed, walkers=args.walkers, steps=args.steps,
+        s = run_contact_fit(cp.points, args.out, seed=args.seed, walkers=args.walkers, steps=args.steps or 20000,
                             resume=args.resume, budget_s=args.budget, progress=not args.quiet,
                             normals=None if args.ignore_normals else cp.normals, noise=noise, nu=nu, ffd=args.ffd,
                             ffd_tau=args.ffd_tau, stop_when_converged=not args.no_early_stop)
@@ -295,8 +300,14 @@ def _cmd_fit(args) -> int:
     return 0
 
 
+def _cmd_device(args) -> int:
+    from bayestouch.hardware.cli import run_device
+
+    return run_device(args)
+
+
 COMMANDS = {"reproduce-paper": _cmd_reproduce_paper, "demo": _cmd_demo, "simulate": _cmd_simulate,
-            "fit": _cmd_fit}
+            "fit": _cmd_fit, "device": _cmd_device}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -61,6 +61,11 @@ def test_fit_bad_inputs_exit_2(tmp_path, capsys, points_csv):
     assert main(["fit", str(tmp_path / "missing.csv"), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip()
     assert "no such file" in err and "\n" not in err
+    garbage = tmp_path / "rec.nc"
+    garbage.write_bytes(b"not a netCDF file")
+    assert main(["fit", str(garbage), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "netCDF" in err and "\n" not in err
     with pytest.raises(SystemExit) as e:  # argparse: a malformed lattice size is a usage error (exit 2)
         main(["fit", str(points_csv), "--out", str(tmp_path / "o"), "--ffd", "3x3"])
     assert e.value.code == 2 and "3x3" in capsys.readouterr().err

@@ -224,21 +224,29 @@ def write_posterior(out: Path, chain, model: PosteriorModel, *, seed: int, t0: f
 
 
 def initial_theta(points, seed: int, priors: cm.PriorParams, starts: int = 3) -> np.ndarray:
-    """A starting point that respects the symmetries and survives partial coverage and outliers.
+    """A starting point that respects the symmetries and resists outliers.
 
-    ``starts`` evolutionary 10-parameter fits (symmetry-reduced angle ranges; the centre searched up to one data
-    span beyond the data's box and the axes up to twice the span, since strokes over one side of an object say
-    little about where its far side is), each polished by L-BFGS-B on the robust (Student-t) log-posterior the
-    sampler uses; the start with the highest log-posterior wins. σ starts from the fit's RMS.
+    ``starts`` evolutionary 10-parameter fits (symmetry-reduced angle ranges; centre within the data centroid ± half
+    the data's span, semi-axes up to 1.2 × the data's radius), each polished by L-BFGS-B on the robust (Student-t)
+    log-posterior the sampler uses, inside the same search box; the start with the highest log-posterior wins.
+    σ starts from the fit's RMS.
+
+    The box is deliberate: on data covering one side of an object, a wider search (or an unconstrained robust
+    polish) runs off to surfaces several times too large whose local curvature matches the touched patch — the
+    likelihood cannot tell them apart, and the sampler explores that ridge from a sensible start instead.
     """
     from scipy.optimize import minimize
 
     from bayestouch.paper import fit_nellipsoid_de
 
     pts = np.asarray(points, float)
-    span = float(np.max(np.ptp(pts, axis=0)))
+    c = pts.mean(axis=0)
+    half = 0.5 * np.ptp(pts, axis=0)
+    ext = float(np.max(np.linalg.norm(pts - c, axis=1)))
     bounds = cm.bounds_for(pts, priors)
-    lo, hi = np.asarray(bounds.lower), np.asarray(bounds.upper)
+    lo, hi = np.array(bounds.lower), np.array(bounds.upper)
+    lo[:3], hi[:3] = np.maximum(lo[:3], c - half - 1e-9), np.minimum(hi[:3], c + half + 1e-9)
+    lo[3:6], hi[3:6] = np.maximum(lo[3:6], np.log(0.02 * ext)), np.minimum(hi[3:6], np.log(1.2 * ext))
     pj = jnp.asarray(pts)
     nu = float(priors.student_nu)
     vg = jax.jit(jax.value_and_grad(lambda t: -cm.log_prob(t, pj, bounds, nu)))
@@ -250,14 +258,15 @@ def initial_theta(points, seed: int, priors: cm.PriorParams, starts: int = 3) ->
     best, best_val = None, np.inf
     for k in range(starts):
         de = fit_nellipsoid_de(pts, np.random.default_rng([seed, k]), popsize=12, maxiter=250,
-                               n_bounds=(priors.n_min, priors.n_max), centre_pad=span, axis_max=2.0 * span)
+                               n_bounds=(priors.n_min, priors.n_max))
         v = np.asarray(ne.to_vector(de.shape))
         sigma = float(np.clip(de.rms, priors.sigma_min * 2, priors.sigma_max / 2))
         t0 = np.clip(np.concatenate([v[:3], np.log(v[3:6]), v[6:9], [np.log(v[9])], [np.log(sigma)]]),
                      lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
+        v0 = fg(t0)[0]
         res = minimize(fg, t0, jac=True, method="L-BFGS-B", bounds=list(zip(lo, hi, strict=True)),
                        options={"maxiter": 500})
-        t, val = (res.x, res.fun) if np.isfinite(res.fun) and res.fun <= fg(t0)[0] else (t0, fg(t0)[0])
+        t, val = (res.x, res.fun) if np.isfinite(res.fun) and res.fun <= v0 else (t0, v0)
         if val < best_val:
             best, best_val = t, val
     return best
@@ -270,7 +279,7 @@ def _walkers(theta0, bounds, n, rng, sampled: tuple = cm.PARAM_NAMES) -> np.ndar
     extra = sampled[11:]
     theta0 = np.concatenate([theta0[:11], [_EXTRA_START[k] for k in extra]])
     # a ball of about the posterior's width for tens to hundreds of points (DE moves adapt from there)
-    scale = np.concatenate([np.full(3, 5e-4), np.full(3, 1e-2), np.full(3, 1e-2), [1e-2], [5e-2],
+    scale = np.concatenate([np.full(3, 1e-4), np.full(3, 1e-3), np.full(3, 1e-3), [1e-3], [1e-2],
                             [_EXTRA_SCALE[k] for k in extra]])
     p = np.clip(theta0, lo, hi) + scale * rng.normal(size=(n, theta0.size))
     return np.clip(p, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
