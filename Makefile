@@ -20,11 +20,13 @@ install: $(STAMP)
 demo: $(STAMP)
 	$(VENV)/bin/bayestouch demo --out out/demo
 
+# two workers (the CI machine has 2 cores; the suite is single-threaded per test), whole files per worker so
+# module fixtures are built once
 test: $(STAMP)
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n 2 --dist loadfile
 
 test-fast: $(STAMP)
-	$(PY) -m pytest -q -m "not slow"
+	$(PY) -m pytest -q -n 2 --dist loadfile -m "not slow"
 
 bench: $(STAMP)
 	$(PY) -m benchmarks

@@ -278,7 +278,7 @@ def _walkers(theta0, bounds, n, rng, sampled: tuple = cm.PARAM_NAMES) -> np.ndar
     lo, hi = np.asarray(bounds.lower), np.asarray(bounds.upper)
     extra = sampled[11:]
     theta0 = np.concatenate([theta0[:11], [_EXTRA_START[k] for k in extra]])
-    # a ball of about the posterior's width for tens to hundreds of points (DE moves adapt from there)
+    # a small ball: the DE moves expand the ensemble to the posterior's width within the burn-in
     scale = np.concatenate([np.full(3, 1e-4), np.full(3, 1e-3), np.full(3, 1e-3), [1e-3], [1e-2],
                             [_EXTRA_SCALE[k] for k in extra]])
     p = np.clip(theta0, lo, hi) + scale * rng.normal(size=(n, theta0.size))
