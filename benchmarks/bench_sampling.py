@@ -70,7 +70,7 @@ def bench_emcee_vs_nuts():
             "ess": round(ess_e),
             "seconds": round(ch.seconds, 1),
             "moves": "default_moves (DE + snooker)",
-            "backend": "HDF5 every step",
+            "backend": "HDF5 checkpoint, written in batches at most every second",
             **common,
         },
         {
