@@ -16,12 +16,6 @@ import numpy as np
 
 __all__ = ["main", "build_parser"]
 
-#: subcommands that later work fills in, with where they are specified
-PLANNED = {
-    "explore": "the active probing planner (issue 5)",
-    "experiment": "the exploration experiments (issue 5)",
-}
-
 DEFAULT_OBJECTS = Path(__file__).resolve().parent.parent / "models" / "objects"
 
 
@@ -65,8 +59,6 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="bayestouch",
         description="Probabilistic inference for tactile shape and texture sensing.",
-        epilog="planned subcommands (not in this version yet): "
-        + "; ".join(f"{k}: {v}" for k, v in PLANNED.items()),
     )
     from bayestouch import __version__
 
@@ -147,8 +139,10 @@ def build_parser() -> argparse.ArgumentParser:
     dp.add_argument("--seed", type=int, default=0)
 
     from bayestouch.hardware.cli import add_device_parser
+    from bayestouch.planning.cli import add_planning_parsers
 
     add_device_parser(sub)
+    add_planning_parsers(sub)
     return p
 
 
@@ -300,6 +294,18 @@ def _cmd_fit(args) -> int:
     return 0
 
 
+def _cmd_explore(args) -> int:
+    from bayestouch.planning.cli import run_explore
+
+    return run_explore(args)
+
+
+def _cmd_experiment(args) -> int:
+    from bayestouch.planning.cli import run_experiment
+
+    return run_experiment(args)
+
+
 def _cmd_device(args) -> int:
     from bayestouch.hardware.cli import run_device
 
@@ -307,15 +313,11 @@ def _cmd_device(args) -> int:
 
 
 COMMANDS = {"reproduce-paper": _cmd_reproduce_paper, "demo": _cmd_demo, "simulate": _cmd_simulate,
-            "fit": _cmd_fit, "device": _cmd_device}
+            "fit": _cmd_fit, "device": _cmd_device, "explore": _cmd_explore, "experiment": _cmd_experiment}
 
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    if argv and argv[0] in PLANNED:
-        print(f"bayestouch: error: '{argv[0]}' is not available in this version yet ({PLANNED[argv[0]]})",
-              file=sys.stderr)
-        return 2
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command is None:

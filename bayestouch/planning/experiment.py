@@ -1,0 +1,305 @@
+"""Exploration experiments: objects × planners × seeded trials, in parallel, into ``DIR/results.csv``.
+
+Each task (object, planner, trial) runs :func:`bayestouch.planning.loop.explore` with seed ``(seed, trial)``:
+every planner of one trial and object starts from the same scout and initial fit. Tasks run in a process pool
+(``spawn``: JAX does not survive ``fork`` after initialisation; 2 workers by default), in this process
+(``workers=1``), or on a Dask cluster (``scheduler="tcp://HOST:PORT"``, ``dask[distributed]`` installed). The
+parent collects finished trials and rewrites ``results.csv`` atomically after each
+(:func:`bayestouch.io.write_csv_rows`), so a killed worker or run loses no finished trial; ``resume=True`` keeps
+the trials already complete in an existing ``results.csv`` and runs only the others.
+
+``results.csv`` columns: :data:`COLUMNS` (one row per stroke, stroke 0 the scout); ``error_vs_strokes.png``:
+median and 25–75 % band of the Chamfer distance and the volume error against strokes, one line per planner.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from bayestouch.errors import BadInput
+from bayestouch.planning.loop import ExploreSettings
+from bayestouch.planning.policies import check_policy
+
+__all__ = ["COLUMNS", "run_trial", "run_experiment", "resolve_object", "plot_results", "gap_closed", "OBJECTS"]
+
+#: the columns of results.csv
+COLUMNS = (
+    "planner",
+    "trial",
+    "object",
+    "stroke",
+    "chamfer",
+    "volume_error",
+    "seconds",
+    "n_points",
+    "new_points",
+    "volume_sd",
+    "eig",
+    "decision_s",
+    "seed",
+)
+#: default objects (models/objects/<name>.toml)
+OBJECTS = ("egg", "sphere", "box", "cylinder")
+_MODELS = Path(__file__).resolve().parent.parent.parent / "models" / "objects"
+
+
+def resolve_object(name: str) -> Path:
+    """An object name (``egg``: ``models/objects/egg.toml``) or a TOML path → the file; BadInput if missing."""
+    p = Path(name)
+    if p.suffix == ".toml":
+        if not p.is_file():
+            raise BadInput(f"object: no such file {p} (expected a TOML object file like models/objects/egg.toml)")
+        return p
+    q = _MODELS / f"{name}.toml"
+    if not q.is_file():
+        known = ", ".join(sorted(x.stem for x in _MODELS.glob("*.toml")))
+        raise BadInput(f"object: unknown object {name!r}; expected one of {known} or a path to a .toml file")
+    return q
+
+
+def run_trial(task: dict) -> list[dict]:
+    """Run one (object, planner, trial) and return its rows (a top-level function: picklable for pools)."""
+    from bayestouch.planning.loop import explore
+    from bayestouch.scene.objects import load_object
+
+    obj = load_object(task["path"])
+    settings = ExploreSettings(**task.get("settings", {}))
+    res = explore(obj, task["planner"], task["budget"], seed=task["seed"], settings=settings)
+    return [
+        {
+            "planner": task["planner"],
+            "trial": task["trial"],
+            "object": task["object"],
+            "stroke": r.stroke,
+            "chamfer": r.chamfer,
+            "volume_error": r.volume_error,
+            "seconds": r.seconds,
+            "n_points": r.n_points,
+            "new_points": r.new_points,
+            "volume_sd": r.volume_sd,
+            "eig": r.eig,
+            "decision_s": r.decision_s,
+            "seed": task["seed"],
+        }
+        for r in res.records
+    ]
+
+
+def _key(row) -> tuple:
+    return str(row["object"]), str(row["planner"]), int(row["trial"])
+
+
+def _complete(rows: list[dict], budget: int) -> set:
+    """Trials of ``rows`` that reached ``budget`` strokes."""
+    return {_key(r) for r in rows if int(r["stroke"]) == budget}
+
+
+def _trial_seed(seed: int, trial: int) -> int:
+    return int(np.random.SeedSequence([seed, trial]).generate_state(1)[0] % (2**31 - 1))
+
+
+def run_experiment(
+    out,
+    *,
+    planners=("eig", "random", "oracle"),
+    objects=OBJECTS,
+    trials: int = 3,
+    budget: int = 5,
+    seed: int = 0,
+    workers: int = 2,
+    scheduler: str | None = None,
+    resume: bool = False,
+    settings: dict | None = None,
+    plot: bool = True,
+    log=None,
+) -> dict:
+    """Run the experiment and write ``out/results.csv`` (and ``out/error_vs_strokes.png``).
+
+    Parameters
+    ----------
+    out : path
+        Output folder (created).
+    planners : sequence of str
+        Policies (:data:`bayestouch.planning.policies.POLICIES`).
+    objects : sequence of str
+        Object names or TOML paths.
+    trials, budget, seed : int
+        Seeded trials per (object, planner); planned strokes per trial (after the scout); the base seed.
+    workers : int
+        Processes (1: run here, in order).
+    scheduler : str, optional
+        ``tcp://HOST:PORT`` of a Dask scheduler (needs ``dask[distributed]``).
+    resume : bool
+        Keep the complete trials of an existing ``results.csv`` and run only the others.
+    settings : dict, optional
+        Fields of :class:`~bayestouch.planning.loop.ExploreSettings`.
+
+    Returns
+    -------
+    dict
+        ``{"ran": trials run now, "skipped": trials kept from before, "rows": all rows, "path": results.csv}``.
+    """
+    from bayestouch.io import read_csv_rows, write_csv_rows
+
+    planners = list(planners)
+    if not planners:
+        raise BadInput("planners: expected a comma-separated list like eig,random,oracle")
+    for p in planners:
+        check_policy(p)
+    if not isinstance(budget, int | np.integer) or budget < 1:
+        raise BadInput(f"budget: expected an integer number of strokes ≥ 1, got {budget!r}")
+    if not isinstance(trials, int | np.integer) or trials < 1:
+        raise BadInput(f"trials: expected an integer ≥ 1, got {trials!r}")
+    if not isinstance(seed, int | np.integer) or seed < 0:
+        raise BadInput(f"seed: expected an integer ≥ 0, got {seed!r}")
+    if workers < 1:
+        raise BadInput(f"workers: expected an integer ≥ 1, got {workers}")
+    paths = {str(o): resolve_object(str(o)) for o in objects}
+    names = {o: p.stem if p.parent == _MODELS else str(o) for o, p in paths.items()}
+    unknown = set(settings or {}) - set(ExploreSettings._fields)
+    if unknown:
+        raise BadInput(f"settings: unknown field(s) {sorted(unknown)}; expected {', '.join(ExploreSettings._fields)}")
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise BadInput(f"--out {out} exists and is not a folder")
+    out.mkdir(parents=True, exist_ok=True)
+    csv_path = out / "results.csv"
+    rows: list[dict] = []
+    if resume and csv_path.is_file():
+        old = read_csv_rows(csv_path)
+        done = _complete(old, budget)
+        rows = [r for r in old if _key(r) in done]
+    done = {_key(r) for r in rows}
+    tasks = [
+        {
+            "object": names[o],
+            "path": str(paths[o]),
+            "planner": p,
+            "trial": t,
+            "budget": int(budget),
+            "seed": _trial_seed(seed, t),
+            "settings": dict(settings or {}),
+        }
+        for t in range(trials)
+        for o in paths
+        for p in planners
+        if (names[o], p, t) not in done
+    ]
+    log = log or (lambda msg: print(msg, file=sys.stderr))
+    log(
+        f"experiment: {len(tasks)} trial(s) to run, {len(done)} kept from {csv_path}"
+        if done
+        else f"experiment: {len(tasks)} trial(s) to run"
+    )
+
+    def finished(new_rows):
+        rows.extend(new_rows)
+        rows.sort(key=lambda r: (str(r["object"]), str(r["planner"]), int(r["trial"]), int(r["stroke"])))
+        write_csv_rows(csv_path, rows, COLUMNS)
+        last = new_rows[-1]
+        log(
+            f"  {last['object']} {last['planner']} trial {last['trial']}: chamfer {float(last['chamfer']):.4f}, "
+            f"volume error {float(last['volume_error']):.4f} after {last['stroke']} strokes"
+        )
+
+    if not csv_path.is_file():
+        write_csv_rows(csv_path, rows, COLUMNS)
+    if scheduler is not None:
+        _run_dask(scheduler, tasks, finished)
+    elif workers == 1 or len(tasks) <= 1:
+        for t in tasks:
+            finished(run_trial(t))
+    else:
+        _run_pool(workers, tasks, finished)
+    if plot and rows:
+        plot_results(rows, out / "error_vs_strokes.png")
+    return {"ran": len(tasks), "skipped": len(done), "rows": rows, "path": csv_path}
+
+
+def _run_pool(workers: int, tasks: list[dict], finished) -> None:
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures.process import BrokenProcessPool
+
+    with ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=mp.get_context("spawn")) as ex:
+        futures = [ex.submit(run_trial, t) for t in tasks]
+        try:
+            for f in as_completed(futures):
+                finished(f.result())
+        except BrokenProcessPool:
+            raise RuntimeError(
+                "a worker process died; every finished trial is in results.csv: rerun with --resume to do the rest"
+            ) from None
+
+
+def _run_dask(address: str, tasks: list[dict], finished) -> None:
+    try:
+        from dask.distributed import Client, as_completed
+    except ImportError:
+        raise BadInput(
+            '--scheduler: needs dask\'s distributed scheduler; install it with pip install "dask[distributed]"'
+        ) from None
+    if not (isinstance(address, str) and address.startswith(("tcp://", "tls://", "inproc://"))):
+        raise BadInput(f"--scheduler: expected an address like tcp://HOST:PORT, got {address!r}")
+    with Client(address) as client:
+        # pure=False: every task runs (a retried task after a worker died reruns the whole trial)
+        futures = [client.submit(run_trial, t, pure=False, retries=2) for t in tasks]
+        for f in as_completed(futures):
+            finished(f.result())
+
+
+def _as_table(rows):
+    import pandas as pd
+
+    df = pd.DataFrame(rows)
+    for c in ("trial", "stroke"):
+        df[c] = df[c].astype(int)
+    for c in ("chamfer", "volume_error"):
+        df[c] = df[c].astype(float)
+    return df
+
+
+def gap_closed(rows, metric: str = "chamfer", stroke: int | None = None) -> float:
+    """Fraction of the random–oracle gap that eig closes: (random − eig) / (random − oracle) of the mean
+    ``metric`` at ``stroke`` (default the last), over objects and trials. NaN when a planner is missing or the
+    gap is 0."""
+    df = _as_table(rows)
+    stroke = int(df["stroke"].max()) if stroke is None else stroke
+    m = df[df["stroke"] == stroke].groupby("planner")[metric].mean()
+    if not {"eig", "random", "oracle"} <= set(m.index) or m["random"] == m["oracle"]:
+        return float("nan")
+    return float((m["random"] - m["eig"]) / (m["random"] - m["oracle"]))
+
+
+def plot_results(rows, path) -> Path:
+    """Median and 25–75 % band of the Chamfer distance and the volume error against strokes, one line per
+    planner (over objects and trials); written to ``path`` (PNG)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
+
+    df = _as_table(rows)
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4), constrained_layout=True)
+    for ax, metric, label in (
+        (axes[0], "chamfer", "Chamfer distance / mean semi-axis"),
+        (axes[1], "volume_error", "volume error |V/V_true - 1|"),
+    ):
+        for planner, g in df.groupby("planner"):
+            q = g.groupby("stroke")[metric].quantile([0.25, 0.5, 0.75]).unstack()
+            ax.plot(q.index, q[0.5], marker="o", label=planner)
+            ax.fill_between(q.index, q[0.25], q[0.75], alpha=0.2)
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+        ax.set_xlabel("strokes (0 = scout)")
+        ax.set_ylabel(label)
+        ax.set_yscale("log")
+        ax.legend()
+    fig.suptitle("exploration: error against strokes (median, 25-75 % band)")
+    path = Path(path)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path

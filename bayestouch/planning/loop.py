@@ -1,0 +1,427 @@
+"""The exploration loop: plan → run the stroke (simulator) → update the posterior (warm-started emcee) → repeat.
+
+Stroke 0 is a scout common to every planner: the object sits at a known place (its nominal centre, the fixture)
+with an unknown shape, believed a sphere of :data:`SCOUT_RADIUS`; three arcs over that sphere from evenly spread
+directions give the first contact points, and the initial fit (:func:`bayestouch.inference.run.initial_theta`:
+DE + L-BFGS-B) starts the ensemble. Every later stroke is chosen by the policy among candidates generated over the
+current point estimate (below), measured on the true object (:func:`bayestouch.planning.signal.true_ray_distances`, plus
+Gaussian contact noise along the ray), and the posterior is updated by a short emcee run warm-started from the
+previous ensemble's last state (clipped into the new prior box). The loop stops after ``budget`` planned strokes
+or once the volume's posterior sd falls below ``target_volume_sd``.
+
+"No contact" is data too. The contact-level likelihood (:mod:`bayestouch.inference.contact`) has terms for contact
+points only; the loop adds, for every ray that met nothing over its length t_max, log Φ((t_θ − t_max)/σ) (the
+probability that a contact at the ray distance t_θ under θ, plus noise, would have read beyond t_max), and for every
+ray start found inside the object log Φ(−d_θ/σ) (:func:`_with_free`). Without them a planner that aims at "no
+contact" outcomes (the planner's signal counts them, :mod:`bayestouch.planning.signal`) would learn nothing from
+them, and a posterior that is wrong where nothing was touched could not be corrected by a miss.
+
+Errors against the truth (simulation): the point estimate is the draw whose volume is the median of the draws'
+volumes (a coherent surface; the mean of canonicalised parameters can average aliases into a surface no draw
+supports, see ``benchmarks/bench_sparse.py``); its Chamfer distance to the true mesh
+(:func:`bayestouch.geometry.compare.chamfer_shapes`, :data:`CHAMFER_COUNT` points per surface; its sampling
+floor for coincident surfaces, ½ √(A / count), is ≈ 0.02 of the mean semi-axis for these objects) divided by the
+true mean semi-axis, and the volume error |V̂/V − 1| against the true mesh's volume (eq. 11).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import NamedTuple
+
+import numpy as np
+
+from bayestouch._jax import jax, jnp, pad_pow2
+from bayestouch.errors import BadInput
+from bayestouch.geometry import nellipsoid as ne
+from bayestouch.inference import contact as cm
+from bayestouch.planning.candidates import Strokes, make_candidates, select
+from bayestouch.planning.policies import check_policy, choose
+from bayestouch.planning.signal import CONTACT, INSIDE, MISS, ray_distances, true_ray_distances
+
+__all__ = [
+    "ExploreSettings",
+    "StrokeRecord",
+    "ExploreResult",
+    "explore",
+    "Truth",
+    "truth_of",
+    "shape_errors",
+    "SCOUT_RADIUS",
+    "CONTACT_NOISE",
+    "Free",
+]
+
+#: radius of the believed sphere before any touch, metres (a hand-held object of a few centimetres)
+SCOUT_RADIUS = 0.025
+#: contact noise along the ray, metres (the 0.3 mm of the sparse-data sets of issue 4)
+CONTACT_NOISE = 3e-4
+#: surface samples per shape for the Chamfer distance
+CHAMFER_COUNT = 10000
+
+_vol = jax.jit(jax.vmap(lambda v: ne.volume(ne.from_vector(v))))
+
+
+class ExploreSettings(NamedTuple):
+    """Sizes of an exploration run.
+
+    candidates : int
+        Candidate strokes per decision.
+    draws : int
+        Posterior draws the planner uses (thinned from the chain).
+    walkers : int
+    steps, init_steps : int
+        emcee steps per update, and for the first fit.
+    points : int
+        Samples (rays) per stroke T.
+    noise_sd : float, metres
+        Contact noise along the ray (simulated and assumed by the planner).
+    standoff : float, metres
+        Ray starts outside the believed surface; rays are twice as long. Generous (2.5 cm), so that a ray aimed
+        at a believed surface that is centimetres off still meets the true one (a miss or a start inside the
+        object gives no contact point, see :mod:`bayestouch.planning.signal`).
+    init_starts : int
+        Evolutionary starts of the initial fit (:func:`bayestouch.inference.run.initial_theta`).
+    scout : int
+        Arcs of the scout stroke 0 (2.5–3 cm each, evenly spread start directions).
+    per_second : bool
+        ``eig``: maximise information per second of stroke.
+    """
+
+    candidates: int = 64
+    draws: int = 1000
+    walkers: int = 32
+    steps: int = 300
+    init_steps: int = 600
+    points: int = 20
+    noise_sd: float = CONTACT_NOISE
+    standoff: float = 0.025
+    init_starts: int = 2
+    scout: int = 4
+    per_second: bool = False
+
+
+class StrokeRecord(NamedTuple):
+    """One stroke of the loop (stroke 0 is the scout)."""
+
+    stroke: int
+    n_points: int
+    new_points: int
+    chamfer: float
+    volume_error: float
+    volume_mean: float
+    volume_sd: float
+    eig: float
+    decision_s: float
+    update_s: float
+    seconds: float
+    summary: dict
+
+
+class ExploreResult(NamedTuple):
+    """The loop's history, all contact points (M, 3) m, the last draws (N, 10) and the last ensemble (W, 11)."""
+
+    records: list
+    points: np.ndarray
+    shape_vectors: np.ndarray
+    ensemble: np.ndarray
+    strokes: list
+
+
+class Truth(NamedTuple):
+    """What the errors are measured against: the true mesh, its volume (m³) and mean semi-axis (m)."""
+
+    mesh: tuple
+    volume: float
+    mean_axis: float
+
+
+def truth_of(obj) -> Truth:
+    """The :class:`Truth` of a scene object (mesh at resolution 64, volume by eq. 11)."""
+    from bayestouch.geometry.integrals import surface_integrals
+
+    v, f = obj.mesh(64)
+    return Truth((v, f), float(surface_integrals(v, f).volume), float(np.mean(np.asarray(obj.shape.axes))))
+
+
+def shape_errors(shape_vectors, truth: Truth, seed: int = 0) -> dict:
+    """Point estimate (median-volume draw) and its errors against ``truth``.
+
+    Returns
+    -------
+    dict
+        ``chamfer`` (fraction of the true mean semi-axis), ``volume_error`` (|V̂/V − 1|), ``volume_mean``,
+        ``volume_sd`` (m³, over the draws) and ``estimate`` (10,) the point estimate's vector.
+    """
+    from bayestouch.geometry.compare import chamfer_shapes
+
+    vecs = np.asarray(shape_vectors, float)
+    vols = np.asarray(_vol(jnp.asarray(vecs)))
+    k = int(np.argsort(vols)[len(vols) // 2])
+    est = ne.from_vector(jnp.asarray(vecs[k]))
+    ch = chamfer_shapes(est, truth.mesh, count=CHAMFER_COUNT, seed=seed) / truth.mean_axis
+    return {
+        "chamfer": float(ch),
+        "volume_error": float(abs(vols[k] / truth.volume - 1.0)),
+        "volume_mean": float(vols.mean()),
+        "volume_sd": float(vols.std(ddof=1)),
+        "estimate": vecs[k],
+    }
+
+
+class Free(NamedTuple):
+    """What strokes said without a contact point: rays that met nothing (``starts``, ``dirs`` (K, 3), each of length
+    ``t_max``) and ray starts found inside the object (``inside`` (J, 3), metres)."""
+
+    starts: np.ndarray
+    dirs: np.ndarray
+    t_max: float
+    inside: np.ndarray
+
+    def add(self, other: Free) -> Free:
+        return Free(
+            np.concatenate([self.starts, other.starts]),
+            np.concatenate([self.dirs, other.dirs]),
+            self.t_max,
+            np.concatenate([self.inside, other.inside]),
+        )
+
+
+def _measure(obj, stroke: Strokes, noise_sd: float, rng: np.random.Generator) -> tuple[np.ndarray, Free]:
+    """Contact points (K, 3) m of one stroke on the true object (real contacts, noise along the ray), and its
+    :class:`Free` observations (misses and starts inside)."""
+    x0, d = stroke.starts[0], stroke.dirs[0]
+    t, status = true_ray_distances(obj, x0, d, stroke.t_max)
+    t = t + noise_sd * rng.standard_normal(t.shape)
+    ok = status == CONTACT
+    miss, inside = status == MISS, status == INSIDE
+    return x0[ok] + t[ok, None] * d[ok], Free(x0[miss], d[miss], float(stroke.t_max), x0[inside])
+
+
+@jax.jit
+def _free_log_lik(thetas, starts, dirs, t_max, inside, w_ray, w_in):
+    """Log-likelihood (W,) of the :class:`Free` observations for walkers ``thetas (W, 11)``: a ray that met nothing
+    over its length t_max has probability Φ((t_θ − t_max)/σ) (the contact, had there been one, would have read
+    t_θ + noise > t_max; t_θ is the ray distance under θ, rays traced to 4 t_max), and a start found inside has
+    probability Φ(−d_θ/σ) (d_θ its first-order signed distance, > 0 outside); σ the walker's contact noise.
+    ``w_ray``, ``w_in`` are 1 for real rows and 0 for padding."""
+    from jax.scipy.stats import norm
+
+    def one(th):
+        s = cm.shape_of(th)
+        sigma = jnp.exp(th[10])
+        t = ray_distances(s, starts, dirs, 4.0 * t_max)
+        lm = jnp.sum(w_ray * norm.logcdf((t - t_max) / sigma))
+        d = ne.first_order_distance(s, ne.to_local(s, inside))[0]
+        return lm + jnp.sum(w_in * norm.logcdf(-d / sigma))
+
+    return jax.vmap(one)(thetas)
+
+
+def _with_free(logp, bounds, free: Free):
+    """``logp`` plus the :class:`Free` observations' log-likelihood (arrays padded to powers of two: few compiled
+    sizes); −inf stays −inf, NaN becomes −inf."""
+    if len(free.starts) == 0 and len(free.inside) == 0:
+        return logp
+    k, j = len(free.starts), len(free.inside)
+    starts = pad_pow2(free.starts if k else np.zeros((1, 3)), min_size=8)
+    dirs = pad_pow2(free.dirs if k else np.array([[0.0, 0.0, 1.0]]), min_size=8)
+    inside = pad_pow2(free.inside if j else np.zeros((1, 3)), min_size=8)
+    w_ray = (np.arange(len(starts)) < k).astype(float)
+    w_in = (np.arange(len(inside)) < j).astype(float)
+    lo, hi = np.asarray(bounds.lower), np.asarray(bounds.upper)
+    args = [jnp.asarray(a) for a in (starts, dirs)] + [
+        jnp.float64(free.t_max),
+        jnp.asarray(inside),
+        jnp.asarray(w_ray),
+        jnp.asarray(w_in),
+    ]
+
+    def f(thetas):
+        th = np.asarray(thetas, dtype=np.float64)
+        base = logp(th)
+        extra = np.asarray(_free_log_lik(jnp.asarray(np.clip(th, lo, hi)), *args))
+        out = np.where(np.isfinite(base), base + extra, -np.inf)
+        return np.where(np.isnan(out), -np.inf, out)
+
+    return f
+
+
+def _draws(chain_kept, count: int, rng: np.random.Generator) -> np.ndarray:
+    """Thinned, canonicalised draws (count, 11) in natural units from the last half of the kept chain."""
+    from bayestouch.inference.run import _natural
+
+    kept = chain_kept[len(chain_kept) // 2 :]
+    flat = kept.reshape(-1, kept.shape[-1])
+    idx = np.sort(rng.choice(len(flat), size=count, replace=len(flat) < count))
+    return _natural(flat[idx])
+
+
+def _subseed(*key: int) -> int:
+    """A 32-bit seed derived from integers (emcee's RandomState takes < 2**32)."""
+    return int(np.random.SeedSequence(list(key)).generate_state(1)[0])
+
+
+def _sample(logp, start, walkers: int, seed: int, steps: int):
+    """A short in-memory emcee run (:func:`bayestouch.inference.sampler.sample`). emcee's autocorrelation estimate
+    divides by zero (a RuntimeWarning) when a parameter's walker-mean does not move over a short chain; τ is not
+    used here (the chain is short by design and reported as such), so that warning is silenced."""
+    import warnings
+
+    from bayestouch.inference.sampler import sample
+
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", "invalid value encountered", RuntimeWarning)
+        return sample(logp, start, None, walkers=walkers, ndim=11, seed=seed, steps=steps, progress=False)
+
+
+def _summary(k: int, nat: np.ndarray, errors: dict, n_points: int, policy: str) -> dict:
+    from bayestouch.inference.run import NATURAL_NAMES, interval
+
+    return {
+        "stroke": k,
+        "planner": policy,
+        "n_points": n_points,
+        "parameters": {name: interval(nat[:, i]) for i, name in enumerate(NATURAL_NAMES)},
+        "derived": {"volume_m3": {"mean": errors["volume_mean"], "sd": errors["volume_sd"]}},
+        "errors": {"chamfer_over_mean_axis": errors["chamfer"], "volume_error": errors["volume_error"]},
+        "point_estimate": dict(zip(ne.PARAM_NAMES, map(float, errors["estimate"]), strict=True)),
+    }
+
+
+def explore(
+    obj,
+    policy: str,
+    budget: int,
+    *,
+    seed: int = 0,
+    settings: ExploreSettings | None = None,
+    target_volume_sd: float | None = None,
+    on_stroke=None,
+    truth: Truth | None = None,
+) -> ExploreResult:
+    """Run the exploration loop on a simulated object.
+
+    Parameters
+    ----------
+    obj : SceneObject
+        The true object (:func:`bayestouch.scene.objects.load_object`).
+    policy : {"eig", "random", "coverage", "oracle"}
+    budget : int
+        Planned strokes after the scout (≥ 1).
+    seed : int
+        The scout, its noise and the initial fit depend on ``seed`` only (common to every policy: comparisons
+        between policies start from the same posterior); the policies' choices, later noise and sampling on
+        ``(seed, policy)``.
+    settings : ExploreSettings, optional
+        Default ``ExploreSettings()``.
+    target_volume_sd : float, m³, optional
+        Stop early once the volume's posterior sd is below this.
+    on_stroke : callable, optional
+        Called with each :class:`StrokeRecord` as it is made.
+    truth : Truth, optional
+        Precomputed :func:`truth_of` ``(obj)``.
+
+    Returns
+    -------
+    ExploreResult
+    """
+    from bayestouch.inference.run import _walkers, initial_theta
+
+    check_policy(policy)
+    if not isinstance(budget, int | np.integer) or budget < 1:
+        raise BadInput(f"budget: expected an integer number of strokes ≥ 1, got {budget!r}")
+    if not isinstance(seed, int | np.integer) or seed < 0:
+        raise BadInput(f"seed: expected an integer ≥ 0, got {seed!r}")
+    truth = truth or truth_of(obj)
+    s = settings or ExploreSettings()
+    priors = cm.load_priors()
+    pol_id = 1 + ("eig", "random", "coverage", "oracle").index(policy)
+    rng_common = np.random.default_rng([seed, 0])
+    rng = np.random.default_rng([seed, pol_id])
+    records: list[StrokeRecord] = []
+
+    # stroke 0: the scout over the believed sphere at the nominal centre
+    t0 = time.perf_counter()
+    centre = np.asarray(obj.shape.centre, float)
+    sphere = ne.NEllipsoid(jnp.asarray(centre), jnp.full(3, SCOUT_RADIUS), jnp.zeros(3), jnp.asarray(2.0))
+    scout = make_candidates(
+        sphere, s.scout, points=s.points, seed=rng_common, standoff=s.standoff, length_range=(0.025, 0.03)
+    )
+    free = Free(np.empty((0, 3)), np.empty((0, 3)), float(scout.t_max), np.empty((0, 3)))
+    pts = np.empty((0, 3))
+    for i in range(s.scout):
+        p, fr = _measure(obj, select(scout, i), s.noise_sd, rng_common)
+        pts, free = np.concatenate([pts, p]), free.add(fr)
+    if len(pts) < 12:
+        raise BadInput(
+            f"object: the scout touched only {len(pts)} points; is the object near its nominal centre "
+            f"{centre.tolist()} m and a few centimetres across?"
+        )
+    logp, bounds = cm.make_log_prob(pts, priors)
+    logp = _with_free(logp, bounds, free)
+    theta0 = initial_theta(pts, seed, priors, starts=s.init_starts)
+    start = _walkers(theta0, bounds, s.walkers, rng_common)
+    ch = _sample(logp, start, s.walkers, _subseed(seed, 0, 0), s.init_steps)
+    strokes = [scout]
+
+    k = 0
+    decision_s, eig_value = 0.0, float("nan")
+    n_new = len(pts)
+    while True:
+        nat = _draws(ch.kept, s.draws, rng_common if k == 0 else rng)
+        vecs = nat[:, :10]
+        err = shape_errors(vecs, truth)
+        rec = StrokeRecord(
+            k,
+            len(pts),
+            n_new,
+            err["chamfer"],
+            err["volume_error"],
+            err["volume_mean"],
+            err["volume_sd"],
+            eig_value,
+            decision_s,
+            ch.seconds,
+            time.perf_counter() - t0,
+            _summary(k, nat, err, len(pts), policy),
+        )
+        records.append(rec)
+        if on_stroke is not None:
+            on_stroke(rec)
+        if k >= budget or (target_volume_sd is not None and err["volume_sd"] < target_volume_sd):
+            break
+        k += 1
+        t0 = time.perf_counter()
+        # plan
+        mean_shape = ne.from_vector(jnp.asarray(err["estimate"]))
+        cands = make_candidates(mean_shape, s.candidates, points=s.points, seed=rng, standoff=s.standoff)
+        dec = choose(
+            policy,
+            cands,
+            vecs,
+            noise_sd=s.noise_sd,
+            rng=rng,
+            touched=pts,
+            obj=obj,
+            volumes=np.asarray(_vol(jnp.asarray(vecs))),
+            per_second=s.per_second,
+            standoff=s.standoff,
+        )
+        decision_s = dec.seconds
+        eig_value = float(dec.eig[dec.index]) if dec.eig is not None else float("nan")
+        # run the stroke
+        chosen = select(cands, dec.index)
+        strokes.append(chosen)
+        new, fr = _measure(obj, chosen, s.noise_sd, np.random.default_rng([seed, pol_id, k]))
+        free = free.add(fr)
+        n_new = len(new)
+        if n_new:
+            pts = np.concatenate([pts, new])
+        # update, warm-started from the last ensemble
+        logp, bounds = cm.make_log_prob(pts, priors)
+        logp = _with_free(logp, bounds, free)
+        lo, hi = np.asarray(bounds.lower), np.asarray(bounds.upper)
+        start = np.clip(ch.kept[-1], lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
+        ch = _sample(logp, start, s.walkers, _subseed(seed, pol_id, k), s.steps)
+    return ExploreResult(records, pts, vecs, ch.kept[-1], strokes)

@@ -1,0 +1,294 @@
+"""Active probing planner (issue 5): rays, EIG, policies, the exploration loop and the experiment runner."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bayestouch._jax import jnp
+from bayestouch.errors import BadInput
+from bayestouch.geometry import nellipsoid as ne
+from bayestouch.planning import eig as eg
+from bayestouch.planning.candidates import make_candidates
+from bayestouch.planning.experiment import COLUMNS, resolve_object, run_experiment
+from bayestouch.planning.loop import ExploreSettings, explore
+from bayestouch.planning.policies import check_policy, choose
+from bayestouch.planning.signal import CONTACT, INSIDE, MISS, predict_signals, true_ray_distances
+from bayestouch.scene.objects import object_from_dict
+
+R_SPHERE = 0.02
+# small runs for the tests (the defaults are 64 candidates, 1000 draws, 300/600 steps, 2 starts, 4 scout arcs)
+SMALL = {"candidates": 16, "draws": 128, "steps": 100, "init_steps": 200, "scout": 3, "init_starts": 1}
+
+
+def _sphere_vec(centre=(0.0, 0.0, 0.0), r=R_SPHERE):
+    return np.array([*centre, r, r, r, 0.0, 0.0, 0.0, 2.0])
+
+
+def _analytic(x0, d, c, r, t_max):
+    """First crossing of rays with a sphere: (t, status) with the module's conventions."""
+    w = x0 - c
+    b = np.sum(d * w, axis=1)
+    cc = np.sum(w * w, axis=1) - r * r
+    disc = b * b - cc
+    t1 = -b - np.sqrt(np.maximum(disc, 0.0))
+    inside = cc <= 0
+    hit = ~inside & (disc > 0) & (t1 >= 0) & (t1 <= t_max)
+    t = np.where(inside, 0.0, np.where(hit, t1, t_max))
+    return t, np.where(inside, INSIDE, np.where(hit, CONTACT, MISS)), disc
+
+
+def _rays(rng, k):
+    x0 = rng.uniform(-0.04, 0.04, size=(k, 3))
+    d = rng.normal(size=(k, 3))
+    return x0, d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def test_ray_distances_exact_for_a_sphere():
+    rng = np.random.default_rng(0)
+    x0, d = _rays(rng, 4000)
+    t_max = 0.05
+    t_ref, status, disc = _analytic(x0, d, np.zeros(3), R_SPHERE, t_max)
+    # grazing rays (the ray within ~0.2 mm of the tangent) converge slowly and may read as misses: excluded
+    ok = np.abs(disc) > 0.01 * R_SPHERE**2
+    assert {CONTACT, MISS, INSIDE} <= set(status[ok])  # the test covers hits, misses and starts inside
+    t64 = predict_signals(_sphere_vec()[None], x0[None], d[None], t_max)[0, 0]
+    np.testing.assert_allclose(t64[ok], t_ref[ok], rtol=0, atol=1e-10)
+    t32 = predict_signals(_sphere_vec()[None], x0[None], d[None], t_max, single=True)[0, 0]
+    # float32: G rounded to ~6e-8, divided by the slope dG/dt = cos(incidence)/r: ≲ 1e-7 r / cos, far below 0.3 mm
+    np.testing.assert_allclose(t32[ok], t_ref[ok], rtol=0, atol=1e-6)
+    # the true-object ray march agrees (grid + bisection to t_max · 2^-40)
+    obj = object_from_dict(
+        {"object": {"name": "ball"}, "shape": {"centre_m": [0.0, 0.0, 0.0], "axes_m": [R_SPHERE] * 3, "n": 2.0}}
+    )
+    tt, st = true_ray_distances(obj, x0[ok], d[ok], t_max)
+    # a ray that enters and leaves between two grid points (a chord < t_max/255) is stepped over
+    chord = 2 * np.sqrt(np.maximum(disc[ok], 0))
+    sure = chord > 2 * t_max / 255
+    np.testing.assert_array_equal(st[sure], status[ok][sure])
+    np.testing.assert_allclose(tt[sure], t_ref[ok][sure], rtol=0, atol=1e-9)
+
+
+def test_candidate_rays_start_a_standoff_outside_the_believed_surface():
+    shape = ne.from_vector(jnp.asarray([0.01, 0.0, -0.01, 0.03, 0.022, 0.02, 0.4, 0.3, -0.5, 3.0]))
+    st = make_candidates(shape, 32, points=12, seed=1, standoff=0.01)
+    assert st.starts.shape == (32, 12, 3)
+    np.testing.assert_allclose(np.linalg.norm(st.dirs, axis=-1), 1.0, atol=1e-12)
+    # predicted signal of the believed shape itself: exactly the stand-off on every ray
+    t = predict_signals(np.asarray(ne.to_vector(shape))[None], st.starts, st.dirs, st.t_max)[0]
+    np.testing.assert_allclose(t, 0.01, atol=1e-9)
+    # path length matches the requested length (polyline of small steps on a smooth surface)
+    seg = np.linalg.norm(np.diff(st.path, axis=1), axis=-1).sum(axis=1)
+    np.testing.assert_allclose(seg, st.length, rtol=0.02)
+    assert np.all((st.length >= 0.01) & (st.length <= 0.03)) and np.all(st.force <= 1.0)
+
+
+def _whitened(rng, n, cov):
+    """n draws whose sample mean is 0 and sample covariance (ddof 1) is exactly ``cov``."""
+    z = rng.normal(size=(n, len(cov)))
+    z -= z.mean(axis=0)
+    L = np.linalg.cholesky(np.atleast_2d(np.cov(z.T)))
+    z = z @ np.linalg.inv(L).T
+    return z @ np.linalg.cholesky(cov).T
+
+
+def test_eig_of_a_linear_gaussian_model_is_the_closed_form():
+    rng = np.random.default_rng(2)
+    cov = np.array([[4.0, 1.0, 0.0], [1.0, 2.0, 0.5], [0.0, 0.5, 1.0]]) * 1e-6
+    theta = _whitened(rng, 2000, cov)
+    A = rng.normal(size=(6, 3))
+    sigma = 1e-3
+    sig = theta @ A.T  # (N, T)
+    closed = 0.5 * np.linalg.slogdet(np.eye(6) + A @ cov @ A.T / sigma**2)[1]
+    assert eg.eig_gaussian(sig, sigma)[0] == pytest.approx(closed, rel=1e-10)
+    # PCE: a lower bound with a downward bias of order 1/N (Foster et al. 2020, Thm 1), removed by Richardson
+    # extrapolation from N and N/2 draws (2 PCE_N − PCE_N/2); the Monte Carlo error of each is estimated from 8
+    # independent noise seeds (sd of the mean = spread / √8) and combined as √(4 se_N² + se_N/2²)
+    pce = np.array([eg.eig_pce(sig, sigma, seed=s)[0] for s in range(8)])
+    half = np.array([eg.eig_pce(sig[s % 2 :: 2], sigma, seed=100 + s)[0] for s in range(8)])
+    se = np.hypot(2 * pce.std(ddof=1), half.std(ddof=1)) / np.sqrt(8)
+    assert abs(2 * pce.mean() - half.mean() - closed) < 4 * se
+    assert pce.mean() < closed  # a lower bound
+    assert np.all(pce <= np.log(len(sig)) + 1e-12)
+
+
+def test_whole_stroke_eig_does_not_double_count_correlated_readings():
+    rng = np.random.default_rng(3)
+    sigma = 1.0
+    # stroke A: 20 readings all driven by one parameter (rank-1 covariance); stroke B: 3 independent readings
+    u = _whitened(rng, 4000, np.eye(1))
+    a = u @ np.ones((1, 20))
+    b = _whitened(rng, 4000, 4.0 * np.eye(3))
+    eig_a, eig_b = eg.eig_gaussian(a, sigma)[0], eg.eig_gaussian(b, sigma)[0]
+    assert eig_a == pytest.approx(0.5 * np.log(1 + 20), rel=1e-10)
+    assert eig_b == pytest.approx(1.5 * np.log(5), rel=1e-10)
+    assert eig_b > eig_a
+    # negative control: the per-point sum counts A's one number 20 times and picks the wrong stroke
+    pp_a, pp_b = eg.eig_per_point(a, sigma)[0], eg.eig_per_point(b, sigma)[0]
+    assert pp_a == pytest.approx(10 * np.log(2)) and pp_a > pp_b
+    # the same stroke twice (independent noise): ½ log det(I + 2C/σ²) < 2 EIG, while the per-point sum doubles
+    c = _whitened(rng, 4000, np.array([[2.0, 1.5], [1.5, 2.0]]))
+    cc = np.concatenate([c, c], axis=1)
+    assert eg.eig_gaussian(cc, sigma)[0] == pytest.approx(
+        0.5 * np.linalg.slogdet(np.eye(2) + 2 * np.array([[2.0, 1.5], [1.5, 2.0]]))[1], rel=1e-10
+    )
+    assert eg.eig_gaussian(cc, sigma)[0] < 1.6 * eg.eig_gaussian(c, sigma)[0]
+    assert eg.eig_per_point(cc, sigma)[0] == pytest.approx(2 * eg.eig_per_point(c, sigma)[0])
+
+
+@pytest.mark.parametrize("axis", [0, 2])
+def test_planner_prefers_rays_along_the_uncertain_direction(axis):
+    rng = np.random.default_rng(4)
+    vecs = np.tile(_sphere_vec(), (500, 1))
+    vecs[:, axis] += 2e-3 * rng.standard_normal(500)  # only the centre's coordinate `axis` is uncertain
+    shape = ne.from_vector(jnp.asarray(_sphere_vec()))
+    st = make_candidates(shape, 64, points=10, seed=5, length_range=(0.005, 0.01))
+    dec = choose("eig", st, vecs, noise_sd=3e-4, rng=rng)
+    along = np.abs(st.dirs[..., axis]).mean(axis=1)  # how much each stroke's rays run along the axis
+    assert along[dec.index] > 0.8
+    assert along[dec.index] >= np.quantile(along, 0.9)
+    # control: random choices are not that aligned on average
+    assert np.mean(along) < 0.7
+
+
+def test_oracle_looks_where_the_truth_differs_from_the_belief():
+    rng = np.random.default_rng(7)
+    vecs = np.tile(_sphere_vec(), (500, 1))
+    vecs[:, 0] += 2e-3 * rng.standard_normal(500)  # belief: centred at 0 ± 2 mm along x
+    obj = object_from_dict(
+        {"object": {"name": "ball"}, "shape": {"centre_m": [0.003, 0.0, 0.0], "axes_m": [R_SPHERE] * 3, "n": 2.0}}
+    )
+    st = make_candidates(ne.from_vector(jnp.asarray(_sphere_vec())), 64, points=10, seed=5, length_range=(0.005, 0.01))
+    dec = choose("oracle", st, vecs, noise_sd=3e-4, rng=rng, obj=obj)
+    assert np.abs(st.dirs[dec.index, :, 0]).mean() > 0.8  # its rays run along x, where the truth is off
+    # negative control: the stroke it rates worst has rays mostly across x (they barely see an x shift)
+    assert np.abs(st.dirs[int(np.argmax(dec.score)), :, 0]).mean() < 0.5
+
+
+def test_multimodality_check_flags_two_modes_only():
+    rng = np.random.default_rng(6)
+    assert eg.looks_multimodal(np.concatenate([rng.normal(0, 1, 500), rng.normal(8, 1, 500)]))
+    assert not eg.looks_multimodal(rng.normal(0, 1, 1000))
+
+
+def test_bad_inputs_raise_one_line_bad_input(tmp_path, capsys):
+    for call, field in [
+        (lambda: check_policy("greedy"), "planner"),
+        (lambda: resolve_object("no_such_object"), "object"),
+        (lambda: resolve_object(str(tmp_path / "missing.toml")), "object"),
+        (lambda: run_experiment(tmp_path, budget=0, objects=("sphere",)), "budget"),
+        (lambda: run_experiment(tmp_path, planners=("eig", "best"), objects=("sphere",)), "planner"),
+        (lambda: explore(None, "eig", 0), "budget"),
+    ]:
+        with pytest.raises(BadInput) as e:
+            call()
+        assert "\n" not in str(e.value) and str(e.value).startswith(field)
+    from bayestouch.planning.cli import main
+
+    assert main(["experiment", "--planners", "eig,nope", "--budget", "1", "--out", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "nope" in err
+
+
+def _ball():
+    return object_from_dict(
+        {"object": {"name": "ball"}, "shape": {"centre_m": [0.0, 0.0, 0.0], "axes_m": [0.025, 0.025, 0.025], "n": 2.0}}
+    )
+
+
+@pytest.mark.slow
+def test_explore_adds_one_stroke_per_iteration_and_the_spread_shrinks():
+    seen = []
+    res = explore(_ball(), "eig", 2, seed=1, settings=ExploreSettings(**SMALL), on_stroke=seen.append)
+    assert [r.stroke for r in res.records] == [0, 1, 2] and len(seen) == 3 and len(res.strokes) == 3
+    n = [r.n_points for r in res.records]
+    assert all(r.new_points > 0 for r in res.records)
+    assert n == list(np.cumsum([r.new_points for r in res.records]))
+    assert res.records[-1].volume_sd < res.records[0].volume_sd
+    assert np.all(np.isfinite([r.eig for r in res.records[1:]]))
+    assert res.records[-1].chamfer < 0.1 and res.records[-1].volume_error < 0.05
+
+
+@pytest.mark.slow
+def test_experiment_writes_results_and_resumes_without_redoing(tmp_path, monkeypatch):
+    from bayestouch.io import read_csv_rows, write_csv_rows
+    from bayestouch.planning import experiment as ex
+
+    kw = dict(
+        planners=("random", "coverage"),
+        objects=("sphere",),
+        trials=1,
+        budget=1,
+        seed=3,
+        workers=1,
+        settings=SMALL,
+        log=lambda m: None,
+    )
+    res = run_experiment(tmp_path, **kw)
+    rows = read_csv_rows(tmp_path / "results.csv")
+    assert {"planner", "trial", "object", "stroke", "chamfer", "volume_error", "seconds"} <= set(rows[0])
+    assert list(rows[0]) == list(COLUMNS) and res["ran"] == 2 and len(rows) == 4
+    assert (tmp_path / "error_vs_strokes.png").stat().st_size > 0
+    # both planners share the scout (stroke 0) of the trial
+    s0 = [r for r in rows if r["stroke"] == "0"]
+    assert s0[0]["chamfer"] == s0[1]["chamfer"]
+    calls = []
+    monkeypatch.setattr(ex, "run_trial", lambda t: calls.append(t) or [])
+    again = run_experiment(tmp_path, **{**kw, "plot": False}, resume=True)
+    assert again["ran"] == 0 and again["skipped"] == 2 and calls == []
+    assert read_csv_rows(tmp_path / "results.csv") == rows
+    # an incomplete trial (its last stroke missing) is run again, the complete one is kept
+    write_csv_rows(
+        tmp_path / "results.csv", [r for r in rows if not (r["planner"] == "random" and r["stroke"] == "1")], COLUMNS
+    )
+    monkeypatch.undo()
+    third = run_experiment(tmp_path, **{**kw, "plot": False}, resume=True)
+    assert third["ran"] == 1 and third["skipped"] == 1
+    assert len(read_csv_rows(tmp_path / "results.csv")) == 4
+
+
+@pytest.mark.slow
+def test_experiment_on_a_dask_local_cluster(tmp_path):
+    from bayestouch.io import read_csv_rows
+
+    distributed = pytest.importorskip("dask.distributed")
+    # one worker process (a fresh process compiles every JAX function again: ~15 s of the ~30 s)
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as lc:
+        res = run_experiment(
+            tmp_path,
+            planners=("random",),
+            objects=("sphere",),
+            trials=1,
+            budget=1,
+            seed=4,
+            scheduler=lc.scheduler_address,
+            settings=SMALL,
+            plot=False,
+            log=lambda m: None,
+        )
+    assert res["ran"] == 1 and len(res["rows"]) == 2
+    assert len(read_csv_rows(tmp_path / "results.csv")) == 2
+
+
+def test_a_miss_penalises_shapes_that_the_ray_would_have_touched():
+    from bayestouch.inference import contact as cm
+    from bayestouch.planning.loop import Free, _with_free
+
+    # one ray along -z from (0, 0, 0.05), 3 cm long, that met nothing; one start found inside, at the origin
+    free = Free(np.array([[0.0, 0.0, 0.05]]), np.array([[0.0, 0.0, -1.0]]), 0.03, np.zeros((1, 3)))
+    pts = 0.02 * np.vstack([np.eye(3), -np.eye(3)])  # only sets the prior box (the centre within ±4 cm)
+    base, bounds = cm.make_log_prob(pts, nu=np.inf)
+    f = _with_free(base, bounds, free)
+    sig = np.log(3e-4)
+    small = [0.0, 0.0, 0.0, *np.log([0.019] * 3), 0.0, 0.0, 0.0, np.log(2.0), sig]  # top at z = 1.9 cm: no touch
+    big = [0.0, 0.0, 0.0, *np.log([0.021] * 3), 0.0, 0.0, 0.0, np.log(2.0), sig]  # top at 2.1 cm: touched at 2.9 cm
+    away = [0.0, 0.0, -0.035, *np.log([0.01] * 3), 0.0, 0.0, 0.0, np.log(2.0), sig]  # origin outside: contradicts
+    th = np.array([small, big, away])
+    extra = f(th) - base(th)
+    # the top of `small` is 1 mm (3.3 σ) beyond the ray's end: Φ(3.3) ≈ 1; the start at the centre is inside both
+    assert extra[0] == pytest.approx(0.0, abs=1e-3)
+    # `big` would have been touched at t = 2.9 cm < 3 cm, 1 mm before the end: Φ(−3.3) ≈ 5e-4
+    from scipy.stats import norm
+
+    assert extra[1] == pytest.approx(norm.logcdf(-1e-3 / 3e-4), rel=1e-3)
+    assert extra[2] < -1000  # negative control: the origin lies 2.5 cm (83 σ) outside this shape
