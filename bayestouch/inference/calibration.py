@@ -34,11 +34,10 @@ principal directions are identified and the permutation aliases lie outside the 
 
 Sampler. Walkers start in a small ball around the truth: SBC tests the posterior, not the initialiser (a
 truth is itself a draw from its posterior, so this start is as good as a converged one), and the first
-``max(2τ, steps/4)`` steps are discarded as burn-in like :func:`bayestouch.inference.sampler.sample`. The
-chain is thinned by the integrated autocorrelation time τ to roughly independent draws (rank statistics
-from autocorrelated draws are not uniform; Talts et al. 2018, sec. 5.1). We run emcee with the engine's
-moves and seeding but an in-memory backend: ``sampler.sample`` writes an HDF5 checkpoint every step
-(≈ 7 ms/step measured), which would dominate hundreds of short SBC chains and buys nothing here.
+``max(2τ, steps/4)`` steps are discarded as burn-in by :func:`bayestouch.inference.sampler.sample`, which runs
+each chain in memory (a checkpoint buys nothing for hundreds of short SBC chains). The chain is thinned by the
+integrated autocorrelation time τ to roughly independent draws (rank statistics from autocorrelated draws are
+not uniform; Talts et al. 2018, sec. 5.1).
 
 ``python -m bayestouch.inference.calibration --datasets 100 --out DIR`` writes ``DIR/sbc.json`` and
 ``DIR/sbc_ranks.png``.
@@ -338,9 +337,7 @@ def posterior_draws(
     info : dict
         ``tau_max`` (steps), ``acceptance``, ``short`` (bool).
     """
-    import emcee
-
-    from bayestouch.inference.sampler import default_moves
+    from bayestouch.inference.sampler import sample
 
     rng = np.random.default_rng(seed)
     lo, hi = prior_box()
@@ -348,23 +345,15 @@ def posterior_draws(
     start = np.clip(
         theta_start + scale * rng.normal(size=(walkers, lo.size)), lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo)
     )
-    sampler = emcee.EnsembleSampler(walkers, lo.size, logp, vectorize=True, moves=moves or default_moves())
-    state = np.random.RandomState(seed).get_state()
-    sampler.random_state = state
-    if not np.array_equal(sampler.random_state[1], state[1]):
-        raise RuntimeError("emcee did not take the random state")
-    sampler.run_mcmc(start, steps, progress=progress)
-    chain = sampler.get_chain()
-    tau = emcee.autocorr.integrated_time(chain, tol=0)
-    tau_max = float(np.max(tau))
-    burn = int(min(steps // 2, max(2 * tau_max, steps // 4)))
-    kept = chain[burn:]
-    pool = kept[:: max(1, int(np.ceil(tau_max)))].reshape(-1, lo.size)
+    ch = sample(logp, start, None, walkers=walkers, ndim=lo.size, seed=seed, steps=steps, progress=progress,
+                moves=moves)
+    kept = ch.kept
+    pool = kept[:: max(1, int(np.ceil(ch.tau_max)))].reshape(-1, lo.size)
     short = len(pool) < n_draws
     if short:
         pool = kept.reshape(-1, lo.size)
     draws = pool[rng.choice(len(pool), n_draws, replace=False)]
-    return draws, {"tau_max": tau_max, "acceptance": float(np.mean(sampler.acceptance_fraction)), "short": short}
+    return draws, {"tau_max": ch.tau_max, "acceptance": ch.acceptance, "short": short}
 
 
 def ranks_of(truths, draws) -> np.ndarray:
