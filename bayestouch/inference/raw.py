@@ -489,11 +489,11 @@ def initial_raw_theta(
 
 
 def _natural(flat: np.ndarray) -> np.ndarray:
-    """θ draws (S, 11) → canonicalised natural parameters (S, 11): centre, a ≥ b ≥ c, angles, n, k."""
-    from bayestouch.geometry.compare import canonicalize_batch
+    """θ draws (S, 11) → canonicalised natural parameters (S, 11): centre, a ≥ b ≥ c, angles, n, k (the contact
+    level's transform: the 11th column, log k here, is exponentiated like log σ there)."""
+    from bayestouch.inference.run import _natural as contact_natural
 
-    v = np.column_stack([flat[:, :3], np.exp(flat[:, 3:6]), flat[:, 6:9], np.exp(flat[:, 9])])
-    return np.column_stack([canonicalize_batch(v), np.exp(flat[:, 10])])
+    return contact_natural(flat)
 
 
 def raw_model(data: RawData, finger, nu: float = STUDENT_NU):
