@@ -62,6 +62,32 @@ def _messages(n_taxels: int = 256, T: int = 7) -> list:
             0.15,
         ),
         pr.StrokeDone(42, 101, 0),
+        pr.ProbeStroke(
+            43,
+            2e-4,
+            0.5,
+            np.array([0.15, 0.05, 0.05]),
+            np.arange(T) * 0.02,
+            g.normal(size=(T, 3)),
+            g.normal(size=(T, 3)),
+            0.05,
+            0.02,
+        ),
+        pr.ProbeFrame(
+            43,
+            5,
+            1.25,
+            g.normal(size=n_taxels) * 1e-7,
+            g.random(3),
+            300 + g.random(3),
+            301.5,
+            g.normal(size=3),
+            g.normal(size=2),
+            0.15,
+            0,
+            0.0123456789,
+            g.normal(size=3) * 0.01,
+        ),
     ]
 
 
@@ -83,6 +109,10 @@ def _as_sent(m):
         f32 = [np.asarray(v, np.float32).astype(float) for v in m[3:]]
         f32[3], f32[6] = float(f32[3]), float(f32[6])
         return pr.Frame(m.stroke_id, m.index, m.time, *f32)
+    if isinstance(m, pr.ProbeFrame):  # the Frame part as float32, the probe part float64
+        f32 = [np.asarray(v, np.float32).astype(float) for v in m[3:10]]
+        f32[3], f32[6] = float(f32[3]), float(f32[6])
+        return pr.ProbeFrame(m.stroke_id, m.index, m.time, *f32, *m[10:])
     return m
 
 

@@ -187,7 +187,7 @@ def _currents(text: str):
 def _simulate(args) -> int:
     from bayestouch.errors import BadInput
     from bayestouch.hardware.safety import load_limits
-    from bayestouch.hardware.simulator import Faults, ForwardModel, SyntheticModel, VirtualDevice
+    from bayestouch.hardware.simulator import Faults, ForwardModel, GuardedModel, SyntheticModel, VirtualDevice
 
     if not args.speed >= 0:
         raise BadInput(f"--speed must be ≥ 0 (0 = as fast as possible), got {args.speed}")
@@ -222,11 +222,12 @@ def _simulate(args) -> int:
     stop = threading.Event()
     old = signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:
-        if args.model == "synthetic":
-            sim.model = SyntheticModel(seed=args.seed)
-        else:
-            from bayestouch.scene.objects import load_object
+        from bayestouch.scene.objects import load_object
 
+        if args.model == "synthetic":
+            # guarded strokes (bayestouch explore --port) find the object; the frames come from the fast model
+            sim.model = GuardedModel(load_object(args.object), SyntheticModel(seed=args.seed), seed=args.seed)
+        else:
             sim.model = ForwardModel(load_object(args.object), args.models, seed=args.seed)
             threading.Thread(target=_warm_up, args=(sim.model, args), daemon=True).start()
         sim.start()
@@ -269,18 +270,19 @@ def _run(args) -> int:
         raise BadInput(f"--strokes must be ≥ 1, got {args.strokes}")
     if not (0.01 <= args.timeout <= 60):
         raise BadInput(f"--timeout must be in [0.01, 60] seconds, got {args.timeout}")
+    currents = _currents(args.currents)
+    from bayestouch.hardware.safety import check_plan, load_limits, plan_from_stroke
+
+    limits = load_limits()
+    # the inputs first, then the port: a bad stroke file is named even when no device is attached
+    if args.stroke_file is not None:
+        plans = load_stroke_file(args.stroke_file, currents)
     if "://" not in args.port and not Path(args.port).exists():
         raise BadInput(
             f"--port {args.port}: no such device; expected a serial port path (e.g. the pty printed by "
             "`bayestouch device simulate`) or a pyserial URL like socket://HOST:PORT"
         )
-    currents = _currents(args.currents)
-    from bayestouch.hardware.safety import check_plan, load_limits, plan_from_stroke
-
-    limits = load_limits()
-    if args.stroke_file is not None:
-        plans = load_stroke_file(args.stroke_file, currents)
-    else:
+    if args.stroke_file is None:
         if not (0 < args.duration <= 600):
             raise BadInput(f"--duration must be in (0, 600] seconds, got {args.duration}")
         if not (1 <= args.rate <= 2000):

@@ -10,6 +10,11 @@ disconnect) is redone with a new id. Everything received is appended to the ``jo
 Safety: :func:`~bayestouch.hardware.safety.check_plan` runs before any byte of a stroke is written, with the
 tighter of the client's and the device's limits; heartbeats are sent every ``watchdog / 4`` seconds during a
 stroke; a heater still on after a stroke ended raises :class:`HeaterFault` (after the stroke is saved).
+
+Guarded strokes (protocol revision 1.1, :meth:`FingerDevice.run_probe`): the waypoints are approach starts
+outside the believed surface; at each the pad moves along −normal until the contact force crosses a threshold,
+and the device reports where that happened (:class:`~bayestouch.hardware.protocol.ProbeFrame`). This is how the
+exploration loop learns where the true surface is (:mod:`bayestouch.planning.device_prober`).
 """
 
 from __future__ import annotations
@@ -31,6 +36,10 @@ __all__ = [
     "read_journal",
     "strokes_to_frames",
     "build_recording",
+    "ProbePlan",
+    "ProbeData",
+    "winkler_depth",
+    "depth_for_force",
 ]
 
 
@@ -59,6 +68,85 @@ class StrokeData(NamedTuple):
     frames: dict
     device_time: np.ndarray
     stroke_id: int
+
+
+class ProbePlan(NamedTuple):
+    """A guarded stroke (:class:`~bayestouch.hardware.protocol.ProbeStroke`).
+
+    time : (T,) float, seconds
+    start : (T, 3) float, metres
+        Approach start points (outside the believed surface).
+    normal : (T, 3) float
+        Unit believed outward normals; the pad approaches along −normal.
+    depth : float, metres
+        Press beyond the touch (:func:`depth_for_force` of the planned force).
+    hold_currents : (3,) float, amperes
+    travel : float, metres
+        Longest approach from each start.
+    threshold : float, N
+        Contact force that counts as the touch.
+    """
+
+    time: np.ndarray
+    start: np.ndarray
+    normal: np.ndarray
+    depth: float
+    hold_currents: np.ndarray
+    travel: float
+    threshold: float
+
+    def stroke_plan(self) -> StrokePlan:
+        """The :class:`StrokePlan` the safety check sees: the midpoints of the approach lines (for a planned
+        stroke, the believed surface, where the touch is expected; their speed is the following's tangential
+        speed), the depth and the currents."""
+        mid = np.asarray(self.start, float) - 0.5 * float(self.travel) * np.asarray(self.normal, float)
+        return StrokePlan(self.time, mid, self.normal, self.depth, self.hold_currents)
+
+
+class ProbeData(NamedTuple):
+    """One completed guarded stroke: :class:`StrokeData`'s fields plus, per waypoint, ``probe (T,)`` (keys of
+    :data:`~bayestouch.hardware.protocol.PROBE_STATUS`), ``travel (T,)`` m and ``position (T, 3)`` m (the
+    device's pose estimate of the pad centre at the threshold crossing, world frame)."""
+
+    plan: ProbePlan
+    frames: dict
+    device_time: np.ndarray
+    stroke_id: int
+    probe: np.ndarray
+    travel: np.ndarray
+    position: np.ndarray
+
+
+def _skin_and_radius(skin=None, tip_radius=None):
+    from bayestouch.params import MODELS
+    from bayestouch.physics import skin as sk
+
+    skin = skin if skin is not None else sk.load_skin(MODELS / "skin.toml")
+    if tip_radius is None:
+        from bayestouch.physics import bending
+
+        tip_radius = float(bending.load_rod(MODELS / "finger.toml").radius) + float(skin.h)
+    return skin, float(tip_radius)
+
+
+def winkler_depth(force, skin=None, tip_radius: float | None = None) -> np.ndarray:
+    """Indentation (m) of the fingertip in a flat surface at normal ``force`` (N): the inverse of the thin-layer
+    Winkler model :func:`bayestouch.physics.skin.winkler_sphere`, F = π M R δ² / h, so δ = √(F h / (π M R))."""
+    from bayestouch.physics import skin as sk
+
+    skin, R = _skin_and_radius(skin, tip_radius)
+    M = float(sk.bonded_layer_modulus(skin.E, skin.nu))
+    return np.sqrt(np.maximum(np.asarray(force, float), 0.0) * float(skin.h) / (np.pi * M * R))
+
+
+def depth_for_force(force: float, skin=None, tip_radius: float | None = None) -> float:
+    """Pressing depth (m) for a planned normal ``force`` (N): the depth at which the safety check's conservative
+    force estimate (:func:`~bayestouch.hardware.safety.predicted_force`: ``FORCE_FACTOR`` × Winkler) equals
+    ``force``; the actual force is then at most the planned one (the forward model's force on the egg is 0.71 of
+    that bound)."""
+    from bayestouch.hardware.safety import FORCE_FACTOR
+
+    return float(winkler_depth(float(force) / FORCE_FACTOR, skin, tip_radius))
 
 
 def read_journal(path) -> list:
@@ -313,7 +401,7 @@ class FingerDevice:
                 before = self._dec.bad
                 for _, m in self._dec.feed(data):
                     got = True
-                    if isinstance(m, pr.Frame | pr.StrokeDone):
+                    if isinstance(m, pr.Frame | pr.ProbeFrame | pr.StrokeDone):
                         self._inbox.append(m)
                     elif hasattr(m, "ack"):
                         self._replies[m.ack] = m
@@ -409,14 +497,9 @@ class FingerDevice:
             The device aborted for over-force or fault, or stayed silent past the retries.
         """
         self.check(plan)
-        if self._ser is None:
-            raise DeviceError(f"{self.url}: not open")
-        for attempt in range(self.redo + 1):
-            if attempt:
-                self.stats["redone_strokes"] += 1
-            self._sid = (self._sid + 1) & 0xFFFFFFFF
-            sid = self._sid
-            cmd = pr.StrokeCommand(
+
+        def command(sid):
+            return pr.StrokeCommand(
                 sid,
                 float(plan.depth),
                 float(self.limits.max_force),
@@ -425,23 +508,93 @@ class FingerDevice:
                 np.asarray(plan.contact, float),
                 np.asarray(plan.normal, float),
             )
+
+        got, dev_t, sid = self._run(command, len(plan.time))
+        return StrokeData(plan, _frames_to_arrays(got)[0], dev_t, sid)
+
+    def run_probe(self, plan: ProbePlan) -> ProbeData:
+        """Run one guarded stroke (protocol revision 1.1) and return its frames and what each approach found.
+
+        Raises
+        ------
+        UnsafePlan
+            Before anything is sent, if ``plan.stroke_plan()`` breaks a limit, the threshold is not in
+            (0, max_force) N or the travel not in (0, 0.1] m (or the device refuses it).
+        DeviceError
+            As :meth:`run_stroke`; also when the device does not know guarded strokes (a revision 1.0 device
+            drops the unknown command: no answer).
+        """
+        self.check(plan.stroke_plan())
+        if not (0 < float(plan.threshold) < self.limits.max_force):
+            raise UnsafePlan(
+                f"probe plan: threshold must be in (0, {self.limits.max_force:g}) N, got {float(plan.threshold):g}"
+            )
+        if not (0 < float(plan.travel) <= 0.1):
+            raise UnsafePlan(f"probe plan: travel must be in (0, 0.1] m, got {float(plan.travel):g}")
+
+        def command(sid):
+            return pr.ProbeStroke(
+                sid,
+                float(plan.depth),
+                float(self.limits.max_force),
+                np.asarray(plan.hold_currents, float),
+                np.asarray(plan.time, float),
+                np.asarray(plan.start, float),
+                np.asarray(plan.normal, float),
+                float(plan.travel),
+                float(plan.threshold),
+            )
+
+        try:
+            got, dev_t, sid = self._run(command, len(plan.time))
+        except DeviceError as e:
+            if "no answer to ProbeStroke" in str(e):
+                fw = self.info.firmware if self.info else "?"
+                raise DeviceError(
+                    f"{self.url}: the device ({fw}) does not answer guarded strokes (protocol revision 1.1)"
+                ) from None
+            raise
+        if not all(isinstance(f, pr.ProbeFrame) for f in got):
+            raise DeviceError(f"{self.url}: guarded stroke {sid} answered with plain frames")
+        frames, _ = _frames_to_arrays(got)
+        return ProbeData(
+            plan,
+            frames,
+            dev_t,
+            sid,
+            np.array([f.probe for f in got], int),
+            np.array([f.travel for f in got], float),
+            np.stack([np.asarray(f.position, float).reshape(3) for f in got]),
+        )
+
+    def _run(self, command, T: int):
+        """Send the stroke command ``command(stroke_id)`` and collect its T frames (redone with a new id when the
+        device lost it); returns (frames, device times (T,) s, stroke id)."""
+        if self._ser is None:
+            raise DeviceError(f"{self.url}: not open")
+        for attempt in range(self.redo + 1):
+            if attempt:
+                self.stats["redone_strokes"] += 1
+            self._sid = (self._sid + 1) & 0xFFFFFFFF
+            sid = self._sid
+            cmd = command(sid)
             self._log(cmd)
             rep = self._command(cmd)
             if isinstance(rep, pr.Nak):
                 if rep.code == 2:
                     raise UnsafePlan(f"the device refused the stroke plan: {rep.reason}")
                 raise DeviceError(f"{self.url}: stroke refused ({pr.NAK_CODES.get(rep.code, rep.code)}): {rep.reason}")
-            got = self._collect(sid, len(plan.time))
+            got = self._collect(sid, T)
             if got is None:
                 continue
-            frames, dev_t = _frames_to_arrays(got)
+            dev_t = np.array([x.time for x in got], float)
             st = self.status()
             if st.heater_on and st.state == 0:
                 raise HeaterFault(
                     f"{self.url}: heaters still on after stroke {sid} ended (wire currents "
                     f"{np.round(st.wire_current, 4).tolist()} A); switch the finger off"
                 )
-            return StrokeData(plan, frames, dev_t, sid)
+            return got, dev_t, sid
         raise DeviceError(f"{self.url}: stroke lost {self.redo + 1} times (watchdog or disconnects)")
 
     def _collect(self, sid: int, T: int) -> list[pr.Frame] | None:
@@ -471,7 +624,7 @@ class FingerDevice:
             for m in inbox:
                 if m.stroke_id != sid:
                     continue
-                if isinstance(m, pr.Frame):
+                if isinstance(m, pr.Frame | pr.ProbeFrame):
                     if m.index in frames:
                         self.stats["duplicate_frames"] += 1
                         continue

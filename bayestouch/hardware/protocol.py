@@ -1,4 +1,5 @@
-"""The finger's wire protocol, version 1: pure encoding and decoding (bytes ↔ messages), no I/O.
+"""The finger's wire protocol, version 1 (revision 1.1 adds guarded strokes): pure encoding and decoding
+(bytes ↔ messages), no I/O.
 
 The specification is ``PROTOCOL.md`` beside this file. In short: every packet is
 
@@ -39,6 +40,9 @@ __all__ = [
     "Status",
     "Frame",
     "StrokeDone",
+    "ProbeStroke",
+    "ProbeFrame",
+    "PROBE_STATUS",
     "MESSAGE_TYPES",
     "NAK_CODES",
     "DONE_REASONS",
@@ -60,6 +64,8 @@ NAK_CODES = {1: "unknown message", 2: "unsafe plan", 3: "busy", 4: "bad stroke",
 DONE_REASONS = {0: "complete", 1: "aborted", 2: "watchdog", 3: "over force", 4: "over temperature"}
 #: device states
 STATES = {0: "idle", 1: "computing", 2: "running", 3: "fault"}
+#: what the guarded approach of one waypoint found (:class:`ProbeFrame` ``probe``)
+PROBE_STATUS = {0: "contact", 1: "no contact within the travel", 2: "in contact at the approach start"}
 
 
 class ProtocolError(ValueError):
@@ -247,6 +253,72 @@ class StrokeDone(NamedTuple):
     reason: int
 
 
+class ProbeStroke(NamedTuple):
+    """Revision 1.1: a guarded stroke. At each waypoint the pad approaches from ``start`` along −``normal`` until
+    the contact force crosses ``threshold`` (at most ``travel`` metres), then presses ``depth`` deeper and follows;
+    the device answers with :class:`ProbeFrame` s instead of :class:`Frame` s.
+
+    Attributes
+    ----------
+    stroke_id : int
+    depth : float, metres
+        Press beyond the first touch (the planned force's depth).
+    max_force : float, N
+    hold_currents : (3,) float, amperes
+    time : (T,) float, seconds from the stroke's start
+    start : (T, 3) float, metres
+        Approach start points (outside the believed surface).
+    normal : (T, 3) float
+        Unit vectors; the approach runs along −normal (the believed outward surface normals).
+    travel : float, metres
+        Longest approach from each start.
+    threshold : float, N
+        Contact force that counts as the touch.
+    """
+
+    stroke_id: int
+    depth: float
+    max_force: float
+    hold_currents: np.ndarray
+    time: np.ndarray
+    start: np.ndarray
+    normal: np.ndarray
+    travel: float
+    threshold: float
+
+
+class ProbeFrame(NamedTuple):
+    """Revision 1.1: a :class:`Frame` of a :class:`ProbeStroke` with what the waypoint's approach found.
+
+    Attributes
+    ----------
+    stroke_id … contact_force
+        As :class:`Frame`.
+    probe : int
+        Key of :data:`PROBE_STATUS`: 0 the force crossed the threshold within the travel, 1 it did not, 2 it
+        was above the threshold at the start already.
+    travel : float, metres
+        Approach distance from the start at the threshold crossing (NaN when ``probe`` is 1, 0 when 2).
+    position : (3,) float, metres (world frame)
+        The device's pose estimate of the pad centre at the threshold crossing (at the end of the travel when
+        ``probe`` is 1, at the start when 2).
+    """
+
+    stroke_id: int
+    index: int
+    time: float
+    taxel_current: np.ndarray
+    wire_current: np.ndarray
+    wire_temperature: np.ndarray
+    skin_temperature: float
+    tip_position: np.ndarray
+    curvature: np.ndarray
+    contact_force: float
+    probe: int
+    travel: float
+    position: np.ndarray
+
+
 # field kinds: a struct code, "str" (u16 length + UTF-8), or (dtype, trailing shape) for an array with a
 # u32 leading count
 _F8 = ("<f8", ())
@@ -264,6 +336,8 @@ _LAYOUT: dict[type, tuple] = {
     Status: ("H", "B", "I", "I", "B", "?", "?", "I", _F8, _F8),
     Frame: ("I", "I", "d", _F4, _F4, _F4, "f", _F4, _F4, "f"),
     StrokeDone: ("I", "I", "B"),
+    ProbeStroke: ("I", "d", "d", _F8, _F8, ("<f8", (3,)), ("<f8", (3,)), "d", "d"),
+    ProbeFrame: ("I", "I", "d", _F4, _F4, _F4, "f", _F4, _F4, "f", "B", "d", _F8),
 }
 #: wire type code of every message class
 MESSAGE_TYPES: dict[type, int] = {
@@ -279,6 +353,8 @@ MESSAGE_TYPES: dict[type, int] = {
     Status: 0x84,
     Frame: 0x85,
     StrokeDone: 0x86,
+    ProbeStroke: 0x07,
+    ProbeFrame: 0x87,
 }
 _BY_CODE = {v: k for k, v in MESSAGE_TYPES.items()}
 _STRUCTS = {k: struct.Struct("<" + k) for k in "BHIdf?"}

@@ -11,6 +11,11 @@ Device-side safety: plans are checked with :func:`~bayestouch.hardware.safety.ch
 plan``), a stroke whose frame force exceeds the plan's ``max_force`` is aborted, and without a valid packet
 for ``limits.watchdog`` seconds the stroke is aborted and the heaters switched off.
 
+Guarded strokes (protocol revision 1.1, :class:`~bayestouch.hardware.protocol.ProbeStroke`) need a frame model
+with a ``probe`` method (:class:`GuardedModel`): the commanded waypoints are then approach starts off a *believed*
+surface, and where the pad meets the object is found on the TRUE object the model holds, so that a wrong belief
+yields real information. Other models answer a guarded stroke with NAK 4.
+
 Fault injection (:class:`Faults`): dropped and corrupted bytes (both directions), stalls of the outgoing
 stream (delayed bytes), a disconnect after N frames (the pty is closed and a new one opened; ``link`` is
 re-pointed to it) and a stuck heater (the wires stay powered after a stroke ends).
@@ -31,7 +36,7 @@ import numpy as np
 from bayestouch.hardware import protocol as pr
 from bayestouch.hardware.safety import Limits, StrokePlan, UnsafePlan, check_plan
 
-__all__ = ["Faults", "VirtualDevice", "SyntheticModel", "ForwardModel", "FRAME_KEYS"]
+__all__ = ["Faults", "VirtualDevice", "SyntheticModel", "ForwardModel", "GuardedModel", "FRAME_KEYS"]
 
 #: per-frame arrays a frame model returns (T frames)
 FRAME_KEYS = (
@@ -76,6 +81,10 @@ class Faults(NamedTuple):
     stuck_heater: bool = False
     inbound: bool = False
     seed: int = 0
+
+
+#: per-frame arrays a guarded stroke adds (:meth:`GuardedModel.probe`)
+_PROBE_KEYS = ("probe", "travel", "position")
 
 
 def _grid(rows: int, cols: int, pitch: float = 8e-4):
@@ -127,13 +136,16 @@ class ForwardModel:
         Parameter folder (``finger.toml``, ``skin.toml``, ``taxels.toml``, ``noise.toml``).
     seed : int
         Fixed pattern of the device and, with the stroke index, the measurement noise.
+
+    Guarded strokes (:meth:`probe`) find the contacts on ``obj`` (:class:`GuardedModel`; pose error ``pose_sd``,
+    0.3 mm, an attribute).
     """
 
     def __init__(self, obj, models: Path | None = None, seed: int = 0, mode: str | None = None):
         from bayestouch.params import MODELS
         from bayestouch.virtual import load_finger
 
-        self.obj, self.seed, self.mode = obj, int(seed), mode
+        self.obj, self.seed, self.mode, self.pose_sd = obj, int(seed), mode, 3e-4
         self.vf = load_finger(Path(models or MODELS), seed=seed)
         grid = np.asarray(self.vf.finger.grid)
         self.rows, self.cols = grid.shape[:2]
@@ -156,6 +168,83 @@ class ForwardModel:
                 mode=self.mode,
             )
         return {k: rec[k] for k in FRAME_KEYS}
+
+    def probe(self, plan: StrokePlan, travel: float, threshold: float, index: int) -> dict[str, np.ndarray]:
+        """A guarded stroke on this model's object (:meth:`GuardedModel.probe`, pose error ``pose_sd``)."""
+        return GuardedModel(self.obj, self, pose_sd=self.pose_sd, seed=self.seed).probe(plan, travel, threshold, index)
+
+
+class GuardedModel:
+    """A frame model that can run guarded strokes on a TRUE object (what a real finger with a force-controlled
+    approach does).
+
+    At waypoint j the pad starts at ``start_j`` and moves along ``u_j = −normal_j``. Where the ray
+    ``start_j + t u_j`` first meets the true object (:func:`bayestouch.planning.signal.true_ray_distances`:
+    the scene object's signed distance, texture and defects included) at t_j ≤ ``travel``, the skin touches;
+    the contact force crosses ``threshold`` once the pad centre is the Winkler indentation
+    δ_th = :func:`~bayestouch.hardware.device.winkler_depth` ``(threshold)`` further in, at
+    ``start_j + (t_j + δ_th) u_j``. That is reported with the device's pose-estimate error, a Gaussian of
+    ``pose_sd`` metres in each coordinate (seeded by ``seed`` and the stroke index): the kinematic chain of a real
+    finger (stage encoders, the bending model of the rod) knows its pad position only that well. No contact within
+    the travel: probe status 1 (the pad at the end of the travel); a start already inside the object: status 2.
+
+    The frames come from the wrapped ``frames`` model (default :class:`SyntheticModel`) on the path the pad
+    actually followed: the true contact points with the true object's normals (the radial projection of the
+    start for status 2, the end of the travel with no force for status 1), pressed to the plan's depth.
+
+    Parameters
+    ----------
+    obj : SceneObject
+        The true object.
+    frames : frame model, optional
+        :class:`SyntheticModel` (default) or :class:`ForwardModel` (of the same object).
+    pose_sd : float, metres
+        Pose-estimate error of the pad centre, per coordinate.
+    seed : int
+    """
+
+    def __init__(self, obj, frames=None, *, pose_sd: float = 3e-4, seed: int = 0):
+        self.obj, self.frames, self.pose_sd, self.seed = obj, frames or SyntheticModel(seed=seed), float(pose_sd), seed
+        self.rows, self.cols = self.frames.rows, self.frames.cols
+        self.taxel_uv, self.reference = self.frames.taxel_uv, self.frames.reference
+
+    def __call__(self, plan: StrokePlan, index: int) -> dict[str, np.ndarray]:
+        """An ordinary stroke: the wrapped model's frames."""
+        return self.frames(plan, index)
+
+    def probe(self, plan: StrokePlan, travel: float, threshold: float, index: int) -> dict[str, np.ndarray]:
+        """A guarded stroke (``plan.contact`` holds the approach starts): :data:`FRAME_KEYS` arrays plus
+        ``probe (T,)``, ``travel (T,)`` m and ``position (T, 3)`` m (see the class docstring)."""
+        from bayestouch._jax import jnp
+        from bayestouch.geometry import nellipsoid as ne
+        from bayestouch.hardware.device import winkler_depth
+        from bayestouch.planning.signal import CONTACT, INSIDE, MISS, true_ray_distances
+
+        start = np.asarray(plan.contact, float)
+        u = -np.asarray(plan.normal, float)
+        t, status = true_ray_distances(self.obj, start, u, float(travel))
+        hit, miss, inside = status == CONTACT, status == MISS, status == INSIDE
+        d_th = float(winkler_depth(threshold))
+        g = np.random.default_rng([self.seed, index, 7])
+        pad = np.where(hit[:, None], start + (t + d_th)[:, None] * u, start)
+        pad = np.where(miss[:, None], start + float(travel) * u, pad)
+        position = pad + self.pose_sd * g.standard_normal(pad.shape)
+        # the path the pad followed, for the frames: true surface points and normals
+        shape = self.obj.shape
+        surf = np.where(hit[:, None], start + t[:, None] * u, start)
+        if inside.any():
+            surf[inside] = ne.evaluate(ne.project_to_surface, shape, jnp.asarray(start[inside]))
+        nrm = np.where(miss[:, None], -u, 0.0)
+        touched = ~miss
+        if touched.any():
+            nrm[touched] = ne.evaluate(ne.normals, shape, jnp.asarray(surf[touched]))
+        followed = StrokePlan(plan.time, surf, nrm, plan.depth, plan.hold_currents)
+        out = {k: np.array(v, float) for k, v in self.frames(followed, index).items()}
+        out["contact_force"][miss] = 0.0
+        out["probe"] = np.select([hit, miss], [0, 1], 2).astype(int)
+        out["travel"] = np.where(hit, t + d_th, np.where(miss, np.nan, 0.0))
+        out["position"] = position
+        return out
 
 
 class VirtualDevice:
@@ -376,17 +465,28 @@ class VirtualDevice:
                     np.asarray(m.reference),
                 ),
             )
-        elif isinstance(msg, pr.StrokeCommand):
+        elif isinstance(msg, pr.StrokeCommand | pr.ProbeStroke):
             if msg.stroke_id == self.stroke_id and self._cmd is not None:
                 self._reply(packet, pr.Ack(seq))  # the stroke id makes the command idempotent: never run twice
                 return
             if self.state in (1, 2):
                 self._reply(packet, pr.Nak(seq, 3, f"busy with stroke {self.stroke_id}"))
                 return
-            plan = StrokePlan(msg.time, msg.contact, msg.normal, msg.depth, msg.hold_currents)
+            probe = isinstance(msg, pr.ProbeStroke)
+            if probe and not hasattr(self.model, "probe"):
+                self._reply(packet, pr.Nak(seq, 4, "this finger's frame model cannot run guarded strokes"))
+                return
+            plan = StrokePlan(msg.time, msg.start if probe else msg.contact, msg.normal, msg.depth, msg.hold_currents)
             lim = self.limits._replace(max_force=min(self.limits.max_force, float(msg.max_force)))
             try:
-                check_plan(plan, lim)
+                # a guarded stroke is checked along the midpoints of its approach lines (ProbePlan.stroke_plan)
+                mid = np.asarray(msg.start) - 0.5 * float(msg.travel) * np.asarray(msg.normal) if probe else None
+                check_plan(plan._replace(contact=mid) if probe else plan, lim)
+                if probe and not (0 < msg.threshold < lim.max_force and 0 < msg.travel <= 0.1):
+                    raise UnsafePlan(
+                        f"probe plan: threshold {msg.threshold:g} N must be in (0, {lim.max_force:g}) and travel "
+                        f"{msg.travel:g} m in (0, 0.1]"
+                    )
             except UnsafePlan as e:
                 self._reply(packet, pr.Nak(seq, 2, str(e)))
                 return
@@ -397,7 +497,8 @@ class VirtualDevice:
             self._result = None
             index = self._index
             self._index += 1
-            w = threading.Thread(target=self._compute, args=(plan, index, msg.stroke_id), daemon=True)
+            extra = (float(msg.travel), float(msg.threshold)) if probe else None
+            w = threading.Thread(target=self._compute, args=(plan, index, msg.stroke_id, extra), daemon=True)
             self._workers = [t for t in self._workers if t.is_alive()] + [w]
             w.start()
         elif isinstance(msg, pr.Abort):
@@ -433,10 +534,14 @@ class VirtualDevice:
         else:  # a reply type sent to the device
             self._send(pr.Nak(seq, 1, f"{type(msg).__name__} is not a command"))
 
-    def _compute(self, plan, index, sid) -> None:
+    def _compute(self, plan, index, sid, probe=None) -> None:
         try:
-            res = self.model(plan, index)
-            res = {k: np.asarray(res[k], float) for k in FRAME_KEYS}
+            if probe is None:
+                res = self.model(plan, index)
+                res = {k: np.asarray(res[k], float) for k in FRAME_KEYS}
+            else:
+                res = self.model.probe(plan, *probe, index)
+                res = {k: np.asarray(res[k], float) for k in (*FRAME_KEYS, *_PROBE_KEYS)}
         except Exception as e:  # the device reports a fault instead of dying
             res = e
         with self._lock:
@@ -446,20 +551,22 @@ class VirtualDevice:
         f = self._frames
         if i == self._n_sent:  # first transmission: stamp the sample time (a resent frame keeps its stamp)
             self._stamps[i] = time.monotonic() - self._t0
-        self._send(
-            pr.Frame(
-                self.stroke_id,
-                i,
-                float(self._stamps[i]),
-                f["taxel_current"][i],
-                f["wire_current"][i],
-                f["wire_temperature"][i],
-                float(f["skin_temperature"][i]),
-                f["finger_tip_position"][i],
-                f["finger_curvature"][i],
-                float(f["contact_force"][i]),
-            )
+        fields = (
+            self.stroke_id,
+            i,
+            float(self._stamps[i]),
+            f["taxel_current"][i],
+            f["wire_current"][i],
+            f["wire_temperature"][i],
+            float(f["skin_temperature"][i]),
+            f["finger_tip_position"][i],
+            f["finger_curvature"][i],
+            float(f["contact_force"][i]),
         )
+        if isinstance(self._cmd, pr.ProbeStroke):
+            self._send(pr.ProbeFrame(*fields, int(f["probe"][i]), float(f["travel"][i]), f["position"][i]))
+        else:
+            self._send(pr.Frame(*fields))
 
     def _heater_off(self) -> None:
         if not self.faults.stuck_heater:

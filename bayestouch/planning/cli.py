@@ -7,6 +7,7 @@ Wire into ``bayestouch/cli.py``: call :func:`add_planning_parsers` ``(sub)`` in 
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -28,15 +29,29 @@ def add_planning_parsers(subparsers) -> None:
     """Add the ``explore`` and ``experiment`` subcommands to an argparse ``subparsers`` object."""
     ep = subparsers.add_parser(
         "explore",
-        help="active exploration of a simulated object (plan, stroke, update)",
-        description="Plan strokes over a simulated object, update the posterior after each "
-        "and write per-stroke summaries and figures.",
+        help="active exploration of a simulated object or on a finger (plan, stroke, update)",
+        description="Plan strokes over a simulated object (or run them on a finger with --port), update the "
+        "posterior after each and write per-stroke summaries and figures.",
     )
     ep.add_argument(
         "--object",
-        default="egg",
-        help="object name in models/objects (egg, sphere, box, cylinder) or a TOML file (default egg)",
+        default=None,
+        help="object name in models/objects (egg, sphere, box, cylinder) or a TOML file (default egg); with "
+        "--port optional: the truth the errors are measured against",
     )
+    ep.add_argument(
+        "--port",
+        default=None,
+        help="drive a finger instead of the simulation: serial port path or pyserial URL (e.g. the pty of "
+        "`bayestouch device simulate`); writes OUT/recording.nc and OUT/device.journal",
+    )
+    ep.add_argument(
+        "--centre",
+        default=None,
+        metavar="X,Y,Z",
+        help="nominal centre of the object (the fixture), metres; required with --port and no --object",
+    )
+    ep.add_argument("--timeout", type=float, default=0.3, help="with --port: seconds to wait for an answer (0.3)")
     ep.add_argument("--planner", default="eig", help="eig, random, coverage or oracle (default eig)")
     ep.add_argument(
         "--target-volume-sd",
@@ -69,9 +84,24 @@ def _settings(args) -> dict:
     return {"candidates": args.candidates, "draws": args.draws, "steps": args.steps}
 
 
+def _centre(text):
+    if text is None:
+        return None
+    try:
+        c = [float(x) for x in text.split(",")]
+    except ValueError:
+        c = []
+    if len(c) != 3 or not all(map(math.isfinite, c)):
+        raise BadInput(f"--centre must be three numbers in metres like 0,0,0.03, got {text!r}")
+    return c
+
+
 def run_explore(args) -> int:
     """``bayestouch explore``: writes ``summary_<k>.json`` per stroke (k = 0 the scout), ``points.csv`` (all
-    contacts), ``explore.json`` (the history) and ``explore.png`` (points and the final estimate)."""
+    contacts), ``explore.json`` (the history) and ``explore.png`` (points and the final estimate). With ``--port``
+    the strokes run on a finger (:class:`bayestouch.planning.device_prober.DeviceProber`) and ``recording.nc``
+    (the schema of ``bayestouch simulate``, rewritten after every stroke) and ``device.journal`` (every packet
+    received) are written too; without ``--object`` there is no truth and the errors are unknown (NaN)."""
     from bayestouch.io import save_contact_points, write_json
     from bayestouch.planning.experiment import resolve_object
     from bayestouch.planning.loop import ExploreSettings, explore
@@ -80,44 +110,118 @@ def run_explore(args) -> int:
 
     settings = ExploreSettings(**_settings(args))
     check_policy(args.planner)
-    obj = load_object(resolve_object(args.object))
+    port = getattr(args, "port", None)
+    centre = _centre(getattr(args, "centre", None))
+    if port is not None and not port.strip():
+        raise BadInput("--port: expected a serial port path or a pyserial URL, got an empty string")
+    if port is not None and "://" not in port and not Path(port).exists():
+        raise BadInput(
+            f"--port {port}: no such device; expected a serial port path (e.g. the pty printed by "
+            "`bayestouch device simulate`) or a pyserial URL like socket://HOST:PORT"
+        )
+    name = args.object if args.object is not None else (None if port else "egg")
+    obj = load_object(resolve_object(name)) if name is not None else None
+    if obj is None and centre is None:
+        raise BadInput("--centre: expected the object's nominal centre X,Y,Z in metres when --port has no --object")
+    if port is not None and args.planner == "oracle":
+        raise BadInput("--planner oracle needs the simulated truth; use eig, random or coverage with --port")
+    if not (0.01 <= getattr(args, "timeout", 0.3) <= 60):
+        raise BadInput(f"--timeout must be in [0.01, 60] seconds, got {args.timeout}")
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise BadInput(f"--out {out} exists and is not a folder")
     out.mkdir(parents=True, exist_ok=True)
+    truthless = obj is None
 
     def on_stroke(rec):
         write_json(
             out / f"summary_{rec.stroke}.json",
-            {**rec.summary, "seconds": rec.seconds, "eig_nats": rec.eig, "decision_s": rec.decision_s},
+            {
+                **rec.summary,
+                "seconds": rec.seconds,
+                "eig_nats": rec.eig,
+                "decision_s": rec.decision_s,
+                "refused_candidates": rec.refused,
+                **({"errors_note": "unknown: no truth (a finger without --object)"} if truthless else {}),
+            },
+        )
+        errs = (
+            "errors unknown (no truth)"
+            if truthless
+            else f"chamfer {rec.chamfer:.4f} of the mean semi-axis, volume error {rec.volume_error:.4f}"
         )
         print(
-            f"stroke {rec.stroke}: {rec.n_points} points, chamfer {rec.chamfer:.4f} of the mean semi-axis, "
-            f"volume error {rec.volume_error:.4f}, volume sd {rec.volume_sd:.3g} m^3",
+            f"stroke {rec.stroke}: {rec.n_points} points, {errs}, volume sd {rec.volume_sd:.3g} m^3"
+            + (f", {rec.refused} unsafe candidate(s) refused" if rec.refused else ""),
             file=sys.stderr,
         )
 
-    res = explore(
-        obj,
-        args.planner,
-        args.budget,
+    kw = dict(
         seed=args.seed,
         settings=settings,
         target_volume_sd=args.target_volume_sd,
         on_stroke=on_stroke,
+        centre=centre,
     )
+    if port is None:
+        res = explore(obj, args.planner, args.budget, **kw)
+    else:
+        res = _explore_device(obj, args, port, out, kw)
+        if res is None:
+            return 1
     save_contact_points(out / "points.csv", res.points)
     write_json(
         out / "explore.json",
         {
-            "object": obj.name,
+            "object": obj.name if obj is not None else "unknown (device)",
             "planner": args.planner,
             "seed": args.seed,
+            **({"port": port} if port else {}),
             "strokes": [{k: v for k, v in r._asdict().items() if k != "summary"} for r in res.records],
         },
     )
     _plot_explore(res, obj, out / "explore.png")
     return 0
+
+
+def _explore_device(obj, args, port: str, out: Path, kw: dict):
+    """The loop on the finger at ``port``; None (after saying why) when the device failed."""
+    from bayestouch import __version__
+    from bayestouch.hardware.device import DeviceError, FingerDevice
+    from bayestouch.planning.device_prober import DeviceProber
+    from bayestouch.planning.loop import explore
+
+    journal = out / "device.journal"
+    rec = out / "recording.nc"
+    attrs = {
+        "port": port,
+        "seed": args.seed,
+        "planner": args.planner,
+        "software": f"bayestouch {__version__}",
+        "conventions": "SI units in 'units'",
+        "object": f"device; truth {obj.name}" if obj is not None else "unknown (device)",
+    }
+    dev = FingerDevice(port, timeout=args.timeout, journal=journal)
+    prober = None
+    try:
+        with dev:
+            prober = DeviceProber(dev, recording=rec, attrs=attrs)
+            res = explore(obj, args.planner, args.budget, prober=prober, **kw)
+    except DeviceError as e:
+        n = len(prober.strokes) if prober is not None else 0
+        print(
+            f"bayestouch explore: error: {e}; {n} complete stroke(s) "
+            + (f"in {rec}; " if n else "")
+            + f"everything received is in {journal}",
+            file=sys.stderr,
+        )
+        return None
+    print(
+        f"wrote {rec}: {len(prober.strokes)} stroke(s) from {dev.info.firmware}, "
+        f"{len(prober.refused)} unsafe candidate(s) refused before sending",
+        file=sys.stderr,
+    )
+    return res
 
 
 def _plot_explore(res, obj, path: Path) -> None:
@@ -130,9 +234,9 @@ def _plot_explore(res, obj, path: Path) -> None:
     from bayestouch._jax import jnp
     from bayestouch.geometry import nellipsoid as ne
     from bayestouch.geometry.mesh import nellipsoid_mesh
-    from bayestouch.planning.loop import shape_errors, truth_of
+    from bayestouch.planning.loop import point_estimate
 
-    est = shape_errors(res.shape_vectors, truth_of(obj))["estimate"]
+    est = point_estimate(res.shape_vectors)["estimate"]
     v, _ = nellipsoid_mesh(ne.from_vector(jnp.asarray(est)), 24)
     fig = plt.figure(figsize=(10, 4.5), constrained_layout=True)
     ax = fig.add_subplot(1, 2, 1, projection="3d")
@@ -150,12 +254,15 @@ def _plot_explore(res, obj, path: Path) -> None:
     ax.legend(fontsize=6, loc="upper left")
     ax2 = fig.add_subplot(1, 2, 2)
     k = np.array([r.stroke for r in res.records])
-    ax2.plot(k, [r.chamfer for r in res.records], marker="o", label="Chamfer / mean semi-axis")
-    ax2.plot(k, [r.volume_error for r in res.records], marker="s", label="volume error")
+    if obj is None:
+        ax2.plot(k, [r.volume_sd for r in res.records], marker="o", label="volume sd (m^3); errors unknown")
+    else:
+        ax2.plot(k, [r.chamfer for r in res.records], marker="o", label="Chamfer / mean semi-axis")
+        ax2.plot(k, [r.volume_error for r in res.records], marker="s", label="volume error")
     ax2.set_yscale("log")
     ax2.set_xlabel("stroke")
     ax2.legend()
-    fig.suptitle(f"explore {obj.name}: points and the posterior estimate")
+    fig.suptitle(f"explore {obj.name if obj is not None else 'on a finger'}: points and the posterior estimate")
     fig.savefig(path, dpi=100)
     plt.close(fig)
 

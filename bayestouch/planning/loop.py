@@ -1,4 +1,5 @@
-"""The exploration loop: plan → run the stroke (simulator) → update the posterior (warm-started emcee) → repeat.
+"""The exploration loop: plan → run the stroke (simulator or finger) → update the posterior (warm-started emcee) →
+repeat.
 
 Stroke 0 is a scout common to every planner: the object sits at a known place (its nominal centre, the fixture)
 with an unknown shape, believed a sphere of :data:`SCOUT_RADIUS`; three arcs over that sphere from evenly spread
@@ -8,6 +9,15 @@ current point estimate (below), measured on the true object (:func:`bayestouch.p
 Gaussian contact noise along the ray), and the posterior is updated by a short emcee run warm-started from the
 previous ensemble's last state (clipped into the new prior box). The loop stops after ``budget`` planned strokes
 or once the volume's posterior sd falls below ``target_volume_sd``.
+
+Probers. The loop does not touch anything itself: a *prober* runs one planned stroke and returns its contact points
+(K, 3) m and its :class:`Free` observations (``prober.probe(stroke, rng) -> (points, free)``, ``stroke`` a batch
+of one :class:`~bayestouch.planning.candidates.Strokes`). :class:`RayProber` (the default) measures rays on a
+simulated object; :class:`bayestouch.planning.device_prober.DeviceProber` runs the stroke on a finger. A prober
+refuses a stroke it must not run by raising :class:`~bayestouch.hardware.safety.UnsafePlan` before anything is
+sent; the loop then asks the policy again among the remaining candidates (and skips a refused scout arc). With a
+finger there is no truth: ``obj`` and ``truth`` may be None, the scout is centred at ``centre`` (the fixture
+position), and the records carry NaN errors.
 
 "No contact" is data too. The contact-level likelihood (:mod:`bayestouch.inference.contact`) has terms for contact
 points only; the loop adds, for every ray that met nothing over its length t_max, log Φ((t_θ − t_max)/σ) (the
@@ -50,12 +60,16 @@ __all__ = [
     "SCOUT_RADIUS",
     "CONTACT_NOISE",
     "Free",
+    "RayProber",
+    "point_estimate",
 ]
 
 #: radius of the believed sphere before any touch, metres (a hand-held object of a few centimetres)
 SCOUT_RADIUS = 0.025
 #: contact noise along the ray, metres (the 0.3 mm of the sparse-data sets of issue 4)
 CONTACT_NOISE = 3e-4
+#: new random scout arcs tried in place of one the prober refused as unsafe
+SCOUT_REDRAWS = 8
 #: surface samples per shape for the Chamfer distance
 CHAMFER_COUNT = 10000
 
@@ -102,7 +116,8 @@ class ExploreSettings(NamedTuple):
 
 
 class StrokeRecord(NamedTuple):
-    """One stroke of the loop (stroke 0 is the scout)."""
+    """One stroke of the loop (stroke 0 is the scout). ``chamfer`` and ``volume_error`` are NaN without a truth;
+    ``refused`` counts the candidates (scout arcs) the prober refused as unsafe before this stroke ran."""
 
     stroke: int
     n_points: int
@@ -116,6 +131,7 @@ class StrokeRecord(NamedTuple):
     update_s: float
     seconds: float
     summary: dict
+    refused: int = 0
 
 
 class ExploreResult(NamedTuple):
@@ -142,6 +158,21 @@ def truth_of(obj) -> Truth:
 
     v, f = obj.mesh(64)
     return Truth((v, f), float(surface_integrals(v, f).volume), float(np.mean(np.asarray(obj.shape.axes))))
+
+
+def point_estimate(shape_vectors) -> dict:
+    """The point estimate (the median-volume draw) of draws ``(N, 10)``: ``estimate`` (10,), ``volume_mean`` and
+    ``volume_sd`` (m³, over the draws) and NaN ``chamfer`` and ``volume_error`` (no truth to compare with)."""
+    vecs = np.asarray(shape_vectors, float)
+    vols = np.asarray(_vol(jnp.asarray(vecs)))
+    k = int(np.argsort(vols)[len(vols) // 2])
+    return {
+        "chamfer": float("nan"),
+        "volume_error": float("nan"),
+        "volume_mean": float(vols.mean()),
+        "volume_sd": float(vols.std(ddof=1)),
+        "estimate": vecs[k],
+    }
 
 
 def shape_errors(shape_vectors, truth: Truth, seed: int = 0) -> dict:
@@ -198,6 +229,25 @@ def _measure(obj, stroke: Strokes, noise_sd: float, rng: np.random.Generator) ->
     return x0[ok] + t[ok, None] * d[ok], Free(x0[miss], d[miss], float(stroke.t_max), x0[inside])
 
 
+class RayProber:
+    """The default prober: a stroke measured on a simulated object by rays (:func:`~bayestouch.planning.signal.
+    true_ray_distances`, Gaussian noise of ``noise_sd`` metres along the ray).
+
+    Parameters
+    ----------
+    obj : SceneObject
+        The true object.
+    noise_sd : float, metres
+    """
+
+    def __init__(self, obj, noise_sd: float = CONTACT_NOISE):
+        self.obj, self.noise_sd = obj, float(noise_sd)
+
+    def probe(self, stroke: Strokes, rng: np.random.Generator) -> tuple[np.ndarray, Free]:
+        """Contact points (K, 3) m and :class:`Free` observations of ``stroke`` (a batch of one)."""
+        return _measure(self.obj, stroke, self.noise_sd, rng)
+
+
 @jax.jit
 def _free_log_lik(thetas, starts, dirs, t_max, inside, w_ray, w_in):
     """Log-likelihood (W,) of the :class:`Free` observations for walkers ``thetas (W, 11)``: a ray that met nothing
@@ -245,6 +295,13 @@ def _with_free(logp, bounds, free: Free):
         return np.where(np.isnan(out), -np.inf, out)
 
     return f
+
+
+def _concat(batches: list[Strokes]) -> Strokes:
+    """Strokes batches (of equal T and t_max) one after another."""
+    cat = [np.concatenate([getattr(b, f) for b in batches]) for f in ("path", "starts", "dirs")]
+    rest = [np.concatenate([getattr(b, f) for b in batches]) for f in ("length", "force", "duration")]
+    return Strokes(*cat, batches[0].t_max, *rest)
 
 
 def _draws(chain_kept, count: int, rng: np.random.Generator) -> np.ndarray:
@@ -299,13 +356,16 @@ def explore(
     target_volume_sd: float | None = None,
     on_stroke=None,
     truth: Truth | None = None,
+    prober=None,
+    centre=None,
 ) -> ExploreResult:
-    """Run the exploration loop on a simulated object.
+    """Run the exploration loop on a simulated object or a finger.
 
     Parameters
     ----------
-    obj : SceneObject
-        The true object (:func:`bayestouch.scene.objects.load_object`).
+    obj : SceneObject or None
+        The true object (:func:`bayestouch.scene.objects.load_object`); None with a ``prober`` that touches a
+        real object (no truth: NaN errors; the ``oracle`` policy needs it).
     policy : {"eig", "random", "coverage", "oracle"}
     budget : int
         Planned strokes after the scout (≥ 1).
@@ -320,7 +380,11 @@ def explore(
     on_stroke : callable, optional
         Called with each :class:`StrokeRecord` as it is made.
     truth : Truth, optional
-        Precomputed :func:`truth_of` ``(obj)``.
+        Precomputed :func:`truth_of` ``(obj)`` (computed from ``obj`` when None and ``obj`` is given).
+    prober : optional
+        Runs the strokes (module docstring); default :class:`RayProber` ``(obj, settings.noise_sd)``.
+    centre : (3,) float, metres, optional
+        Nominal centre (the fixture) for the scout; default ``obj.shape.centre``; required without ``obj``.
 
     Returns
     -------
@@ -333,8 +397,24 @@ def explore(
         raise BadInput(f"budget: expected an integer number of strokes ≥ 1, got {budget!r}")
     if not isinstance(seed, int | np.integer) or seed < 0:
         raise BadInput(f"seed: expected an integer ≥ 0, got {seed!r}")
-    truth = truth or truth_of(obj)
     s = settings or ExploreSettings()
+    if obj is None and prober is None:
+        raise BadInput("object: expected a scene object or a prober (a finger) to explore, got neither")
+    if obj is None and policy == "oracle":
+        raise BadInput("planner: the oracle needs the true object (simulation only); use eig, random or coverage")
+    if centre is None:
+        if obj is None:
+            raise BadInput("centre: expected the nominal centre (x, y, z) m of the object when no object is given")
+        centre = obj.shape.centre
+    centre = np.asarray(centre, float)
+    if centre.shape != (3,) or not np.all(np.isfinite(centre)):
+        raise BadInput(f"centre: expected three finite coordinates in metres, got {centre.tolist()}")
+    if truth is None and obj is not None:
+        truth = truth_of(obj)
+    if prober is None:
+        prober = RayProber(obj, s.noise_sd)
+    from bayestouch.hardware.safety import UnsafePlan
+
     priors = cm.load_priors()
     pol_id = 1 + ("eig", "random", "coverage", "oracle").index(policy)
     rng_common = np.random.default_rng([seed, 0])
@@ -343,15 +423,36 @@ def explore(
 
     # stroke 0: the scout over the believed sphere at the nominal centre
     t0 = time.perf_counter()
-    centre = np.asarray(obj.shape.centre, float)
     sphere = ne.NEllipsoid(jnp.asarray(centre), jnp.full(3, SCOUT_RADIUS), jnp.zeros(3), jnp.asarray(2.0))
     scout = make_candidates(
         sphere, s.scout, points=s.points, seed=rng_common, standoff=s.standoff, length_range=(0.025, 0.03)
     )
     free = Free(np.empty((0, 3)), np.empty((0, 3)), float(scout.t_max), np.empty((0, 3)))
     pts = np.empty((0, 3))
+    refused = 0
+    arcs = []
     for i in range(s.scout):
-        p, fr = _measure(obj, select(scout, i), s.noise_sd, rng_common)
+        arc = select(scout, i)
+        for attempt in range(1, SCOUT_REDRAWS + 1):
+            try:
+                p, fr = prober.probe(arc, rng_common)
+                break
+            except UnsafePlan:  # nothing was sent: try a new random arc instead
+                refused += 1
+                arc = select(  # a batch of the scout's size: no new compilation of the surface walk
+                    make_candidates(
+                        sphere,
+                        s.scout,
+                        points=s.points,
+                        seed=[seed, 0, i, attempt],
+                        standoff=s.standoff,
+                        length_range=(0.025, 0.03),
+                    ),
+                    i,
+                )
+        else:
+            continue
+        arcs.append(arc)
         pts, free = np.concatenate([pts, p]), free.add(fr)
     if len(pts) < 12:
         raise BadInput(
@@ -363,7 +464,7 @@ def explore(
     theta0 = initial_theta(pts, seed, priors, starts=s.init_starts)
     start = _walkers(theta0, bounds, s.walkers, rng_common)
     ch = _sample(logp, start, s.walkers, _subseed(seed, 0, 0), s.init_steps)
-    strokes = [scout]
+    strokes = [scout if refused == 0 else _concat(arcs)]
 
     k = 0
     decision_s, eig_value = 0.0, float("nan")
@@ -371,7 +472,7 @@ def explore(
     while True:
         nat = _draws(ch.kept, s.draws, rng_common if k == 0 else rng)
         vecs = nat[:, :10]
-        err = shape_errors(vecs, truth)
+        err = shape_errors(vecs, truth) if truth is not None else point_estimate(vecs)
         rec = StrokeRecord(
             k,
             len(pts),
@@ -385,6 +486,7 @@ def explore(
             ch.seconds,
             time.perf_counter() - t0,
             _summary(k, nat, err, len(pts), policy),
+            refused,
         )
         records.append(rec)
         if on_stroke is not None:
@@ -396,24 +498,35 @@ def explore(
         # plan
         mean_shape = ne.from_vector(jnp.asarray(err["estimate"]))
         cands = make_candidates(mean_shape, s.candidates, points=s.points, seed=rng, standoff=s.standoff)
-        dec = choose(
-            policy,
-            cands,
-            vecs,
-            noise_sd=s.noise_sd,
-            rng=rng,
-            touched=pts,
-            obj=obj,
-            volumes=np.asarray(_vol(jnp.asarray(vecs))),
-            per_second=s.per_second,
-            standoff=s.standoff,
-        )
-        decision_s = dec.seconds
-        eig_value = float(dec.eig[dec.index]) if dec.eig is not None else float("nan")
-        # run the stroke
-        chosen = select(cands, dec.index)
+        avail = np.arange(len(cands.force))
+        shown, refused, decision_s = cands, 0, 0.0
+        while True:
+            dec = choose(
+                policy,
+                shown,
+                vecs,
+                noise_sd=s.noise_sd,
+                rng=rng,
+                touched=pts,
+                obj=obj,
+                volumes=np.asarray(_vol(jnp.asarray(vecs))),
+                per_second=s.per_second,
+                standoff=s.standoff,
+            )
+            decision_s += dec.seconds
+            eig_value = float(dec.eig[dec.index]) if dec.eig is not None else float("nan")
+            # run the stroke
+            chosen = select(shown, dec.index)
+            try:
+                new, fr = prober.probe(chosen, np.random.default_rng([seed, pol_id, k]))
+                break
+            except UnsafePlan as e:  # refused before anything was sent: the policy chooses among the others
+                refused += 1
+                avail = np.delete(avail, dec.index)
+                if len(avail) == 0:
+                    raise BadInput(f"candidates: the prober refused all {len(cands.force)} candidates ({e})") from None
+                shown = select(cands, avail)
         strokes.append(chosen)
-        new, fr = _measure(obj, chosen, s.noise_sd, np.random.default_rng([seed, pol_id, k]))
         free = free.add(fr)
         n_new = len(new)
         if n_new:

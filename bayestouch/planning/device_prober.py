@@ -1,0 +1,175 @@
+"""The exploration loop drives a finger: :class:`DeviceProber` runs planned strokes on a
+:class:`~bayestouch.hardware.device.FingerDevice` and turns what it reports into contact points.
+
+How a finger knows where it touched. A real finger does not report points on the true surface for free: it
+knows where its pad is only through its pose estimate (stage encoders and the bending model of the rod), and
+that it touched only through its contact force. So every planned stroke runs as a *guarded stroke* (protocol
+revision 1.1, ``bayestouch/hardware/PROTOCOL.md``): at each of the T path samples the pad starts at the planned
+ray start (``standoff`` outside the *believed* surface) and moves along the believed inward normal until the
+contact force crosses ``threshold`` (at most the ray length ``t_max``), then presses to the planned force and
+follows. The device reports, per sample, whether and where that happened: its pose estimate ``position`` of
+the pad centre at the threshold crossing. At that moment the pad has already indented the skin by
+δ_th = :func:`~bayestouch.hardware.device.winkler_depth` ``(threshold)`` (thin-layer Winkler model of the
+fingertip on a flat surface; 0.02 N gives ≈ 0.1 mm), so the surface point is ``position − δ_th u`` (u the
+approach direction). Its error is the pose estimate's (the virtual finger's ``pose_sd``, 0.3 mm by default, the
+contact noise the planner assumes) plus the indentation model's (the forward model's force is up to 1.42× the
+Winkler force, so δ_th is overestimated by at most 1 − 1/√1.42 ≈ 16 %, ≈ 0.02 mm at 0.02 N). A sample whose
+approach met nothing within ``t_max`` is a miss, one already in contact at its start is "inside": both are the
+loop's :class:`~bayestouch.planning.loop.Free` observations, exactly as in simulation.
+
+The planned force becomes a pressing depth (:func:`~bayestouch.hardware.device.depth_for_force`: the depth at
+which the safety check's conservative force bound equals it), the samples are timed evenly over the stroke's
+duration (its length at the planned speed), and the device client checks the plan (speed of the start path,
+currents, wire temperature, depth and force bound) against the tighter of its own and the device's limits before
+any byte is sent: a stroke that fails raises :class:`~bayestouch.hardware.safety.UnsafePlan` and the loop
+chooses another.
+
+Every stroke's frames are kept (:attr:`DeviceProber.strokes`, rewritten to ``recording`` after each stroke when
+given, with the schema of ``bayestouch simulate``); the device's journal keeps every packet as it arrives.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from bayestouch.hardware.device import (
+    FingerDevice,
+    ProbeData,
+    ProbePlan,
+    StrokeData,
+    build_recording,
+    depth_for_force,
+    winkler_depth,
+)
+from bayestouch.hardware.safety import StrokePlan
+from bayestouch.planning.candidates import Strokes
+from bayestouch.planning.loop import Free
+
+__all__ = ["DeviceProber", "PROBE_THRESHOLD", "probe_points"]
+
+#: contact force that counts as the touch, newtons (a fifth of the smallest planned force, 0.1 N)
+PROBE_THRESHOLD = 0.02
+#: wire hold currents of the planned strokes, amperes (those of ``bayestouch device run``)
+HOLD_CURRENTS = (0.15, 0.05, 0.05)
+
+
+def probe_points(data: ProbeData, threshold_depth: float) -> tuple[np.ndarray, Free]:
+    """Contact points (K, 3) m and :class:`~bayestouch.planning.loop.Free` observations of one guarded stroke.
+
+    Parameters
+    ----------
+    data : ProbeData
+    threshold_depth : float, metres
+        Skin indentation at the threshold force (subtracted along the approach direction).
+    """
+    u = -np.asarray(data.plan.normal, float)
+    start = np.asarray(data.plan.start, float)
+    hit, miss, inside = data.probe == 0, data.probe == 1, data.probe == 2
+    pts = data.position[hit] - threshold_depth * u[hit]
+    return pts, Free(start[miss], u[miss], float(data.plan.travel), start[inside])
+
+
+class DeviceProber:
+    """A prober (:mod:`bayestouch.planning.loop`) that runs each planned stroke on a finger (module docstring).
+
+    Parameters
+    ----------
+    device : FingerDevice
+        Open (handshake done).
+    threshold : float, N
+        Contact force that counts as the touch.
+    hold_currents : (3,) float, amperes
+    recording : path, optional
+        A ``.nc`` file rewritten (atomically) after every stroke with all strokes so far.
+    attrs : dict, optional
+        Extra attributes of the recording.
+
+    Attributes
+    ----------
+    strokes : list of StrokeData
+        Every completed stroke, its plan's ``contact`` the estimated contact points (the pad's pose estimate at
+        the end of the travel for a miss, at the start for a start inside) and ``normal`` the approach normals.
+    probes : list of ProbeData
+    refused : list of str
+        Why each refused stroke was refused (nothing was sent for them).
+    """
+
+    def __init__(
+        self,
+        device: FingerDevice,
+        *,
+        threshold: float = PROBE_THRESHOLD,
+        hold_currents=HOLD_CURRENTS,
+        recording=None,
+        attrs: dict | None = None,
+    ):
+        self.device, self.threshold = device, float(threshold)
+        self.hold_currents = np.asarray(hold_currents, float)
+        self.recording_path = Path(recording) if recording else None
+        self.attrs = dict(attrs or {})
+        self.threshold_depth = float(winkler_depth(self.threshold))
+        self.strokes: list[StrokeData] = []
+        self.probes: list[ProbeData] = []
+        self.refused: list[str] = []
+
+    def plan(self, stroke: Strokes) -> ProbePlan:
+        """The guarded-stroke plan of ``stroke`` (a batch of one)."""
+        T = stroke.starts.shape[1]
+        return ProbePlan(
+            np.linspace(0.0, float(stroke.duration[0]), T),
+            np.asarray(stroke.starts[0], float),
+            -np.asarray(stroke.dirs[0], float),
+            depth_for_force(float(stroke.force[0])),
+            self.hold_currents,
+            float(stroke.t_max),
+            self.threshold,
+        )
+
+    def probe(self, stroke: Strokes, rng=None) -> tuple[np.ndarray, Free]:
+        """Run ``stroke`` (a batch of one) on the finger: contact points (K, 3) m and
+        :class:`~bayestouch.planning.loop.Free` observations. ``rng`` is unused (the finger's noise is its own).
+
+        Raises
+        ------
+        UnsafePlan
+            Before anything is sent (recorded in :attr:`refused`).
+        DeviceError
+            The device failed; the strokes so far are kept (and in ``recording``).
+        """
+        from bayestouch.hardware.safety import UnsafePlan
+
+        plan = self.plan(stroke)
+        try:
+            data = self.device.run_probe(plan)
+        except UnsafePlan as e:
+            self.refused.append(str(e))
+            raise
+        pts, free = probe_points(data, self.threshold_depth)
+        est = data.position - self.threshold_depth * (-plan.normal) * (data.probe == 0)[:, None]
+        self.probes.append(data)
+        self.strokes.append(
+            StrokeData(
+                StrokePlan(plan.time, est, plan.normal, plan.depth, plan.hold_currents),
+                data.frames,
+                data.device_time,
+                data.stroke_id,
+            )
+        )
+        if self.recording_path is not None:
+            from bayestouch.recording import write_recording
+
+            write_recording(self.dataset(), self.recording_path)
+        return pts, free
+
+    def dataset(self):
+        """All strokes so far as the ``xarray.Dataset`` of :mod:`bayestouch.recording` (the schema of
+        ``bayestouch simulate``; ``contact_point`` holds the estimated contact points)."""
+        attrs = {
+            "source": "bayestouch explore on a finger (guarded strokes)",
+            "contact_point_note": "estimated from the pose at the force threshold minus the threshold indentation",
+            "probe_threshold_N": self.threshold,
+            **self.attrs,
+        }
+        return build_recording(self.strokes, self.device.info, attrs)
