@@ -27,6 +27,22 @@ _API = {
     "fit_nellipsoid_de": "bayestouch.paper",
     "refine_ffd": "bayestouch.paper",
     "reproduce_table2": "bayestouch.paper",
+    "load_finger": "bayestouch.virtual",
+    "record_strokes": "bayestouch.virtual",
+    "random_strokes": "bayestouch.scene.strokes",
+    "read_recording": "bayestouch.recording",
+    "write_recording": "bayestouch.recording",
+    "sample": "bayestouch.inference.sampler",
+    "run_contact_fit": "bayestouch.inference.run",
+    "run_raw_fit": "bayestouch.inference.raw",
+    "patch_posterior": "bayestouch.inference.patch",
+    "explore": "bayestouch.planning.loop",
+    "ExploreSettings": "bayestouch.planning.loop",
+    "run_experiment": "bayestouch.planning.experiment",
+    "FingerDevice": "bayestouch.hardware.device",
+    "VirtualDevice": "bayestouch.hardware.simulator",
+    "run_demo": "bayestouch.demo",
+    "write_report": "bayestouch.report_page",
 }
 
 __all__ = ["__version__", *sorted(_API)]

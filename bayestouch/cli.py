@@ -55,8 +55,16 @@ def _eps_list(text: str) -> list[float]:
     return eps
 
 
+class _OneLineParser(argparse.ArgumentParser):
+    """argparse with a one-line error (no usage block): ``bayestouch fit: error: ... (see bayestouch fit --help)``,
+    exit code 2. Subcommand parsers inherit the class."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = _OneLineParser(
         prog="bayestouch",
         description="Probabilistic inference for tactile shape and texture sensing.",
     )
@@ -131,12 +139,16 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--models", type=Path, default=DEFAULT_OBJECTS.parent, help="parameter folder (default models/)")
     sp.add_argument("--quiet", action="store_true", help="no progress bar")
 
-    dp = sub.add_parser("demo", help="run the main job on the built-in default (what exists so far)",
-                        description="End-to-end run of what this version provides: simulated strokes of the "
-                        "virtual finger over the egg, and the paper pipeline on the damaged graphite plate at a "
-                        "reduced size, written to --out.")
+    dp = sub.add_parser("demo", help="the main job: eig exploration of the egg, its posterior and report.html",
+                        description="The virtual finger explores the default egg with the eig planner (a scout and "
+                        "5 planned strokes, the posterior sampled after each), then samples the posterior of every "
+                        "point touched, replays the strokes through the taxels (currents and a contact-patch "
+                        "posterior) and writes report.html with its figures, summary.json, posterior.nc and the "
+                        "meshes into --out.")
     dp.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder (default out/demo)")
-    dp.add_argument("--seed", type=int, default=0)
+    dp.add_argument("--seed", type=int, default=0, help="seed of every stage (default 0)")
+    dp.add_argument("--quick", action="store_true", help="small sizes (2 strokes, short chains): a smoke run")
+    dp.add_argument("--quiet", action="store_true", help="no progress bars")
 
     from bayestouch.hardware.cli import add_device_parser
     from bayestouch.planning.cli import add_planning_parsers
@@ -190,18 +202,10 @@ def _cmd_reproduce_paper(args) -> int:
 
 
 def _cmd_demo(args) -> int:
-    # the subcommands' own parser supplies every default the demo does not set
-    parser = build_parser()
-    sim = parser.parse_args(["simulate", "--object", str(DEFAULT_OBJECTS / "egg.toml"), "--strokes", "3",
-                             "--seed", str(args.seed), "--out", str(args.out / "egg_strokes.nc")])
-    paper = parser.parse_args(["reproduce-paper", "--out", str(args.out), "--seed", str(args.seed), "--rate", "10",
-                               "--sizes", "6x6x3,6x5x5", "--res", "32"])
-    print("bayestouch demo: 1) the virtual finger strokes the egg (recording), 2) the paper pipeline on the "
-          "damaged graphite plate (reduced size).")
-    _check_out(args.out)
-    _cmd_simulate(sim)
-    print("The Bayesian fit and the exploration loop of the full demo arrive with the inference and planning work.")
-    return _cmd_reproduce_paper(paper)
+    from bayestouch.demo import FULL, QUICK, run_demo
+
+    run_demo(args.out, seed=args.seed, sizes=QUICK if args.quick else FULL, progress=not args.quiet)
+    return 0
 
 
 def _cmd_simulate(args) -> int:
@@ -232,6 +236,9 @@ def _cmd_simulate(args) -> int:
 
     obj = load_object(args.object)
     vf = load_finger(args.models, seed=args.seed)
+    max_current = float(vf.wire.max_current)
+    if not all(0 <= c <= max_current for c in currents):
+        raise BadInput(f"--currents: each wire current must be in [0, {max_current:g}] A (amperes), got {currents}")
     strokes = random_strokes(obj, args.strokes, seed=args.seed, duration=args.duration, rate=args.rate,
                              depth=args.depth)
     t0 = time.perf_counter()

@@ -408,7 +408,7 @@ def run_contact_fit(points, out: Path, *, seed: int = 0, walkers: int = 32, step
                     resume: bool = False, budget_s: float | None = None, progress: bool = True,
                     normals=None, noise: str = "student", nu: float | None = None,
                     ffd: tuple[int, int, int] | None = None, ffd_tau: float | None = None,
-                    stop_when_converged: bool = True) -> dict:
+                    stop_when_converged: bool = True, start=None) -> dict:
     """Sample the contact-level posterior of ``points (M, 3)`` m and write the run folder ``out``.
 
     Parameters
@@ -433,6 +433,9 @@ def run_contact_fit(points, out: Path, *, seed: int = 0, walkers: int = 32, step
         Refine the n-ellipsoid with an FFD lattice of this size, marginalised analytically (Gaussian noise);
         ``ffd_tau`` (m) is the prior sd of the control-point displacements. Not combined with normals or another
         noise model.
+    start : (walkers, D) float, optional
+        A starting ensemble in θ (e.g. the last ensemble of an exploration's posterior): replaces the evolutionary
+        initial fit; walkers are clipped into the prior box.
 
     Returns
     -------
@@ -463,10 +466,16 @@ def run_contact_fit(points, out: Path, *, seed: int = 0, walkers: int = 32, step
         logp, bounds = fm.make_ffd_log_prob(points, ffd, tau=tau, priors=priors)
         model = ffd_contact_model(points, tuple(ffd), tau)
 
-    def start():
+    def initial():
+        if start is not None:
+            lo, hi = np.asarray(bounds.lower), np.asarray(bounds.upper)
+            ens = np.asarray(start, float)
+            if ens.shape != (walkers, len(sampled)):
+                raise BadInput(f"start: expected an ensemble of shape ({walkers}, {len(sampled)}), got {ens.shape}")
+            return np.clip(ens, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
         theta0 = initial_theta(points, seed, priors)
         return _walkers(theta0, bounds, walkers, np.random.default_rng(seed), sampled)
 
-    ch = sample(logp, start, out / "chain.h5", walkers=walkers, ndim=len(sampled), seed=seed, steps=steps,
+    ch = sample(logp, initial, out / "chain.h5", walkers=walkers, ndim=len(sampled), seed=seed, steps=steps,
                 resume=resume, budget_s=budget_s, progress=progress, t0=t0, stop_when_converged=stop_when_converged)
     return write_posterior(out, ch, model, seed=seed, t0=t0)

@@ -157,6 +157,8 @@ def run_experiment(
         raise BadInput(f"seed: expected an integer ≥ 0, got {seed!r}")
     if workers < 1:
         raise BadInput(f"workers: expected an integer ≥ 1, got {workers}")
+    if scheduler is not None:
+        _check_address(scheduler)
     paths = {str(o): resolve_object(str(o)) for o in objects}
     names = {o: p.stem if p.parent == _MODELS else str(o) for o, p in paths.items()}
     unknown = set(settings or {}) - set(ExploreSettings._fields)
@@ -235,6 +237,11 @@ def _run_pool(workers: int, tasks: list[dict], finished) -> None:
             ) from None
 
 
+def _check_address(address) -> None:
+    if not (isinstance(address, str) and address.startswith(("tcp://", "tls://", "inproc://"))):
+        raise BadInput(f"--scheduler: expected an address like tcp://HOST:PORT, got {address!r}")
+
+
 def _run_dask(address: str, tasks: list[dict], finished) -> None:
     try:
         from dask.distributed import Client, as_completed
@@ -242,8 +249,7 @@ def _run_dask(address: str, tasks: list[dict], finished) -> None:
         raise BadInput(
             '--scheduler: needs dask\'s distributed scheduler; install it with pip install "dask[distributed]"'
         ) from None
-    if not (isinstance(address, str) and address.startswith(("tcp://", "tls://", "inproc://"))):
-        raise BadInput(f"--scheduler: expected an address like tcp://HOST:PORT, got {address!r}")
+    _check_address(address)
     with Client(address) as client:
         # pure=False: every task runs (a retried task after a worker died reruns the whole trial)
         futures = [client.submit(run_trial, t, pure=False, retries=2) for t in tasks]

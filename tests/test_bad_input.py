@@ -1,0 +1,117 @@
+"""Bad input anywhere on the command line: one line on stderr naming the problem, exit code 2, no traceback, and
+nothing already recorded is lost.
+
+The table below is the record of the inputs tried (issue 7): each row is a command line (``{tmp}`` is a fresh folder
+holding the fixture files written by :func:`_files`) and a piece of the message it must print.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from bayestouch.cli import main
+
+#: command line, text the one-line message must contain
+TABLE = [
+    # missing files and folders
+    ("fit {tmp}/missing.csv --out {tmp}/o", "missing.csv"),
+    ("fit {tmp}/missing.nc --out {tmp}/o", "missing.nc"),
+    ("simulate --object {tmp}/missing.toml --out {tmp}/r.nc", "missing.toml"),
+    ("reproduce-paper --object {tmp}/missing.toml --out {tmp}/o", "missing.toml"),
+    ("explore --object {tmp}/missing.toml --out {tmp}/o", "missing.toml"),
+    ("device run --port {tmp}/no_such_port --strokes 1 --out {tmp}/r.nc", "no_such_port"),
+    ("device run --port {tmp}/no_such_port --stroke-file {tmp}/missing.json --out {tmp}/r.nc", "missing.json"),
+    # wrong schema
+    ("fit {tmp}/no_header.csv --out {tmp}/o", "x,y,z"),
+    ("fit {tmp}/wrong_columns.csv --out {tmp}/o", "x,y,z"),
+    ("fit {tmp}/text_values.csv --out {tmp}/o", "text_values.csv"),
+    ("fit {tmp}/nan_values.csv --out {tmp}/o", "nan_values.csv"),
+    ("fit {tmp}/empty.csv --out {tmp}/o", "empty.csv"),
+    ("fit {tmp}/not_a_recording.nc --out {tmp}/o", "not_a_recording.nc"),
+    ("simulate --object {tmp}/no_shape.toml --out {tmp}/r.nc", "shape"),
+    ("simulate --object {tmp}/broken.toml --out {tmp}/r.nc", "broken.toml"),
+    ("device run --port {tmp}/no_such_port --stroke-file {tmp}/bad_strokes.json --out {tmp}/r.nc", "bad_strokes.json"),
+    # wrong units
+    ("fit {tmp}/millimetres.csv --out {tmp}/o", "metres"),
+    ("simulate --object {tmp}/millimetres.toml --out {tmp}/r.nc", "millimetres"),
+    ("simulate --object {egg} --out {tmp}/r.nc --depth 0.3", "depth"),
+    ("simulate --object {egg} --out {tmp}/r.nc --currents 150,50,50", "current"),
+    ("simulate --object {egg} --out {tmp}/r.nc --force 70", "--force"),
+    # impossible parameters
+    ("simulate --object {tmp}/negative_axes.toml --out {tmp}/r.nc", "axes"),
+    ("simulate --object {egg} --out {tmp}/r.nc --duration -1", "--duration"),
+    ("simulate --object {egg} --out {tmp}/r.nc --rate 0", "--rate"),
+    ("simulate --object {egg} --out {tmp}/r.nc --currents 0.1,0.1", "three"),
+    ("simulate --object {egg} --out {tmp}/r.txt", ".nc"),
+    ("fit {tmp}/good.csv --out {tmp}/o --walkers 7", "--walkers"),
+    ("fit {tmp}/good.csv --out {tmp}/o --budget 0", "--budget"),
+    ("fit {tmp}/good.csv --out {tmp}/o --ffd 1x1x1", "--ffd"),
+    ("fit {tmp}/good.csv --out {tmp}/o --ffd-tau 5", "--ffd-tau"),
+    ("fit {tmp}/good.csv --out {tmp}/o --nu -2", "--nu"),
+    ("fit {tmp}/good.csv --out {tmp}/o --steps 0", "--steps"),
+    ("fit {tmp}/good.csv --out {tmp}/o --noise laplace", "--noise"),
+    ("reproduce-paper --out {tmp}/o --sizes 6x6", "6x6x3"),
+    ("reproduce-paper --out {tmp}/o --epsilons 0.7", "[0, 0.5)"),
+    ("reproduce-paper --out {tmp}/o --rate -1", "--rate"),
+    ("explore --object {egg} --planner clever --out {tmp}/o", "clever"),
+    ("explore --object {egg} --budget 0 --out {tmp}/o", "--budget"),
+    ("explore --object {egg} --candidates 0 --out {tmp}/o", "--candidates"),
+    ("experiment --planners eig,clever --out {tmp}/o", "clever"),
+    ("experiment --trials 0 --out {tmp}/o", "--trials"),
+    ("experiment --objects teapot --out {tmp}/o", "teapot"),
+    ("experiment --scheduler nonsense --out {tmp}/o", "--scheduler"),
+    ("device simulate --drop 2", "--drop"),
+    ("device run --port {tmp}/no_such_port --strokes 0 --out {tmp}/r.nc", "--strokes"),
+    ("demo --seed -1 --out {tmp}/o", "--seed"),
+    ("nonsense", "nonsense"),
+    # an output path that is a file already: refused, and the file is kept
+    ("fit {tmp}/good.csv --out {tmp}/keep.txt", "keep.txt"),
+    ("demo --out {tmp}/keep.txt", "keep.txt"),
+    ("explore --object {egg} --out {tmp}/keep.txt", "keep.txt"),
+    ("simulate --object {egg} --out {tmp}/folder.nc", "folder"),
+]
+
+
+def _files(tmp):
+    (tmp / "no_header.csv").write_text("0.01,0.02,0.03\n0.02,0.01,0.0\n")
+    (tmp / "wrong_columns.csv").write_text("a,b,c\n0.01,0.02,0.03\n")
+    (tmp / "text_values.csv").write_text("x,y,z\n0.01,abc,0.03\n")
+    (tmp / "nan_values.csv").write_text("x,y,z\n0.01,nan,0.03\n" * 20)
+    (tmp / "empty.csv").write_text("x,y,z\n")
+    (tmp / "millimetres.csv").write_text("x,y,z\n" + "".join(f"{30 * c:.3f},{20 * s:.3f},5.0\n" for c, s in
+                                                             zip([1, 0, -1, 0] * 10, [0, 1, 0, -1] * 10, strict=True)))
+    (tmp / "good.csv").write_text("x,y,z\n" + "".join(f"{0.03 * c:.4f},{0.02 * s:.4f},0.0\n" for c, s in
+                                                      zip([1, 0, -1, 0] * 10, [0, 1, 0, -1] * 10, strict=True)))
+    (tmp / "not_a_recording.nc").write_bytes(b"this is not netCDF")
+    (tmp / "no_shape.toml").write_text('[object]\nname = "x"\n')
+    (tmp / "broken.toml").write_text("[shape\ncentre_m = [0, 0\n")
+    (tmp / "millimetres.toml").write_text("[shape]\ncentre_m = [0, 0, 0]\naxes_m = [45, 25, 5]\nn = 10\n")
+    (tmp / "negative_axes.toml").write_text("[shape]\ncentre_m = [0, 0, 0]\naxes_m = [0.03, -0.02, 0.02]\nn = 2\n")
+    (tmp / "bad_strokes.json").write_text('{"strokes": [{"contact": [[0, 0]]}]}')
+    (tmp / "keep.txt").write_text("recorded")
+    (tmp / "folder.nc").mkdir()
+
+
+@pytest.fixture(scope="module")
+def tmp(tmp_path_factory):
+    t = tmp_path_factory.mktemp("bad_input")
+    _files(t)
+    return t
+
+
+@pytest.mark.parametrize("line,needle", TABLE, ids=[row[0].split(" {")[0] + f"#{i}" for i, row in enumerate(TABLE)])
+def test_bad_input_one_line_exit_2(line, needle, tmp, capsys):
+    from bayestouch.params import MODELS
+
+    argv = line.format(tmp=tmp, egg=MODELS / "objects" / "egg.toml").split()
+    try:
+        code = main(argv)
+    except SystemExit as e:  # argparse's own errors
+        code = e.code
+    err = capsys.readouterr().err
+    lines = [x for x in err.splitlines() if x.strip()]
+    assert code == 2, (code, err)
+    assert len(lines) == 1, err
+    assert "Traceback" not in err
+    assert needle in lines[0], lines[0]
+    assert (tmp / "keep.txt").read_text() == "recorded"
