@@ -11,7 +11,7 @@ from bayestouch._jax import jnp
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.integrals import surface_integrals
 from bayestouch.geometry.mesh import sample_surface
-from bayestouch.paper import PAPER_TABLE2, fit_nellipsoid_de, perturb, plate_data, table2_row
+from bayestouch.paper import PAPER_TABLE1, PAPER_TABLE2, fit_nellipsoid_de, perturb, plate_data, table2_row
 from bayestouch.scene.objects import SceneObject, load_object
 
 ROOT = Path(__file__).parent.parent
@@ -75,6 +75,16 @@ def test_paper_table_matches_shipped_csv():
         assert int(r["iterations"]) == it and float(r["bp_minus_x_percent"]) == bp
         assert float(r["j_ratio"]) == pytest.approx(j * 1e-7) and float(r["eps_i"]) == pytest.approx(i * 1e-5)
         assert float(r["eps_v"]) == pytest.approx(v * 1e-7) and float(r["eps_a"]) == pytest.approx(a * 1e-6)
+
+
+def test_paper_table1_matches_shipped_csv():
+    with open(ROOT / "data" / "table1_paper.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert list(rows[0]) == ["path", "load_N", "a_mm", "b_mm", "n"]
+    table = {(int(r["path"]), float(r["load_N"])): (float(r["a_mm"]), float(r["b_mm"]), float(r["n"])) for r in rows}
+    constant = {(k, row[0]): tuple(row[1:]) for k, rs in PAPER_TABLE1.items() for row in rs}
+    assert len(rows) == len(table) == len(constant) == 32  # 8 paths × 4 loads, no duplicate row
+    assert table == constant  # exact: both are the printed one-decimal figures
 
 
 def test_sphere_object_is_recovered_by_pipeline():
