@@ -6,6 +6,7 @@ import shutil
 import numpy as np
 import pytest
 
+from bayestouch.errors import BadInput
 from bayestouch.inference.sampler import Chain, convergence, sample
 
 D = 3
@@ -231,3 +232,23 @@ def test_emcee_snooker_is_biased_and_ours_is_not():
     assert not _agrees(stock, mean, cov)
     assert np.all(np.var(stock.kept.reshape(-1, D), axis=0) < 0.8 * np.diag(cov))
     assert _agrees(ours, mean, cov)
+
+
+def test_prune_stuck_walkers_replaces_only_walkers_far_below_the_best():
+    from bayestouch.inference.sampler import prune_stuck_walkers
+
+    rng = np.random.default_rng(5)
+    D = 11
+    ens = rng.standard_normal((32, D))  # draws of N(0, I): log p = −½|x|² (up to a constant)
+    stuck = np.arange(26, 32)
+    ens[stuck] += 8.0  # a local trap: ½·64·11 = 352 nats below
+    lp = -0.5 * np.sum(ens**2, axis=1)
+    new, replaced = prune_stuck_walkers(ens, lp, np.random.default_rng(0))
+    assert replaced == 6
+    np.testing.assert_array_equal(new[:26], ens[:26])  # the plausible walkers are kept bit for bit
+    assert np.all(np.abs(new[stuck]).max(axis=1) < 5.0)  # the replaced ones sit among the plausible ones
+    # negative control: a true posterior sample loses no walker (P(prune one of 32) = 32e-4 at tail 1e-4)
+    clean = rng.standard_normal((32, D))
+    assert prune_stuck_walkers(clean, -0.5 * np.sum(clean**2, axis=1), np.random.default_rng(0))[1] == 0
+    with pytest.raises(BadInput, match="start"):
+        prune_stuck_walkers(clean, np.full(32, -np.inf), np.random.default_rng(0))

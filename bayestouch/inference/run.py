@@ -435,7 +435,8 @@ def run_contact_fit(points, out: Path, *, seed: int = 0, walkers: int = 32, step
         noise model.
     start : (walkers, D) float, optional
         A starting ensemble in θ (e.g. the last ensemble of an exploration's posterior): replaces the evolutionary
-        initial fit; walkers are clipped into the prior box.
+        initial fit; walkers are clipped into the prior box, and walkers stuck far below the best are replaced
+        (:func:`bayestouch.inference.sampler.prune_stuck_walkers`).
 
     Returns
     -------
@@ -443,7 +444,7 @@ def run_contact_fit(points, out: Path, *, seed: int = 0, walkers: int = 32, step
         The summary written to ``summary.json``.
     """
     from bayestouch.errors import BadInput
-    from bayestouch.inference.sampler import sample
+    from bayestouch.inference.sampler import prune_stuck_walkers, sample
 
     t0 = time.perf_counter()
     out = Path(out)
@@ -472,6 +473,8 @@ def run_contact_fit(points, out: Path, *, seed: int = 0, walkers: int = 32, step
             ens = np.asarray(start, float)
             if ens.shape != (walkers, len(sampled)):
                 raise BadInput(f"start: expected an ensemble of shape ({walkers}, {len(sampled)}), got {ens.shape}")
+            ens = np.clip(ens, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
+            ens, _ = prune_stuck_walkers(ens, logp(ens), np.random.default_rng(seed))
             return np.clip(ens, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
         theta0 = initial_theta(points, seed, priors)
         return _walkers(theta0, bounds, walkers, np.random.default_rng(seed), sampled)

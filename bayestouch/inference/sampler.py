@@ -16,7 +16,8 @@ import numpy as np
 
 from bayestouch.errors import BadInput
 
-__all__ = ["Chain", "sample", "default_moves", "convergence", "R_HAT_MAX", "ESS_MIN", "TAU_FACTOR"]
+__all__ = ["Chain", "sample", "default_moves", "convergence", "prune_stuck_walkers", "R_HAT_MAX", "ESS_MIN",
+           "TAU_FACTOR"]
 
 #: convergence thresholds (Vehtari et al. 2021 for R-hat and bulk ESS; emcee's docs for N > 50 τ)
 R_HAT_MAX = 1.01
@@ -132,6 +133,51 @@ def _buffered_hdf_backend(path: Path, flush_s: float):
             self._last = time.monotonic()
 
     return Buffered(str(path))
+
+
+def prune_stuck_walkers(ensemble, log_prob, rng: np.random.Generator, *, tail: float = 1e-4,
+                        jitter: float = 1e-2) -> tuple[np.ndarray, int]:
+    """Replace walkers stuck far below the best of a warm-start ensemble.
+
+    An ensemble carried over from another run (an exploration's short updates) can hold walkers left in a local
+    mode whose density is many nats below the rest; an ensemble sampler rarely moves them out (a walker moves with
+    the differences of the others), so they inflate R-hat and bias the summaries. Near a mode, the log-density of a
+    D-dimensional posterior lies below its maximum by ½ χ²_D; walkers lower than ``max − ½ χ²_D(1 − tail)`` are
+    therefore implausible as posterior draws, and each is replaced by a random plausible walker plus Gaussian
+    jitter of ``jitter`` times the plausible walkers' sd per coordinate.
+
+    Parameters
+    ----------
+    ensemble : (W, D) float
+    log_prob : (W,) float
+        Log-density of each walker (−inf counts as stuck).
+    rng : np.random.Generator
+    tail : float
+        Probability that a true posterior draw is pruned (per walker).
+    jitter : float
+
+    Returns
+    -------
+    ensemble : (W, D) float
+        The new ensemble (a copy).
+    replaced : int
+        How many walkers were replaced.
+    """
+    from scipy.stats import chi2
+
+    ens = np.array(ensemble, float)
+    lp = np.asarray(log_prob, float)
+    finite = np.isfinite(lp)
+    if not finite.any():
+        raise BadInput("start: every walker of the starting ensemble has zero posterior density")
+    cut = lp[finite].max() - 0.5 * chi2.isf(tail, ens.shape[1])
+    good = finite & (lp >= cut)
+    bad = np.flatnonzero(~good)
+    if len(bad):
+        sd = ens[good].std(axis=0) if good.sum() > 1 else np.abs(ens[good][0]) * 1e-3 + 1e-9
+        pick = rng.choice(np.flatnonzero(good), size=len(bad))
+        ens[bad] = ens[pick] + jitter * sd * rng.standard_normal((len(bad), ens.shape[1]))
+    return ens, int(len(bad))
 
 
 def _burn_in(n_done: int, tau_max: float) -> int:
