@@ -292,3 +292,53 @@ def test_a_miss_penalises_shapes_that_the_ray_would_have_touched():
 
     assert extra[1] == pytest.approx(norm.logcdf(-1e-3 / 3e-4), rel=1e-3)
     assert extra[2] < -1000  # negative control: the origin lies 2.5 cm (83 σ) outside this shape
+
+
+@pytest.mark.slow
+def test_a_dask_worker_killed_mid_run_loses_no_finished_trial(tmp_path):
+    """Two worker processes; once the first trial is in results.csv, the worker running another trial is killed
+    (SIGKILL). The run still completes: every trial once, with all its strokes, and the finished rows kept."""
+    import os
+    import signal
+    import threading
+    import time
+
+    from bayestouch.io import read_csv_rows
+
+    distributed = pytest.importorskip("dask.distributed")
+    csv = tmp_path / "results.csv"
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as lc:
+        result, errors = {}, []
+
+        def run():
+            try:
+                result.update(run_experiment(tmp_path, planners=("random",), objects=("sphere",), trials=4, budget=1,
+                                             seed=7, scheduler=lc.scheduler_address, settings=SMALL, plot=False,
+                                             log=lambda m: None))
+            except Exception as e:  # reported below
+                errors.append(e)
+
+        th = threading.Thread(target=run)
+        th.start()
+        killed_pid, first_rows = None, None
+        with distributed.Client(lc.scheduler_address) as client:
+            deadline = time.monotonic() + 600
+            while killed_pid is None and time.monotonic() < deadline and th.is_alive():
+                time.sleep(0.2)
+                if not (csv.is_file() and read_csv_rows(csv)):
+                    continue
+                busy = [w for w, tasks in client.processing().items() if tasks]
+                if busy:
+                    first_rows = read_csv_rows(csv)
+                    killed_pid = client.run(os.getpid, workers=[busy[0]])[busy[0]]
+                    os.kill(killed_pid, signal.SIGKILL)
+        th.join(timeout=900)
+    assert not errors, errors
+    assert killed_pid is not None, "no trial was running when the first one finished"
+    rows = read_csv_rows(csv)
+    # every row recorded before the kill is still there
+    assert all(r in rows for r in first_rows)
+    # every trial exactly once, each with the scout and one planned stroke
+    keys = sorted((int(r["trial"]), int(r["stroke"])) for r in rows)
+    assert keys == [(t, k) for t in range(4) for k in range(2)]
+    assert result["ran"] == 4
