@@ -32,7 +32,7 @@ bench: $(STAMP)
 	$(PY) -m benchmarks
 
 lint: $(STAMP)
-	$(VENV)/bin/ruff check bayestouch tests benchmarks
+	$(VENV)/bin/ruff check bayestouch tests benchmarks data
 	$(VENV)/bin/ruff format --check bayestouch tests benchmarks
 
 clean:
