@@ -155,6 +155,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_device_parser(sub)
     add_planning_parsers(sub)
+    from bayestouch.planning.texture_id import add_texture_parser
+
+    add_texture_parser(sub)
     return p
 
 
@@ -313,6 +316,12 @@ def _cmd_experiment(args) -> int:
     return run_experiment(args)
 
 
+def _cmd_texture_id(args) -> int:
+    from bayestouch.planning.texture_id import run_cli
+
+    return run_cli(args)
+
+
 def _cmd_device(args) -> int:
     from bayestouch.hardware.cli import run_device
 
@@ -320,7 +329,8 @@ def _cmd_device(args) -> int:
 
 
 COMMANDS = {"reproduce-paper": _cmd_reproduce_paper, "demo": _cmd_demo, "simulate": _cmd_simulate,
-            "fit": _cmd_fit, "device": _cmd_device, "explore": _cmd_explore, "experiment": _cmd_experiment}
+            "fit": _cmd_fit, "device": _cmd_device, "explore": _cmd_explore, "experiment": _cmd_experiment,
+            "texture-id": _cmd_texture_id}
 
 
 def main(argv: list[str] | None = None) -> int:

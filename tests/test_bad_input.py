@@ -63,6 +63,9 @@ TABLE = [
     ("device simulate --drop 2", "--drop"),
     ("device run --port {tmp}/no_such_port --strokes 0 --out {tmp}/r.nc", "--strokes"),
     ("demo --seed -1 --out {tmp}/o", "--seed"),
+    ("texture-id --textures 99 --out {tmp}/o", "--textures"),
+    ("texture-id --trials 0 --out {tmp}/o", "--trials"),
+    ("texture-id --library {tmp}/broken.toml --out {tmp}/o", "broken.toml"),
     ("nonsense", "nonsense"),
     # an output path that is a file already: refused, and the file is kept
     ("fit {tmp}/good.csv --out {tmp}/keep.txt", "keep.txt"),

@@ -14,7 +14,8 @@ CONTRACT = ["epsilon", "ffd_size", "iterations", "bp_minus_x_percent", "j_ratio"
 
 def test_every_subcommand_of_the_issues_exists():
     sub = next(a for a in build_parser()._actions if a.dest == "command")
-    assert {"reproduce-paper", "simulate", "fit", "demo", "device", "explore", "experiment"} <= set(sub.choices)
+    assert {"reproduce-paper", "simulate", "fit", "demo", "device", "explore", "experiment",
+            "texture-id"} <= set(sub.choices)
 
 
 @pytest.mark.parametrize("args,needle", [

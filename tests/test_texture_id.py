@@ -1,0 +1,201 @@
+"""Texture identification (issue 5): library validation, recovered truth, a sub-noise negative control, the
+sequential = batch Bayes round trip, the EIG bound's closed forms, and a small seeded experiment."""
+
+import json
+import tomllib
+
+import numpy as np
+import pytest
+
+from bayestouch.errors import BadInput
+from bayestouch.planning import texture_id as ti
+from bayestouch.virtual import load_finger
+
+
+@pytest.fixture(scope="module")
+def vf():
+    return load_finger(seed=0)
+
+
+@pytest.fixture(scope="module")
+def lib():
+    return ti.load_library()
+
+
+def _doc():
+    return tomllib.loads(ti.LIBRARY.read_text())
+
+
+def test_library_loads(lib):
+    assert len(lib) >= 20
+    assert len(set(lib.names)) == len(lib)
+    amps = np.array([s.amplitude for s in lib.specs])
+    lams = np.array([s.wavelength for s in lib.specs])
+    assert amps.max() == pytest.approx(1e-4) and lams.min() == pytest.approx(5e-4) and lams.max() == pytest.approx(4e-3)
+    assert any(s.amplitude == 0 and s.roughness > 0 for s in lib.specs)  # some only rough
+    assert len({s.orientation for s in lib.specs}) >= 3  # anisotropic gratings in several directions
+    surf = lib.surfaces()
+    assert surf.texture.amplitude.shape == (len(lib),)
+    assert lib.subset(5).names == lib.names[:5]
+
+
+@pytest.mark.parametrize(
+    "edit,field",
+    [
+        (lambda d: d["texture"][3].update(amplitude_m=-1e-5), "amplitude_m"),
+        (lambda d: d["texture"][2].pop("wavelength_m"), "wavelength_m"),
+        (lambda d: d["texture"][4].update(name=d["texture"][0]["name"]), "name"),
+        (lambda d: d["texture"][1].update(seed=1.5), "seed"),
+        (lambda d: d["object"]["shape"].update(axes_m=[45.0, 25.0, 5.0]), "axes_m"),
+        (lambda d: d.update(texture=d["texture"][:1]), "[[texture]]"),
+    ],
+)
+def test_bad_library_names_the_field(edit, field):
+    doc = _doc()
+    edit(doc)
+    with pytest.raises(BadInput, match=field.replace("[", r"\[").replace("]", r"\]")):
+        ti.library_from_dict(doc)
+
+
+def test_bad_toml_file(tmp_path):
+    p = tmp_path / "t.toml"
+    p.write_text("[library\nmodes = 16\n")
+    with pytest.raises(BadInput, match="not valid TOML"):
+        ti.load_library(p)
+    with pytest.raises(BadInput, match="does not exist"):
+        ti.load_library(tmp_path / "missing.toml")
+
+
+@pytest.mark.slow
+def test_noise_free_truth_is_the_maximum(lib, vf):
+    """Noise, temperature offset and shift off: the true texture's predicted ln I equals the data (to rounding),
+    so its log-likelihood at zero shift is the Student-t maximum (F·M readings at log t(0; 1) after whitening), and
+    every other texture and shift is lower."""
+    from bayestouch.inference.raw import _student_t
+
+    small = lib.subset(5)
+    surfs = small.surfaces()
+    st = ti.IdSettings(noise=False, temperature_sd=0.0, shift_range=0.0)
+    grid = ti.IdSettings().shifts()  # the experiment's grid (one compiled size for the whole file)
+    g0 = int(np.flatnonzero(grid == 0.0)[0])
+    rng = np.random.default_rng(3)
+    spec = ti.random_stroke_spec(small.base, rng)
+    for k in (0, 4):
+        data, tangent, shift = ti.record_stroke(small.object(k), spec, vf, rng, st)
+        assert shift == 0.0
+        ll = ti.texture_log_likelihood(surfs, data, ti._finger(vf, st), grid, tangent)
+        best = float(np.asarray(_student_t(0.0, 1.0, 4.0))) * np.size(data.log_current)  # whitened, unit scale
+        assert ll[k, g0] == pytest.approx(best, abs=1e-4)
+        assert np.unravel_index(np.argmax(ll), ll.shape) == (k, g0)
+        others = np.delete(ll, k, axis=0)
+        assert others.max() < best - 10.0
+
+
+def test_whitened_noise_is_independent_over_frames(lib, vf):
+    """Residuals of the true texture (noise on, shift and temperature offset off) after :func:`frame_whitener`:
+    each taxel's mean over F frames has variance 1/F if the frame correlation is modelled right. Over M ≈ 100
+    taxels the sample variance has relative sd √(2/M) ≈ 0.14, so F·var ∈ (0.5, 1.6) is a > 3σ band. Negative
+    control: without whitening the same means vary ≫ 1/F (the slow 1/f components). Taxels with an ADC glitch
+    (|z| > 6, probability 1e-4 a reading) are left out: the Student-t, not this check, handles them."""
+    small = lib.subset(5)
+    st = ti.IdSettings(shift_range=0.0, temperature_sd=0.0)
+    rng = np.random.default_rng(21)
+    spec = ti.random_stroke_spec(small.base, rng)
+    data, tangent, _ = ti.record_stroke(small.object(2), spec, vf, rng, st)
+    mu = ti._ll_means(small.surfaces(), data, vf.finger, tangent)[2].reshape(np.shape(data.log_current))
+    z = (np.asarray(data.log_current) - mu) / np.asarray(data.noise_sd)
+    z = z[:, np.all(np.abs(z) < 6, axis=0)]
+    F, M = z.shape
+    assert M > 80
+    zw = ti.frame_whitener(data, vf.finger) @ z
+    assert 0.5 < F * zw.mean(axis=0).var() < 1.6
+    assert 0.8 < zw.var() < 1.2
+    assert F * z.mean(axis=0).var() > 5.0
+
+
+def test_sub_noise_pair_stays_undecided(lib, vf):
+    """Negative control. The truth A (2 mm grating, 30 µm) and a twin A' 0.2 nm higher, among three clearly different
+    textures. The twins' predictions differ by D = Σ (δ/s)² ≪ 1 over all readings, so under the model
+    log p(A)/p(A') ~ N(D/2, D): |log ratio| ≤ D/2 + 4√D (4σ), and p(A | A or A') stays within 1/(1 + e^{±that})
+    of 1/2, while the three others are excluded with confidence (the same strokes do decide between distinct
+    textures)."""
+    doc = _doc()
+    by = {t["name"]: t for t in doc["texture"]}
+    g = dict(by["grating2_a30"])
+    doc["texture"] = [
+        g,
+        {**g, "name": "twin", "amplitude_m": g["amplitude_m"] + 2e-10},
+        by["grating2_a10"],
+        by["grating2_a30_o90"],
+        by["rough15_l1.5"],
+    ]
+    five = ti.library_from_dict(doc)
+    surfs = five.surfaces()
+    st = ti.IdSettings()
+    rng = np.random.default_rng(11)
+    log_post, D = np.full(5, -np.log(5)), 0.0
+    for _ in range(3):
+        spec = ti.random_stroke_spec(five.base, rng)
+        data, tangent, _ = ti.record_stroke(five.object(0), spec, vf, rng, st)
+        mu = ti._ll_means(surfs, data, vf.finger, tangent)
+        D += float(np.sum(((mu[0] - mu[1]) / np.asarray(data.noise_sd).ravel()) ** 2))
+        ll = ti.texture_log_likelihood(surfs, data, vf.finger, st.shifts(), tangent)
+        log_post = ti.update_posterior(log_post, ti.stroke_evidence(ll))
+    post = np.exp(log_post)
+    assert D < 0.05  # below the noise floor by construction
+    bound = D / 2 + 4 * np.sqrt(D)
+    p_twin = post[0] / (post[0] + post[1])
+    assert 1 / (1 + np.exp(bound)) < p_twin < 1 / (1 + np.exp(-bound))
+    assert post[0] + post[1] > 0.999  # the distinct textures are ruled out
+    assert post.max() < 0.95  # so no decision at the 0.95 threshold
+
+
+def test_sequential_update_equals_batch():
+    rng = np.random.default_rng(0)
+    prior = np.log(rng.dirichlet(np.ones(7)))
+    ev = rng.normal(0.0, 50.0, size=(4, 7))
+    seq = prior
+    for e in ev:
+        seq = ti.update_posterior(seq, e)
+        assert np.exp(seq).sum() == pytest.approx(1.0, abs=1e-12)
+    assert np.allclose(seq, ti.batch_posterior(prior, ev), atol=1e-9)
+    assert not np.allclose(seq, ti.batch_posterior(prior, ev[:3]), atol=1e-3)  # the last stroke mattered
+    # shifting one stroke's evidence by a constant (texture-independent likelihood factor) changes nothing
+    assert np.allclose(ti.batch_posterior(prior, ev + np.array([[3.0], [0], [0], [-7.0]])), seq, atol=1e-9)
+
+
+def test_stroke_evidence_is_the_shift_average():
+    ll = np.log(np.array([[1.0, 3.0], [2.0, 2.0]])) - 1000.0
+    assert np.allclose(ti.stroke_evidence(ll), np.log([2.0, 2.0]) - 1000.0)
+
+
+def test_eig_pairwise_limits():
+    sd = np.ones(3)
+    far = np.array([[0.0, 0, 0], [1e3, 0, 0]])
+    assert ti.eig_pairwise([0.5, 0.5], far, sd) == pytest.approx(np.log(2), abs=1e-9)  # fully separable: H(k)
+    assert ti.eig_pairwise([0.5, 0.5], np.zeros((2, 3)), sd) == pytest.approx(0.0, abs=1e-12)  # identical
+    assert ti.eig_pairwise([1.0, 0.0], far, sd) == pytest.approx(0.0, abs=1e-12)  # already certain
+    p = [0.2, 0.3, 0.5]
+    near = np.array([[0.0, 0, 0], [0.5, 0, 0], [1.0, 0, 0]])
+    v = ti.eig_pairwise(p, near, sd)
+    assert 0 < v < -np.sum(np.array(p) * np.log(p))
+
+
+@pytest.mark.slow
+def test_small_experiment_identifies(tmp_path):
+    """5 textures × 3 trials, seed 0: every trial decides, and at most one is wrong (the 0.95 threshold allows an
+    expected 0.75 wrong decisions in 15 if the posterior is calibrated)."""
+    s = ti.run_experiment(tmp_path, textures=5, trials=3, max_strokes=6, seed=0, progress=False)
+    assert s["trials"] == 15
+    assert s["decided_fraction"] == 1.0
+    assert s["accuracy_at_decision"] >= 14 / 15
+    assert s["median_strokes_to_decision"] <= 5
+    rows = (tmp_path / "results.csv").read_text().splitlines()
+    assert rows[0].split(",")[:7] == list(ti.COLUMNS[:7])
+    assert json.loads((tmp_path / "summary.json").read_text())["trials"] == 15
+    assert (tmp_path / "accuracy_vs_strokes.png").stat().st_size > 1000
+
+
+def test_cli_bad_input(tmp_path, capsys):
+    assert ti.main(["--textures", "99", "--trials", "1", "--out", str(tmp_path)]) == 2
+    assert "--textures" in capsys.readouterr().err
