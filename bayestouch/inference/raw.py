@@ -42,7 +42,8 @@ first-order lag → ln I. Reductions (all measured against the full model, see t
 Noise model (derived from :mod:`bayestouch.physics.noise`)
 ----------------------------------------------------------
 Data are y_tj = ln I_meas − ln G_j − ĉ_t, with ĉ_t the common log-drift measured by the reference row
-(mean over reference taxels of ln I_meas − ln G − ln Î_clean(unloaded), which is θ-independent): this removes
+(median over reference taxels of ln I_meas − ln G − ln Î_clean(unloaded), the unloaded current passed through the
+taxels' response lag, which is θ-independent; its variance is π/2 · σ²/n_ref, a median's): this removes
 the common random walk and any uniform gain change, as :func:`noise.drift_compensate` does. The residual
 r = y − ln Î(θ) has, per reading, variance
 
@@ -50,8 +51,11 @@ r = y − ln Î(θ) has, per reading, variance
 
 with σ_white from :func:`noise.noise_std` (shot + amplifier + ADC, at the measured current), the stationary
 variance of the OU-sum 1/f model n_fl · K_f · ln r (n_fl = 9, as :func:`noise.add_noise` uses), the per-taxel
-random walk since the stroke began, and the variance of the reference-row mean s²_ref = (σ²_white,ref + σ²_1/f)
-/ n_ref (treated as independent per reading, a slight over-statement of the information). Readings are
+random walk since the stroke began, and the variance of the reference-row median s²_ref = π/2 · (σ²_white,ref +
+σ²_1/f) / n_ref (treated as independent per reading, a slight over-statement of the information; readings are
+also treated as independent over frames although the 1/f and drift parts are correlated, so the posterior is
+somewhat too narrow; :func:`bayestouch.planning.texture_id.frame_whitener` whitens them for texture
+identification). Readings are
 independent Student-t with ν = 4 of scale k·s: the ADC glitches (probability 1e-4, 10 nA ≈ 10³ s at 60 nA) are
 outliers a Gaussian cannot take. The 1/f noise is correlated over frames (lag-1 autocorrelation ≈ 0.3 at 50 Hz);
 frame subsampling (stride 5) reduces the effect, the rest shows up as k > 1.
@@ -303,9 +307,17 @@ def load_raw_data(
     floor = float(nz.adc_lsb(finger.noise))
     meas = np.maximum(cur[frames], floor)
     lnI = np.log(meas) - np.log(gains)
-    unloaded = np.asarray(
-        tx.taxel_current(finger.taxels, jnp.zeros((len(frames), 1)), jnp.asarray(temp[frames])[:, None], mode=mode)
+    # the unloaded current at the skin temperature, through the taxels' response lag exactly as the reference
+    # taxels see it (each stroke starts at steady state, as the forward model does); without the lag a warming
+    # skin leaves a drift bias of ~1e-3 in ln I over a 1 s stroke, twice the reading noise
+    unloaded_all = np.asarray(
+        tx.taxel_current(finger.taxels, jnp.zeros((nF, 1)), jnp.asarray(temp)[:, None], mode=mode)
     )[:, 0]
+    lagged = np.empty_like(unloaded_all)
+    for k in np.unique(si):
+        sel = np.flatnonzero(si == k)
+        lagged[sel] = np.asarray(tx.first_order_lag(unloaded_all[sel, None], dt_fine, float(finger.taxels.lag)))[:, 0]
+    unloaded = lagged[frames]
     flick = (
         _N_FLICKER
         * float(finger.noise.flicker)
@@ -313,8 +325,9 @@ def load_raw_data(
         / (_N_FLICKER - 1)
     )
     white = (np.asarray(nz.noise_std(finger.noise, jnp.asarray(meas))) / meas) ** 2
-    c_hat = np.mean(lnI[:, ref] - np.log(unloaded)[:, None], axis=1)
-    s_ref = (np.mean(white[:, ref], axis=1) + flick) / ref.sum()
+    # median over the reference taxels: one read-out glitch on a reference taxel must not shift every taxel
+    c_hat = np.median(lnI[:, ref] - np.log(unloaded)[:, None], axis=1)
+    s_ref = 0.5 * np.pi * (np.mean(white[:, ref], axis=1) + flick) / ref.sum()  # variance of a median: π/2 · σ²/n
     t_first = {k: t[np.flatnonzero(si == k)[0]] for k in np.unique(si[frames])}
     t_in = t[frames] - np.array([t_first[k] for k in si[frames]])
     var = white[:, taxels] + flick + float(finger.noise.drift_local) ** 2 * t_in[:, None] + s_ref[:, None]
