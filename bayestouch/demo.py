@@ -302,15 +302,19 @@ def _report(out: Path, obj, truth, res, summary: dict, patch_summary: dict, patc
                   + [[f"{k} (derived)", _fmt(v["mean"], 4), _fmt(v["sd"], 2), _fmt(v["q05"], 4), _fmt(v["q95"], 4)]
                      for k, v in patch_summary["derived"].items()])
     sections = [
-        ("Shape", [Figure("shape.png", "The posterior mean shape, coloured by the posterior spread of its surface "
-                          "along the normal, over the true object (grey wireframe) and the contact points (red)."),
+        ("Shape", [Figure("shape.png", "Left: the posterior mean shape, coloured by the posterior spread of its "
+                          "surface along the normal, with the contact points (red). Right: sections through the "
+                          "centre: the true object (dashed), 30 posterior draws (thin blue) and the contacts near each "
+                          "plane."),
                    derived, params]),
         ("Exploration", [Figure("errors.png", "Error against strokes: Chamfer distance of the point estimate "
                                 "(the median-volume draw) over the true mean semi-axis and its volume error; the "
                                 "volume posterior (mean ± 2 sd) against the truth."), strokes]),
         ("Taxels and contact patches", [
-            Figure("taxel_currents.png", "Taxel current images: Δ ln I of the most loaded frame of each stroke "
-                   "(relative to the unloaded reference rows)."),
+            Figure("taxel_currents.png", "Taxel current images: Δ ln I of the most loaded frame of each stroke, "
+                   "fixed-pattern gains divided out, relative to the unloaded reference rows (dots). The taxels "
+                   "respond in the empirical mode (device-like sensitivity); the physics mode's response is far below "
+                   "the noise (physics.md, finding 2)."),
             Figure("contact_patch.png", "Posterior of one contact patch (superellipse, eq. 16–18): outlines of "
                    "posterior draws on the pad and the marginals of a, b and n."), patch]),
         ("Sampler diagnostics", [
