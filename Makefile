@@ -23,7 +23,7 @@ demo: $(STAMP)
 # two workers (the CI machine has 2 cores; the suite is single-threaded per test), whole files per worker so
 # module fixtures are built once
 test: $(STAMP)
-	$(PY) -m pytest -q -n 2 --dist loadfile
+	$(PY) -m pytest -q -n 2 --dist loadfile --durations=15
 
 test-fast: $(STAMP)
 	$(PY) -m pytest -q -n 2 --dist loadfile -m "not slow"
