@@ -5,6 +5,7 @@ import math
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from bayestouch._jax import jnp
 from bayestouch.geometry import compare as cmp
@@ -250,3 +251,70 @@ def test_compare_shapes(shape):
     out = cmp.compare_shapes((v, f), shape, count=N_MC)
     assert "param_distance" not in out
     assert out["eps_v"] < 0 and out["iou"] < 1
+
+
+# ---------------------------------------------------------------------------------------- exact surface distances
+
+CHAMFER_N = 4000  # points per call of nellipsoid_distance here: the loop's CHAMFER_COUNT (one compiled batch size)
+
+
+@pytest.mark.parametrize("n", [2.2, 12.0])
+def test_nellipsoid_distance_is_never_beaten_by_a_dense_sample(rng, n):
+    s = make((0.03, 0.02, 0.015), n, angles=(0.4, 0.3, -0.5), centre=(0.001, -0.002, 0.003))
+    x = mesh.sample_surface(s, CHAMFER_N, rng) + 0.004 * rng.normal(size=(CHAMFER_N, 3))  # within a few mm, both sides
+    d = cmp.nellipsoid_distance(s, x)
+    # the nearest of M surface samples is an upper bound on the distance, too large by about their spacing
+    m = 100_000
+    dense = mesh.sample_surface(s, m, rng)
+    bound = cKDTree(dense).query(x)[0]
+    spacing = math.sqrt(float(mesh.triangle_areas(*mesh.nellipsoid_mesh(s, 48)).sum()) / m)
+    # a foot point at least as close as every sample: the global minimum (for box-like shapes a rare point, ~1 in
+    # 4000 at n = 12, stops at a stationary point near an edge, off by < 1e-4 of the axis)
+    assert np.mean(d <= bound + 1e-9) >= 0.999
+    assert np.max(d - bound) < 1e-4 * 0.03
+    assert np.median(bound - d) < spacing
+    # negative control: the first-order distance is not exact off the surface
+    local = np.asarray(ne.to_local(s, jnp.asarray(x)))
+    d1 = np.abs(np.asarray(ne.first_order_distance(s, jnp.asarray(local))[0]))
+    assert np.max(np.abs(d1 - d)) > 1e-5
+
+
+def test_mesh_distance_is_the_minimum_over_all_triangles(rng):
+    v, f = mesh.nellipsoid_mesh(make((0.03, 0.02, 0.015), 4.0, angles=(0.4, 0.3, -0.5)), 8)
+    x = np.concatenate([rng.normal(size=(200, 3)) * 0.02, rng.normal(size=(20, 3)) * 0.2])  # near and far
+    tri = v[f]
+    P = np.repeat(x, len(f), axis=0)
+    T = np.tile(tri, (len(x), 1, 1))
+    brute = np.linalg.norm(mesh._closest_on_triangles(P, T[:, 0], T[:, 1], T[:, 2]) - P, axis=1)
+    brute = brute.reshape(len(x), len(f)).min(axis=1)
+    np.testing.assert_allclose(cmp.mesh_distance(v, f, x, k=2), brute, rtol=0, atol=1e-15)
+
+
+def test_chamfer_surfaces_of_a_shape_with_itself_is_zero():
+    s = make((0.03, 0.022, 0.022), 2.2, angles=(0.4, 0.3, -0.5))
+    axis = 0.0247
+    ch, se = cmp.chamfer_surfaces(s, s, count=CHAMFER_N, seed=0)
+    assert 0.0 <= ch < 1e-4 * axis
+    v, f = mesh.nellipsoid_mesh(s, 24)
+    assert cmp.chamfer_surfaces((v, f), (v, f), count=CHAMFER_N, seed=0)[0] < 1e-4 * axis
+    # negative control: the point-cloud Chamfer distance has a floor of about half the sample spacing
+    assert cmp.chamfer_shapes(s, s, count=CHAMFER_N, seed=0) > 0.01 * axis
+
+
+def test_chamfer_surfaces_of_concentric_spheres_is_the_radius_difference():
+    r1, r2 = 0.02, 0.023
+    ch, se = cmp.chamfer_surfaces(sphere(r1), make((r2, r2, r2), 2.0, angles=(1.0, 2.0, 3.0)), count=CHAMFER_N)
+    assert ch == pytest.approx(r2 - r1, rel=1e-9)  # every point is exactly r2 − r1 from the other sphere
+    assert se < 1e-12
+
+
+def test_chamfer_surfaces_of_shifted_spheres_matches_the_integral():
+    r, t = 0.02, 0.002
+    ch, se = cmp.chamfer_surfaces(sphere(r), sphere(r, centre=(0.0, t, 0.0)), count=CHAMFER_N, seed=1)
+    # a point at polar cosine u (uniform on [−1, 1] by area) about the shift is | √(r² − 2rtu + t²) − r | away
+    u = np.linspace(-1.0, 1.0, 200_001)
+    exact = np.trapezoid(np.abs(np.sqrt(r * r - 2 * r * t * u + t * t) - r), u) / 2.0
+    assert abs(ch - exact) < 4 * se  # 4 standard errors of the Monte-Carlo mean: a false alarm ~1e-4
+    assert se < 0.05 * exact
+    # negative control: the same metric does not mistake the shift for no change, or for the shift itself
+    assert abs(ch - t) > 10 * se and ch > 20 * se

@@ -12,7 +12,8 @@ flip of the Y_i:
 :func:`canonicalize` picks one representative per surface, :func:`param_distance` compares parameters modulo
 the symmetries that remain, and the other functions compare the solids or surfaces directly, so that they
 also apply to meshes (e.g. FFD-refined surfaces, eq. 9–10): :func:`iou` (Monte-Carlo intersection over
-union, with :func:`mesh_inside` from the generalised winding number), :func:`chamfer` and
+union, with :func:`mesh_inside` from the generalised winding number), :func:`chamfer`, :func:`chamfer_surfaces` (the
+Chamfer distance between the surfaces themselves, by exact point-to-surface distances: no sampling floor) and
 :func:`compare_shapes`, which collects everything.
 
 NumPy at this edge; lengths are in metres, angles in radians.
@@ -40,6 +41,10 @@ __all__ = [
     "param_distance",
     "chamfer",
     "chamfer_shapes",
+    "nellipsoid_distance",
+    "mesh_distance",
+    "surface_distance",
+    "chamfer_surfaces",
     "winding_number",
     "mesh_inside",
     "iou",
@@ -264,6 +269,197 @@ def chamfer_shapes(s1, s2, count: int = 4000, seed=0) -> float:
     """
     rng = as_rng(seed)
     return chamfer(_surface_samples(s1, count, rng), _surface_samples(s2, count, rng))
+
+
+# ---------------------------------------------------------------------------------------- exact surface distances
+
+#: Newton iterations of :func:`nellipsoid_distance`
+NEWTON_ITERS = 20
+_STEPS = (1.0, 0.5, 0.25, 0.125, 0.0625)
+_FLOOR = 1e-12  # positive-octant floor of the scaled foot point (keeps |q|^(n−2) finite for n < 2)
+
+
+def _gauge(y, axes, n):
+    """G(y) = (Σ (y_i/a_i)^n)^(1/n) for y in the closed positive octant (homogeneous of degree 1)."""
+    q = jnp.maximum(y, _FLOOR) / axes
+    return jnp.exp(jnp.log(jnp.sum(jnp.exp(n * jnp.log(q)))) / n)
+
+
+def _residual(z, p, axes, n):
+    """Lagrange conditions of min |p − y|² subject to G(y) = 1: (y − p + μ ∇G(y), G(y) − 1); z = (y, μ)."""
+    y, mu = z[:3], z[3]
+    g = jax.grad(_gauge)(y, axes, n)
+    return jnp.concatenate([y - p + mu * g, (_gauge(y, axes, n) - 1.0)[None]])
+
+
+def _newton_foot(p, y0, axes, n):
+    """Foot point on {G = 1} of a positive-octant point p (3,), from the surface point y0 (3,): damped Newton."""
+    g0 = jax.grad(_gauge)(y0, axes, n)
+    z = jnp.concatenate([y0, (jnp.dot(p - y0, g0) / jnp.dot(g0, g0))[None]])
+    steps = jnp.asarray(_STEPS)
+
+    def merit(z):
+        r = _residual(z, p, axes, n)
+        return jnp.dot(r, r)
+
+    def body(_, z):
+        r = _residual(z, p, axes, n)
+        J = jax.jacfwd(_residual)(z, p, axes, n)
+        dz = jnp.linalg.solve(J, -r)
+        trial = z[None, :] + steps[:, None] * dz[None, :]
+        trial = trial.at[:, :3].set(jnp.maximum(trial[:, :3], 0.0))
+        m = jax.vmap(merit)(trial)
+        best = jnp.argmin(jnp.where(jnp.isfinite(m), m, jnp.inf))
+        ok = jnp.isfinite(m[best]) & (m[best] < merit(z))
+        return jnp.where(ok, trial[best], z)
+
+    z = jax.lax.fori_loop(0, NEWTON_ITERS, body, z)
+    y = jnp.maximum(z[:3], 0.0)
+    return y / _gauge(y, axes, n)  # radially onto the surface: exactly a surface point
+
+
+_feet = jax.jit(jax.vmap(_newton_foot, in_axes=(0, 0, None, None)))
+
+
+def nellipsoid_distance(shape: NEllipsoid, points, res: int = 48) -> np.ndarray:
+    """Euclidean distance from points to the surface of an n-ellipsoid, metres (unsigned).
+
+    In the principal frame, scaled by the mean semi-axis, each point is reflected into the positive octant
+    (the surface is symmetric under each sign flip, so the foot point lies in the same octant). The foot point
+    y solves the Lagrange conditions of min |p − y|² subject to G(y) = 1, with the degree-1 gauge
+    G(y) = (Σ (y_i / a_i)^n)^(1/n) (better conditioned than Σ |y_i/a_i|^n for large n): y − p + μ ∇G(y) = 0,
+    G(y) = 1, solved by :data:`NEWTON_ITERS` Newton steps (Jacobian by forward-mode autodiff, backtracking on
+    the squared residual) from the nearest vertex of a ``res`` mesh of the surface (which lies in the basin of
+    the global minimum whenever the mesh resolves the surface near the foot point). The result is projected
+    radially onto the surface, so each returned value is the distance to a true surface point: an upper
+    bound that equals the distance at convergence; the smaller of it and the nearest vertex's distance is
+    returned. Accuracy (tests/test_compare.py): exact (to ~1e-12 m) for points on the surface and for
+    concentric spheres; against the nearest of 10⁶ surface samples, for points within a few millimetres of
+    the surface, never worse for n = 1.6, 2.2 and 6, and at n = 12 (box-like) worse for 1 point in 4000, by
+    1e-4 of the mean semi-axis (a stationary point near an edge). Cost: ≈ 0.2 s per 4000 points after a
+    one-off compilation (≈ 6 s) per padded batch size.
+
+    Parameters
+    ----------
+    shape : NEllipsoid
+        Convex (n ≥ 1).
+    points : (N, 3) float, metres
+    res : int
+        Cube-sphere resolution of the starting mesh.
+
+    Returns
+    -------
+    (N,) float, metres
+    """
+    from scipy.spatial import cKDTree
+
+    x = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(x) == 0:
+        return np.empty(0)
+    v, _ = nellipsoid_mesh(shape, res)
+    v = np.asarray(v)
+    d_vertex, idx = cKDTree(v).query(x)
+    R, c = np.asarray(shape.rotation), np.asarray(shape.centre)
+    axes = np.asarray(shape.axes, dtype=np.float64)
+    scale = float(axes.mean())
+    p = np.abs((x - c) @ R) / scale  # local frame (columns of R are the local axes), positive octant
+    y0 = np.abs((v[idx] - c) @ R) / scale
+    m = len(p)
+    args = (jnp.asarray(axes / scale), jnp.asarray(float(shape.n)))
+    feet = np.asarray(_feet(jnp.asarray(pad_pow2(p, fill=1.0)), jnp.asarray(pad_pow2(y0, fill=1.0)), *args))[:m]
+    d = np.linalg.norm(feet - p, axis=1) * scale
+    d = np.where(np.isfinite(d), d, np.inf)
+    return np.minimum(d, d_vertex)
+
+
+def mesh_distance(vertices, faces, points, k: int = 16) -> np.ndarray:
+    """Exact Euclidean distance from points to a triangle mesh (closest point over all triangles), metres.
+
+    For each point the ``k`` triangles with the nearest centroids give an upper bound D on the distance
+    (point-to-triangle distances, Ericson's closest-point test); every triangle whose centroid lies farther than
+    D + r_max (r_max the largest centroid-to-vertex distance of any triangle) is farther than D, so the answer is
+    exact once the k-th nearest centroid lies beyond D + r_max; for points where it does not, k is doubled.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float, metres
+    faces : (F, 3) int
+    points : (N, 3) float, metres
+    k : int
+        Initial number of candidate triangles per point.
+
+    Returns
+    -------
+    (N,) float, metres
+    """
+    from scipy.spatial import cKDTree
+
+    from bayestouch.geometry.mesh import _closest_on_triangles
+
+    x = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    tri = np.asarray(vertices, dtype=np.float64)[np.asarray(faces, dtype=np.int64)]
+    cen = tri.mean(axis=1)
+    r_max = float(np.max(np.linalg.norm(tri - cen[:, None, :], axis=2))) if len(tri) else 0.0
+    tree = cKDTree(cen)
+    out = np.full(len(x), np.inf)
+    todo = np.arange(len(x))
+    k = int(k)
+    while todo.size:
+        kk = min(k, len(tri))
+        dc, cand = tree.query(x[todo], k=kk)
+        dc, cand = dc.reshape(len(todo), kk), cand.reshape(len(todo), kk)
+        T = tri[cand.ravel()]
+        q = _closest_on_triangles(np.repeat(x[todo], kk, axis=0), T[:, 0], T[:, 1], T[:, 2])
+        d = np.linalg.norm(q.reshape(len(todo), kk, 3) - x[todo][:, None, :], axis=2).min(axis=1)
+        out[todo] = d
+        done = (dc[:, -1] > d + r_max) | (kk == len(tri))
+        todo = todo[~done]
+        k *= 2
+    return out
+
+
+def surface_distance(obj, points) -> np.ndarray:
+    """Distance (N,) in metres from points (N, 3) to ``obj``: :func:`nellipsoid_distance` for an NEllipsoid,
+    :func:`mesh_distance` for a mesh (vertices (V, 3) m, faces (F, 3))."""
+    if isinstance(obj, NEllipsoid):
+        return nellipsoid_distance(obj, points)
+    vertices, faces = obj
+    return mesh_distance(vertices, faces, points)
+
+
+def chamfer_surfaces(s1, s2, count: int = 4000, seed=0) -> tuple[float, float]:
+    """Symmetric Chamfer distance between two surfaces by exact point-to-surface distances, metres.
+
+    CD(S1, S2) = ½ (E_{x∼U(S1)} d(x, S2) + E_{y∼U(S2)} d(y, S1)), with U(S) the uniform distribution by area on
+    S and d(x, S) = min_{y∈S} ‖x − y‖ the exact distance to the other SURFACE (:func:`surface_distance`), not to
+    its samples. Each expectation is estimated by the mean over ``count`` area-uniform samples, so the estimate
+    is unbiased and its only error is Monte-Carlo: it is 0 (to the samples' distance from their surface,
+    ~1e-12 m) for identical surfaces and |r1 − r2| for concentric spheres, unlike :func:`chamfer_shapes`, whose
+    sampling floor is ≈ ½ √(A / count).
+
+    Parameters
+    ----------
+    s1, s2 : NEllipsoid or (vertices (V, 3) float, metres; faces (F, 3) int)
+    count : int
+        Samples per surface.
+    seed : int, Generator or None
+        One generator draws both samples.
+
+    Returns
+    -------
+    value : float, metres
+    standard_error : float, metres
+        √(var_1/count + var_2/count) / 2 from the sample variances of the two sets of distances.
+    """
+    rng = as_rng(seed)
+    count = int(count)
+    if count < 2:
+        raise ValueError(f"count: expected at least 2 samples per surface, got {count}")
+    d12 = surface_distance(s2, _surface_samples(s1, count, rng))
+    d21 = surface_distance(s1, _surface_samples(s2, count, rng))
+    value = 0.5 * (d12.mean() + d21.mean())
+    se = 0.5 * math.sqrt(d12.var(ddof=1) / count + d21.var(ddof=1) / count)
+    return float(value), float(se)
 
 
 # ---------------------------------------------------------------------------------------- winding numbers
