@@ -247,29 +247,6 @@ def test_experiment_writes_results_and_resumes_without_redoing(tmp_path, monkeyp
     assert len(read_csv_rows(tmp_path / "results.csv")) == 4
 
 
-@pytest.mark.slow
-def test_experiment_on_a_dask_local_cluster(tmp_path):
-    from bayestouch.io import read_csv_rows
-
-    distributed = pytest.importorskip("dask.distributed")
-    # one worker process (a fresh process compiles every JAX function again: ~15 s of the ~30 s)
-    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as lc:
-        res = run_experiment(
-            tmp_path,
-            planners=("random",),
-            objects=("sphere",),
-            trials=1,
-            budget=1,
-            seed=4,
-            scheduler=lc.scheduler_address,
-            settings=SMALL,
-            plot=False,
-            log=lambda m: None,
-        )
-    assert res["ran"] == 1 and len(res["rows"]) == 2
-    assert len(read_csv_rows(tmp_path / "results.csv")) == 2
-
-
 def test_a_miss_penalises_shapes_that_the_ray_would_have_touched():
     from bayestouch.inference import contact as cm
     from bayestouch.planning.loop import Free, _with_free
@@ -321,7 +298,7 @@ def test_a_dask_worker_killed_mid_run_loses_no_finished_trial(tmp_path):
         th = threading.Thread(target=run)
         th.start()
         killed_pid, first_rows = None, None
-        with distributed.Client(lc.scheduler_address) as client:
+        with distributed.Client(lc.scheduler_address, set_as_default=False) as client:
             deadline = time.monotonic() + 600
             while killed_pid is None and time.monotonic() < deadline and th.is_alive():
                 time.sleep(0.2)
@@ -342,3 +319,24 @@ def test_a_dask_worker_killed_mid_run_loses_no_finished_trial(tmp_path):
     keys = sorted((int(r["trial"]), int(r["stroke"])) for r in rows)
     assert keys == [(t, k) for t in range(4) for k in range(2)]
     assert result["ran"] == 4
+
+
+def test_shape_errors_chamfer_has_no_sampling_floor():
+    from bayestouch.geometry.compare import chamfer_shapes
+    from bayestouch.planning.loop import CHAMFER_COUNT, shape_errors, truth_of
+
+    obj = object_from_dict(
+        {"object": {"name": "ball"}, "shape": {"centre_m": [0.001, 0.0, 0.0], "axes_m": [R_SPHERE] * 3, "n": 2.0}}
+    )
+    truth = truth_of(obj)
+    exact = np.tile(_sphere_vec((0.001, 0.0, 0.0)), (8, 1))
+    err = shape_errors(exact, truth)
+    # the truth mesh (resolution 64) is inscribed in the sphere: its sag, ≤ h²/(8 r) ≈ 1e-4 r, is all that is left
+    assert err["chamfer"] < 1e-4
+    # negative control: the point-cloud Chamfer distance of the same pair sits at its floor, ½ √(A / count) ≈ 0.02 r
+    floor = 0.5 * np.sqrt(4 * np.pi * R_SPHERE**2 / CHAMFER_COUNT) / R_SPHERE
+    est = ne.from_vector(jnp.asarray(exact[0]))
+    assert chamfer_shapes(est, truth.mesh, count=CHAMFER_COUNT, seed=0) / R_SPHERE > 0.5 * floor
+    # a concentric sphere 2 % larger: every point is 0.02 r from the other surface (up to the sag)
+    bigger = np.tile(_sphere_vec((0.001, 0.0, 0.0), 1.02 * R_SPHERE), (8, 1))
+    assert shape_errors(bigger, truth)["chamfer"] == pytest.approx(0.02, abs=1e-4)

@@ -250,7 +250,9 @@ def _run_dask(address: str, tasks: list[dict], finished) -> None:
             '--scheduler: needs dask\'s distributed scheduler; install it with pip install "dask[distributed]"'
         ) from None
     _check_address(address)
-    with Client(address) as client:
+    # set_as_default=False: the client is used explicitly; as the default it would point dask's global scheduler at
+    # the cluster, and once closed leave it there ("no Client active") for every later xarray/dask call
+    with Client(address, set_as_default=False) as client:
         # pure=False: every task runs (a retried task after a worker died reruns the whole trial)
         futures = [client.submit(run_trial, t, pure=False, retries=2) for t in tasks]
         for f in as_completed(futures):
