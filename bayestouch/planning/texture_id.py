@@ -26,12 +26,12 @@ model's exact one): ln I divided by the known fixed-pattern gains, minus the com
 unloaded reference row, with the per-reading noise sd of white + 1/f + local random walk + reference-mean
 variance, Student-t (ν = 4) readings. The texture hypothesis enters only through the signed distance at the
 known taxel positions (:func:`bayestouch.scene.surface.signed_distance` of the textured plate), then the same
-skin → taxel → lag chain as :func:`bayestouch.inference.raw.predict_log_current`. Two departures from raw.py,
-both measured: the reference-row drift is re-estimated with the lag and by the median (:func:`_reference_drift`),
-and each taxel's standardised residuals are whitened over the stroke's frames with the noise model's 1/f and
-random-walk correlation before the Student-t (:func:`frame_whitener`). Without the whitening the readings
-are treated as independent, the slow 1/f noise counts as evidence, and where the texture signal is below the
-noise (physics taxel mode) 18 of 20 trials made confident wrong decisions; with it, none.
+skin → taxel → lag chain as :func:`bayestouch.inference.raw.predict_log_current` (whose reference-row drift is
+lagged like the readings and a median over the reference taxels, corrections first made here). One departure from
+raw.py, measured: each taxel's standardised residuals are whitened over the stroke's frames with the noise
+model's 1/f and random-walk correlation before the Student-t (:func:`frame_whitener`). Without the whitening
+the readings are treated as independent, the slow 1/f noise counts as evidence, and where the texture signal is
+below the noise (physics taxel mode) 18 of 20 trials made confident wrong decisions; with it, none.
 
 Nuisances, and how each is handled (honestly, not with the truth):
 
@@ -454,37 +454,7 @@ def record_stroke(obj: SceneObject, spec: StrokeSpec, vf, rng: np.random.Generat
         {"mode": settings.mode, "seed": 0},
     )
     data, _ = load_raw_data(ds, stride=1, radius=settings.radius, contact_radius=settings.contact_radius, finger=finger)
-    return _reference_drift(data, finger, fr.taxel_current), np.asarray(cmd.tangent[0]), shift
-
-
-def _reference_drift(data, finger, current):
-    """Re-estimate the reference-row drift of :func:`~bayestouch.inference.raw.load_raw_data`, for the lag and robustly.
-
-    ``load_raw_data`` takes ĉ_t = mean over the reference taxels of ln I_ref − ln G − ln U(T_t), U the unloaded
-    current at the recorded skin temperature. Two corrections (both belong in ``raw.py``; reported to the lead):
-
-    * lag: the reference taxels' currents are lagged like all others (τ = 0.15 s), so while the skin warms
-      during a stroke (≈ 0.07 K/s from the wire drive) ĉ_t picks up ln L_t − ln U_t (L = U lagged, restarted at
-      steady state with the stroke), a bias growing to ≈ 8e-4 over a 1 s stroke — twice the reading noise, and
-      texture-like. ln L replaces ln U (exact in the noise-free case).
-    * robustness: one ADC glitch (10 nA on ≈ 0.1 µA) on one of the 16 reference taxels moves their mean by
-      ≈ 6e-3, 16 reading sds, in every taxel of that frame at once — an outlier common to all readings that
-      the per-reading Student-t cannot absorb. The median over the reference taxels replaces the mean (its
-      variance, ≈ π/2 times the mean's, is left in the reading sd as the mean's: a 4 % understatement of the
-      reading variance).
-    """
-    from bayestouch.physics import noise as nz
-    from bayestouch.physics import taxel as tx
-
-    ref = np.asarray(finger.reference).ravel().astype(bool)
-    meas = np.maximum(np.asarray(current)[data.frames][:, ref], float(nz.adc_lsb(finger.noise)))
-    ln_ref = np.log(meas) - np.log(np.asarray(finger.gains).ravel()[ref])
-    temp = jnp.asarray(data.temperature)[:, None]
-    unloaded = tx.taxel_current(finger.taxels, jnp.zeros_like(temp), temp, mode=data.mode)
-    lagged = tx.first_order_lag(unloaded, float(data.dt), finger.taxels.lag)
-    c_raw = np.mean(ln_ref - np.log(np.asarray(unloaded)), axis=1)
-    c_new = np.median(ln_ref - np.log(np.asarray(lagged)), axis=1)
-    return data._replace(log_current=np.asarray(data.log_current) + (c_raw - c_new)[:, None])
+    return data, np.asarray(cmd.tangent[0]), shift
 
 
 def _finger(vf, settings: IdSettings):
