@@ -11,6 +11,7 @@ page loads, and every image renders.
 from __future__ import annotations
 
 import html
+import os
 import re
 import shutil
 import subprocess
@@ -160,12 +161,14 @@ def check_in_browser(page, *, browser: str | None = None, timeout_s: float = 60.
     browser = browser or find_browser()
     if browser is None:
         raise FileNotFoundError("no headless browser: install Debian's chromium (apt-get install chromium)")
-    with tempfile.TemporaryDirectory() as profile:
+    with tempfile.TemporaryDirectory(dir="/tmp" if os.path.isdir("/tmp") else None) as profile:
         cmd = [browser, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                "--disable-background-networking", "--disable-component-update", "--disable-sync",
                "--allow-file-access-from-files", f"--user-data-dir={profile}", "--virtual-time-budget=5000",
                "--dump-dom", page.as_uri()]
-        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s, check=False)
+        # a short TMPDIR: Chromium's singleton socket path must fit in 108 bytes
+        env = {**os.environ, "TMPDIR": "/tmp"} if os.path.isdir("/tmp") else None
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s, check=False, env=env)
     if proc.returncode != 0:
         raise RuntimeError(f"{browser} exited with {proc.returncode}: {proc.stderr.strip()[-500:]}")
     dom = proc.stdout
