@@ -147,7 +147,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "meshes into --out.")
     dp.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder (default out/demo)")
     dp.add_argument("--seed", type=int, default=0, help="seed of every stage (default 0)")
-    dp.add_argument("--quick", action="store_true", help="small sizes (2 strokes, short chains): a smoke run")
+    dp.add_argument("--quick", action="store_true", help="small sizes (scout + 1 stroke, short chains): a smoke run")
     dp.add_argument("--quiet", action="store_true", help="no progress bars")
 
     from bayestouch.hardware.cli import add_device_parser
@@ -241,7 +241,7 @@ def _cmd_simulate(args) -> int:
     vf = load_finger(args.models, seed=args.seed)
     max_current = float(vf.wire.max_current)
     if not all(0 <= c <= max_current for c in currents):
-        raise BadInput(f"--currents: each wire current must be in [0, {max_current:g}] A (amperes), got {currents}")
+        raise BadInput(f"--currents: wire currents must each be in [0, {max_current:g}] A (amperes), got {currents}")
     strokes = random_strokes(obj, args.strokes, seed=args.seed, duration=args.duration, rate=args.rate,
                              depth=args.depth)
     t0 = time.perf_counter()

@@ -60,8 +60,8 @@ class DemoSizes(NamedTuple):
 
 FULL = DemoSizes(budget=5, candidates=64, draws=1000, steps=300, init_steps=600, fit_steps=20000, fit_budget_s=150.0,
                  patch_steps=2000)
-QUICK = DemoSizes(budget=2, candidates=12, draws=200, steps=80, init_steps=150, fit_steps=600, fit_budget_s=30.0,
-                  patch_steps=300)
+QUICK = DemoSizes(budget=1, candidates=12, draws=200, steps=80, init_steps=150, fit_steps=400, fit_budget_s=30.0,
+                  patch_steps=200)
 
 
 def replay_strokes(obj, strokes, *, rate: float = 50.0, depth: float = 3e-4, min_samples: int = 5,

@@ -84,9 +84,9 @@ def test_demo_end_to_end_quick(tmp_path):
         assert set(summary["parameters"][name]) >= {"mean", "sd", "q05", "q95", "r_hat", "ess_bulk"}
     assert set(summary["diagnostics"]) >= {"converged", "max_r_hat", "min_ess_bulk", "n_samples", "seconds"}
     demo = json.loads((out / "demo.json").read_text())
-    assert [r["stroke"] for r in demo["strokes"]] == [0, 1, 2]
-    # the egg's true volume (4/3·π·abc for n = 2 is 60.8 cm³; n = 2.2 is a little larger) within 10 % after the
-    # scout and two strokes: a loose recovery check (the issue-4 tests hold the calibrated ones)
+    assert [r["stroke"] for r in demo["strokes"]] == [0, 1]
+    # the egg's true volume (4/3·π·abc for n = 2 is 60.8 cm³; n = 2.2 gives 66.5 cm³) within 10 % after the
+    # scout and one stroke: a loose recovery check (the issue-4 tests hold the calibrated ones)
     v = summary["derived"]["volume_m3"]["mean"]
     assert 55e-6 < v < 75e-6, v
     rec = read_recording(out / "recording.nc")
