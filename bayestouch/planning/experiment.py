@@ -229,7 +229,7 @@ def _run_pool(workers: int, tasks: list[dict], finished) -> None:
     with ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=mp.get_context("spawn")) as ex:
         futures = [ex.submit(run_trial, t) for t in tasks]
         try:
-            for f in as_completed(futures):
+            for f in as_completed(futures, loop=client.loop):  # not the default client's loop: there is none
                 finished(f.result())
         except BrokenProcessPool:
             raise RuntimeError(
@@ -255,7 +255,7 @@ def _run_dask(address: str, tasks: list[dict], finished) -> None:
     with Client(address, set_as_default=False) as client:
         # pure=False: every task runs (a retried task after a worker died reruns the whole trial)
         futures = [client.submit(run_trial, t, pure=False, retries=2) for t in tasks]
-        for f in as_completed(futures):
+        for f in as_completed(futures, loop=client.loop):  # not the default client's loop: there is none
             finished(f.result())
 
 
