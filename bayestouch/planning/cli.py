@@ -22,6 +22,11 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--candidates", type=int, default=64, help="candidate strokes per decision (default 64)")
     p.add_argument("--draws", type=int, default=1000, help="posterior draws the planner uses (default 1000)")
     p.add_argument("--steps", type=int, default=300, help="emcee steps per posterior update (default 300)")
+    p.add_argument(
+        "--per-second",
+        action="store_true",
+        help="eig planner: maximise information per second of stroke (cost-aware) instead of per stroke",
+    )
     p.add_argument("--out", required=True, help="output folder")
 
 
@@ -81,7 +86,10 @@ def _settings(args) -> dict:
             raise BadInput(f"--{name} must be a positive integer, got {getattr(args, name)}")
     if args.budget < 1:
         raise BadInput(f"--budget must be an integer number of strokes ≥ 1, got {args.budget}")
-    return {"candidates": args.candidates, "draws": args.draws, "steps": args.steps}
+    out = {"candidates": args.candidates, "draws": args.draws, "steps": args.steps}
+    if getattr(args, "per_second", False):
+        out["per_second"] = True
+    return out
 
 
 def _centre(text):
