@@ -224,7 +224,7 @@ def test_experiment_writes_results_and_resumes_without_redoing(tmp_path, monkeyp
         settings=SMALL,
         log=lambda m: None,
     )
-    res = run_experiment(tmp_path, **kw)
+    res = run_experiment(tmp_path, **{**kw, "workers": 2})  # the process pool (spawned workers)
     rows = read_csv_rows(tmp_path / "results.csv")
     assert {"planner", "trial", "object", "stroke", "chamfer", "volume_error", "seconds"} <= set(rows[0])
     assert list(rows[0]) == list(COLUMNS) and res["ran"] == 2 and len(rows) == 4

@@ -229,7 +229,7 @@ def _run_pool(workers: int, tasks: list[dict], finished) -> None:
     with ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=mp.get_context("spawn")) as ex:
         futures = [ex.submit(run_trial, t) for t in tasks]
         try:
-            for f in as_completed(futures, loop=client.loop):  # not the default client's loop: there is none
+            for f in as_completed(futures):
                 finished(f.result())
         except BrokenProcessPool:
             raise RuntimeError(
