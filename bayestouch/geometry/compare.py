@@ -373,12 +373,8 @@ def nellipsoid_distance(shape: NEllipsoid, points, res: int = 48) -> np.ndarray:
 
 
 def mesh_distance(vertices, faces, points, k: int = 16) -> np.ndarray:
-    """Exact Euclidean distance from points to a triangle mesh (closest point over all triangles), metres.
-
-    For each point the ``k`` triangles with the nearest centroids give an upper bound D on the distance
-    (point-to-triangle distances, Ericson's closest-point test); every triangle whose centroid lies farther than
-    D + r_max (r_max the largest centroid-to-vertex distance of any triangle) is farther than D, so the answer is
-    exact once the k-th nearest centroid lies beyond D + r_max; for points where it does not, k is doubled.
+    """Exact Euclidean distance from points to a triangle mesh (closest point over all triangles), metres:
+    :func:`bayestouch.geometry.mesh.closest_points` with ``exact=True``.
 
     Parameters
     ----------
@@ -392,30 +388,9 @@ def mesh_distance(vertices, faces, points, k: int = 16) -> np.ndarray:
     -------
     (N,) float, metres
     """
-    from scipy.spatial import cKDTree
+    from bayestouch.geometry.mesh import closest_points
 
-    from bayestouch.geometry.mesh import _closest_on_triangles
-
-    x = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    tri = np.asarray(vertices, dtype=np.float64)[np.asarray(faces, dtype=np.int64)]
-    cen = tri.mean(axis=1)
-    r_max = float(np.max(np.linalg.norm(tri - cen[:, None, :], axis=2))) if len(tri) else 0.0
-    tree = cKDTree(cen)
-    out = np.full(len(x), np.inf)
-    todo = np.arange(len(x))
-    k = int(k)
-    while todo.size:
-        kk = min(k, len(tri))
-        dc, cand = tree.query(x[todo], k=kk)
-        dc, cand = dc.reshape(len(todo), kk), cand.reshape(len(todo), kk)
-        T = tri[cand.ravel()]
-        q = _closest_on_triangles(np.repeat(x[todo], kk, axis=0), T[:, 0], T[:, 1], T[:, 2])
-        d = np.linalg.norm(q.reshape(len(todo), kk, 3) - x[todo][:, None, :], axis=2).min(axis=1)
-        out[todo] = d
-        done = (dc[:, -1] > d + r_max) | (kk == len(tri))
-        todo = todo[~done]
-        k *= 2
-    return out
+    return closest_points(vertices, faces, points, k, exact=True)[1]
 
 
 def surface_distance(obj, points) -> np.ndarray:

@@ -174,11 +174,16 @@ def _closest_on_triangles(p, a, b, c):
     return out
 
 
-def closest_points(vertices, faces, points, k: int = 12) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def closest_points(vertices, faces, points, k: int = 12, *, exact: bool = False) -> tuple[np.ndarray, np.ndarray,
+                                                                                           np.ndarray]:
     """Closest points on a triangle mesh to query points.
 
     Candidates are the ``k`` triangles whose centroids are nearest (exact for meshes whose triangles
-    are small compared with the distance structure, as ours are; raise ``k`` for coarse meshes).
+    are small compared with the distance structure, as ours are; raise ``k`` for coarse meshes). With ``exact``,
+    the answer is the closest point over all triangles: the candidates give an upper bound D on the distance, and
+    every triangle whose centroid lies farther than D + r_max (r_max the largest centroid-to-vertex distance of any
+    triangle) is farther than D, so a point is done once its k-th nearest centroid lies beyond D + r_max; for the
+    points where it does not, k is doubled.
 
     Parameters
     ----------
@@ -186,6 +191,8 @@ def closest_points(vertices, faces, points, k: int = 12) -> tuple[np.ndarray, np
     faces : (F, 3) int
     points : (N, 3) float, metres
     k : int
+        (Initial) number of candidate triangles per point.
+    exact : bool
 
     Returns
     -------
@@ -196,18 +203,30 @@ def closest_points(vertices, faces, points, k: int = 12) -> tuple[np.ndarray, np
     from scipy.spatial import cKDTree
 
     v = np.asarray(vertices, dtype=float)
-    p = np.asarray(points, dtype=float)
-    tri = v[faces]
-    k = int(min(k, len(faces)))
-    _, cand = cKDTree(tri.mean(axis=1)).query(p, k=k)
-    cand = cand.reshape(len(p), k)
-    P = np.repeat(p, k, axis=0)
-    T = tri[cand.ravel()]
-    q = _closest_on_triangles(P, T[:, 0], T[:, 1], T[:, 2]).reshape(len(p), k, 3)
-    d = np.linalg.norm(q - p[:, None, :], axis=2)
-    best = np.argmin(d, axis=1)
-    rows = np.arange(len(p))
-    return q[rows, best], d[rows, best], cand[rows, best]
+    p = np.asarray(points, dtype=float).reshape(-1, 3)
+    tri = v[np.asarray(faces, dtype=np.int64)]
+    cen = tri.mean(axis=1)
+    tree = cKDTree(cen)
+    r_max = float(np.max(np.linalg.norm(tri - cen[:, None, :], axis=2))) if exact and len(tri) else 0.0
+    closest, dist, face = np.empty_like(p), np.full(len(p), np.inf), np.zeros(len(p), dtype=np.int64)
+    todo = np.arange(len(p))
+    k = int(k)
+    while todo.size:
+        kk = int(min(k, len(tri)))
+        dc, cand = tree.query(p[todo], k=kk)
+        dc, cand = dc.reshape(len(todo), kk), cand.reshape(len(todo), kk)
+        T = tri[cand.ravel()]
+        q = _closest_on_triangles(np.repeat(p[todo], kk, axis=0), T[:, 0], T[:, 1], T[:, 2]).reshape(len(todo), kk, 3)
+        d = np.linalg.norm(q - p[todo][:, None, :], axis=2)
+        best = np.argmin(d, axis=1)
+        rows = np.arange(len(todo))
+        closest[todo], dist[todo], face[todo] = q[rows, best], d[rows, best], cand[rows, best]
+        if not exact:
+            break
+        done = (dc[:, -1] > d[rows, best] + r_max) | (kk == len(tri))
+        todo = todo[~done]
+        k *= 2
+    return closest, dist, face
 
 
 def to_trimesh(vertices, faces):
