@@ -11,7 +11,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["SurfaceIntegrals", "surface_integrals", "relative_errors"]
+__all__ = ["SurfaceIntegrals", "surface_integrals", "surface_integrals_batch", "relative_errors"]
 
 # Dunavant's degree-4 rule on the reference triangle (6 points), barycentric coordinates
 _B = np.array([
@@ -56,6 +56,37 @@ def surface_integrals(vertices, faces) -> SurfaceIntegrals:
     yn = np.einsum("fqk,fk->fq", q, cr) * _W
     inert = np.einsum("fq,fqi,fqj->ij", yn, q, q, optimize=True) / 2.0 / 5.0
     return SurfaceIntegrals(float(vol), float(area2.sum() / 2.0), 0.5 * (inert + inert.T))
+
+
+def surface_integrals_batch(vertices, faces, chunk: int = 32) -> SurfaceIntegrals:
+    """:func:`surface_integrals` of N meshes sharing one triangulation, vectorised over the meshes.
+
+    Parameters
+    ----------
+    vertices : (N, V, 3) float, metres
+    faces : (F, 3) int
+    chunk : int
+        Meshes per vectorised block (memory ≈ chunk · F · 200 bytes).
+
+    Returns
+    -------
+    SurfaceIntegrals
+        ``volume`` (N,) m³, ``area`` (N,) m², ``inertia`` (N, 3, 3) m⁵.
+    """
+    v = np.asarray(vertices, dtype=float)
+    f = np.asarray(faces)
+    vol, area, inert = [], [], []
+    for i in range(0, len(v), chunk):
+        tri = v[i : i + chunk][:, f]  # (n, F, 3, 3)
+        cr = np.cross(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0])
+        q = np.einsum("qk,nfkd->nfqd", _B, tri)  # quadrature points (n, F, 6, 3)
+        vol.append(np.einsum("nfqd,nfd->n", q * _W[:, None], cr) / 6.0)
+        area.append(np.linalg.norm(cr, axis=2).sum(axis=1) / 2.0)
+        yn = np.einsum("nfqk,nfk->nfq", q, cr) * _W
+        k = q.reshape(len(q), -1, 3)
+        m = np.swapaxes(yn.reshape(len(q), -1, 1) * k, 1, 2) @ k / 10.0  # Σ_fq w yn y yᵀ as one batched product
+        inert.append(0.5 * (m + np.swapaxes(m, 1, 2)))
+    return SurfaceIntegrals(np.concatenate(vol), np.concatenate(area), np.concatenate(inert))
 
 
 def relative_errors(estimate: SurfaceIntegrals, truth: SurfaceIntegrals) -> dict[str, float]:

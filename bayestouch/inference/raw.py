@@ -589,7 +589,8 @@ def run_raw_fit(
     starts : int
         Number of DE starts of :func:`initial_raw_theta`.
     stop_when_converged : bool
-        Stop before ``steps`` once converged (:func:`bayestouch.inference.sampler.sample`).
+        Stop before ``steps`` once converged (:func:`bayestouch.inference.sampler.sample`). Sampling is adaptive
+        (``sample(..., adapt=True)``, as :func:`bayestouch.inference.run.run_contact_fit`).
 
     Returns
     -------
@@ -641,5 +642,6 @@ def run_raw_fit(
         progress=progress,
         t0=t0,
         stop_when_converged=stop_when_converged,
+        adapt=True,
     )
     return write_posterior(out, ch, raw_model(data, finger), seed=seed, t0=t0)
