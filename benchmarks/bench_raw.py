@@ -75,7 +75,7 @@ def bench_raw_log_prob(ds_obj=None):
     return out
 
 
-def bench_raw_fit(steps: int = 600, ds_obj=None):
+def bench_raw_fit(steps: int = 3000, ds_obj=None):
     from bayestouch.geometry import nellipsoid as ne
     from bayestouch.inference import raw
 
@@ -93,7 +93,8 @@ def bench_raw_fit(steps: int = 600, ds_obj=None):
             "value": secs,
             "unit": "s",
             "target": 120.0,
-            "steps": steps,
+            "max_steps": steps,
+            "steps": d["steps"],
             "walkers": W,
             "converged": d["converged"],
             "max_r_hat": d["max_r_hat"],
