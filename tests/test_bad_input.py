@@ -50,6 +50,8 @@ TABLE = [
     ("fit {tmp}/good.csv --out {tmp}/o --nu -2", "--nu"),
     ("fit {tmp}/good.csv --out {tmp}/o --steps 0", "--steps"),
     ("fit {tmp}/good.csv --out {tmp}/o --noise laplace", "--noise"),
+    ("fit {tmp}/good.csv --out {tmp}/o --precision half", "--precision"),
+    ("fit {tmp}/good.csv --out {tmp}/o --precision mixed --noise mixture", "precision"),
     ("reproduce-paper --out {tmp}/o --sizes 6x6", "6x6x3"),
     ("reproduce-paper --out {tmp}/o --epsilons 0.7", "[0, 0.5)"),
     ("reproduce-paper --out {tmp}/o --rate -1", "--rate"),

@@ -37,6 +37,7 @@ def test_fit_writes_outputs_and_resumes(points_csv, tmp_path):
     v = s["derived"]["volume_m3"]
     assert v["q05"] < float(ne.volume(TRUE)) * 1.02 and v["q95"] > float(ne.volume(TRUE)) * 0.98
     assert s["diagnostics"]["n_samples"] > 0 and s["diagnostics"]["converged"] is False  # 200 steps: too short
+    assert s["model"]["precision"] == "mixed"  # the default Student-t model without normals samples in mixed precision
     assert (out / "posterior.nc").is_file() and (out / "mean_shape.ply").read_bytes()[:3] == b"ply"
     _check_posterior_file(out, n_points=200)
     _check_uncertainty_mesh(out, s)
@@ -196,6 +197,7 @@ def test_fit_with_normals_and_outlier_mixture(tmp_path):
                  "--quiet"]) == 0
     s = json.loads((out / "summary.json").read_text())
     assert s["model"]["normals_used"] is True and s["model"]["noise"] == "mixture"
+    assert s["model"]["precision"] == "float64"  # mixed precision does not apply to normals or the mixture
     w = s["parameters"]["w_outlier"]
     # 30 of 200 are outliers: the binomial sd of the fraction is 0.025; the interval must hold 0.15
     assert w["q05"] < 0.15 < w["q95"] and 0.08 < w["mean"] < 0.25
