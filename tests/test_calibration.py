@@ -41,7 +41,9 @@ def test_rank_and_coverage_bookkeeping():
 
 @pytest.fixture(scope="module")
 def small_sbc():
-    return cal.sbc(N_SETS, seed=2, n_points=100, walkers=32, steps=400, n_draws=N_DRAWS, batch=10)
+    """With the adaptive sampler that ``bayestouch fit`` uses (the engine's default moves are checked against known
+    posteriors in test_sampler.py)."""
+    return cal.sbc(N_SETS, seed=2, n_points=100, walkers=32, steps=400, n_draws=N_DRAWS, batch=10, adapt=True)
 
 
 def _flagged(coverage) -> bool:

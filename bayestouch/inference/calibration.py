@@ -322,13 +322,16 @@ class _Lockstep:
 
 
 def posterior_draws(
-    logp, theta_start, *, seed: int, walkers: int, steps: int, n_draws: int, progress: bool = False, moves=None
+    logp, theta_start, *, seed: int, walkers: int, steps: int, n_draws: int, progress: bool = False, moves=None,
+    adapt: bool = False,
 ) -> tuple[np.ndarray, dict]:
     """Roughly independent posterior draws (n_draws, 11) of θ by emcee, started in a ball around ``theta_start``.
 
     ``logp`` maps walkers (W, 11) to log-posteriors (W,); ``moves`` are emcee moves (default
-    :func:`bayestouch.inference.sampler.default_moves`). Burn-in ``max(2τ, steps/4)`` (at most half the
-    chain), then thinning by ⌈τ⌉, then ``n_draws`` drawn without replacement from the thinned pool (from the
+    :func:`bayestouch.inference.sampler.default_moves`; with ``adapt`` the adaptive sampler of
+    :func:`bayestouch.inference.run.run_contact_fit`, ``sample(..., adapt=True)``). Burn-in ``max(2τ, steps/4)`` (at
+    most half the chain; adaptive: after the first adaptation), then thinning by ⌈τ⌉, then ``n_draws`` drawn
+    without replacement from the thinned pool (from the
     unthinned kept chain when the pool is too small; ``info["short"]``).
 
     Returns
@@ -346,7 +349,7 @@ def posterior_draws(
         theta_start + scale * rng.normal(size=(walkers, lo.size)), lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo)
     )
     ch = sample(logp, start, None, walkers=walkers, ndim=lo.size, seed=seed, steps=steps, progress=progress,
-                moves=moves)
+                moves=moves, adapt=adapt)
     kept = ch.kept
     pool = kept[:: max(1, int(np.ceil(ch.tau_max)))].reshape(-1, lo.size)
     short = len(pool) < n_draws
@@ -402,6 +405,7 @@ def sbc(
     level: float = 0.9,
     batch: int = 10,
     moves=None,
+    adapt: bool = False,
 ) -> SBCResult:
     """Simulation-based calibration of the contact-level posterior.
 
@@ -430,6 +434,9 @@ def sbc(
         evaluated together in one JAX call per step, which amortises the per-call overhead).
     moves : callable, optional
         Returns fresh emcee moves for each chain (default :func:`bayestouch.inference.sampler.default_moves`).
+    adapt : bool
+        Sample each data set with the adaptive sampler that :func:`bayestouch.inference.run.run_contact_fit` uses
+        (:func:`bayestouch.inference.sampler.adaptive_moves`), which is what the calibration then checks.
     """
     for name, v, least in (
         ("n_datasets", n_datasets, 2),
@@ -469,6 +476,7 @@ def sbc(
                     steps=steps,
                     n_draws=n_draws,
                     moves=moves() if moves else None,
+                    adapt=adapt,
                 )
                 for i, c in enumerate(group)
             ]
@@ -561,9 +569,10 @@ def main(argv=None) -> int:
     ap.add_argument("--likelihood-power", type=float, default=1.0)
     ap.add_argument(
         "--moves",
-        choices=("default", "de"),
-        default="default",
-        help="emcee moves: the engine's default_moves, or differential evolution only",
+        choices=("default", "de", "adaptive"),
+        default="adaptive",
+        help="emcee moves: the adaptive sampler of bayestouch fit (default), the engine's default_moves, or "
+        "differential evolution only",
     )
     a = ap.parse_args(argv)
     res = sbc(
@@ -577,6 +586,7 @@ def main(argv=None) -> int:
         area_term=not a.no_area_term,
         likelihood_power=a.likelihood_power,
         moves=_de_moves if a.moves == "de" else None,
+        adapt=a.moves == "adaptive",
     )
     a.out.mkdir(parents=True, exist_ok=True)
     write_json(a.out / "sbc.json", res.to_dict())
