@@ -3,14 +3,59 @@ pip-installable peer ``sage-superquadric``.
 
 Data (:func:`make_sparse_set`): a random n-ellipsoid (semi-axes 1.5–5 cm, n ∈ [2, 5], uniform random
 orientation, centre within ±5 cm) touched along 2–5 strokes, great-circle arcs of the unit sphere of
-directions mapped onto the surface (eq. 4–6), all inside a cap of half-angle :data:`CAP_DEG` around one
-"approach" direction, so that the data cover part of the object only; 35–100 points, isotropic Gaussian noise
-of 0.3 mm, and in the outlier sets 15 % of the points moved 1–10 mm off the surface (half along the outward
-normal, half in a random direction).
+directions mapped onto the surface (eq. 4–6), all inside a cap of half-angle ``cap_deg`` around one
+"approach" direction (100° by default: the data cover part of the object only; 180°: anywhere on it);
+35–100 points, isotropic Gaussian noise of 0.3 mm, and in the outlier sets 15 % of the points moved 1–10 mm off
+the surface (half along the outward normal, half in a random direction).
 
 Targets (issue 4): median volume error |V̂/V − 1| ≤ 4 % and symmetric Chamfer distance ≤ 0.03 of the true
 mean semi-axis. The issue quotes 8–15 % and 0.07–0.08 for sage-superquadric and for EMS (Liu et al., "Robust
 and Accurate Superquadric Recovery: a Probabilistic Approach", CVPR 2022) on such data.
+
+What "such data" means: the issue gives the peer's figures but not how much of the object the strokes cover, and
+the medians depend on it more than on anything else. The cap is therefore calibrated on the peer: the sets are
+paired across caps (the same shapes, point counts and strokes; only where the strokes lie changes), and
+sage-superquadric's median errors were measured per cap (seed 0, sets 0–23; bootstrap 68 % intervals of the
+median in brackets; its errors are bimodal, near zero or 20–60 %, so the medians of a few sets are uncertain):
+
+========  ==================  ===========================  =================================
+cap       median coverage     sage median volume error      sage median Chamfer / mean axis
+========  ==================  ===========================  =================================
+100°      0.35 (8 sets)       0.78 (0.42–56; 3 of 8 sets    0.37
+                              diverge to metre-sized
+                              shapes)
+140°      0.61 (24 sets)      0.21 (0.09–0.28)             0.16 (0.07–0.19)
+160°      0.73 (24 sets)      0.28 (0.09–0.33)             0.15 (0.13–0.20)
+180°      0.83 (24 sets)      0.056 (0.04–0.16);           0.067 (0.03–0.13);
+                              sets 0–7: 0.13               sets 0–7: 0.083
+========  ==================  ===========================  =================================
+
+Only at 180° (strokes anywhere on the object, wrapping round it; 55–100 % of the sphere of directions, median
+0.8) does the peer come near the issue's figures: its median Chamfer ratio there, 0.067–0.098 depending on which
+8–24 sets, brackets the issue's 0.07–0.08, and its median volume error, 0.04–0.13, overlaps the issue's 8–15 %;
+at 140–160° it is 0.2–0.3. So :data:`CALIBRATED_CAP_DEG` = 180° stands for "such data" (it is the widest
+cap; no cap gives the peer more than that). The one-sided default :data:`CAP_DEG` = 100° (30–45 % coverage) is much
+harder than the data behind the issue's figures (the peer's median there is 0.7–0.8, with fits diverging to
+metre-sized shapes); it stays in the benchmark, reported per cap beside the calibrated cap, so that the hard case
+remains visible.
+
+Measured (``bench_sparse()`` defaults: seed 0, 10 sets per cap, 3 of them with outliers; 6000 adaptive steps × 32
+walkers, ≈ 11 s a fit; medians; ``benchmarks/results/sparse_sets.csv``):
+
+=====  ======================  =========================  =====================  ==========================
+cap    bayestouch volume err.  bayestouch Chamfer ratio   sage volume error      sage Chamfer ratio
+=====  ======================  =========================  =====================  ==========================
+180°   0.013 (7 of 10 sets     0.016                      0.13 (3 of 10)         0.098
+       within both targets)
+100°   0.24 (0 of 10)          0.16                       0.78 (0 of 10)         0.40
+=====  ======================  =========================  =====================  ==========================
+
+At 180° the chains are long on most sets (median largest τ ≈ 8 steps); the three sets that miss the targets are
+three of the four two-stroke sets, whose posterior is a long ridge over the unseen side (τ 220–350, volume errors
+0.16–0.82; on two of them the posterior's volume interval excludes the truth). At 100° every set is like that
+(median τ ≈ 410 steps at 6000 steps; without the adaptive proposal τ kept growing with the chain, 1000–2800 steps
+at 24 000), so the per-set errors there carry a large Monte Carlo error, and their median (0.22–0.29 over repeated
+runs and sampler versions) is as much the sampler's as the data's.
 
 Metrics: volume error from the closed forms (n-ellipsoid: :func:`bayestouch.geometry.nellipsoid.volume`;
 superquadric: :func:`superquadric_volume`), Chamfer from :func:`bayestouch.geometry.compare.chamfer_shapes`
@@ -29,8 +74,10 @@ effect plain least squares; its semi-axes are unbounded above, and on some sets 
 (kept as they are: they are its result).
 
 Run: ``OMP_NUM_THREADS=1 python -m benchmarks bench_sparse`` (``BAYESTOUCH_SPARSE_SETS`` sets the number of
-data sets, default 10, ≈ 60 s each on a shared 2-core machine; ``BAYESTOUCH_SPARSE_STEPS`` the emcee steps per
-fit, default 2000). The per-set table is written to ``benchmarks/results/sparse_sets.csv``.
+data sets per cap, default 10, ≈ 30 s each on a shared 2-core machine; ``BAYESTOUCH_SPARSE_STEPS`` the emcee steps
+per fit, default :data:`BENCH_STEPS`; ``BAYESTOUCH_SPARSE_CAP`` the caps, comma-separated degrees, default
+``180,100``). The per-set table of every cap (column ``cap_deg``) is written to
+``benchmarks/results/sparse_sets.csv``.
 """
 
 from __future__ import annotations
@@ -45,6 +92,7 @@ from typing import NamedTuple
 import numpy as np
 
 from bayestouch._jax import jnp
+from bayestouch.errors import BadInput
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.compare import chamfer_shapes
 from bayestouch.geometry.mesh import cube_sphere
@@ -63,6 +111,9 @@ __all__ = [
     "bench_sparse",
     "VOLUME_TARGET",
     "CHAMFER_TARGET",
+    "CAP_DEG",
+    "CALIBRATED_CAP_DEG",
+    "BENCH_CAPS",
 ]
 
 #: issue 4: median |V̂/V − 1|
@@ -72,6 +123,12 @@ CHAMFER_TARGET = 0.03
 #: half-angle of the cap of directions (around the approach direction) that holds every stroke, degrees;
 #: a cap of half-angle α holds (1 − cos α)/2 of the directions: 59 % for 100° (issue: "covering part of the object")
 CAP_DEG = 100.0
+#: the cap at which sage-superquadric's median volume error is in the issue's 8–15 % ("such data"; module docstring)
+CALIBRATED_CAP_DEG = 180.0
+#: caps the benchmark reports by default: the calibrated cap, and the hard one-sided default kept visible beside it
+BENCH_CAPS = (CALIBRATED_CAP_DEG, CAP_DEG)
+#: emcee steps per bayestouch fit in the benchmark (32 walkers)
+BENCH_STEPS = 6000
 #: surface samples per shape in the Chamfer distance. For coincident surfaces the estimate is ≈ ½ √(A/count)
 #: (chamfer_shapes' docstring): 0.004–0.006 of the mean semi-axis here, well under the 0.03 target
 CHAMFER_COUNT = 60_000
@@ -143,14 +200,22 @@ def distance_to_surface(s: ne.NEllipsoid, points):
 
 
 def make_sparse_set(
-    seed: int, *, outliers: bool = False, n_points: int | None = None, strokes: int | None = None
+    seed: int,
+    *,
+    outliers: bool = False,
+    n_points: int | None = None,
+    strokes: int | None = None,
+    cap_deg: float = CAP_DEG,
 ) -> SparseSet:
     """A random true n-ellipsoid and sparse, noisy contact points along a few strokes over part of it.
 
     Each stroke is a great-circle arc of the unit sphere of directions whose midpoint lies within
-    ``CAP_DEG / 2`` of the approach direction h and whose half-length is at most ``CAP_DEG / 2``, so every
-    direction lies within ``CAP_DEG`` of h; directions are mapped radially onto the unit n-sphere and then by
-    eq. 5–6 onto the surface (:func:`~bayestouch.geometry.nellipsoid.surface_point`).
+    ``cap_deg / 2`` of the approach direction h and whose half-length is uniform in ``[¼, ½] cap_deg``, so every
+    direction lies within ``cap_deg`` of h; directions are mapped radially onto the unit n-sphere and then by
+    eq. 5–6 onto the surface (:func:`~bayestouch.geometry.nellipsoid.surface_point`). At ``cap_deg = 180`` the
+    midpoints fill the hemisphere around h and a stroke spans up to half a great circle, so strokes wrap round the
+    object and reach its far side. The true shape, M and the number of strokes do not depend on ``cap_deg`` (the
+    same random draws, in the same order), so sets of one seed at different caps are paired.
 
     Parameters
     ----------
@@ -163,10 +228,18 @@ def make_sparse_set(
         Total points M (default uniform in 35–100).
     strokes : int, optional
         Number of strokes (default uniform in 2–5).
+    cap_deg : float
+        Half-angle of the cap of directions around h that holds every stroke, degrees in (0, 180]
+        (default :data:`CAP_DEG`; 180: anywhere on the object).
 
     Returns
     -------
     SparseSet
+
+    Raises
+    ------
+    BadInput
+        When ``cap_deg`` is outside (0, 180].
     """
     rng = np.random.default_rng(seed)
     axes = rng.uniform(0.015, 0.05, 3)
@@ -179,7 +252,9 @@ def make_sparse_set(
     m = int(rng.integers(35, 101)) if n_points is None else int(n_points)
     k = int(rng.integers(2, 6)) if strokes is None else int(strokes)
     h = _unit(rng.normal(size=3))
-    half = math.radians(CAP_DEG) / 2
+    if not 0 < cap_deg <= 180:
+        raise BadInput(f"cap_deg must be a half-angle in (0, 180] degrees, got {cap_deg!r}")
+    half = math.radians(cap_deg) / 2
     counts = np.full(k, m // k) + (np.arange(k) < m % k)
     dirs = []
     for c in counts:
@@ -206,9 +281,13 @@ def make_sparse_set(
     return SparseSet(truth, pts, bad, k, coverage, int(seed))
 
 
-def make_sparse_sets(count: int, seed: int = 0, outlier_every: int = 3) -> list[SparseSet]:
-    """``count`` sets with seeds ``1000 seed + i``; every ``outlier_every``-th set (i mod k = k − 1) has outliers."""
-    return [make_sparse_set(1000 * seed + i, outliers=(i % outlier_every == outlier_every - 1)) for i in range(count)]
+def make_sparse_sets(count: int, seed: int = 0, outlier_every: int = 3, cap_deg: float = CAP_DEG) -> list[SparseSet]:
+    """``count`` sets with seeds ``1000 seed + i``; every ``outlier_every``-th set (i mod k = k − 1) has outliers;
+    strokes within ``cap_deg`` of each set's approach direction (:func:`make_sparse_set`)."""
+    return [
+        make_sparse_set(1000 * seed + i, outliers=(i % outlier_every == outlier_every - 1), cap_deg=cap_deg)
+        for i in range(count)
+    ]
 
 
 # ---------------------------------------------------------------------------------------- superquadrics
@@ -294,7 +373,8 @@ def fit_bayestouch(points, seed: int = 0, *, steps: int = 2000, walkers: int = 3
 
     With ``run_folder`` the whole :func:`bayestouch.inference.run.run_contact_fit` runs (in a temporary folder,
     writing every output); without, the same initialisation (:func:`~bayestouch.inference.run.initial_theta`),
-    log-probability and emcee engine (:func:`bayestouch.inference.sampler.sample`) run without the run folder's
+    log-probability and emcee engine (:func:`bayestouch.inference.sampler.sample`, adaptive, for the full ``steps``:
+    no early stop) run without the run folder's
     summaries, predictive draws and meshes (≈ 30 s a set of their own, not part of the inference).
 
     Returns
@@ -303,7 +383,8 @@ def fit_bayestouch(points, seed: int = 0, *, steps: int = 2000, walkers: int = 3
         ``mean``: the posterior-mean shape (mean of the canonicalised natural parameters, as in the summary);
         ``median_volume``: the posterior draw whose volume is the posterior median; ``volume_median``: that
         volume (m³); ``volume_mean``: the posterior-mean volume (m³); ``draws``: (S, 10) canonicalised shape
-        vectors; ``seconds``; ``tau_max``: emcee's largest integrated autocorrelation time (steps).
+        vectors; ``volumes``: (S,) their volumes (m³); ``seconds``; ``tau_max``: emcee's largest integrated
+        autocorrelation time (steps).
     """
     from scipy.special import gammaln
 
@@ -338,6 +419,7 @@ def fit_bayestouch(points, seed: int = 0, *, steps: int = 2000, walkers: int = 3
                 seed=seed,
                 steps=steps,
                 progress=False,
+                adapt=True,  # as run_contact_fit samples
             )
             draws = rn._natural(ch.kept.reshape(-1, ch.kept.shape[-1]))[:, :10]
             tau = ch.tau_max
@@ -352,6 +434,7 @@ def fit_bayestouch(points, seed: int = 0, *, steps: int = 2000, walkers: int = 3
         "volume_median": float(vols[i]),
         "volume_mean": float(vols.mean()),
         "draws": draws,
+        "volumes": vols,
         "seconds": seconds,
         "tau_max": tau,
     }
@@ -388,16 +471,16 @@ def fit_sage(points) -> dict:
 # ---------------------------------------------------------------------------------------- benchmark
 
 
-def _summary_rows(rows: list[dict], method: str, key: str, subset: str) -> list[dict]:
+def _summary_rows(rows: list[dict], method: str, key: str, subset: str, cap: float) -> list[dict]:
     vol = np.array([r[f"{key}_volume_error"] for r in rows])
     ch = np.array([r[f"{key}_chamfer_ratio"] for r in rows])
     ok = np.isfinite(vol) & np.isfinite(ch)
-    vol, ch = vol[ok], ch[ok]
-    tag = "" if subset == "all" else f" ({subset})"
-    both = (vol <= VOLUME_TARGET) & (ch <= CHAMFER_TARGET)
-    common = {"method": method, "sets": int(ok.sum()), "subset": subset}
     if not ok.any():
         return []
+    vol, ch = vol[ok], ch[ok]
+    tag = f" (cap {cap:g}°)" if subset == "all" else f" (cap {cap:g}°, {subset})"
+    both = (vol <= VOLUME_TARGET) & (ch <= CHAMFER_TARGET)
+    common = {"method": method, "sets": int(ok.sum()), "subset": subset, "cap_deg": cap}
     return [
         {
             "metric": f"median volume error{tag}",
@@ -423,113 +506,173 @@ def _summary_rows(rows: list[dict], method: str, key: str, subset: str) -> list[
     ]
 
 
+def _caps(cap_deg) -> tuple[float, ...]:
+    """The caps to run: ``cap_deg`` (a number or a sequence), else ``$BAYESTOUCH_SPARSE_CAP`` (comma-separated
+    degrees), else :data:`BENCH_CAPS`."""
+    if cap_deg is None:
+        env = os.environ.get("BAYESTOUCH_SPARSE_CAP", "").strip()
+        if not env:
+            return BENCH_CAPS
+        try:
+            cap_deg = [float(c) for c in env.split(",") if c.strip()]
+        except ValueError:
+            raise BadInput(
+                f"BAYESTOUCH_SPARSE_CAP must be comma-separated degrees in (0, 180], e.g. '180,100'; got {env!r}"
+            ) from None
+    caps = (float(cap_deg),) if np.ndim(cap_deg) == 0 else tuple(float(c) for c in cap_deg)
+    bad = [c for c in caps if not 0 < c <= 180]
+    if not caps or bad:
+        raise BadInput(f"cap_deg must be one or more half-angles in (0, 180] degrees, got {cap_deg!r}")
+    return caps
+
+
+def _fit_one(d: SparseSet, i: int, cap: float, steps: int, seed: int, with_sage: bool) -> dict:
+    """Both methods on one set: the per-set CSV row."""
+    truth_v = float(ne.volume(d.truth))
+    row = {
+        "cap_deg": cap,
+        "set": i,
+        "seed": d.seed,
+        "outliers": bool(d.outlier.any()),
+        "points": len(d.points),
+        "strokes": d.strokes,
+        "coverage": d.coverage,
+        "n_true": float(d.truth.n),
+        "mean_axis_m": float(np.mean(d.truth.axes)),
+        "volume_m3": truth_v,
+        "chamfer_floor": shape_errors(d.truth, truth_v, d.truth, seed=i + 1)["chamfer_ratio"],
+    }
+    fit = fit_bayestouch(d.points, seed=seed + i, steps=steps)
+    med = shape_errors(fit["median_volume"], fit["volume_median"], d.truth, seed=i)
+    mean = shape_errors(fit["mean"], float(ne.volume(fit["mean"])), d.truth, seed=i)
+    row.update(
+        {
+            "bt_seconds": fit["seconds"],
+            "bt_tau_max": fit["tau_max"],
+            "bt_volume_error": med["volume_error"],
+            "bt_chamfer_ratio": med["chamfer_ratio"],
+            "bt_mean_volume_error": mean["volume_error"],
+            "bt_mean_chamfer_ratio": mean["chamfer_ratio"],
+            "bt_mean_volume_summary_error": abs(fit["volume_mean"] / truth_v - 1.0),
+            "bt_truth_volume_quantile": float(np.mean(fit["volumes"] < truth_v)),
+        }
+    )
+    if with_sage:
+        try:
+            sq = fit_sage(d.points)
+            e = shape_errors(sq["mesh"], sq["volume"], d.truth, seed=i)
+            row.update(
+                {
+                    "sage_seconds": sq["seconds"],
+                    "sage_volume_error": e["volume_error"],
+                    "sage_chamfer_ratio": e["chamfer_ratio"],
+                    "sage_eps1": sq["params"]["eps1"],
+                    "sage_eps2": sq["params"]["eps2"],
+                    "sage_error": "",
+                }
+            )
+        except Exception as exc:  # noqa: BLE001 - a crash of the peer is a result, recorded as such
+            row.update(
+                {
+                    "sage_volume_error": float("nan"),
+                    "sage_chamfer_ratio": float("nan"),
+                    "sage_error": f"{type(exc).__name__}: {exc}"[:200],
+                }
+            )
+    print(
+        f"cap {cap:g}° set {i}: bt vol {row['bt_volume_error']:.3f} ch {row['bt_chamfer_ratio']:.3f} "
+        f"(τ {row['bt_tau_max']:.0f}, {row['bt_seconds']:.0f} s); sage vol {row.get('sage_volume_error', np.nan):.3f} "
+        f"ch {row.get('sage_chamfer_ratio', np.nan):.3f}",
+        flush=True,
+    )
+    return row
+
+
 def bench_sparse(
     sets: int | None = None,
     steps: int | None = None,
     seed: int = 0,
     csv_path: Path | None = RESULTS / "sparse_sets.csv",
+    cap_deg=None,
 ) -> list[dict]:
-    """Fit every sparse set with bayestouch and with sage-superquadric; medians and fractions within target.
+    """Fit every sparse set with bayestouch and with sage-superquadric, per cap; medians and fractions within target.
 
     Parameters
     ----------
     sets : int, optional
-        Number of data sets (default ``$BAYESTOUCH_SPARSE_SETS`` or 10).
+        Number of data sets per cap (default ``$BAYESTOUCH_SPARSE_SETS`` or 10). The sets of one seed are the same
+        shapes at every cap (:func:`make_sparse_set`), so the caps are compared on paired data.
     steps : int, optional
-        emcee steps per bayestouch fit (default ``$BAYESTOUCH_SPARSE_STEPS`` or 2000; 32 walkers).
+        emcee steps per bayestouch fit (default ``$BAYESTOUCH_SPARSE_STEPS`` or :data:`BENCH_STEPS`; 32 walkers).
     seed : int
         Seed of the data sets (and of the fits).
     csv_path : Path or None
-        Where to write the per-set table (:func:`bayestouch.io.write_csv_rows`); None: not written.
+        Where to write the per-set table of every cap (:func:`bayestouch.io.write_csv_rows`); None: not written.
+    cap_deg : float or sequence of float, optional
+        Caps of the strokes, degrees (default ``$BAYESTOUCH_SPARSE_CAP``, comma-separated, or :data:`BENCH_CAPS`:
+        the calibrated cap and the hard default).
 
     Returns
     -------
     list of dict
-        ``{"metric", "value", "unit", "method", "sets", "target", ...}``.
+        ``{"metric", "value", "unit", "method", "sets", "target", "cap_deg", ...}``, one group per cap.
+
+    Raises
+    ------
+    BadInput
+        When a cap is outside (0, 180] degrees.
     """
     from bayestouch.io import write_csv_rows
 
+    caps = _caps(cap_deg)
     sets = int(os.environ.get("BAYESTOUCH_SPARSE_SETS", 10)) if sets is None else int(sets)
-    steps = int(os.environ.get("BAYESTOUCH_SPARSE_STEPS", 2000)) if steps is None else int(steps)
+    steps = int(os.environ.get("BAYESTOUCH_SPARSE_STEPS", BENCH_STEPS)) if steps is None else int(steps)
     try:
         import sage_superquadrics
 
         sage_note = f"sage-superquadric {getattr(sage_superquadrics, '__version__', '?')}"
     except ImportError as e:
         sage_superquadrics, sage_note = None, f"not installed ({e}); pip install sage-superquadric"
+    with_sage = sage_superquadrics is not None
 
-    per_set = []
-    for i, d in enumerate(make_sparse_sets(sets, seed)):
-        truth_v = float(ne.volume(d.truth))
-        row = {
-            "set": i,
-            "seed": d.seed,
-            "outliers": bool(d.outlier.any()),
-            "points": len(d.points),
-            "strokes": d.strokes,
-            "coverage": d.coverage,
-            "n_true": float(d.truth.n),
-            "mean_axis_m": float(np.mean(d.truth.axes)),
-            "volume_m3": truth_v,
-            "chamfer_floor": shape_errors(d.truth, truth_v, d.truth, seed=i + 1)["chamfer_ratio"],
-        }
-        fit = fit_bayestouch(d.points, seed=seed + i, steps=steps)
-        med = shape_errors(fit["median_volume"], fit["volume_median"], d.truth, seed=i)
-        mean = shape_errors(fit["mean"], float(ne.volume(fit["mean"])), d.truth, seed=i)
-        row.update(
+    per_set, out = [], []
+    for cap in caps:
+        rows = [
+            _fit_one(d, i, cap, steps, seed, with_sage) for i, d in enumerate(make_sparse_sets(sets, seed, cap_deg=cap))
+        ]
+        per_set += rows
+        for subset, sub in (("all", rows), ("outlier sets", [r for r in rows if r["outliers"]])):
+            out += _summary_rows(sub, "bayestouch", "bt", subset, cap)
+            out += _summary_rows(sub, "bayestouch (posterior-mean shape)", "bt_mean", subset, cap)
+            if with_sage:
+                out += _summary_rows(sub, "sage-superquadric", "sage", subset, cap)
+        common = {"sets": len(rows), "target": None, "cap_deg": cap}
+        out.append(
             {
-                "bt_seconds": fit["seconds"],
-                "bt_tau_max": fit["tau_max"],
-                "bt_volume_error": med["volume_error"],
-                "bt_chamfer_ratio": med["chamfer_ratio"],
-                "bt_mean_volume_error": mean["volume_error"],
-                "bt_mean_chamfer_ratio": mean["chamfer_ratio"],
-                "bt_mean_volume_summary_error": abs(fit["volume_mean"] / truth_v - 1.0),
+                "metric": f"median coverage (cap {cap:g}°)",
+                "value": float(np.median([r["coverage"] for r in rows])),
+                "unit": "1",
+                "method": "data",
+                **common,
             }
         )
-        if sage_superquadrics is not None:
-            try:
-                sq = fit_sage(d.points)
-                e = shape_errors(sq["mesh"], sq["volume"], d.truth, seed=i)
-                row.update(
-                    {
-                        "sage_seconds": sq["seconds"],
-                        "sage_volume_error": e["volume_error"],
-                        "sage_chamfer_ratio": e["chamfer_ratio"],
-                        "sage_eps1": sq["params"]["eps1"],
-                        "sage_eps2": sq["params"]["eps2"],
-                        "sage_error": "",
-                    }
-                )
-            except Exception as exc:  # noqa: BLE001 - a crash of the peer is a result, recorded as such
-                row.update(
-                    {
-                        "sage_volume_error": float("nan"),
-                        "sage_chamfer_ratio": float("nan"),
-                        "sage_error": f"{type(exc).__name__}: {exc}"[:200],
-                    }
-                )
-        per_set.append(row)
-        print(
-            f"set {i}: bt vol {row['bt_volume_error']:.3f} ch {row['bt_chamfer_ratio']:.3f} "
-            f"({row['bt_seconds']:.0f} s); sage vol {row.get('sage_volume_error', float('nan')):.3f} "
-            f"ch {row.get('sage_chamfer_ratio', float('nan')):.3f}",
-            flush=True,
+        out.append(
+            {
+                "metric": f"largest autocorrelation time (median; cap {cap:g}°)",
+                "value": float(np.median([r["bt_tau_max"] for r in rows])),
+                "unit": "steps",
+                "method": "bayestouch",
+                "steps": steps,
+                **common,
+            }
         )
     if csv_path is not None:
         write_csv_rows(csv_path, per_set)
 
-    out = []
-    for subset, rows in (("all", per_set), ("outlier sets", [r for r in per_set if r["outliers"]])):
-        out += _summary_rows(rows, "bayestouch", "bt", subset)
-        out += _summary_rows(rows, "bayestouch (posterior-mean shape)", "bt_mean", subset)
-        if sage_superquadrics is not None:
-            out += _summary_rows(rows, "sage-superquadric", "sage", subset)
-    t = np.array([r["bt_seconds"] for r in per_set])
     out.append(
         {
             "metric": "seconds per set (median)",
-            "value": float(np.median(t)),
+            "value": float(np.median([r["bt_seconds"] for r in per_set])),
             "unit": "s",
             "method": "bayestouch",
             "sets": len(per_set),
@@ -538,7 +681,7 @@ def bench_sparse(
             "walkers": 32,
         }
     )
-    if sage_superquadrics is None:
+    if not with_sage:
         out.append(
             {
                 "metric": "median volume error",
