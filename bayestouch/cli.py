@@ -312,6 +312,8 @@ def _cmd_fit(args) -> int:
           f"max R-hat {d['max_r_hat']:.3f}, min ESS {d['min_ess_bulk']:.0f}, "
           f"{'converged' if d['converged'] else 'NOT converged'}"
           f"{' (stopped by --budget)' if d.get('stopped_by_budget') else ''} ({d['seconds']:.1f} s)")
+    for w in d.get("warnings", []):
+        print(f"bayestouch fit: warning: {w}", file=sys.stderr)
     return 0
 
 

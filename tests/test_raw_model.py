@@ -179,6 +179,9 @@ def test_run_raw_fit_recovers_truth_and_physics_mode_is_wider(tmp_path, empirica
     for i, name in enumerate(("a", "b", "c")):
         true = float(np.sort(np.asarray(obj.shape.axes))[::-1][i])
         assert abs(p[name]["mean"] - true) / true < 0.05, (name, p[name], true)
+    # the summary warns exactly when the noise multiplier says the model misfits the readings
+    k = p["noise_scale"]["mean"]
+    assert (len(s["diagnostics"]["warnings"]) == 1) == (k > raw.MISFIT_K), (k, s["diagnostics"]["warnings"])
     # physics mode (Δ ln I ~ 1e-3 against ~4e-4 noise): the same strokes constrain the shape much less
     sp = _fit(physics[0], tmp_path / "phys", 100)
     assert sp["model"]["mode"] == "physics"
@@ -194,3 +197,11 @@ def test_run_raw_fit_recovers_truth_and_physics_mode_is_wider(tmp_path, empirica
         p["noise_scale"]["mean"],
         sp["parameters"]["noise_scale"]["mean"],
     )
+
+
+def test_misfit_warning_threshold():
+    """k far above 1 (residuals many times the modelled noise) warns that the intervals are too narrow; k ≈ 1 does
+    not."""
+    warn = raw.misfit_warnings({"parameters": {"noise_scale": {"mean": 8.0}}})
+    assert len(warn) == 1 and "noise_scale k = 8.0" in warn[0] and "too narrow" in warn[0]
+    assert raw.misfit_warnings({"parameters": {"noise_scale": {"mean": 1.2}}}) == []

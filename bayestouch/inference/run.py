@@ -60,6 +60,9 @@ class PosteriorModel(NamedTuple):
     refine_mesh : callable, optional
         ``((K,) natural posterior mean, (V, 3) mean-shape vertices m) → (V, 3) m``: moves the mean mesh (e.g. by
         the lattice displacements of an FFD model); default: the n-ellipsoid mesh as it is.
+    checks : callable, optional
+        ``(summary dict) → list of str``: the level's own warnings about the fit (e.g. a noise multiplier far above
+        1, i.e. a model that does not fit the data), written as ``summary["diagnostics"]["warnings"]``.
     """
 
     names: tuple
@@ -70,6 +73,7 @@ class PosteriorModel(NamedTuple):
     observed: dict
     info: dict
     refine_mesh: Callable | None = None
+    checks: Callable | None = None
 
 
 def interval(x) -> dict:
@@ -227,6 +231,7 @@ def write_posterior(out: Path, chain, model: PosteriorModel, *, seed: int, t0: f
         "model": {**model.info, "seed": seed},
         "files": ["summary.json", "posterior.nc", "chain.h5", "mean_shape.ply", "uncertainty_mesh.ply"],
     }
+    summary["diagnostics"]["warnings"] = list(model.checks(summary)) if model.checks is not None else []
     # uncompressed: posterior draws and replicated points are noisy floats that zlib shrinks by ~10 % at ~1 s a run
     idata.to_netcdf(str(out / "posterior.nc"), compress=False)
     write_json(out / "summary.json", summary)
