@@ -129,6 +129,14 @@ def _foot_and_normal(theta, pts):
     return foot, ne.normals(s, foot)
 
 
+@jax.jit
+@partial(jax.vmap, in_axes=(0, None))
+def _mesh_and_normals(v, dirs):
+    s = ne.from_vector(v)
+    verts = ne.surface_point(s, ne.unit_nsphere(dirs, s.n))
+    return verts, ne.normals(s, verts)
+
+
 _volumes = jax.jit(jax.vmap(lambda v: ne.volume(ne.from_vector(v))))
 
 
@@ -158,7 +166,7 @@ def write_posterior(out: Path, chain, model: PosteriorModel, *, seed: int, t0: f
     import xarray as xr
 
     from bayestouch.geometry.integrals import surface_integrals_batch
-    from bayestouch.geometry.mesh import nellipsoid_mesh, to_trimesh
+    from bayestouch.geometry.mesh import cube_sphere, to_trimesh
     from bayestouch.inference.sampler import convergence
     from bayestouch.io import write_json
 
@@ -204,9 +212,10 @@ def write_posterior(out: Path, chain, model: PosteriorModel, *, seed: int, t0: f
     exact_vols = np.asarray(_volumes(jnp.asarray(vecs)))
 
     mean_nat = flat.mean(axis=0)
-    mean = ne.from_vector(jnp.asarray(np.asarray(model.shape_vectors(mean_nat[None]))[0]))
-    verts, faces = nellipsoid_mesh(mean, 32)
-    nrm = np.asarray(ne.normals(mean, jnp.asarray(verts)))
+    # the mean shape's mesh (as nellipsoid_mesh(mean, 32)) and its normals in one compiled call
+    dirs, faces = cube_sphere(32)
+    verts, nrm = (np.asarray(a)[0] for a in _mesh_and_normals(
+        jnp.asarray(np.asarray(model.shape_vectors(mean_nat[None]), dtype=float)), jnp.asarray(dirs)))
     spread = uncertainty_spread(verts, nrm, vecs[: min(200, len(vecs))])
     if model.refine_mesh is not None:
         verts = np.asarray(model.refine_mesh(mean_nat, verts))
