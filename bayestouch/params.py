@@ -35,11 +35,15 @@ class Spec(NamedTuple):
     hi: float = math.inf
 
 
-def read_toml(path) -> dict[str, Any]:
-    """Parse a TOML file; a missing or malformed file is a one-line :class:`BadInput`."""
+def read_toml(path, kind: str = "parameter file", example: str = "models/finger.toml") -> dict[str, Any]:
+    """Parse a TOML file; a missing or malformed file is a one-line :class:`BadInput`.
+
+    ``kind`` and ``example`` name the file in the message ("object file …, expected a TOML file such as
+    models/objects/egg.toml").
+    """
     p = Path(path)
     if not p.is_file():
-        raise BadInput(f"{p}: parameter file does not exist (expected a TOML file such as models/finger.toml)")
+        raise BadInput(f"{kind} {p} does not exist (expected a TOML file such as {example})")
     try:
         return tomllib.loads(p.read_text(encoding="utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:

@@ -82,7 +82,6 @@ import argparse
 import json
 import sys
 import time
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import NamedTuple
@@ -92,7 +91,7 @@ import numpy as np
 from bayestouch._jax import jax, jnp
 from bayestouch.errors import BadInput
 from bayestouch.geometry import nellipsoid as ne
-from bayestouch.params import MODELS
+from bayestouch.params import MODELS, read_toml
 from bayestouch.scene.objects import SceneObject, TextureSpec, build_surface
 from bayestouch.scene.strokes import Stroke, stroke_from_path
 from bayestouch.scene.surface import Surface, Texture
@@ -227,13 +226,7 @@ def library_from_dict(doc: dict, where: str = "texture library", source: Path | 
 def load_library(path=LIBRARY) -> TextureLibrary:
     """Read a texture library TOML file (metres, radians); a bad file raises :class:`BadInput` naming the field."""
     p = Path(path)
-    if not p.is_file():
-        raise BadInput(f"texture library {p} does not exist (expected a TOML file such as models/textures.toml)")
-    try:
-        doc = tomllib.loads(p.read_text())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
-        raise BadInput(f"{p}: not valid TOML ({str(e).splitlines()[0]})") from None
-    return library_from_dict(doc, str(p), p)
+    return library_from_dict(read_toml(p, "texture library", "models/textures.toml"), str(p), p)
 
 
 # ----------------------------------------------------------------------------------------------- strokes

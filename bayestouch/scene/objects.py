@@ -7,7 +7,6 @@ functions (metres, positive outward). The texture height field of the physics is
 
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -17,6 +16,7 @@ from bayestouch._jax import jax, jnp, pad_pow2
 from bayestouch.errors import BadInput
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.mesh import nellipsoid_mesh
+from bayestouch.params import read_toml
 from bayestouch.scene.surface import Defects, Surface, Texture, defect_height, ffd_displacement
 from bayestouch.scene.surface import height as _surface_height
 
@@ -251,10 +251,4 @@ def object_from_dict(doc: dict, where: str = "object", source: Path | None = Non
 def load_object(path) -> SceneObject:
     """Read an object TOML file (metres, radians); a bad file raises :class:`BadInput` naming the field."""
     p = Path(path)
-    if not p.is_file():
-        raise BadInput(f"object file {p} does not exist (expected a TOML file such as models/objects/egg.toml)")
-    try:
-        doc = tomllib.loads(p.read_text())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
-        raise BadInput(f"{p}: not valid TOML ({str(e).splitlines()[0]})") from None
-    return object_from_dict(doc, str(p), p)
+    return object_from_dict(read_toml(p, "object file", "models/objects/egg.toml"), str(p), p)
