@@ -45,21 +45,13 @@ def surface_integrals(vertices, faces) -> SurfaceIntegrals:
     -------
     SurfaceIntegrals
     """
-    v = np.asarray(vertices, dtype=float)
-    tri = v[np.asarray(faces)]  # (F, 3, 3)
-    cr = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])  # = 2 A n
-    area2 = np.linalg.norm(cr, axis=1)
-    q = np.einsum("qk,fkd->fqd", _B, tri)  # quadrature points (F, 6, 3)
-    # ∮ g(y) n dS over a triangle = Σ_q w_q g(y_q) · (cr / 2)
-    vol = np.einsum("q,fqd,fd->", _W, q, cr, optimize=True) / 2.0 / 3.0
-    # Σ_q w_q y_i y_j (y·cr): contract the cheap factor first (the unoptimised 5-operand einsum is ~50× slower)
-    yn = np.einsum("fqk,fk->fq", q, cr) * _W
-    inert = np.einsum("fq,fqi,fqj->ij", yn, q, q, optimize=True) / 2.0 / 5.0
-    return SurfaceIntegrals(float(vol), float(area2.sum() / 2.0), 0.5 * (inert + inert.T))
+    b = surface_integrals_batch(np.asarray(vertices, dtype=float)[None], faces)
+    return SurfaceIntegrals(float(b.volume[0]), float(b.area[0]), b.inertia[0])
 
 
 def surface_integrals_batch(vertices, faces, chunk: int = 32) -> SurfaceIntegrals:
-    """:func:`surface_integrals` of N meshes sharing one triangulation, vectorised over the meshes.
+    """Eq. 11–13 of N closed meshes sharing one triangulation, vectorised over the meshes (:func:`surface_integrals`
+    is the case N = 1).
 
     Parameters
     ----------
@@ -78,13 +70,15 @@ def surface_integrals_batch(vertices, faces, chunk: int = 32) -> SurfaceIntegral
     vol, area, inert = [], [], []
     for i in range(0, len(v), chunk):
         tri = v[i : i + chunk][:, f]  # (n, F, 3, 3)
-        cr = np.cross(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0])
+        cr = np.cross(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0])  # = 2 A n
         q = np.einsum("qk,nfkd->nfqd", _B, tri)  # quadrature points (n, F, 6, 3)
+        # ∮ g(y) n dS over a triangle = Σ_q w_q g(y_q) · (cr / 2)
         vol.append(np.einsum("nfqd,nfd->n", q * _W[:, None], cr) / 6.0)
         area.append(np.linalg.norm(cr, axis=2).sum(axis=1) / 2.0)
+        # Σ_q w_q y_i y_j (y·cr): the cheap factor first, then Σ_fq w yn y yᵀ as one batched matrix product
         yn = np.einsum("nfqk,nfk->nfq", q, cr) * _W
         k = q.reshape(len(q), -1, 3)
-        m = np.swapaxes(yn.reshape(len(q), -1, 1) * k, 1, 2) @ k / 10.0  # Σ_fq w yn y yᵀ as one batched product
+        m = np.swapaxes(yn.reshape(len(q), -1, 1) * k, 1, 2) @ k / 10.0
         inert.append(0.5 * (m + np.swapaxes(m, 1, 2)))
     return SurfaceIntegrals(np.concatenate(vol), np.concatenate(area), np.concatenate(inert))
 
