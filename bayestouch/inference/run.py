@@ -94,9 +94,9 @@ def uncertainty_spread(mean_vertices, mean_normals, shape_vectors) -> np.ndarray
     Parameters
     ----------
     mean_vertices : (V, 3) float, metres
-    mean_normals : (V, 3) float
-        Unit normals of the mean surface (used only to define the lines; the first-order distance is taken
-        along the draw's own gradient, which agrees to first order).
+    mean_normals : (V, 3) float or None
+        Unit normals of the mean surface. Not needed: the first-order distance is taken along the draw's own
+        gradient, which agrees with the mean surface's normal to first order (``write_posterior`` passes None).
     shape_vectors : (N, 10) float
         Posterior draws as n-ellipsoid vectors.
     """
@@ -129,14 +129,6 @@ def _foot_and_normal(theta, pts):
     return foot, ne.normals(s, foot)
 
 
-@jax.jit
-@partial(jax.vmap, in_axes=(0, None))
-def _mesh_and_normals(v, dirs):
-    s = ne.from_vector(v)
-    verts = ne.surface_point(s, ne.unit_nsphere(dirs, s.n))
-    return verts, ne.normals(s, verts)
-
-
 _volumes = jax.jit(jax.vmap(lambda v: ne.volume(ne.from_vector(v))))
 
 
@@ -166,7 +158,7 @@ def write_posterior(out: Path, chain, model: PosteriorModel, *, seed: int, t0: f
     import xarray as xr
 
     from bayestouch.geometry.integrals import surface_integrals_batch
-    from bayestouch.geometry.mesh import cube_sphere, to_trimesh
+    from bayestouch.geometry.mesh import to_trimesh
     from bayestouch.inference.sampler import convergence
     from bayestouch.io import write_json
 
@@ -212,11 +204,10 @@ def write_posterior(out: Path, chain, model: PosteriorModel, *, seed: int, t0: f
     exact_vols = np.asarray(_volumes(jnp.asarray(vecs)))
 
     mean_nat = flat.mean(axis=0)
-    # the mean shape's mesh (as nellipsoid_mesh(mean, 32)) and its normals in one compiled call
-    dirs, faces = cube_sphere(32)
-    verts, nrm = (np.asarray(a)[0] for a in _mesh_and_normals(
-        jnp.asarray(np.asarray(model.shape_vectors(mean_nat[None]), dtype=float)), jnp.asarray(dirs)))
-    spread = uncertainty_spread(verts, nrm, vecs[: min(200, len(vecs))])
+    # the mean shape's mesh (nellipsoid_mesh(mean, 32), through the compiled map of the draws' meshes)
+    verts, faces = _draw_meshes(model.shape_vectors(mean_nat[None]), 32)
+    verts = verts[0]
+    spread = uncertainty_spread(verts, None, vecs[: min(200, len(vecs))])
     if model.refine_mesh is not None:
         verts = np.asarray(model.refine_mesh(mean_nat, verts))
     to_trimesh(verts, faces).export(str(out / "mean_shape.ply"))
