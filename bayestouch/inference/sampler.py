@@ -166,12 +166,7 @@ class IndependenceT:
         lp, blobs = model.compute_log_prob_fn(q)
         lnpdiff = lp - state.log_prob + self.log_g(state.coords) - self.log_g(q)
         accepted = np.log(model.random.rand(w)) < lnpdiff
-        new = State(q, log_prob=lp, blobs=blobs)
-        state.coords[accepted] = new.coords[accepted]
-        state.log_prob[accepted] = new.log_prob[accepted]
-        if new.blobs is not None:
-            state.blobs[accepted] = new.blobs[accepted]
-        return state, accepted
+        return self.fallback.update(state, State(q, log_prob=lp, blobs=blobs), accepted), accepted
 
 
 def adaptive_moves():
@@ -370,8 +365,8 @@ def sample(logp, start, chain_path, *, walkers: int, ndim: int, seed: int, steps
         ``time.perf_counter()`` at the start of the whole run (default: now).
     stop_when_converged : bool
         Every ``check_every`` steps, stop once the chain is longer than 50 integrated autocorrelation times, the
-        estimate of τ moved less than 5 % since the last check (emcee's documented criterion) and R-hat and the
-        bulk ESS of the sampled parameters pass (:func:`_looks_converged`).
+        estimate of the largest τ moved less than 5 % since the last check and R-hat and the bulk ESS of the sampled
+        parameters pass (:func:`_looks_converged`).
     check_every : int, optional
         Steps between convergence checks (default 50 for an adaptive run, 250 otherwise).
     flush_s : float, seconds
@@ -423,9 +418,13 @@ def sample(logp, start, chain_path, *, walkers: int, ndim: int, seed: int, steps
     def refit(upto: int) -> None:
         """Fit the independence proposal as the uninterrupted run did at the last adaptation step ≤ ``upto`` whose
         draws look stationary (:func:`_stationary`); none such: the move stays differential evolution."""
-        for a in reversed(adaptation_steps(upto)):
-            if _stationary(backend.get_log_prob()[a // 2 : a]):
-                indep.fit(backend.get_chain()[a // 2 : a].reshape(-1, ndim))
+        steps_ = adaptation_steps(upto)
+        if not steps_:
+            return
+        lp, chain = backend.get_log_prob(), backend.get_chain()
+        for a in reversed(steps_):
+            if _stationary(lp[a // 2 : a]):
+                indep.fit(chain[a // 2 : a].reshape(-1, ndim))
                 return
 
     if indep is not None:
