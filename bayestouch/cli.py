@@ -128,6 +128,11 @@ def build_parser() -> argparse.ArgumentParser:
                     "analytically (Gaussian noise), e.g. 3x3x3")
     fp.add_argument("--ffd-tau", type=float, default=None,
                     help="prior sd of the FFD control-point displacements, metres (default 5e-4)")
+    fp.add_argument("--texture", choices=["auto", "on", "off"], default="auto",
+                    help="recording (.nc) only: sample the surface texture (grating amplitude, wavelength, "
+                         "orientation, phase and roughness): auto = when the grating search finds one (default)")
+    fp.add_argument("--stride", type=_positive_int, default=None,
+                    help="recording (.nc) only: use every STRIDE-th frame (default 2 with texture, 5 without)")
     fp.add_argument("--quiet", action="store_true", help="no progress bar")
 
     sp = sub.add_parser("simulate", help="simulate strokes of the virtual finger over an object (netCDF)",
@@ -291,10 +296,13 @@ def _cmd_fit(args) -> int:
 
         s = run_raw_fit(args.points, args.out, seed=args.seed, walkers=args.walkers, steps=args.steps or 1500,
                         resume=args.resume, budget_s=args.budget, progress=not args.quiet,
-                        stop_when_converged=not args.no_early_stop)
+                        stop_when_converged=not args.no_early_stop, texture=args.texture, stride=args.stride)
     else:
         from bayestouch.inference.run import run_contact_fit
         from bayestouch.io import load_contact_points
+
+        if args.texture != "auto" or args.stride is not None:
+            raise BadInput("--texture and --stride apply to a recording (.nc), not to contact points (.csv)")
 
         cp = load_contact_points(args.points)
         if args.nu is not None and (args.noise != "student" or not args.nu > 0):

@@ -13,8 +13,8 @@ EGG = MODELS / "objects" / "egg.toml"
 
 
 def _record(mode: str, strokes: int = 6, seed: int = 7, rate: float = 15.0):
-    """A short recording of the egg WITHOUT its texture (the level does not sample texture; the textured egg is
-    the benchmark's standard scenario), so the recording's clean currents are the full bare-shape model."""
+    """A short recording of the egg WITHOUT its texture (tests/test_raw_texture.py has the textured egg), so the
+    recording's clean currents are the full bare-shape model."""
     import dataclasses
 
     from bayestouch.recording import build_dataset
@@ -82,7 +82,7 @@ def test_reduced_model_equals_full_forward_model(empirical):
     data, finger = raw.load_raw_data(ds, stride=1, radius=0.02, contact_radius=0.02)
     clean = np.log(ds.taxel_current_clean.values[data.frames][:, data.taxels])
     pred = np.asarray(raw.predict_log_current(jnp.asarray(_truth(obj)), data, finger))
-    # float32 power law: < 1e-8 m in distance → < 1e-4 in ln I at these pressures
+    # the first-order distance: exact for the bare n-ellipsoid up to rounding
     assert np.abs(pred - clean).max() < 1e-4
     assert np.abs(clean - clean[:, :1]).max() > 0.05  # the comparison is not trivially flat
     d3, _ = raw.load_raw_data(ds, stride=2)
@@ -160,7 +160,8 @@ def test_bad_input_raises_one_line(tmp_path, empirical):
 
 
 def _fit(ds, out, steps):
-    return raw.run_raw_fit(ds, out, seed=1, walkers=32, steps=steps, progress=False, stride=3, starts=2)
+    return raw.run_raw_fit(ds, out, seed=1, walkers=32, steps=steps, progress=False, stride=3, starts=2,
+                           texture="off")
 
 
 @pytest.mark.slow
