@@ -109,6 +109,23 @@ def test_textured_raw_fit_detects_and_recovers_the_grating(tmp_path, textured):
     o = p["orientation"]["mean"]
     assert min(abs(o - t.orientation), abs(np.pi - o - t.orientation)) < 0.02, p["orientation"]
     assert p["wavelength"]["q05"] < p["wavelength"]["mean"] < p["wavelength"]["q95"]
+    # the curvature adjustment widens the posterior to the sandwich covariance: the true volume within 4 sds of the
+    # mean; negative control: emcee's draws as sampled (chain.h5, the independence posterior) put it far outside
+    import emcee
+
+    from bayestouch.geometry import nellipsoid as ne
+
+    adj = s["model"]["adjustment"]
+    assert isinstance(adj, dict) and min(adj["sd_ratio"]) > 1.0, adj
+    v_true = float(ne.volume(obj.shape))
+    vol = s["derived"]["volume_m3"]
+    z = (vol["mean"] - v_true) / vol["sd"]
+    draws = emcee.backends.HDFBackend(str(tmp_path / "fit" / "chain.h5"), read_only=True).get_chain()[-100:]
+    draws = draws.reshape(-1, 16)
+    shapes = np.column_stack([draws[:, :3], np.exp(draws[:, 3:6]), draws[:, 6:9], np.exp(draws[:, 9])])
+    v_raw = np.array([float(ne.volume(ne.from_vector(x))) for x in shapes[::8]])
+    z_raw = (v_raw.mean() - v_true) / v_raw.std()
+    assert abs(z) < 4 < abs(z_raw), (z, z_raw)
     import arviz as az
 
     idata = az.from_netcdf(str(tmp_path / "fit" / "posterior.nc"))

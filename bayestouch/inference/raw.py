@@ -110,6 +110,24 @@ __all__ = [
     "misfit_warnings",
     "MISFIT_K",
     "STUDENT_NU",
+    "RAW_TEXTURE_PARAM_NAMES",
+    "RAW_TEXTURE_NATURAL_NAMES",
+    "raw_log_prob_batch",
+    "search_texture",
+    "initial_raw_texture",
+    "TextureStart",
+    "roughness_variance",
+    "textured_bounds",
+    "texture_reference",
+    "canonical_theta",
+    "plane_theta",
+    "laplace_ball",
+    "curvature_adjustment",
+    "Adjustment",
+    "DETECT_NATS",
+    "TEXTURE_STRIDE",
+    "BARE_STRIDE",
+    "ADJUST_BLOCK_S",
 ]
 
 RAW_PARAM_NAMES = ("x_G", "y_G", "z_G", "log_a", "log_b", "log_c", "xi", "psi", "zeta", "log_n", "log_k")
@@ -882,17 +900,89 @@ def _natural(flat: np.ndarray) -> np.ndarray:
     return nat if flat.shape[1] == 11 else np.column_stack([nat, gr.texture_natural(flat)])
 
 
+#: block length of the curvature adjustment, seconds of recording: longer than the roughness's and the lag's
+#: correlation (~2 mm of travel at 1 cm/s), short enough for ≥ 3 blocks per parameter
+ADJUST_BLOCK_S = 0.2
+
+
+class Adjustment(NamedTuple):
+    """The curvature adjustment of :func:`curvature_adjustment`: draws θ ↦ mean + (θ − mean) Cᵀ.
+
+    mean : (D,) float
+    C : (D, D) float
+    info : dict
+        Written as ``summary["model"]["adjustment"]``.
+    """
+
+    mean: np.ndarray
+    C: np.ndarray
+    info: dict
+
+    def __call__(self, flat: np.ndarray) -> np.ndarray:
+        return self.mean + (np.asarray(flat) - self.mean) @ self.C.T
+
+
+def curvature_adjustment(flat, data: RawData, finger, nu: float = STUDENT_NU, texture: RawTexture | None = None,
+                         block_s: float = ADJUST_BLOCK_S):
+    """The sandwich (Godambe) correction of the posterior of an independence likelihood, as the curvature adjustment
+    of Ribatet, Cooley & Davison (2012, Statistica Sinica 22, 813–845).
+
+    The likelihood treats every reading as independent, but the 1/f noise, the response lag and above all the
+    surface's unmodelled roughness correlate neighbouring frames: the posterior is then far too narrow (on the
+    standard scenario the true volume lies ~30 posterior sds from the mean). With H⁻¹ ≈ Σ the posterior covariance of
+    the draws ``flat (N, D)`` and J the covariance of the score summed over blocks of ``block_s`` seconds within each
+    stroke (their sums nearly independent), the asymptotically right covariance is Σ J Σ (the inverse Godambe
+    information); draws are mapped affinely, θ ↦ θ̄ + C(θ − θ̄), C = chol(ΣJΣ) chol(Σ)⁻¹, so their covariance becomes
+    Σ J Σ while the mean and the shape of the posterior stay. Measured on the standard scenario (textured egg, 10
+    strokes): sds grow 6–18×, the volume's z-score falls from 30 to 2.1 (blocks of 0.1, 0.2, 0.4, 0.8 s: 2.5, 2.1,
+    2.9, 3.2). Blocks are shortened to keep ≥ 3 per parameter.
+
+    Returns
+    -------
+    Adjustment, or None when Σ or ΣJΣ is not positive definite (the draws are then left as they are).
+    """
+    flat = np.asarray(flat, float)
+    D = flat.shape[1]
+    mean = flat.mean(axis=0)
+    S = np.cov(flat.T)
+    G = np.asarray(jax.jit(jax.jacfwd(lambda t: jnp.sum(raw_pointwise(t, data, finger, nu, texture), axis=1)))(
+        jnp.asarray(mean)))  # (F, D): the score of each frame
+    starts = np.flatnonzero(np.asarray(data.start))
+    ends = np.append(starts[1:], len(G))
+    L = max(1, int(round(block_s / float(data.dt))))
+    while L > 1 and sum(-(-(e - s) // L) for s, e in zip(starts, ends, strict=True)) < 3 * D:
+        L -= 1
+    blocks = np.array([G[i: min(i + L, e)].sum(axis=0) for s, e in zip(starts, ends, strict=True)
+                       for i in range(s, e, L)])
+    blocks -= blocks.mean(axis=0)
+    J = blocks.T @ blocks * len(blocks) / max(len(blocks) - 1, 1)
+    try:
+        Ls = np.linalg.cholesky(S)
+        C = np.linalg.cholesky(S @ J @ S) @ np.linalg.inv(Ls)
+    except np.linalg.LinAlgError:
+        return None
+    Sa = S @ J @ S
+    info = {"method": "curvature adjustment to the sandwich covariance (Ribatet, Cooley & Davison 2012)",
+            "block_s": L * float(data.dt), "blocks": int(len(blocks)),
+            "sd_ratio": [float(r) for r in np.sqrt(np.diag(Sa) / np.diag(S))]}
+    return Adjustment(mean, C, info)
+
+
 def raw_model(data: RawData, finger, nu: float = STUDENT_NU, texture: RawTexture | None = None,
-              info: dict | None = None):
+              info: dict | None = None, adjust: Adjustment | None = None):
     """The raw-current level as a :class:`~bayestouch.inference.run.PosteriorModel`: pointwise log-likelihood per
     selected frame (summed over its taxels: per reading would make posterior.nc ~200 MB for 10 strokes); no
     posterior predictive group (the same size problem); the observed data are the corrected ln I (F, M).
-    ``info`` is merged into the model description."""
+    ``info`` is merged into the model description; ``adjust`` (:func:`curvature_adjustment`) maps the draws before
+    every summary, the posterior group and the log-likelihood (``chain.h5`` keeps emcee's draws as sampled)."""
     from bayestouch.inference.run import PosteriorModel
 
     pw = jax.jit(jax.vmap(lambda t: jnp.sum(raw_pointwise(t, data, finger, nu, texture), axis=1)))
 
+    adj = adjust if adjust is not None else (lambda flat: flat)
+
     def ll(thetas):
+        thetas = adj(thetas)
         return np.concatenate(
             [np.asarray(pw(jnp.asarray(c))) for c in np.array_split(thetas, max(1, len(thetas) // 64))]
         )
@@ -920,9 +1010,10 @@ def raw_model(data: RawData, finger, nu: float = STUDENT_NU, texture: RawTexture
     }
     if texture is not None:
         desc["texture_reference_m"] = [float(v) for v in texture.ref]
+    desc["adjustment"] = adjust.info if adjust is not None else "none: intervals assume independent readings"
     return PosteriorModel(
         RAW_NATURAL_NAMES if texture is None else RAW_TEXTURE_NATURAL_NAMES,
-        _natural,
+        lambda flat: _natural(adj(flat)),
         lambda nat: nat[:, :10],
         ll,
         None,
@@ -984,6 +1075,7 @@ def run_raw_fit(
     starts: int = 4,
     stop_when_converged: bool = True,
     texture: str = "auto",
+    adjust: bool = True,
 ) -> dict:
     """Sample the raw-current posterior of a recording and write the run folder ``out``.
 
@@ -1014,6 +1106,9 @@ def run_raw_fit(
         Sample the texture (grating and roughness, :mod:`bayestouch.inference.grating`): "on" always, "off" never
         (the bare n-ellipsoid), "auto" when the best grating found by :func:`initial_raw_texture` gains more than
         :data:`DETECT_NATS` of log-posterior over the bare shape.
+    adjust : bool
+        Widen the posterior to the sandwich covariance (:func:`curvature_adjustment`): the likelihood treats
+        correlated readings as independent. ``False`` gives the independence posterior as sampled.
 
     Returns
     -------
@@ -1091,4 +1186,5 @@ def run_raw_fit(
         stop_when_converged=stop_when_converged,
         adapt=True,
     )
-    return write_posterior(out, ch, raw_model(data, finger, texture=tex, info=info), seed=seed, t0=t0)
+    adjust = curvature_adjustment(ch.kept.reshape(-1, ch.kept.shape[2]), data, finger, texture=tex) if adjust else None
+    return write_posterior(out, ch, raw_model(data, finger, texture=tex, info=info, adjust=adjust), seed=seed, t0=t0)
