@@ -449,6 +449,7 @@ def _pointwise(theta, pred, data: RawData, nu, texture):
     return _student_t(r, _scale(theta, data, texture), nu)
 
 
+
 def raw_pointwise(theta, data: RawData, finger, nu: float = STUDENT_NU, texture: RawTexture | None = None):
     """Log-likelihood (F, M) of every selected reading (Student-t of scale k·s, or √(k²s² + σ_r² v) with the
     texture)."""
@@ -571,7 +572,7 @@ def _height_jvp(th, hh, data: RawData, finger, texture: RawTexture | None = None
 
 
 def search_texture(theta0, data: RawData, finger, tp: gr.TexturePriors, nu: float = STUDENT_NU, count: int = 5,
-                   rings: int = 24, directions: int = 32):
+                   rings: int = 24, directions: int = 32, planes=(0, 1, 2)):
     """Grating candidates from the residuals of the bare-shape estimate ``theta0`` (11,), by the generalised
     likelihood-ratio statistic of a grating of wave vector k in the sampled frame's x–y plane, linearised at
     θ₀: |C(k)|²/A(k) with C(k) = Σ_p c_p e^{−i k·y_p}, where c = Jᵀψ is the robust (Student-t) score ψ of the
@@ -584,9 +585,12 @@ def search_texture(theta0, data: RawData, finger, tp: gr.TexturePriors, nu: floa
     vectors far better than others, and the plain power |C|² peaks at their aliases. Each peak of the FFT grid is
     then refined off the grid (:func:`bayestouch.inference.grating.refine_peak`).
 
+    Each principal plane of ``planes`` (0: x–y, 1: x–z, 2: y–z of θ₀'s frame) is searched in the frame
+    :func:`plane_theta` makes it the x–y plane; ``count`` peaks each.
+
     Returns
     -------
-    list of (wavelength m, orientation rad, statistic)
+    list of (plane, wavelength m, orientation rad, statistic)
     """
     from scipy.interpolate import RegularGridInterpolator
 
@@ -603,40 +607,44 @@ def search_texture(theta0, data: RawData, finger, tp: gr.TexturePriors, nu: floa
     c, wgt = pullback(th)
     c = np.asarray(c).ravel()
     x = np.asarray(data.taxel_position, float).reshape(-1, 3)
-    foot = gr.foot_points(theta0, x)
+    foot = gr.foot_points(theta0, x)  # principal frame of θ₀
     s = cm.shape_of(np.asarray(theta0, float))
     yref = (texture_reference(data) - np.asarray(s.centre)) @ np.asarray(s.rotation)
-    xy = foot[:, :2] - yref[:2]
 
-    # A(k) on a polar grid: one linearised forward per (k, cos | sin), in batches
+    # A(k) on a polar grid: one linearised forward per (k, cos | sin), in batches; the linearisation is the same
+    # for every plane (one surface), only the points' in-plane coordinates differ
     logk = np.linspace(np.log(_TWO_PI_ / tp.wavelength_max), np.log(_TWO_PI_ / tp.wavelength_min), rings)
     ang = np.arange(directions) * np.pi / directions
     kv = (np.exp(logk)[:, None, None] * np.stack([np.cos(ang), np.sin(ang)], -1)[None]).reshape(-1, 2)
-    xy_j = jnp.asarray(xy.reshape(np.shape(data.taxel_position)[:2] + (2,)))
+    nb = 16
+    kp = jnp.asarray(np.concatenate([kv, np.repeat(kv[-1:], -len(kv) % nb, 0)]))
 
     @jax.jit
-    def energy(kb):
+    def energy(xy_j, kb):
         ph = jnp.einsum("fjd,kd->kfj", xy_j, kb)
         out = jax.vmap(lambda hh: _height_jvp(th, hh, data, finger))(jnp.concatenate([jnp.cos(ph), jnp.sin(ph)]))
         e = jnp.sum(out * out * wgt, axis=(1, 2))
         return e[: kb.shape[0]] + e[kb.shape[0]:]
 
-    nb = 16
-    pad = -len(kv) % nb
-    kp = np.concatenate([kv, np.repeat(kv[-1:], pad, 0)])
-    A = np.concatenate([np.asarray(energy(jnp.asarray(kp[i: i + nb]))) for i in range(0, len(kp), nb)])[: len(kv)]
-    A = A.reshape(rings, directions)
-    # periodic in angle with period π (A(k) = A(−k)): pad one column each side
-    interp = RegularGridInterpolator((logk, np.concatenate([[ang[-1] - np.pi], ang, [np.pi]])),
-                                     np.log(np.concatenate([A[:, -1:], A, A[:, :1]], axis=1)),
-                                     bounds_error=False, fill_value=None)
+    found = []
+    for plane in planes:
+        P = _PLANES[plane]
+        xy = (foot @ P)[:, :2] - (yref @ P)[:2]  # coordinates in the frame R P (plane_theta's)
+        xy_j = jnp.asarray(xy.reshape(np.shape(data.taxel_position)[:2] + (2,)))
+        A = np.concatenate([np.asarray(energy(xy_j, kp[i: i + nb])) for i in range(0, len(kp), nb)])[: len(kv)]
+        A = A.reshape(rings, directions)
+        # periodic in angle with period π (A(k) = A(−k)): pad one column each side
+        interp = RegularGridInterpolator((logk, np.concatenate([[ang[-1] - np.pi], ang, [np.pi]])),
+                                         np.log(np.concatenate([A[:, -1:], A, A[:, :1]], axis=1)),
+                                         bounds_error=False, fill_value=None)
 
-    def norm(kx, ky):
-        kk = np.clip(np.hypot(kx, ky), np.exp(logk[0]), np.exp(logk[-1]))
-        return np.exp(interp(np.column_stack([np.log(kk), np.arctan2(ky, kx) % np.pi])))
+        def norm(kx, ky, interp=interp):
+            kk = np.clip(np.hypot(kx, ky), np.exp(logk[0]), np.exp(logk[-1]))
+            return np.exp(interp(np.column_stack([np.log(kk), np.arctan2(ky, kx) % np.pi])))
 
-    peaks = gr.grating_peaks(c, xy, tp.wavelength_min, tp.wavelength_max, norm=norm, count=count)
-    return [gr.refine_peak(c, xy, lam, o, norm) for lam, o, _ in peaks]
+        peaks = gr.grating_peaks(c, xy, tp.wavelength_min, tp.wavelength_max, norm=norm, count=count)
+        found += [(plane, *gr.refine_peak(c, xy, lam, o, norm)) for lam, o, _ in peaks]
+    return found
 
 
 def roughness_variance(theta, data: RawData, finger, texture: RawTexture, count: int = 128, seed: int = 0):
@@ -830,7 +838,7 @@ def initial_raw_texture(theta0, data: RawData, finger, priors: cm.PriorParams, t
     theta0 = canonical_theta(theta0)
     ref = texture_reference(data)
     frames = [plane_theta(theta0, p) for p in range(len(_PLANES))]
-    cands = [(p, *c) for p, th in enumerate(frames) for c in search_texture(th, data, finger, tp, nu, count)]
+    cands = search_texture(theta0, data, finger, tp, nu, count, planes=range(len(_PLANES)))
     zero = RawTexture(ref, np.zeros(np.shape(data.log_current)), tp.amplitude_scale)
     pred0 = jax.jit(lambda t: predict_log_current(t, data, finger))(jnp.asarray(theta0))
     w = (1.0 / (np.exp(theta0[10]) * np.asarray(data.noise_sd)) ** 2).ravel()
@@ -866,7 +874,9 @@ def initial_raw_texture(theta0, data: RawData, finger, priors: cm.PriorParams, t
     # while the grating's plane is tilted from the search frame's (the egg's frame is fixed about its long axis only
     # to ~4° by four strokes). Short L-BFGS-B runs (roughness at its floor, all else free) from the ``polish`` best
     # rank them; the best is polished to convergence.
-    fn0 = jax.jit(jax.value_and_grad(lambda t, b: -raw_log_prob(t, data, finger, b, nu, zero)))
+    # one compiled program for every box and both roughness models (b and tex are arguments, not constants)
+    fn_any = jax.jit(jax.value_and_grad(lambda t, b, tex: -raw_log_prob(t, data, finger, b, nu, tex)))
+    fn0 = partial(fn_any, tex=zero)
     sc = None
     best = None
     for _, th, b in ranked[:polish]:
@@ -885,7 +895,7 @@ def initial_raw_texture(theta0, data: RawData, finger, priors: cm.PriorParams, t
     lo, hi = np.array(b.lower), np.array(b.upper)
     tex = zero._replace(rough_var=roughness_variance(th, data, finger, zero, seed=seed))
     th[15] = np.clip(np.log(max(np.hypot(th[11], th[12]) / 5.0, tp.roughness_min * 10)), lo[15], hi[15])
-    fn = jax.jit(jax.value_and_grad(lambda t: -raw_log_prob(t, data, finger, b, nu, tex)))
+    fn = partial(fn_any, b=b, tex=tex)
     th, _ = _lbfgs(fn, th, lo, hi, _OPT_SCALE)
     return TextureStart(th, tex, b, gain, cands, fn)
 
