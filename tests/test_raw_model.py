@@ -206,3 +206,6 @@ def test_misfit_warning_threshold():
     warn = raw.misfit_warnings({"parameters": {"noise_scale": {"mean": 8.0}}})
     assert len(warn) == 1 and "noise_scale k = 8.0" in warn[0] and "too narrow" in warn[0]
     assert raw.misfit_warnings({"parameters": {"noise_scale": {"mean": 1.2}}}) == []
+    # with the sandwich adjustment the intervals are widened: the warning says so instead
+    adj = raw.misfit_warnings({"parameters": {"noise_scale": {"mean": 8.0}}, "model": {"adjustment": {"blocks": 9}}})
+    assert len(adj) == 1 and "sandwich" in adj[0] and "too narrow" not in adj[0]

@@ -1040,17 +1040,20 @@ MISFIT_K = 3.0
 def misfit_warnings(summary: dict, textured: bool = False) -> list[str]:
     """Warnings of a raw-current fit: the posterior mean of the noise multiplier k above :data:`MISFIT_K` says
     the residuals are k times the modelled read-out noise — a forward model that misses something (a texture that
-    is not modelled, the lag approximated on coarse frames) — and the shape intervals, computed as if the model
-    were right, are then too narrow. Measured on the standard scenario (egg, empirical mode) without the texture:
-    k ≈ 8, and the true volume lies ~6 posterior sds from the mean (``benchmarks/bench_raw.py``)."""
+    is not modelled, the lag approximated on coarse frames). Without the curvature adjustment the shape intervals,
+    computed as if the model were right, are then too narrow (standard scenario without the texture: k ≈ 8, the
+    true volume ~6 sds from the mean); with it (the default) they are widened for the correlated residuals, and the
+    warning says that a systematic misfit may still bias them (``benchmarks/bench_raw.py``)."""
     k = float(summary["parameters"]["noise_scale"]["mean"])
     if k <= MISFIT_K:
         return []
     why = "the lag is approximated on coarse frames (try a smaller stride)" if textured else (
         "the texture is not modelled (try texture='on'); the lag is approximated on coarse frames")
+    adjusted = isinstance(summary.get("model", {}).get("adjustment"), dict)
+    tail = ("the sandwich adjustment widens the intervals for correlated residuals, but a systematic misfit can "
+            "still bias them" if adjusted else "the intervals assume the model is right and are likely too narrow")
     return [f"noise_scale k = {k:.1f} > {MISFIT_K:g}: the residuals are {k:.0f}x the modelled read-out noise, so the "
-            f"forward model misses part of the signal ({why}); the intervals assume the model is right and are "
-            "likely too narrow"]
+            f"forward model misses part of the signal ({why}); {tail}"]
 
 
 def _contact_points(ds, frames):
