@@ -27,14 +27,14 @@ Parameters (appended to the raw level's 11, see :mod:`bayestouch.inference.raw`)
     as independent given θ, although the roughness correlates neighbouring taxels and frames (the posterior of
     σ_r is then somewhat too narrow).
 
-Initialisation (:func:`search_grating`)
----------------------------------------
+Initialisation (:func:`bayestouch.inference.raw.search_texture`, :func:`~bayestouch.inference.raw.initial_raw_texture`)
+-------------------------------------------------------------------------------------------------------------------
 The likelihood is sharply multimodal in (λ, o): the data span ~30 grating periods. The search linearises the
 predicted ln I in a height field at the bare-shape estimate θ₀, pulls the robust (Student-t) score of the
 residuals back onto the penetrating taxels' foot points with one vector–Jacobian product, and evaluates the
-matched-filter power |Σ c_p e^{−i k·y_p}|² of those weights at all wave vectors k of the principal x–y plane
-at once with a gridded 2-D FFT (cloud-in-cell gridding). The strongest peaks are refined by L-BFGS on the
-full log-posterior.
+likelihood-ratio statistic |Σ c_p e^{−i k·y_p}|²/A(k) of those weights at all wave vectors k of each principal
+plane at once (:func:`grating_peaks`: a gridded 2-D FFT, A(k) the predicted signal energy); the peaks are refined
+off the grid (:func:`refine_peak`), ranked by short L-BFGS-B runs on the full log-posterior, and the best polished.
 """
 
 from __future__ import annotations
@@ -68,7 +68,6 @@ TEXTURE_NAMES = ("tex_u", "tex_v", "log_wavelength", "orientation", "log_roughne
 #: their summary names: m, m, rad, rad, m
 TEXTURE_NATURAL_NAMES = ("amplitude", "wavelength", "orientation", "phase", "roughness")
 
-_Q_FLOOR32 = 1e-12
 _TWO_PI = 2.0 * np.pi
 
 
@@ -135,10 +134,10 @@ class RawTexture(NamedTuple):
     amplitude_scale: float
 
 
-def distance_batch(th, hom, ref=None, dtype=jnp.float64):
+def distance_batch(th, hom, ref=None):
     """Signed distance (W, P) m of points to the surfaces of walkers ``th (W, D)``: the n-ellipsoid's first-order
-    distance, minus the grating height at the foot point when ``ref`` is given (``th`` then holds the texture
-    parameters at 11–14).
+    distance (the contact level's batched kernel, :func:`bayestouch.inference.contact._geometry`, float64), minus
+    the grating height at the foot point when ``ref`` is given (``th`` then holds the texture parameters at 11–14).
 
     Parameters
     ----------
@@ -148,43 +147,26 @@ def distance_batch(th, hom, ref=None, dtype=jnp.float64):
         Homogeneous world points (x, y, z, 1), metres.
     ref : (3,) float, metres, optional
         Phase reference point (:class:`RawTexture`).
-    dtype : jnp.float64 or jnp.float32
-        Precision of the powers and the grating's sine after the (float64) affine map. float32 is ~1.5× faster
-        but rounds the distance by ~2 nm (6e-8 of the coordinates), which over ~10⁵ readings whose posterior sd is
-        ~50 nm makes the log-density jitter by ~0.1–0.4 nat between neighbouring θ: enough to stall an optimiser.
 
     Notes
     -----
-    Written overflow-free as the contact level's kernel (:func:`bayestouch.inference.contact._log_lik_mixed`):
-    powers relative to the largest of the three.
+    float64 throughout: float32 powers round the distance by ~2 nm (6e-8 of the coordinates), which over ~10⁵
+    readings whose posterior sd is ~50 nm makes the log-density jitter by ~0.1–0.4 nat between neighbouring θ:
+    enough to stall an optimiser. The grating's coordinate s = (foot − y_ref)·d is taken in the world frame,
+    (x − d n − x_ref)·R(cos o, sin o, 0), which equals the principal-frame form.
     """
-    a = jnp.exp(th[:, 3:6])
-    n = jnp.exp(th[:, 9])
-    R = jax.vmap(rotation_matrix)(th[:, 6:9])  # (W, 3, 3), columns = principal directions
-    B = jnp.concatenate([jnp.swapaxes(R, 1, 2), -jnp.einsum("wk,wkj->wj", th[:, 0:3], R)[:, :, None]], axis=2)
-    y = jnp.einsum("wjk,kp->wjp", B, hom).astype(dtype)  # principal-frame coordinates (W, 3, P)
-    a32 = a.astype(dtype)[:, :, None]
-    q = y / a32
-    aq = jnp.maximum(jnp.abs(q), jnp.asarray(_Q_FLOOR32, dtype))
-    L = n.astype(dtype)[:, None, None] * jnp.log(aq)
-    Lm = jnp.max(L, axis=1, keepdims=True)
-    tp = jnp.exp(L - Lm)
-    Sp = jnp.sum(tp, axis=1)
-    one_m_gi = -jnp.expm1(-(Lm[:, 0] + jnp.log(Sp)) / n.astype(dtype)[:, None])  # 1 − 1/G
-    u = tp / (Sp[:, None] * aq * a32)  # |∂G/∂y_j| / G
-    un = jnp.sqrt(jnp.sum(u * u, axis=1))
-    amax = jnp.max(a, axis=1).astype(dtype)[:, None]
-    d = one_m_gi / jnp.maximum(un, (1.0 - one_m_gi) / amax)
+    from bayestouch.inference.contact import _geometry
+
+    d, normals = _geometry(th, hom, ref is not None)
     if ref is None:
-        return d.astype(jnp.float64)
-    nh = jnp.sign(q) * u / jnp.maximum(un, jnp.asarray(1e-30, dtype))[:, None]  # outward unit normal, principal frame
-    foot = y - d[:, None] * nh
-    yref = jnp.einsum("wk,wkj->wj", jnp.asarray(ref)[None] - th[:, 0:3], R).astype(dtype)  # Rᵀ(x_ref − c)
-    o = th[:, 14].astype(dtype)[:, None]
-    s = (foot[:, 0] - yref[:, 0, None]) * jnp.cos(o) + (foot[:, 1] - yref[:, 1, None]) * jnp.sin(o)
-    ph = s * (_TWO_PI * jnp.exp(-th[:, 13])).astype(dtype)[:, None]
-    h = th[:, 11].astype(dtype)[:, None] * jnp.sin(ph) + th[:, 12].astype(dtype)[:, None] * jnp.cos(ph)
-    return (d - h).astype(jnp.float64)
+        return d
+    R = jax.vmap(rotation_matrix)(th[:, 6:9])  # (W, 3, 3), columns = principal directions
+    o = th[:, 14]
+    d_world = R[:, :, 0] * jnp.cos(o)[:, None] + R[:, :, 1] * jnp.sin(o)[:, None]  # (W, 3)
+    foot = hom[None, :3] - d[:, None] * normals  # (W, 3, P), world
+    s = jnp.einsum("wkp,wk->wp", foot - jnp.asarray(ref)[None, :, None], d_world)
+    ph = s * (_TWO_PI * jnp.exp(-th[:, 13]))[:, None]
+    return d - (th[:, 11][:, None] * jnp.sin(ph) + th[:, 12][:, None] * jnp.cos(ph))
 
 
 @jax.jit
@@ -201,6 +183,15 @@ def _foot(theta, points):
 def foot_points(theta, points) -> np.ndarray:
     """Foot points (P, 3) m, in the principal frame of the shape θ (≥ 10,), of world ``points (P, 3)`` m."""
     return np.asarray(_foot(jnp.asarray(np.asarray(theta, float)[:10]), jnp.asarray(points, jnp.float64)))
+
+
+def _significant(weights, xy):
+    """The weights (P',) and points (P', 2) whose weight exceeds 1e-6 of the largest (the rest add nothing)."""
+    w, p = np.asarray(weights, float), np.asarray(xy, float)
+    if w.size and np.abs(w).max() > 0:
+        keep = np.abs(w) > 1e-6 * np.abs(w).max()
+        w, p = w[keep], p[keep]
+    return w, p
 
 
 def grating_peaks(weights, xy, lam_min: float, lam_max: float, *, norm=None, count: int = 5, oversample: int = 2):
@@ -232,11 +223,7 @@ def grating_peaks(weights, xy, lam_min: float, lam_max: float, *, norm=None, cou
     C is computed by cloud-in-cell gridding at 4 points per shortest period and a real FFT, corrected for the
     gridding's transfer function sinc²(k_x h/2) sinc²(k_y h/2).
     """
-    w = np.asarray(weights, float)
-    p = np.asarray(xy, float)
-    if w.size and np.abs(w).max() > 0:
-        keep = np.abs(w) > 1e-6 * np.abs(w).max()
-        w, p = w[keep], p[keep]
+    w, p = _significant(weights, xy)
     h = lam_min / 4.0
     lo = p.min(axis=0) - 2 * h
     ext = float((p.max(axis=0) - lo).max() + 2 * h)
@@ -282,9 +269,7 @@ def refine_peak(weights, xy, wavelength: float, orientation: float, norm=None):
     cells are ~1 % apart in λ at 2 mm: enough to misplace a grating by half a period across the data)."""
     from scipy.optimize import minimize
 
-    w = np.asarray(weights, float)
-    keep = np.abs(w) > 1e-6 * np.abs(w).max() if w.size and np.abs(w).max() > 0 else np.ones(w.size, bool)
-    w, p = w[keep], np.asarray(xy, float)[keep]
+    w, p = _significant(weights, xy)
 
     def neg(z):
         k = _TWO_PI * np.exp(-z[0]) * np.array([np.cos(z[1]), np.sin(z[1])])

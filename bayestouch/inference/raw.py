@@ -143,7 +143,6 @@ LOG_K_PRIOR_SD = 1.0
 _N_FLICKER = 9
 #: pressure cap, Pa: far beyond the skin's densification (tens of kPa), it only keeps absurd shapes finite
 P_MAX = 1e6
-_TWO_PI_ = 2.0 * np.pi
 
 
 class RawData(NamedTuple):
@@ -404,8 +403,7 @@ def _hom(data: RawData):
 
 def _sdf_batch(thetas, data: RawData, texture: RawTexture | None = None):
     """Signed distances (W, F, J) m of the penetrating taxels to the surfaces of ``thetas (W, D)``
-    (:func:`bayestouch.inference.grating.distance_batch`: powers in float32, < 1e-8 m lost against the 1 µm
-    contact smoothing length)."""
+    (:func:`bayestouch.inference.grating.distance_batch`, float64)."""
     F, J = np.shape(data.taxel_position)[:2]
     ref = None if texture is None else texture.ref
     return gr.distance_batch(thetas, _hom(data), ref).reshape(-1, F, J)
@@ -447,7 +445,6 @@ def _pointwise(theta, pred, data: RawData, nu, texture):
     r = jnp.asarray(data.log_current) - pred
     r = jnp.where(jnp.isfinite(r), r, 1e6)  # overflowed predictions of absurd shapes: finite, hugely unlikely
     return _student_t(r, _scale(theta, data, texture), nu)
-
 
 
 def raw_pointwise(theta, data: RawData, finger, nu: float = STUDENT_NU, texture: RawTexture | None = None):
@@ -613,7 +610,7 @@ def search_texture(theta0, data: RawData, finger, tp: gr.TexturePriors, nu: floa
 
     # A(k) on a polar grid: one linearised forward per (k, cos | sin), in batches; the linearisation is the same
     # for every plane (one surface), only the points' in-plane coordinates differ
-    logk = np.linspace(np.log(_TWO_PI_ / tp.wavelength_max), np.log(_TWO_PI_ / tp.wavelength_min), rings)
+    logk = np.linspace(np.log(2 * np.pi / tp.wavelength_max), np.log(2 * np.pi / tp.wavelength_min), rings)
     ang = np.arange(directions) * np.pi / directions
     kv = (np.exp(logk)[:, None, None] * np.stack([np.cos(ang), np.sin(ang)], -1)[None]).reshape(-1, 2)
     nb = 16
@@ -662,18 +659,26 @@ def roughness_variance(theta, data: RawData, finger, texture: RawTexture, count:
     return acc / count
 
 
-def _diag_scale(fn, th, lo, hi, scale) -> np.ndarray:
-    """Variable scales 1/√H_jj from the diagonal of the Hessian of ``fn`` (value and gradient) at ``th``, by central
-    differences of the gradient with steps of 1e-3 ``scale``; ``scale`` where that fails or the variable is fixed."""
-    out = np.asarray(scale, float).copy()
+def _fd_hessian(fn, th, steps, lo, hi) -> np.ndarray:
+    """Hessian (D, D) of ``fn`` (value and gradient) at ``th`` by central differences of the gradient, column j from
+    ±``steps[j]`` (the points clipped into [lo, hi]); columns of fixed variables (lo = hi) are zero."""
+    H = np.zeros((th.size, th.size))
     for j in np.flatnonzero(hi > lo):
         e = np.zeros(th.size)
-        e[j] = 1e-3 * scale[j]
-        gp = float(np.asarray(fn(jnp.asarray(np.clip(th + e, lo, hi)))[1])[j])
-        gm = float(np.asarray(fn(jnp.asarray(np.clip(th - e, lo, hi)))[1])[j])
-        hjj = (gp - gm) / (2e-3 * scale[j])
-        if np.isfinite(hjj) and hjj > 0:
-            out[j] = np.clip(1.0 / np.sqrt(hjj), 1e-4 * scale[j], 1e4 * scale[j])
+        e[j] = steps[j]
+        gp = np.asarray(fn(jnp.asarray(np.clip(th + e, lo, hi)))[1])
+        gm = np.asarray(fn(jnp.asarray(np.clip(th - e, lo, hi)))[1])
+        H[:, j] = (gp - gm) / (2 * steps[j])
+    return H
+
+
+def _diag_scale(fn, th, lo, hi, scale) -> np.ndarray:
+    """Variable scales 1/√H_jj from the diagonal of the Hessian of ``fn`` (value and gradient) at ``th``
+    (:func:`_fd_hessian`, steps of 1e-3 ``scale``); ``scale`` where that fails or the variable is fixed."""
+    out = np.asarray(scale, float).copy()
+    hjj = np.diag(_fd_hessian(fn, th, 1e-3 * out, lo, hi))
+    ok = (hi > lo) & np.isfinite(hjj) & (hjj > 0)
+    out[ok] = np.clip(1.0 / np.sqrt(hjj[ok]), 1e-4 * out[ok], 1e4 * out[ok])
     return out
 
 
@@ -744,8 +749,7 @@ def _reduce_psi(th: np.ndarray) -> np.ndarray:
     """ψ into [0, π) (the prior box): ψ + π flips the signs of the principal x and y axes, a symmetry of the
     centrally symmetric n-ellipsoid."""
     th = th.copy()
-    th[7] = th[7] + np.pi if th[7] < 0 else th[7]
-    th[7] = th[7] - np.pi if th[7] >= np.pi else th[7]
+    th[7] = th[7] % np.pi
     return th
 
 
@@ -784,25 +788,17 @@ def plane_theta(theta, plane: int) -> np.ndarray:
 def laplace_ball(neg_log_post, theta, lo, hi, scale, walkers: int, rng: np.random.Generator) -> np.ndarray:
     """Walkers (W, D) drawn from the Laplace approximation N(θ̂, H⁻¹) at the optimum ``theta`` (D,).
 
-    H is the central finite difference of the gradient of ``neg_log_post`` (value and gradient, as for L-BFGS-B) in
-    the variables scaled by ``scale`` (steps of 1e-3 scaled units), symmetrised, with its eigenvalues floored at
+    H is :func:`_fd_hessian` of ``neg_log_post`` (value and gradient, as for L-BFGS-B) in the variables scaled by
+    ``scale`` (steps of 1e-3 scaled units), symmetrised, with its eigenvalues floored at
     1e-6 of the largest. Starting at the posterior's scale matters here: the raw posterior is ~100× narrower than
     any fixed ball (centre sd ~50 nm), and a ball too wide costs thousands of steps of burn-in. Draws are clipped
     into the prior box [lo, hi]."""
     th = np.asarray(theta, float)
-    d = th.size
-    h = 1e-3
-    H = np.empty((d, d))
-    for j in range(d):
-        e = np.zeros(d)
-        e[j] = h * scale[j]
-        gp = np.asarray(neg_log_post(jnp.asarray(th + e))[1]) * scale
-        gm = np.asarray(neg_log_post(jnp.asarray(th - e))[1]) * scale
-        H[:, j] = (gp - gm) / (2 * h)
+    H = scale[:, None] * _fd_hessian(neg_log_post, th, 1e-3 * scale, lo, hi) * scale[None, :]  # scaled variables
     H = 0.5 * (H + H.T)
     w, V = np.linalg.eigh(H)
     w = np.maximum(w, 1e-6 * max(w.max(), 1e-300))
-    z = rng.normal(size=(walkers, d)) / np.sqrt(w)
+    z = rng.normal(size=(walkers, th.size)) / np.sqrt(w)
     p = th + (z @ V.T) * scale
     return np.clip(p, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
 
@@ -877,21 +873,23 @@ def initial_raw_texture(theta0, data: RawData, finger, priors: cm.PriorParams, t
     # one compiled program for every box and both roughness models (b and tex are arguments, not constants)
     fn_any = jax.jit(jax.value_and_grad(lambda t, b, tex: -raw_log_prob(t, data, finger, b, nu, tex)))
     fn0 = partial(fn_any, tex=zero)
+
+    def floored(b):  # the box with the roughness held at its floor
+        lo, hi = np.array(b.lower), np.array(b.upper)
+        hi[15] = lo[15]
+        return lo, hi
+
     sc = None
     best = None
     for _, th, b in ranked[:polish]:
-        lo, hi = np.array(b.lower), np.array(b.upper)
-        hi[15] = lo[15]
+        lo, hi = floored(b)
         sc = _diag_scale(partial(fn0, b=b), th, lo, hi, _OPT_SCALE) if sc is None else sc
         th, f = _lbfgs(partial(fn0, b=b), th, lo, hi, sc, maxiter=25, rounds=1, rescale=False)
         if best is None or -f > best[0]:
             best = (-f, th, b)
     _, th, b = best
-    lo, hi = np.array(b.lower), np.array(b.upper)
-    hi[15] = lo[15]
-    th, f = _lbfgs(partial(fn0, b=b), th, lo, hi, _OPT_SCALE)
-    val = -f
-    gain = val + f_bare  # the evidence for the grating: against the bare shape polished on the same data
+    th, f = _lbfgs(partial(fn0, b=b), th, *floored(b), _OPT_SCALE)
+    gain = f_bare - f  # the evidence for the grating: against the bare shape polished on the same data
     lo, hi = np.array(b.lower), np.array(b.upper)
     tex = zero._replace(rough_var=roughness_variance(th, data, finger, zero, seed=seed))
     th[15] = np.clip(np.log(max(np.hypot(th[11], th[12]) / 5.0, tp.roughness_min * 10)), lo[15], hi[15])
@@ -1155,13 +1153,13 @@ def run_raw_fit(
     priors = cm.load_priors()
     # the bare shape: DE on the commanded contact points, then L-BFGS-B on the raw posterior at the coarse stride
     bare_stride = BARE_STRIDE if stride is None or texture != "off" else int(stride)
-    data, finger = load_raw_data(ds, models=models, stride=bare_stride, radius=radius, strokes=strokes)
-    th0 = initial_raw_theta(data, finger, _contact_points(ds, data.frames), seed, priors, raw_bounds(data, priors),
-                            starts=starts)
-    tex, info = None, {}
+    bare_data, finger = load_raw_data(ds, models=models, stride=bare_stride, radius=radius, strokes=strokes)
+    th0 = initial_raw_theta(bare_data, finger, _contact_points(ds, bare_data.frames), seed, priors,
+                            raw_bounds(bare_data, priors), starts=starts)
+    data, tex, info = bare_data, None, {}
     if texture != "off":
-        data, finger = load_raw_data(ds, models=models, stride=stride or TEXTURE_STRIDE, radius=radius,
-                                     strokes=strokes, finger=finger)
+        data, _ = load_raw_data(ds, models=models, stride=stride or TEXTURE_STRIDE, radius=radius, strokes=strokes,
+                                finger=finger)
         tp = gr.load_texture_priors()
         ts = initial_raw_texture(th0, data, finger, priors, tp, seed=seed)
         planes = ("x-y", "x-z", "y-z")
@@ -1172,8 +1170,7 @@ def run_raw_fit(
         if texture == "on" or ts.gain > DETECT_NATS:
             tex, th_start, bounds, nlp = ts.texture, ts.theta, ts.bounds, ts.neg_log_post
         elif stride is None:
-            data, finger = load_raw_data(ds, models=models, stride=BARE_STRIDE, radius=radius, strokes=strokes,
-                                         finger=finger)
+            data = bare_data
     if tex is None:
         bounds = raw_bounds(data, priors)
         th_start = th0
