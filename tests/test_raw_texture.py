@@ -87,6 +87,37 @@ def test_textured_likelihood_reduces_to_the_bare_one(textured):
     assert ll[0] > float(bare) + 100 and ll[0] > max(ll[1:]) + 100, (ll, float(bare))
 
 
+def test_pruned_slots_change_nothing_near_the_start_and_are_checked(textured):
+    """Sampling leaves out the taxel slots > 0.1 mm outside the start's surface (raw.prune_clear): near the start
+    (the surface moved by 20 µm, the grating changed) the log-likelihood is the full model's to rounding, and
+    prune_clearance says so; negative control: a surface moved by 0.4 mm reaches left-out slots, the pruned
+    likelihood is then wrong and prune_clearance reports it."""
+    ds, obj = textured
+    data, finger = raw.load_raw_data(ds, stride=raw.TEXTURE_STRIDE)
+    tex = gr.RawTexture(raw.texture_reference(data), np.full(np.shape(data.log_current), 1e-3), 2e-4)
+    th = _truth16(obj, data)
+    th[15] = np.log(1e-6)
+    pruned = raw.prune_clear(data, th, tex)
+    F, J = np.shape(data.taxel_position)[:2]
+    assert 0.1 * F * J < len(pruned.active) < 0.7 * F * J, len(pruned.active)
+
+    def ll(t, d):
+        return float(raw.raw_log_likelihood(jnp.asarray(t), d, finger, texture=tex))
+
+    near = th.copy()
+    near[:3] += 2e-5 / np.sqrt(3)
+    near[11] *= 1.3
+    for t in (th, near):
+        full = ll(t, data)
+        assert ll(t, pruned) == pytest.approx(full, rel=1e-12, abs=1e-6), t
+    assert raw.prune_clearance(near[None], pruned, tex)["exact"]
+    far = th.copy()
+    far[3:6] += np.log1p(4e-4 / np.exp(th[3:6]))  # every semi-axis 0.4 mm longer
+    assert abs(ll(far, pruned) - ll(far, data)) > 1.0
+    check = raw.prune_clearance(far[None], pruned, tex)
+    assert not check["exact"] and check["min_clearance_m"] < raw.PRUNE_CHECK, check
+
+
 @pytest.mark.slow
 def test_textured_raw_fit_detects_and_recovers_the_grating(tmp_path, textured):
     """texture="auto" on four strokes of the textured egg: the grating is detected and sampled; wavelength,
@@ -100,6 +131,8 @@ def test_textured_raw_fit_detects_and_recovers_the_grating(tmp_path, textured):
         assert name in p and np.isfinite(p[name]["mean"]), name
     assert s["model"]["parameters_sampled"] == list(raw.RAW_TEXTURE_PARAM_NAMES)
     assert s["model"]["texture_search"]["grating_gain_nats"] > raw.DETECT_NATS
+    pr = s["model"]["pruning"]
+    assert pr["exact"] and pr["slots_kept"] < pr["slots_total"] and pr["min_clearance_m"] > raw.PRUNE_CHECK, pr
     t = obj.texture
     assert abs(p["wavelength"]["mean"] / t.wavelength - 1) < 0.01, p["wavelength"]
     assert abs(p["amplitude"]["mean"] / t.amplitude - 1) < 0.15, p["amplitude"]

@@ -224,9 +224,20 @@ def _prepare(points, normals=None, noise: str = "student", origin=None) -> _Data
     return _Data(hom, nrm, lever2, log_u)
 
 
-def _geometry(th, hom, want_normals: bool):
-    """Residuals (W, M) m of the homogeneous points ``hom (4, M)`` for walkers ``th (W, D)``, and the model's
-    outward unit normals in the world frame (W, 3, M) when ``want_normals``."""
+class _Frame(NamedTuple):
+    """Per-walker, per-point quantities of the scaled principal frame (:func:`_principal`)."""
+
+    d: jax.Array  # (W, M) m, first-order distance
+    q: jax.Array  # (W, 3, M) 1, scaled principal coordinates (x − c) R / a
+    v: jax.Array  # (W, 3, M) 1/m, |q_j|^(n−1)/a_j (∂G/∂y_j = (G/S) sign(q_j) v_j)
+    ss: jax.Array  # (W, M) 1/m², Σ_j v_j²
+    R: jax.Array  # (W, 3, 3) rotation, columns = principal directions
+    a: jax.Array  # (W, 3) m, semi-axes
+
+
+def _principal(th, hom) -> _Frame:
+    """The batched n-ellipsoid kernel: first-order distances of the homogeneous points ``hom (4, M)`` to the
+    surfaces of walkers ``th (W, ≥ 10)`` and the intermediate values other terms reuse (:class:`_Frame`)."""
     a = jnp.exp(th[:, 3:6])
     n = jnp.exp(th[:, 9])[:, None]
     R = jax.vmap(rotation_matrix)(th[:, 6:9])  # (W, 3, 3), columns = principal directions
@@ -243,10 +254,17 @@ def _geometry(th, hom, want_normals: bool):
     amax = jnp.max(a, axis=1)[:, None]
     # (G − 1)/|∇G| with |∇G| = (G/S)√ss floored at 1/max(a): written with one division
     d = (1.0 - gi) * S / jnp.maximum(jnp.sqrt(ss), S * gi / amax)
+    return _Frame(d, q, v, ss, R, a)
+
+
+def _geometry(th, hom, want_normals: bool):
+    """Residuals (W, M) m of the homogeneous points ``hom (4, M)`` for walkers ``th (W, D)``, and the model's
+    outward unit normals in the world frame (W, 3, M) when ``want_normals``."""
+    f = _principal(th, hom)
     if not want_normals:
-        return d, None
-    g = jnp.einsum("wkj,wjm->wkm", R, jnp.sign(q) * v)
-    return d, g / jnp.sqrt(jnp.sum(g * g, axis=1, keepdims=True) + _TINY)
+        return f.d, None
+    g = jnp.einsum("wkj,wjm->wkm", f.R, jnp.sign(f.q) * f.v)
+    return f.d, g / jnp.sqrt(jnp.sum(g * g, axis=1, keepdims=True) + _TINY)
 
 
 def _student_const(nu: float) -> float:

@@ -44,7 +44,6 @@ from typing import NamedTuple
 import numpy as np
 
 from bayestouch._jax import jax, jnp
-from bayestouch.geometry.rotation import rotation_matrix
 from bayestouch.params import MODELS, Spec, build
 
 __all__ = [
@@ -136,7 +135,7 @@ class RawTexture(NamedTuple):
 
 def distance_batch(th, hom, ref=None):
     """Signed distance (W, P) m of points to the surfaces of walkers ``th (W, D)``: the n-ellipsoid's first-order
-    distance (the contact level's batched kernel, :func:`bayestouch.inference.contact._geometry`, float64), minus
+    distance (the contact level's batched kernel, :func:`bayestouch.inference.contact._principal`, float64), minus
     the grating height at the foot point when ``ref`` is given (``th`` then holds the texture parameters at 11–14).
 
     Parameters
@@ -152,21 +151,28 @@ def distance_batch(th, hom, ref=None):
     -----
     float64 throughout: float32 powers round the distance by ~2 nm (6e-8 of the coordinates), which over ~10⁵
     readings whose posterior sd is ~50 nm makes the log-density jitter by ~0.1–0.4 nat between neighbouring θ:
-    enough to stall an optimiser. The grating's coordinate s = (foot − y_ref)·d is taken in the world frame,
-    (x − d n − x_ref)·R(cos o, sin o, 0), which equals the principal-frame form.
-    """
-    from bayestouch.inference.contact import _geometry
+    enough to stall an optimiser.
 
-    d, normals = _geometry(th, hom, ref is not None)
+    The grating coordinate s = (x − d n̂ − x_ref)·d_w, d_w = R (cos o, sin o, 0) the grating direction in the world
+    and n̂ the outward unit normal (foot point, principal-frame form), needs no world-frame normal: with
+    x − c = R (a ∘ q) and n̂ = R (sign q ∘ v)/√ss (the kernel's own q, v and ss),
+    (x − x_ref)·d_w = (c − x_ref)·d_w + a₁q₁ cos o + a₂q₂ sin o and n̂·d_w = (sign q₁ v₁ cos o + sign q₂ v₂ sin o)/√ss.
+    Equal to the world-frame form to rounding, in about half the time (no per-point rotation or normalisation).
+    """
+    from bayestouch.inference.contact import _TINY, _principal
+
+    f = _principal(th, hom)
     if ref is None:
-        return d
-    R = jax.vmap(rotation_matrix)(th[:, 6:9])  # (W, 3, 3), columns = principal directions
+        return f.d
     o = th[:, 14]
-    d_world = R[:, :, 0] * jnp.cos(o)[:, None] + R[:, :, 1] * jnp.sin(o)[:, None]  # (W, 3)
-    foot = hom[None, :3] - d[:, None] * normals  # (W, 3, P), world
-    s = jnp.einsum("wkp,wk->wp", foot - jnp.asarray(ref)[None, :, None], d_world)
+    co, so = jnp.cos(o)[:, None], jnp.sin(o)[:, None]
+    d_world = f.R[:, :, 0] * co + f.R[:, :, 1] * so  # (W, 3)
+    base = jnp.sum((th[:, 0:3] - jnp.asarray(ref)[None]) * d_world, axis=1)[:, None]
+    q, v = f.q, f.v
+    n_dot = (jnp.sign(q[:, 0]) * v[:, 0] * co + jnp.sign(q[:, 1]) * v[:, 1] * so) / jnp.sqrt(f.ss + _TINY)
+    s = base + f.a[:, 0:1] * co * q[:, 0] + f.a[:, 1:2] * so * q[:, 1] - f.d * n_dot
     ph = s * (_TWO_PI * jnp.exp(-th[:, 13]))[:, None]
-    return d - (th[:, 11][:, None] * jnp.sin(ph) + th[:, 12][:, None] * jnp.cos(ph))
+    return f.d - (th[:, 11][:, None] * jnp.sin(ph) + th[:, 12][:, None] * jnp.cos(ph))
 
 
 @jax.jit
