@@ -369,3 +369,55 @@ def test_adaptive_resume_rebuilds_the_proposal_of_the_uninterrupted_run(tmp_path
     sample(f, _start(), tmp_path / "c100.h5", walkers=32, ndim=D, seed=9, steps=150, progress=False, adapt=True,
            moves=mv)
     assert not np.array_equal(ind_100.mean, ind_full.mean)
+
+
+def test_a_given_proposal_starts_at_step_0_keeps_the_target_and_a_better_fit_replaces_a_poor_one(known, tmp_path):
+    """``sample(..., proposal=(mean, cov))``: the independence move uses the given proposal from step 0 (τ and burn-in
+    from step 0). The exact posterior as the proposal gives τ ≈ 1; a poor one (off by 1.5 sd, variances a quarter)
+    still samples the known posterior (it only changes efficiency), and a refit, whose log weights spread less,
+    replaces it (weight_spread orders the two proposals correctly on exact draws)."""
+    import emcee
+
+    from bayestouch.inference.sampler import IndependenceT, adaptive_moves
+
+    A, y, mean, cov, _ = known
+    f = _log_prob(A, y, NOISE_SD**2)
+    exact = sample(f, _start(walkers=KNOWN["walkers"]), tmp_path / "e.h5", ndim=D, seed=4, progress=False, adapt=True,
+                   proposal=(mean, cov), moves=adaptive_moves(30.0), **KNOWN)
+    assert exact.tau_steps is None and exact.burn == KNOWN["steps"] // 4  # no adaptation stretch skipped
+    assert _agrees(exact, mean, cov)
+    assert exact.tau_max < 2.0, exact.tau_max
+    poor = (mean + 1.5 * np.sqrt(np.diag(cov)), 0.25 * cov)
+    moves = adaptive_moves(30.0)
+    ch = sample(f, _start(walkers=KNOWN["walkers"]), tmp_path / "p.h5", ndim=D, seed=4, progress=False, adapt=True,
+                proposal=poor, moves=moves, **KNOWN)
+    assert _agrees(ch, mean, cov)
+    ind = moves[0][0]
+    assert not np.allclose(ind.mean, poor[0])  # replaced by a fit to the chain
+    x = np.random.default_rng(0).multivariate_normal(mean, cov, 4000)
+    lp = f(x)
+    good, bad = IndependenceT(emcee.moves.DEMove(), 30.0), IndependenceT(emcee.moves.DEMove(), 30.0)
+    good.set(mean, cov)
+    bad.set(*poor)
+    assert good.weight_spread(x, lp) < 0.3 < bad.weight_spread(x, lp)
+
+
+def test_adaptive_resume_with_a_given_proposal_continues_bit_for_bit(tmp_path):
+    """A run with a given proposal, stopped at step 90 (before the refit at 100) and resumed to 250, has the chain of
+    the uninterrupted run bit for bit: the proposal in force is the given one, then replayed from it and the stored
+    chain. Negative control: resumed without the given proposal, steps 90–100 fall back to DE and the chain
+    differs."""
+    from bayestouch.inference.sampler import adaptive_moves
+
+    A, y, mean, cov = _problem()
+    f = _log_prob(A, y, NOISE_SD**2)
+    prop = (mean + 0.5 * np.sqrt(np.diag(cov)), 2.0 * cov)
+    run = {"walkers": 32, "ndim": D, "seed": 9, "progress": False, "adapt": True, "proposal": prop}
+    sample(f, _start(), tmp_path / "full.h5", steps=250, moves=adaptive_moves(30.0), **run)
+    sample(f, _start(), tmp_path / "cut.h5", steps=90, moves=adaptive_moves(30.0), **run)
+    shutil.copy(tmp_path / "cut.h5", tmp_path / "cut2.h5")
+    sample(f, None, tmp_path / "cut.h5", steps=250, moves=adaptive_moves(30.0), resume=True, **run)
+    np.testing.assert_array_equal(_full_chain(tmp_path / "cut.h5"), _full_chain(tmp_path / "full.h5"))
+    sample(f, None, tmp_path / "cut2.h5", steps=250, moves=adaptive_moves(30.0), resume=True,
+           **{**run, "proposal": None})
+    assert not np.array_equal(_full_chain(tmp_path / "cut2.h5"), _full_chain(tmp_path / "full.h5"))

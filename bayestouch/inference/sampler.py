@@ -104,9 +104,9 @@ def default_moves():
     return [(emcee.moves.DEMove(), 0.8), (_snooker_move(), 0.2)]
 
 
-def adaptation_steps(upto: int) -> list[int]:
-    """The steps at which an adaptive run refits its proposal, up to ``upto``: ADAPT_FIRST · 2^k."""
-    out, a = [], ADAPT_FIRST
+def adaptation_steps(upto: int, first: int = ADAPT_FIRST) -> list[int]:
+    """The steps at which an adaptive run refits its proposal, up to ``upto``: ``first`` · 2^k."""
+    out, a = [], int(first)
     while a <= upto:
         out.append(a)
         a *= 2
@@ -124,7 +124,7 @@ class IndependenceT:
     heavier than a Gaussian posterior's, so π/g stays bounded for light-tailed targets (uniform ergodicity,
     Tierney's Cor. 4).
 
-    Before :meth:`fit` is first called the move hands every step to ``fallback``.
+    Before :meth:`fit` or :meth:`set` is first called the move hands every step to ``fallback``.
 
     Parameters
     ----------
@@ -141,13 +141,24 @@ class IndependenceT:
         self.chol: np.ndarray | None = None
 
     def fit(self, draws) -> None:
-        """Set the proposal's centre and scale matrix to the mean and covariance of ``draws (n, D)`` (a ridge of
-        1e-12 of each variance keeps the Cholesky factor defined for a degenerate ensemble)."""
+        """Set the proposal's centre and scale matrix to the mean and covariance of ``draws (n, D)``."""
         x = np.asarray(draws, float)
-        cov = np.atleast_2d(np.cov(x.T))
+        self.set(x.mean(axis=0), np.atleast_2d(np.cov(x.T)))
+
+    def set(self, mean, cov) -> None:
+        """Set the proposal's centre (D,) and scale matrix (D, D) (a ridge of 1e-12 of each variance keeps the
+        Cholesky factor defined for a degenerate ensemble)."""
+        cov = np.asarray(cov, float)
         cov = cov + np.diag(1e-12 * np.diag(cov) + 1e-300)
-        self.mean, self.chol = x.mean(axis=0), np.linalg.cholesky(cov)
+        self.mean, self.chol = np.asarray(mean, float).copy(), np.linalg.cholesky(cov)
         self._inv = np.linalg.inv(self.chol)
+
+    def weight_spread(self, draws, log_prob) -> float:
+        """Standard deviation of the log importance weights log π − log g over draws ``(n, D)`` of π with their
+        log-densities ``log_prob (n,)``: 0 for a proposal equal to π, larger the worse g matches it (a proposal
+        too narrow or too wide, or off-centre); the independence move accepts more the smaller it is."""
+        lw = np.asarray(log_prob, float) - self.log_g(draws)
+        return float(np.std(lw)) if np.all(np.isfinite(lw)) else float("inf")
 
     def log_g(self, x) -> np.ndarray:
         """Log proposal density (W,) at ``x (W, D)``, up to a constant (it cancels in the acceptance ratio)."""
@@ -169,9 +180,9 @@ class IndependenceT:
         return self.fallback.update(state, State(q, log_prob=lp, blobs=blobs), accepted), accepted
 
 
-def adaptive_moves():
-    """The adaptive run's moves: 80 % :class:`IndependenceT` with ν = 10 (differential evolution until its first
-    fit), 15 % DE and 5 % snooker, so a posterior far from a t distribution still mixes (at a fifth of the pace of
+def adaptive_moves(nu: float = 10.0):
+    """The adaptive run's moves: 80 % :class:`IndependenceT` with ``nu`` degrees of freedom (default 10;
+    differential evolution until its first fit), 15 % DE and 5 % snooker, so a posterior far from a t distribution still mixes (at a fifth of the pace of
     :func:`default_moves`) while a near-Gaussian one mixes in a few steps.
 
     Measured on the 1000-point contact posterior of ``benchmarks/bench_sampling.py`` (32 walkers, 2 seeds): τ 4–6
@@ -179,7 +190,7 @@ def adaptive_moves():
     (τ 4, 900–950 steps: R-hat is slower to settle) and :func:`default_moves` (τ 45, 8000 steps)."""
     import emcee
 
-    indep = IndependenceT(emcee.moves.DEMove(), nu=10.0)
+    indep = IndependenceT(emcee.moves.DEMove(), nu=nu)
     return [(indep, 0.8), (emcee.moves.DEMove(), 0.15), (_snooker_move(), 0.05)]
 
 
@@ -307,12 +318,12 @@ def _stationary(log_prob) -> bool:
     return bool(abs(lp[h:].mean() - lp[:h].mean()) < lp[h:].std())
 
 
-def _tau_and_burn(chain: np.ndarray, adapt: bool) -> tuple[np.ndarray, int, int]:
+def _tau_and_burn(chain: np.ndarray, adapt: bool, first: int = ADAPT_FIRST) -> tuple[np.ndarray, int, int]:
     """Integrated autocorrelation times (D,) of ``chain (n, W, D)``, the burn-in and the length of the stretch τ
-    was estimated on. An adaptive chain is judged after its first adaptation (:data:`ADAPT_FIRST`), where the
+    was estimated on. An adaptive chain is judged after its first adaptation (step ``first``), where the
     kernel of its kept draws begins; burn-in there is :func:`_burn_in` of that stretch."""
     n = chain.shape[0]
-    skip = ADAPT_FIRST if adapt and n > ADAPT_FIRST else 0
+    skip = first if adapt and n > first else 0
     seg = chain[skip:]
     tau = integrated_time(seg) if len(seg) > 1 else np.full(chain.shape[2], np.nan)
     tau_max = float(np.nanmax(tau)) if np.isfinite(tau).any() else float("nan")
@@ -337,7 +348,7 @@ def _looks_converged(chain: np.ndarray, tau, old_tau, burn: int, length: int) ->
 def sample(logp, start, chain_path, *, walkers: int, ndim: int, seed: int, steps: int, resume: bool = False,
            budget_s: float | None = None, progress: bool = True, moves=None, t0: float | None = None,
            stop_when_converged: bool = False, check_every: int | None = None, flush_s: float = 1.0,
-           adapt: bool = False) -> Chain:
+           adapt: bool = False, adapt_first: int = ADAPT_FIRST, proposal=None) -> Chain:
     """Run (or continue) an emcee ensemble with an HDF5 checkpoint.
 
     Parameters
@@ -379,6 +390,14 @@ def sample(logp, start, chain_path, *, walkers: int, ndim: int, seed: int, steps
         fixed kernel's would; the proposal at every step is a function of the stored chain, so a resumed run uses
         the kernel the uninterrupted run would have. τ and burn-in are taken after the first adaptation
         (:func:`_tau_and_burn`).
+    adapt_first : int
+        First adaptation step (then twice, four times … that step). The default :data:`ADAPT_FIRST` suits a start
+        far from the posterior; a start drawn from an approximation of it (a Laplace ball) can adapt sooner.
+    proposal : (mean (D,), cov (D, D)), optional
+        An adaptive run's first independence proposal, in force from step 0 (e.g. the Laplace approximation the
+        start ensemble was drawn from; it must be the same on resume). Each refit then replaces the proposal in
+        force only when its log importance weights over the refit's draws spread less
+        (:meth:`IndependenceT.weight_spread`), and τ and burn-in are taken from step 0.
     """
     import emcee
 
@@ -416,17 +435,33 @@ def sample(logp, start, chain_path, *, walkers: int, ndim: int, seed: int, steps
     check_every = (50 if adapt else 250) if check_every is None else int(check_every)
 
     def refit(upto: int) -> None:
-        """Fit the independence proposal as the uninterrupted run did at the last adaptation step ≤ ``upto`` whose
-        draws look stationary (:func:`_stationary`); none such: the move stays differential evolution."""
-        steps_ = adaptation_steps(upto)
+        """Set the independence proposal as the uninterrupted run had it after step ``upto``: replay the adaptation
+        steps ≤ ``upto`` in order, each fitting the draws of the second half of the chain before it when they look
+        stationary (:func:`_stationary`). Without a given ``proposal`` the last such fit is in force (none: the move
+        stays differential evolution); with one, a fit replaces the proposal in force only when its log weights
+        over those draws spread less."""
+        if proposal is not None:
+            indep.set(*proposal)
+        steps_ = adaptation_steps(upto, adapt_first)
         if not steps_:
             return
         lp, chain = backend.get_log_prob(), backend.get_chain()
-        for a in reversed(steps_):
-            if _stationary(lp[a // 2 : a]):
-                indep.fit(chain[a // 2 : a].reshape(-1, ndim))
-                return
+        for a in steps_:
+            if not _stationary(lp[a // 2 : a]):
+                continue
+            x, lx = chain[a // 2 : a].reshape(-1, ndim), lp[a // 2 : a].ravel()
+            if proposal is None:
+                indep.fit(x)
+                continue
+            cand = IndependenceT(None, indep.nu)
+            cand.fit(x)
+            if cand.weight_spread(x, lx) < indep.weight_spread(x, lx):
+                indep.mean, indep.chol, indep._inv = cand.mean, cand.chol, cand._inv
 
+    if proposal is not None and indep is None:
+        raise ValueError("a proposal needs adapt=True")
+    # where the kept draws' kernel begins: the first adaptation, or step 0 when a proposal is given
+    skip_to = 0 if proposal is not None else adapt_first
     if indep is not None:
         refit(backend.iteration)
 
@@ -449,7 +484,7 @@ def sample(logp, start, chain_path, *, walkers: int, ndim: int, seed: int, steps
     todo = steps - first
     stopped = False
     old_tau = None
-    adapt_at = set(adaptation_steps(steps)) if indep is not None else set()
+    adapt_at = set(adaptation_steps(steps, adapt_first)) if indep is not None else set()
     if todo > 0:
         try:
             for i, _ in enumerate(sampler.sample(start if start is not None else backend.get_last_sample(),
@@ -463,7 +498,7 @@ def sample(logp, start, chain_path, *, walkers: int, ndim: int, seed: int, steps
                 if stop_when_converged and i % check_every == 0:
                     flush()
                     chain = backend.get_chain()
-                    tau, burn, length = _tau_and_burn(chain, adapt)
+                    tau, burn, length = _tau_and_burn(chain, adapt, skip_to)
                     if old_tau is not None and _looks_converged(chain, tau, old_tau, burn, length):
                         break
                     old_tau = tau
@@ -472,7 +507,7 @@ def sample(logp, start, chain_path, *, walkers: int, ndim: int, seed: int, steps
     chain = backend.get_chain()
     lp = backend.get_log_prob()
     n_done = chain.shape[0]
-    tau, burn, length = _tau_and_burn(chain, adapt)
+    tau, burn, length = _tau_and_burn(chain, adapt, skip_to)
     tau_max = float(np.nanmax(tau)) if np.isfinite(tau).any() else float("nan")
     acc = float(np.mean(sampler.acceptance_fraction)) if todo > 0 and sampler.iteration > 0 else None
     return Chain(chain[burn:], lp[burn:], int(n_done), burn, tau_max, acc, stopped, time.perf_counter() - t0,
