@@ -230,3 +230,41 @@ def test_misfit_warning_threshold():
     # with the sandwich adjustment the intervals are widened: the warning says so instead
     adj = raw.misfit_warnings({"parameters": {"noise_scale": {"mean": 8.0}}, "model": {"adjustment": {"blocks": 9}}})
     assert len(adj) == 1 and "sandwich" in adj[0] and "too narrow" not in adj[0]
+
+
+def test_t_scale_factor_is_the_t_fit_to_gaussian_readings():
+    """c_ν is the maximum-likelihood Student-t(ν) scale of N(0, 1) data, and with it the likelihood's noise
+    multiplier k comes out as the residual sd over the modelled sd (1 when the model fits), not c_ν of it."""
+    from types import SimpleNamespace
+
+    from scipy.optimize import minimize_scalar
+
+    from bayestouch.inference.raw import _student_t
+
+    assert raw.t_scale_factor(float("inf")) == 1.0
+    c = [raw.t_scale_factor(nu) for nu in (2.0, 4.0, 30.0, 1e6)]
+    assert all(np.diff(c) > 0) and abs(c[-1] - 1.0) < 1e-5, c
+    n = 200_000
+    z = np.random.default_rng(7).normal(size=n)
+    nu = raw.STUDENT_NU
+
+    def mle(nll):
+        return np.exp(minimize_scalar(nll, bounds=(-2.0, 2.0), method="bounded", options={"xatol": 1e-10}).x)
+
+    s_hat = mle(lambda ls: -float(jnp.sum(_student_t(jnp.asarray(z), np.exp(ls), nu))))
+    # MC sd of the scale MLE: c / sqrt(n · I), I = 2ν/(ν + 3) the t's Fisher information of log scale, ×(1.3) for
+    # the misspecified (Gaussian) data's sandwich; 4 sd of that
+    tol = 4 * 1.3 * c[1] / np.sqrt(n * 2 * nu / (nu + 3))
+    assert abs(s_hat - raw.t_scale_factor(nu)) < tol, (s_hat, raw.t_scale_factor(nu), tol)
+    assert abs(s_hat - 1.0) > 10 * tol  # negative control: the bare t scale is not the sd
+    # through the likelihood: readings of sd 1.5·s give k ≈ 1.5
+    s = 2e-4
+    data = SimpleNamespace(log_current=1.5 * s * z.reshape(400, 500), noise_sd=np.full((400, 500), s))
+    pred = jnp.zeros((400, 500))
+    th = np.zeros(11)
+
+    def nll(lk):
+        th[10] = lk
+        return -float(jnp.sum(raw._pointwise(jnp.asarray(th), pred, data, nu, None)))
+
+    assert abs(mle(nll) - 1.5) < 1.5 * tol, mle(nll)

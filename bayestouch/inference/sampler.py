@@ -182,8 +182,10 @@ class IndependenceT:
 
 def adaptive_moves(nu: float = 10.0):
     """The adaptive run's moves: 80 % :class:`IndependenceT` with ``nu`` degrees of freedom (default 10;
-    differential evolution until its first fit), 15 % DE and 5 % snooker, so a posterior far from a t distribution still mixes (at a fifth of the pace of
-    :func:`default_moves`) while a near-Gaussian one mixes in a few steps.
+    differential evolution until its first fit, unless :func:`sample` is given a ``proposal``), 15 % DE and 5 %
+    snooker, so a posterior far from a t distribution still mixes (at a fifth of the pace of :func:`default_moves`)
+    while a near-Gaussian one mixes in a few steps. Raw fits use ν = 30 with their Laplace start as the proposal
+    (``bayestouch.inference.raw.RAW_PROPOSAL_NU``: τ ≈ 2 steps, 300 steps on the standard scenario).
 
     Measured on the 1000-point contact posterior of ``benchmarks/bench_sampling.py`` (32 walkers, 2 seeds): τ 4–6
     steps and a converged stop after 600–650 steps, against ν = 5 at 60 % (τ 7–8, 750–900 steps), ν = 20 at 90 %
