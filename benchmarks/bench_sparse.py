@@ -45,9 +45,9 @@ walkers, ≈ 11 s a fit; medians; ``benchmarks/results/sparse_sets.csv``):
 =====  ======================  =========================  =====================  ==========================
 cap    bayestouch volume err.  bayestouch Chamfer ratio   sage volume error      sage Chamfer ratio
 =====  ======================  =========================  =====================  ==========================
-180°   0.013 (7 of 10 sets     0.016                      0.13 (3 of 10)         0.098
-       within both targets)
-100°   0.24 (0 of 10)          0.16                       0.78 (0 of 10)         0.40
+180°   0.013 (7 of 10 sets     0.013 (0.016 in an         0.13 (3 of 10)         0.098
+       within both targets)    earlier sampler version)
+100°   0.24 (0 of 10)          0.14–0.16                  0.78 (0 of 10)         0.40
 =====  ======================  =========================  =====================  ==========================
 
 At 180° the chains are long on most sets (median largest τ ≈ 8 steps); the three sets that miss the targets are
