@@ -20,6 +20,8 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import numpy as np  # noqa: E402
 
+from bayestouch._argtypes import seed as seed_arg  # noqa: E402
+
 __all__ = ["main", "build_parser"]
 
 DEFAULT_OBJECTS = Path(__file__).resolve().parent.parent / "models" / "objects"
@@ -84,7 +86,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "differential-evolution fit of the 12-parameter n-ellipsoid, FFD refinement for each "
                         "lattice size, and the indicators of eq. 3 and 11–13, beside the paper's figures.")
     rp.add_argument("--out", required=True, type=Path, help="output folder (table2.csv, table2.md)")
-    rp.add_argument("--seed", type=int, default=0, help="seed of the paths, perturbation and DE (default 0)")
+    rp.add_argument("--seed", type=seed_arg, default=0, help="seed of the paths, perturbation and DE (default 0)")
     rp.add_argument("--object", type=Path, default=DEFAULT_OBJECTS / "graphite_plate.toml",
                     help="object TOML (default: the damaged graphite plate)")
     rp.add_argument("--paths", type=_positive_int, default=25, help="number of finger paths (default 25)")
@@ -104,7 +106,7 @@ def build_parser() -> argparse.ArgumentParser:
     fp.add_argument("points", type=Path, help="contact points CSV (x,y,z in metres; optional nx,ny,nz,force) or a "
                     "recording .nc")
     fp.add_argument("--out", required=True, type=Path, help="output folder")
-    fp.add_argument("--seed", type=int, default=0, help="seed of the initial fit, walkers and emcee (default 0)")
+    fp.add_argument("--seed", type=seed_arg, default=0, help="seed of the initial fit, walkers and emcee (default 0)")
     fp.add_argument("--walkers", type=_positive_int, default=32, help="emcee walkers (default 32)")
     fp.add_argument("--steps", type=_positive_int, default=None,
                     help="largest chain length in steps (default 20000 for contact points, 1500 for a recording); "
@@ -140,7 +142,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "noise) for random strokes over an object and write a recording (netCDF, SI units).")
     sp.add_argument("--object", required=True, type=Path, help="object TOML, e.g. models/objects/egg.toml")
     sp.add_argument("--strokes", type=_positive_int, default=1, help="number of strokes (default 1)")
-    sp.add_argument("--seed", type=int, default=0, help="seed of the strokes and the noise (default 0)")
+    sp.add_argument("--seed", type=seed_arg, default=0, help="seed of the strokes and the noise (default 0)")
     sp.add_argument("--out", required=True, type=Path, help="recording to write (.nc)")
     sp.add_argument("--duration", type=float, default=2.0, help="seconds per stroke at 1 cm/s (default 2)")
     sp.add_argument("--rate", type=float, default=50.0, help="taxel frames per second (default 50)")
@@ -161,7 +163,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "posterior) and writes report.html with its figures, summary.json, posterior.nc and the "
                         "meshes into --out.")
     dp.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder (default out/demo)")
-    dp.add_argument("--seed", type=int, default=0, help="seed of every stage (default 0)")
+    dp.add_argument("--seed", type=seed_arg, default=0, help="seed of every stage (default 0)")
     dp.add_argument("--quick", action="store_true", help="small sizes (scout + 1 stroke, short chains): a smoke run")
     dp.add_argument("--quiet", action="store_true", help="no progress bars")
 

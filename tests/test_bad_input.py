@@ -69,6 +69,13 @@ TABLE = [
     ("device simulate --drop 2", "--drop"),
     ("device run --port {tmp}/no_such_port --strokes 0 --out {tmp}/r.nc", "--strokes"),
     ("demo --seed -1 --out {tmp}/o", "--seed"),
+    # seeds outside NumPy's [0, 2**32) are refused before any work, in every command that takes one
+    ("fit {tmp}/good.csv --out {tmp}/o --seed -1", "--seed"),
+    ("fit {tmp}/good.csv --out {tmp}/o --seed 4294967296", "2**32"),
+    ("explore --object {egg} --seed -3 --out {tmp}/o", "--seed"),
+    ("simulate --object {egg} --seed 99999999999 --out {tmp}/s.nc", "--seed"),
+    ("texture-id --seed -1 --out {tmp}/o", "--seed"),
+    ("device simulate --seed -2", "--seed"),
     ("texture-id --textures 99 --out {tmp}/o", "--textures"),
     ("texture-id --trials 0 --out {tmp}/o", "--trials"),
     ("texture-id --library {tmp}/broken.toml --out {tmp}/o", "broken.toml"),

@@ -172,6 +172,18 @@ def test_run_raw_fit_recovers_truth_and_physics_mode_is_wider(tmp_path, empirica
     s = _fit(ds, tmp_path / "emp", 100)
     assert s["model"]["level"] == "raw-current" and s["model"]["mode"] == "empirical"
     assert (tmp_path / "emp" / "posterior.nc").is_file()
+    # the posterior predictive replicates every reading with the modelled noise: the observed ln I lie about one
+    # replicate sd from the replicates' mean (median 0.67 for exact Gaussian replicates; a predictive without the
+    # noise, or without k ≈ 9 here, would put them tens of sds away)
+    import arviz as az
+
+    idata = az.from_netcdf(tmp_path / "emp" / "posterior.nc")
+    rep = idata.posterior_predictive["log_current"].values
+    obs = idata.observed_data["log_current"].values
+    assert rep.shape[0] == 32 and rep.shape[0] * rep.shape[1] == raw.RAW_PREDICTIVE_DRAWS and rep.shape[2:] == obs.shape
+    rep = rep.reshape(-1, *obs.shape)
+    z = np.abs(obs - rep.mean(axis=0)) / rep.std(axis=0)
+    assert 0.4 < np.median(z) < 1.2, np.median(z)
     v_true = float(ne.volume(obj.shape))
     vol = s["derived"]["volume_m3"]
     # the posterior-mean volume within 5 % (6 strokes of 2 cm cover part of the egg)

@@ -421,3 +421,21 @@ def test_adaptive_resume_with_a_given_proposal_continues_bit_for_bit(tmp_path):
     sample(f, None, tmp_path / "cut2.h5", steps=250, moves=adaptive_moves(30.0), resume=True,
            **{**run, "proposal": None})
     assert not np.array_equal(_full_chain(tmp_path / "cut2.h5"), _full_chain(tmp_path / "full.h5"))
+
+
+def test_stop_rule_judges_the_monitored_quantities(tmp_path):
+    """A converged Gaussian run stops well before its step cap; with a monitor whose quantity never mixes (a
+    constant per walker, so R-hat is huge) the same run goes to the cap: the stopping rule checks what the summary
+    will be judged on, not only the sampled parameters."""
+    A, y, _, _ = _problem()
+    f = _log_prob(A, y, NOISE_SD**2)
+    kw = {"walkers": 32, "ndim": D, "seed": 1, "steps": 2000, "progress": False, "stop_when_converged": True,
+          "adapt": True}
+    free = sample(f, _start(), tmp_path / "free.h5", **kw)
+    assert free.steps < 2000, free.steps
+
+    def stuck(flat):  # rows are step-major (S·W, D): walker = row % W
+        return (np.arange(len(flat)) % 32)[:, None] + 1e-3 * flat[:, :1]
+
+    held = sample(f, _start(), tmp_path / "held.h5", monitor=stuck, **kw)
+    assert held.steps == 2000

@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from bayestouch._argtypes import seed as seed_arg
+
 __all__ = ["add_device_parser", "run_device", "load_stroke_file", "main"]
 
 _MODELS = Path(__file__).resolve().parent.parent.parent / "models"
@@ -62,7 +64,7 @@ def add_device_parser(subparsers) -> argparse.ArgumentParser:
         help="object TOML touched (default models/objects/egg.toml)",
     )
     sp.add_argument("--models", type=Path, default=_MODELS, help="parameter folder (default models/)")
-    sp.add_argument("--seed", type=int, default=0, help="fixed pattern and noise seed (default 0)")
+    sp.add_argument("--seed", type=seed_arg, default=0, help="fixed pattern and noise seed (default 0)")
     sp.add_argument(
         "--model",
         choices=["forward", "synthetic"],
@@ -121,7 +123,7 @@ def add_device_parser(subparsers) -> argparse.ArgumentParser:
         default=_MODELS / "objects" / "egg.toml",
         help="object model the random strokes follow (default models/objects/egg.toml)",
     )
-    rp.add_argument("--seed", type=int, default=0, help="seed of the random strokes (default 0)")
+    rp.add_argument("--seed", type=seed_arg, default=0, help="seed of the random strokes (default 0)")
     rp.add_argument("--duration", type=float, default=2.0, help="seconds per stroke at 1 cm/s (default 2)")
     rp.add_argument("--rate", type=float, default=50.0, help="frames per second (default 50)")
     rp.add_argument("--depth", type=float, default=3e-4, help="pressing depth in metres (default 3e-4)")

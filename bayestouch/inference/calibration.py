@@ -53,6 +53,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from bayestouch._argtypes import seed as seed_arg
 from bayestouch._jax import jax, jnp
 from bayestouch.errors import BadInput
 from bayestouch.geometry import nellipsoid as ne
@@ -560,7 +561,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m bayestouch.inference.calibration", description=__doc__.split("\n")[0])
     ap.add_argument("--datasets", type=int, default=100)
     ap.add_argument("--out", type=Path, required=True)
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--seed", type=seed_arg, default=0)
     ap.add_argument("--points", type=int, default=100)
     ap.add_argument("--walkers", type=int, default=32)
     ap.add_argument("--steps", type=int, default=800)

@@ -122,6 +122,7 @@ __all__ = [
     "misfit_warnings",
     "MISFIT_K",
     "t_scale_factor",
+    "RAW_PREDICTIVE_DRAWS",
     "STUDENT_NU",
     "RAW_TEXTURE_PARAM_NAMES",
     "RAW_TEXTURE_NATURAL_NAMES",
@@ -155,6 +156,8 @@ RAW_TEXTURE_PARAM_NAMES = RAW_PARAM_NAMES + gr.TEXTURE_NAMES
 RAW_TEXTURE_NATURAL_NAMES = RAW_NATURAL_NAMES + gr.TEXTURE_NATURAL_NAMES
 #: degrees of freedom of the Student-t reading noise
 STUDENT_NU = 4.0
+#: draws in a raw fit's posterior predictive group (each replicates all F × M readings)
+RAW_PREDICTIVE_DRAWS = 32
 #: box of log k (noise-scale multiplier) and the sd of its N(0, ·) prior
 LOG_K_RANGE = (np.log(0.1), np.log(1e4))
 LOG_K_PRIOR_SD = 1.0
@@ -1081,8 +1084,9 @@ def curvature_adjustment(flat, data: RawData, finger, nu: float = STUDENT_NU, te
 def raw_model(data: RawData, finger, nu: float = STUDENT_NU, texture: RawTexture | None = None,
               info: dict | None = None, adjust: Adjustment | None = None):
     """The raw-current level as a :class:`~bayestouch.inference.run.PosteriorModel`: pointwise log-likelihood per
-    selected frame (summed over its taxels: per reading would make posterior.nc ~200 MB for 10 strokes); no
-    posterior predictive group (the same size problem); the observed data are the corrected ln I (F, M).
+    selected frame (summed over its taxels: per reading would make posterior.nc ~200 MB for 10 strokes); the
+    observed data are the corrected ln I (F, M), and the posterior predictive replicates them (float32, for
+    :data:`RAW_PREDICTIVE_DRAWS` draws only: 7 MB on the standard scenario) with the Student-t reading noise.
     ``info`` is merged into the model description; ``adjust`` (:func:`curvature_adjustment`) maps the draws before
     every summary, the posterior group and the log-likelihood (``chain.h5`` keeps emcee's draws as sampled)."""
     from bayestouch.inference.run import PosteriorModel
@@ -1096,6 +1100,15 @@ def raw_model(data: RawData, finger, nu: float = STUDENT_NU, texture: RawTexture
         return np.concatenate(
             [np.asarray(pw(jnp.asarray(c))) for c in np.array_split(thetas, max(1, len(thetas) // 64))]
         )
+
+    one = jax.jit(jax.vmap(lambda t: (predict_log_current(t, data, finger, texture), _scale(t, data, texture, nu))))
+
+    def predictive(thetas, rng: np.random.Generator):
+        reps = []
+        for c in np.array_split(adj(thetas), max(1, len(thetas) // 32)):
+            mu, sc = (np.asarray(a) for a in one(jnp.asarray(c)))
+            reps.append((mu + sc * rng.standard_t(nu, size=mu.shape)).astype(np.float32))
+        return {"log_current": np.concatenate(reps)}
 
     F, M = np.shape(data.log_current)
     names = RAW_PARAM_NAMES if texture is None else RAW_TEXTURE_PARAM_NAMES
@@ -1126,10 +1139,11 @@ def raw_model(data: RawData, finger, nu: float = STUDENT_NU, texture: RawTexture
         lambda flat: _natural(adj(flat)),
         lambda nat: nat[:, :10],
         ll,
-        None,
+        predictive,
         {"log_current": np.asarray(data.log_current)},
         {**desc, **(info or {})},
         checks=partial(_raw_warnings, textured=texture is not None),
+        predictive_draws=RAW_PREDICTIVE_DRAWS,
     )
 
 
@@ -1322,6 +1336,7 @@ def run_raw_fit(
         adapt=True,
         proposal=moments,
         moves=adaptive_moves(RAW_PROPOSAL_NU),
+        monitor=_natural,
     )
     flat = ch.kept.reshape(-1, ch.kept.shape[2])
     if prune:

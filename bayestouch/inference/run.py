@@ -63,6 +63,9 @@ class PosteriorModel(NamedTuple):
     checks : callable, optional
         ``(summary dict) → list of str``: the level's own warnings about the fit (e.g. a noise multiplier far above
         1, i.e. a model that does not fit the data), written as ``summary["diagnostics"]["warnings"]``.
+    predictive_draws : int, optional
+        Draws in the posterior predictive group (default :data:`PREDICTIVE_DRAWS`; fewer where one replicate is
+        large, as a recording's readings are).
     """
 
     names: tuple
@@ -74,6 +77,7 @@ class PosteriorModel(NamedTuple):
     info: dict
     refine_mesh: Callable | None = None
     checks: Callable | None = None
+    predictive_draws: int | None = None
 
 
 def interval(x) -> dict:
@@ -184,10 +188,12 @@ def write_posterior(out: Path, chain, model: PosteriorModel, *, seed: int, t0: f
         groups["log_likelihood"] = xr.Dataset({"obs": (("chain", "draw", "obs_id"), ll.reshape(W, len(rows), -1))},
                                               coords=coords)
     if model.predictive is not None:
-        rep = model.predictive(flat_sub, rng)
+        prows = rows if model.predictive_draws is None else _thin_rows(S, max(1, model.predictive_draws // W))
+        rep = model.predictive(np.swapaxes(kept[prows], 0, 1).reshape(-1, D), rng)
         groups["posterior_predictive"] = xr.Dataset(
-            {k: (("chain", "draw", *[f"{k}_dim_{j}" for j in range(v.ndim - 1)]), v.reshape(W, len(rows), *v.shape[1:]))
-             for k, v in rep.items()}, coords=coords)
+            {k: (("chain", "draw", *[f"{k}_dim_{j}" for j in range(v.ndim - 1)]),
+                 v.reshape(W, len(prows), *v.shape[1:])) for k, v in rep.items()},
+            coords={"chain": np.arange(W), "draw": prows})
     if model.observed:
         groups["observed_data"] = xr.Dataset(
             {k: ([f"{k}_dim_{j}" for j in range(np.ndim(v))], np.asarray(v)) for k, v in model.observed.items()})
@@ -517,6 +523,6 @@ def run_contact_fit(points, out: Path, *, seed: int = 0, walkers: int = 32, step
 
     ch = sample(logp, initial, out / "chain.h5", walkers=walkers, ndim=len(sampled), seed=seed, steps=steps,
                 resume=resume, budget_s=budget_s, progress=progress, t0=t0, stop_when_converged=stop_when_converged,
-                adapt=True)
+                adapt=True, monitor=model.natural)
     model = model._replace(info={**model.info, "precision": precision})
     return write_posterior(out, ch, model, seed=seed, t0=t0)

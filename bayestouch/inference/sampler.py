@@ -332,17 +332,21 @@ def _tau_and_burn(chain: np.ndarray, adapt: bool, first: int = ADAPT_FIRST) -> t
     return tau, skip + _burn_in(len(seg), tau_max), len(seg)
 
 
-def _looks_converged(chain: np.ndarray, tau, old_tau, burn: int, length: int) -> bool:
+def _looks_converged(chain: np.ndarray, tau, old_tau, burn: int, length: int, monitor=None) -> bool:
     """The stopping rule: the stretch τ was estimated on is longer than 50 τ_max, τ_max stable within 5 % since the
     last check (the estimate the length rule relies on), and on the draws after burn-in every R-hat < 1.01 and every
-    bulk ESS > 400 (ArviZ, walkers as chains) — the summary's own criterion."""
+    bulk ESS > 400 (ArviZ, walkers as chains) — the summary's own criterion, on the summary's quantities when
+    ``monitor`` maps draws (N, D) to them (N, Q)."""
     if not (np.all(np.isfinite(tau)) and np.all(np.isfinite(old_tau)) and length > TAU_FACTOR * np.max(tau)
             and abs(np.max(old_tau) - np.max(tau)) < 0.05 * np.max(tau)):
         return False
     import arviz as az
     import xarray as xr
 
-    ds = xr.Dataset({"theta": (("chain", "draw", "dim"), np.swapaxes(chain[burn:], 0, 1))})
+    kept = chain[burn:]
+    if monitor is not None:
+        kept = np.asarray(monitor(kept.reshape(-1, kept.shape[2]))).reshape(kept.shape[0], kept.shape[1], -1)
+    ds = xr.Dataset({"theta": (("chain", "draw", "dim"), np.swapaxes(kept, 0, 1))})
     return bool(float(az.rhat(ds)["theta"].max()) < R_HAT_MAX and float(az.ess(ds, method="bulk")["theta"].min())
                 > ESS_MIN)
 
@@ -350,7 +354,7 @@ def _looks_converged(chain: np.ndarray, tau, old_tau, burn: int, length: int) ->
 def sample(logp, start, chain_path, *, walkers: int, ndim: int, seed: int, steps: int, resume: bool = False,
            budget_s: float | None = None, progress: bool = True, moves=None, t0: float | None = None,
            stop_when_converged: bool = False, check_every: int | None = None, flush_s: float = 1.0,
-           adapt: bool = False, adapt_first: int = ADAPT_FIRST, proposal=None) -> Chain:
+           adapt: bool = False, adapt_first: int = ADAPT_FIRST, proposal=None, monitor=None) -> Chain:
     """Run (or continue) an emcee ensemble with an HDF5 checkpoint.
 
     Parameters
@@ -379,7 +383,7 @@ def sample(logp, start, chain_path, *, walkers: int, ndim: int, seed: int, steps
     stop_when_converged : bool
         Every ``check_every`` steps, stop once the chain is longer than 50 integrated autocorrelation times, the
         estimate of the largest τ moved less than 5 % since the last check and R-hat and the bulk ESS of the sampled
-        parameters pass (:func:`_looks_converged`).
+        parameters (or of ``monitor``'s quantities) pass (:func:`_looks_converged`).
     check_every : int, optional
         Steps between convergence checks (default 50 for an adaptive run, 250 otherwise).
     flush_s : float, seconds
@@ -400,6 +404,10 @@ def sample(logp, start, chain_path, *, walkers: int, ndim: int, seed: int, steps
         start ensemble was drawn from; it must be the same on resume). Each refit then replaces the proposal in
         force only when its log importance weights over the refit's draws spread less
         (:meth:`IndependenceT.weight_spread`), and τ and burn-in are taken from step 0.
+    monitor : callable, optional
+        ``(N, D) -> (N, Q)``: the quantities the run will be judged on (e.g. the canonicalised natural parameters
+        of the summary), whose R-hat and ESS the stopping rule then checks instead of the sampled parameters', so
+        a run does not stop early on a criterion its summary then fails.
     """
     import emcee
 
@@ -501,7 +509,7 @@ def sample(logp, start, chain_path, *, walkers: int, ndim: int, seed: int, steps
                     flush()
                     chain = backend.get_chain()
                     tau, burn, length = _tau_and_burn(chain, adapt, skip_to)
-                    if old_tau is not None and _looks_converged(chain, tau, old_tau, burn, length):
+                    if old_tau is not None and _looks_converged(chain, tau, old_tau, burn, length, monitor):
                         break
                     old_tau = tau
         finally:

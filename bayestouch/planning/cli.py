@@ -11,6 +11,7 @@ import math
 import sys
 from pathlib import Path
 
+from bayestouch._argtypes import seed as seed_arg
 from bayestouch.errors import BadInput
 
 __all__ = ["add_planning_parsers", "run_explore", "run_experiment", "main"]
@@ -18,7 +19,7 @@ __all__ = ["add_planning_parsers", "run_explore", "run_experiment", "main"]
 
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--budget", type=int, default=5, help="planned strokes after the scout stroke 0 (default 5)")
-    p.add_argument("--seed", type=int, default=0, help="base seed (default 0)")
+    p.add_argument("--seed", type=seed_arg, default=0, help="base seed (default 0)")
     p.add_argument("--candidates", type=int, default=64, help="candidate strokes per decision (default 64)")
     p.add_argument("--draws", type=int, default=1000, help="posterior draws the planner uses (default 1000)")
     p.add_argument("--steps", type=int, default=300, help="emcee steps per posterior update (default 300)")

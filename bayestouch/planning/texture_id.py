@@ -88,6 +88,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from bayestouch._argtypes import seed as seed_arg
 from bayestouch._jax import jax, jnp
 from bayestouch.errors import BadInput
 from bayestouch.geometry import nellipsoid as ne
@@ -910,7 +911,7 @@ def _add_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     p.add_argument("--textures", type=int, default=20, help="use the first N library textures (default 20)")
     p.add_argument("--trials", type=int, default=3, help="trials per texture (default 3)")
     p.add_argument("--max-strokes", type=int, default=10, help="strokes before a forced decision (default 10)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=seed_arg, default=0)
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--policy", default="random", choices=("random", "eig"))
     p.add_argument("--threshold", type=float, default=0.95, help="decide when max posterior >= this")
