@@ -14,6 +14,9 @@ from bayestouch.params import MODELS
 
 def _loaders():
     from bayestouch.inference.contact import load_priors
+    from bayestouch.inference.ffd_marginal import load_ffd_priors
+    from bayestouch.inference.patch import load_patch_priors
+    from bayestouch.inference.raw import load_raw_priors
     from bayestouch.physics.bending import load_rod
     from bayestouch.physics.noise import load_noise
     from bayestouch.physics.skin import load_skin
@@ -25,12 +28,16 @@ def _loaders():
         "finger.toml/rod": ("finger.toml", load_rod),
         "noise.toml": ("noise.toml", load_noise),
         "priors.toml": ("priors.toml", load_priors),
+        "priors.toml/raw": ("priors.toml", load_raw_priors),
+        "priors.toml/patch": ("priors.toml", load_patch_priors),
+        "priors.toml/ffd": ("priors.toml", load_ffd_priors),
         "skin.toml": ("skin.toml", load_skin),
         "taxels.toml": ("taxels.toml", load_taxels),
     }
 
 
-CASES = ["finger.toml/wire", "finger.toml/rod", "noise.toml", "priors.toml", "skin.toml", "taxels.toml"]
+CASES = ["finger.toml/wire", "finger.toml/rod", "noise.toml", "priors.toml", "priors.toml/raw", "priors.toml/patch",
+         "priors.toml/ffd", "skin.toml", "taxels.toml"]
 
 
 @pytest.mark.parametrize("case", CASES)
@@ -88,3 +95,20 @@ def test_objects_load_and_a_missing_one_is_named(tmp_path):
     with pytest.raises(BadInput) as e:
         load_object(tmp_path / "egg.toml")
     assert "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize("case,entry", [("priors.toml/raw", "log_noise_scale_sd"), ("priors.toml/patch", "n_max"),
+                                        ("priors.toml/ffd", "tau")])
+def test_each_prior_table_refuses_its_own_broken_entry(case, entry, tmp_path):
+    """The raw, patch and FFD prior tables are validated on their own: an entry of theirs removed or non-finite is
+    refused with one line naming the file and the entry."""
+    name, load = _loaders()[case]
+    text = (MODELS / name).read_text()
+    assert load(MODELS / name)[entry] > 0
+    dropped = re.sub(rf"(?m)^{entry} = .*\n", "", text)
+    for new in (dropped, re.sub(rf"(?m)^({entry} = {{ value = )[^,]+", r"\1nan", text)):
+        assert new != text
+        (tmp_path / name).write_text(new)
+        with pytest.raises(BadInput, match=re.escape(name)) as e:
+            load(tmp_path / name)
+        assert entry in str(e.value) and "\n" not in str(e.value), str(e.value)

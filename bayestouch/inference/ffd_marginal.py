@@ -38,14 +38,19 @@ import numpy as np
 from bayestouch._jax import jax, jnp
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.inference import contact as cm
+from bayestouch.params import MODELS, Spec, read_section, read_toml
 
 __all__ = ["design_matrix", "marginal_log_likelihood", "conditional_lattice", "make_ffd_log_prob",
-           "deformed_points", "DEFAULT_TAU", "DEFAULT_MARGIN"]
+           "deformed_points", "DEFAULT_TAU", "DEFAULT_MARGIN", "load_ffd_priors"]
 
-#: prior sd of each control-point displacement, metres (our choice: texture and dents of up to a millimetre, the
-#: scale of the paper's graphite-plate defects, are what the lattice should absorb; larger departures mean the
-#: n-ellipsoid itself is wrong)
-DEFAULT_TAU = 5e-4
+def load_ffd_priors(path=None) -> dict[str, float]:
+    """Read ``[ffd_priors]`` of ``models/priors.toml`` (or ``path``): tau, metres."""
+    p = MODELS / "priors.toml" if path is None else path
+    return read_section(read_toml(p), "ffd_priors", {"tau": Spec("m", 1e-7, 0.1)}, str(p))
+
+
+#: prior sd of each control-point displacement, metres (``[ffd_priors] tau`` of ``models/priors.toml``)
+DEFAULT_TAU = float(load_ffd_priors()["tau"])
 #: relative margin of the lattice box beyond the semi-axes (as :func:`bayestouch.paper.refine_ffd`)
 DEFAULT_MARGIN = 0.15
 

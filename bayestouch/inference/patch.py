@@ -64,6 +64,7 @@ import numpy as np
 from bayestouch._jax import jax, jnp
 from bayestouch.errors import BadInput
 from bayestouch.inference.contact import Bounds
+from bayestouch.params import MODELS, Spec, read_section, read_toml
 from bayestouch.physics import noise as nz
 from bayestouch.physics import skin as sk
 from bayestouch.physics import taxel as tx
@@ -73,6 +74,7 @@ __all__ = [
     "PARAM_NAMES",
     "SUMMARY_NAMES",
     "PatchParams",
+    "load_patch_priors",
     "PatchModel",
     "PatchPosterior",
     "theta_from_params",
@@ -94,10 +96,22 @@ PARAM_NAMES = ("u0", "v0", "log_a", "log_b", "angle", "log_n", "log_volume")
 #: names of the summarised natural parameters (canonical a ≥ b)
 SUMMARY_NAMES = ("u0", "v0", "a", "b", "angle", "n", "depth")
 
-#: prior ranges (see the module docstring)
-A_MIN = 2e-4
-N_MIN, N_MAX = 1.2, 10.0
-DEPTH_MIN = 1e-6
+#: prior ranges (see the module docstring; ``[patch_priors]`` of ``models/priors.toml``): a, b ≥ A_MIN m,
+#: n ∈ [N_MIN, N_MAX], δ0 ≥ DEPTH_MIN m
+PATCH_PRIOR_SPECS = {"a_min": Spec("m", 1e-6, 1e-2), "n_min": Spec("1", 0.5, 10.0), "n_max": Spec("1", 1.0, 100.0),
+                     "depth_min": Spec("m", 1e-9, 1e-3)}
+
+
+def load_patch_priors(path=None) -> dict[str, float]:
+    """Read ``[patch_priors]`` of ``models/priors.toml`` (or ``path``): a_min m, n_min, n_max, depth_min m."""
+    p = MODELS / "priors.toml" if path is None else path
+    return read_section(read_toml(p), "patch_priors", PATCH_PRIOR_SPECS, str(p))
+
+
+_PP = load_patch_priors()
+A_MIN = float(_PP["a_min"])
+N_MIN, N_MAX = float(_PP["n_min"]), float(_PP["n_max"])
+DEPTH_MIN = float(_PP["depth_min"])
 #: floor for log-currents (ADC zeros), A
 FLOOR = 1e-15
 

@@ -4,8 +4,9 @@ recorded strokes, and the read-out noise model of :mod:`bayestouch.physics.noise
 Parameters θ (11,): centre (3, m), log semi-axes (3, log m), Euler angles ξ ∈ [0, π], ψ ∈ [0, π),
 ζ ∈ [−π, π) (the symmetry-reduced ranges of :func:`bayestouch.inference.contact.bounds_for`), log n, and
 log k, a dimensionless multiplier on the modelled noise standard deviation (prior N(0, 1) in log k, inside a
-box [log 0.1, log 10⁴]); k ≫ 1 in the posterior flags a misspecified forward or noise model. With the texture
-(``texture="auto"`` when a grating is found, or ``"on"``; :func:`run_raw_fit`) five more, θ (16,): the grating
+box [log 0.1, log 10⁴]; ``[raw_priors]`` of ``models/priors.toml``); k ≫ 1 in the posterior flags a misspecified
+forward or noise model. With the texture (``texture="auto"`` when a grating is found, or ``"on"``;
+:func:`run_raw_fit`) five more, θ (16,): the grating
 (u, v, log λ, orientation) and log roughness of :mod:`bayestouch.inference.grating`. The hypothesised surface is
 the n-ellipsoid (no FFD or defects), whose signed distance is the first-order distance (G − 1)/|∇G| minus the
 grating's height at the foot point — the same as :func:`bayestouch.scene.surface.signed_distance` of such a
@@ -104,7 +105,7 @@ from bayestouch.errors import BadInput
 from bayestouch.inference import contact as cm
 from bayestouch.inference import grating as gr
 from bayestouch.inference.grating import RawTexture
-from bayestouch.params import MODELS
+from bayestouch.params import MODELS, Spec, read_section, read_toml
 
 __all__ = [
     "RawData",
@@ -122,6 +123,7 @@ __all__ = [
     "misfit_warnings",
     "MISFIT_K",
     "t_scale_factor",
+    "load_raw_priors",
     "RAW_PREDICTIVE_DRAWS",
     "STUDENT_NU",
     "RAW_TEXTURE_PARAM_NAMES",
@@ -149,6 +151,18 @@ __all__ = [
     "PRUNE_MARGIN",
 ]
 
+RAW_PRIOR_SPECS = {"noise_scale_min": Spec("1", 1e-3, 1.0), "noise_scale_max": Spec("1", 1.0, 1e8),
+                   "log_noise_scale_sd": Spec("1", 1e-2, 100.0)}
+
+
+def load_raw_priors(path=None) -> dict[str, float]:
+    """Read ``[raw_priors]`` of ``models/priors.toml`` (or ``path``): the noise multiplier k's box and log-sd."""
+    p = MODELS / "priors.toml" if path is None else path
+    return read_section(read_toml(p), "raw_priors", RAW_PRIOR_SPECS, str(p))
+
+
+_RAW_PRIORS = load_raw_priors()
+
 RAW_PARAM_NAMES = ("x_G", "y_G", "z_G", "log_a", "log_b", "log_c", "xi", "psi", "zeta", "log_n", "log_k")
 RAW_NATURAL_NAMES = ("x_G", "y_G", "z_G", "a", "b", "c", "xi", "psi", "zeta", "n", "noise_scale")
 #: with the texture (:mod:`bayestouch.inference.grating`)
@@ -159,8 +173,9 @@ STUDENT_NU = 4.0
 #: draws in a raw fit's posterior predictive group (each replicates all F × M readings)
 RAW_PREDICTIVE_DRAWS = 32
 #: box of log k (noise-scale multiplier) and the sd of its N(0, ·) prior
-LOG_K_RANGE = (np.log(0.1), np.log(1e4))
-LOG_K_PRIOR_SD = 1.0
+#: (``[raw_priors]`` of ``models/priors.toml``)
+LOG_K_RANGE = (float(np.log(_RAW_PRIORS["noise_scale_min"])), float(np.log(_RAW_PRIORS["noise_scale_max"])))
+LOG_K_PRIOR_SD = float(_RAW_PRIORS["log_noise_scale_sd"])
 _N_FLICKER = 9
 #: pressure cap, Pa: far beyond the skin's densification (tens of kPa), it only keeps absurd shapes finite
 P_MAX = 1e6
