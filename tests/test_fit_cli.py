@@ -205,4 +205,32 @@ def test_fit_with_normals_and_outlier_mixture(tmp_path):
     assert s["parameters"]["kappa"]["mean"] > 50
     idata = az.from_netcdf(str(out / "posterior.nc"))
     assert idata.log_likelihood["obs"].shape[-1] == 200
+    # the measured normals are data too: observed (normalised) and replicated (unit vMF draws about the model's)
+    obs_n = idata.observed_data["normals"].values
+    np.testing.assert_allclose(obs_n, measured_n / np.linalg.norm(measured_n, axis=1, keepdims=True), atol=1e-12)
+    rep_n = idata.posterior_predictive["normals"].values
+    assert rep_n.shape[-2:] == (200, 3) and rep_n.shape[:2] == idata.posterior_predictive["points"].shape[:2]
+    np.testing.assert_allclose(np.linalg.norm(rep_n, axis=-1), 1.0, atol=1e-12)
     assert main(["fit", str(path), "--out", str(tmp_path / "x"), "--ffd", "3x3x3"]) == 2
+
+
+def test_vmf_sample_has_the_known_mean_cosine_and_no_preferred_azimuth():
+    """E[cos] to the mean direction is coth κ − 1/κ (3-D von Mises–Fisher), the tangent part averages to zero;
+    a sampler at the wrong κ (2κ) is caught by the same tolerance (negative control)."""
+    from bayestouch.inference.run import vmf_sample
+
+    rng = np.random.default_rng(4)
+    n = 100_000
+    mean = rng.normal(size=(n, 3))
+    mean /= np.linalg.norm(mean, axis=1, keepdims=True)
+    for kappa in (0.5, 5.0, 200.0):
+        x = vmf_sample(mean, kappa, rng)
+        np.testing.assert_allclose(np.linalg.norm(x, axis=1), 1.0, atol=1e-12)
+        w = np.sum(x * mean, axis=1)
+        expect = 1.0 / np.tanh(kappa) - 1.0 / kappa
+        tol = 5 * w.std() / np.sqrt(n)
+        assert abs(w.mean() - expect) < tol, (kappa, w.mean(), expect, tol)
+        wrong = 1.0 / np.tanh(2 * kappa) - 1.0 / (2 * kappa)
+        assert abs(w.mean() - wrong) > 3 * tol, (kappa, w.mean(), wrong, tol)
+        tangent = x - w[:, None] * mean
+        assert np.all(np.abs(tangent.mean(axis=0)) < 5 * np.sqrt(max(1 - expect, 1e-12) / n) + 1e-12)

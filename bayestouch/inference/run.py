@@ -29,7 +29,7 @@ from bayestouch.geometry import nellipsoid as ne
 from bayestouch.inference import contact as cm
 
 __all__ = ["PosteriorModel", "write_posterior", "initial_theta", "run_contact_fit", "contact_model",
-           "NATURAL_NAMES", "interval", "uncertainty_spread"]
+           "NATURAL_NAMES", "interval", "uncertainty_spread", "vmf_sample"]
 
 #: summary names (natural units) of the 11 sampled contact-level parameters
 NATURAL_NAMES = ("x_G", "y_G", "z_G", "a", "b", "c", "xi", "psi", "zeta", "n", "sigma")
@@ -123,6 +123,25 @@ def _first_order_distances(v, pts):
 def _mesh_vertices(v, dirs):
     s = ne.from_vector(v)
     return ne.surface_point(s, ne.unit_nsphere(dirs, s.n))
+
+
+def vmf_sample(mean, kappa, rng: np.random.Generator) -> np.ndarray:
+    """Unit vectors (..., 3) drawn from von Mises–Fisher distributions on the sphere with mean directions
+    ``mean (..., 3)`` (unit) and concentrations ``kappa`` (broadcast to (...,), > 0): the cosine to the mean is
+    w = 1 + ln(u + (1 − u) e^(−2κ))/κ, u ~ U(0, 1) (exact inversion in 3-D; E[w] = coth κ − 1/κ), the azimuth
+    uniform."""
+    mean = np.asarray(mean, float)
+    kappa = np.broadcast_to(np.asarray(kappa, float), mean.shape[:-1])
+    u = rng.random(mean.shape[:-1])
+    w = np.clip(1.0 + np.log(u + (1.0 - u) * np.exp(-2.0 * kappa)) / kappa, -1.0, 1.0)
+    phi = rng.uniform(0.0, 2.0 * np.pi, mean.shape[:-1])
+    # an orthonormal tangent basis (t1, t2) at each mean: t1 ⟂ mean from the axis least aligned with it
+    axis = np.eye(3)[np.argmin(np.abs(mean), axis=-1)]
+    t1 = np.cross(mean, axis)
+    t1 /= np.linalg.norm(t1, axis=-1, keepdims=True)
+    t2 = np.cross(mean, t1)
+    r = np.sqrt(np.maximum(1.0 - w * w, 0.0))[..., None]
+    return w[..., None] * mean + r * (np.cos(phi)[..., None] * t1 + np.sin(phi)[..., None] * t2)
 
 
 @jax.jit
@@ -342,7 +361,9 @@ def contact_model(points, priors: cm.PriorParams, nu: float, *, normals=None, no
     """The contact level as a :class:`PosteriorModel`: pointwise log-likelihood of each point
     (:func:`~bayestouch.inference.contact.pointwise_log_likelihood`); replicated points are surface points of each
     draw displaced along the normal by noise of the model's scale (Student-t or Gaussian σ; σ_i for the
-    multiplicative model; the mixture's outliers are drawn uniformly along the normal within the data's extent)."""
+    multiplicative model; the mixture's outliers are drawn uniformly along the normal within the data's extent);
+    with measured ``normals``, replicated normals are von Mises–Fisher (κ of the draw) about the draw's normal
+    (:func:`vmf_sample`), and the observed group holds the normalised measured normals too."""
     pts = jnp.asarray(points, dtype=jnp.float64)
     m = len(points)
     sampled = cm.param_names(normals is not None, noise)
@@ -365,7 +386,10 @@ def contact_model(points, priors: cm.PriorParams, nu: float, *, normals=None, no
             w = thetas[:, sampled.index("w_outlier")][:, None]
             e = np.where(rng.random(shape) < w, rng.uniform(-half_diag, half_diag, shape),
                          sigma * rng.standard_normal(shape))
-        return {"points": foot + e[..., None] * nrm}
+        rep = {"points": foot + e[..., None] * nrm}
+        if normals is not None:  # measured normals: vMF about the draw's normal at its replicated foot point
+            rep["normals"] = vmf_sample(nrm, np.exp(thetas[:, sampled.index("log_kappa")])[:, None], rng)
+        return rep
 
     def ll(thetas):
         return cm.pointwise_log_likelihood(thetas, points, nu, normals=normals, noise=noise)
@@ -376,6 +400,9 @@ def contact_model(points, priors: cm.PriorParams, nu: float, *, normals=None, no
     if normals is not None:
         likelihood += "; normals: von Mises-Fisher"
     observed = {"points": np.asarray(points)}
+    if normals is not None:
+        nn = np.asarray(normals, float)
+        observed["normals"] = nn / np.linalg.norm(nn, axis=1, keepdims=True)
     return PosteriorModel(
         names, lambda flat: _natural(flat, sampled), lambda nat: nat[:, :10], ll, predictive, observed,
         {"level": "contact", "likelihood": likelihood, "noise": noise, "normals_used": normals is not None,
