@@ -38,15 +38,14 @@ import numpy as np
 from bayestouch._jax import jax, jnp
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.inference import contact as cm
-from bayestouch.params import MODELS, Spec, read_section, read_toml
+from bayestouch.params import MODELS, Spec, build
 
 __all__ = ["design_matrix", "marginal_log_likelihood", "conditional_lattice", "make_ffd_log_prob",
            "deformed_points", "DEFAULT_TAU", "DEFAULT_MARGIN", "load_ffd_priors"]
 
 def load_ffd_priors(path=None) -> dict[str, float]:
     """Read ``[ffd_priors]`` of ``models/priors.toml`` (or ``path``): tau, metres."""
-    p = MODELS / "priors.toml" if path is None else path
-    return read_section(read_toml(p), "ffd_priors", {"tau": Spec("m", 1e-7, 0.1)}, str(p))
+    return build(dict, MODELS / "priors.toml" if path is None else path, "ffd_priors", {"tau": Spec("m", 1e-7, 0.1)})
 
 
 #: prior sd of each control-point displacement, metres (``[ffd_priors] tau`` of ``models/priors.toml``)

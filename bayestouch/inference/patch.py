@@ -64,7 +64,7 @@ import numpy as np
 from bayestouch._jax import jax, jnp
 from bayestouch.errors import BadInput
 from bayestouch.inference.contact import Bounds
-from bayestouch.params import MODELS, Spec, read_section, read_toml
+from bayestouch.params import MODELS, Spec, build
 from bayestouch.physics import noise as nz
 from bayestouch.physics import skin as sk
 from bayestouch.physics import taxel as tx
@@ -104,8 +104,7 @@ PATCH_PRIOR_SPECS = {"a_min": Spec("m", 1e-6, 1e-2), "n_min": Spec("1", 0.5, 10.
 
 def load_patch_priors(path=None) -> dict[str, float]:
     """Read ``[patch_priors]`` of ``models/priors.toml`` (or ``path``): a_min m, n_min, n_max, depth_min m."""
-    p = MODELS / "priors.toml" if path is None else path
-    return read_section(read_toml(p), "patch_priors", PATCH_PRIOR_SPECS, str(p))
+    return build(dict, MODELS / "priors.toml" if path is None else path, "patch_priors", PATCH_PRIOR_SPECS)
 
 
 _PP = load_patch_priors()

@@ -105,7 +105,7 @@ from bayestouch.errors import BadInput
 from bayestouch.inference import contact as cm
 from bayestouch.inference import grating as gr
 from bayestouch.inference.grating import RawTexture
-from bayestouch.params import MODELS, Spec, read_section, read_toml
+from bayestouch.params import MODELS, Spec, build
 
 __all__ = [
     "RawData",
@@ -157,8 +157,7 @@ RAW_PRIOR_SPECS = {"noise_scale_min": Spec("1", 1e-3, 1.0), "noise_scale_max": S
 
 def load_raw_priors(path=None) -> dict[str, float]:
     """Read ``[raw_priors]`` of ``models/priors.toml`` (or ``path``): the noise multiplier k's box and log-sd."""
-    p = MODELS / "priors.toml" if path is None else path
-    return read_section(read_toml(p), "raw_priors", RAW_PRIOR_SPECS, str(p))
+    return build(dict, MODELS / "priors.toml" if path is None else path, "raw_priors", RAW_PRIOR_SPECS)
 
 
 _RAW_PRIORS = load_raw_priors()
@@ -1134,7 +1133,7 @@ def raw_model(data: RawData, finger, nu: float = STUDENT_NU, texture: RawTexture
         "Gaussian readings best), per taxel-frame reading; pointwise log-likelihood per frame (summed over its taxels)",
         "noise_model": "ln I corrected by fixed-pattern gains and reference-row common drift; sd² = white(shot+"
         "amplifier+ADC)/I² + stationary 1/f + local random walk + reference-mean variance; "
-        "times k (sampled, prior log k ~ N(0, 1))" + ("" if texture is None else
+        f"times k (sampled, prior log k ~ N(0, {LOG_K_PRIOR_SD:g}))" + ("" if texture is None else
                                                       "; plus roughness² × its Monte-Carlo response variance"),
         "frames_used": int(F),
         "frame_interval_s": float(data.dt),
@@ -1193,7 +1192,7 @@ def _raw_warnings(summary: dict, textured: bool = False) -> list[str]:
     if isinstance(pr, dict) and not pr.get("exact", True):
         out.append(f"a posterior draw came {pr['min_clearance_m']:.2g} m from a taxel left out as clear of the "
                    f"surface (margin {pr['margin_m']:g} m): the sampled likelihood may be inexact; rerun with "
-                   "prune=False")
+                   "run_raw_fit(..., prune=False)")
     return out
 
 

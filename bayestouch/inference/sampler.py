@@ -104,9 +104,9 @@ def default_moves():
     return [(emcee.moves.DEMove(), 0.8), (_snooker_move(), 0.2)]
 
 
-def adaptation_steps(upto: int, first: int = ADAPT_FIRST) -> list[int]:
-    """The steps at which an adaptive run refits its proposal, up to ``upto``: ``first`` · 2^k."""
-    out, a = [], int(first)
+def adaptation_steps(upto: int) -> list[int]:
+    """The steps at which an adaptive run refits its proposal, up to ``upto``: ADAPT_FIRST · 2^k."""
+    out, a = [], ADAPT_FIRST
     while a <= upto:
         out.append(a)
         a *= 2
@@ -354,7 +354,7 @@ def _looks_converged(chain: np.ndarray, tau, old_tau, burn: int, length: int, mo
 def sample(logp, start, chain_path, *, walkers: int, ndim: int, seed: int, steps: int, resume: bool = False,
            budget_s: float | None = None, progress: bool = True, moves=None, t0: float | None = None,
            stop_when_converged: bool = False, check_every: int | None = None, flush_s: float = 1.0,
-           adapt: bool = False, adapt_first: int = ADAPT_FIRST, proposal=None, monitor=None) -> Chain:
+           adapt: bool = False, proposal=None, monitor=None) -> Chain:
     """Run (or continue) an emcee ensemble with an HDF5 checkpoint.
 
     Parameters
@@ -396,9 +396,6 @@ def sample(logp, start, chain_path, *, walkers: int, ndim: int, seed: int, steps
         fixed kernel's would; the proposal at every step is a function of the stored chain, so a resumed run uses
         the kernel the uninterrupted run would have. τ and burn-in are taken after the first adaptation
         (:func:`_tau_and_burn`).
-    adapt_first : int
-        First adaptation step (then twice, four times … that step). The default :data:`ADAPT_FIRST` suits a start
-        far from the posterior; a start drawn from an approximation of it (a Laplace ball) can adapt sooner.
     proposal : (mean (D,), cov (D, D)), optional
         An adaptive run's first independence proposal, in force from step 0 (e.g. the Laplace approximation the
         start ensemble was drawn from; it must be the same on resume). Each refit then replaces the proposal in
@@ -452,7 +449,7 @@ def sample(logp, start, chain_path, *, walkers: int, ndim: int, seed: int, steps
         over those draws spread less."""
         if proposal is not None:
             indep.set(*proposal)
-        steps_ = adaptation_steps(upto, adapt_first)
+        steps_ = adaptation_steps(upto)
         if not steps_:
             return
         lp, chain = backend.get_log_prob(), backend.get_chain()
@@ -466,12 +463,12 @@ def sample(logp, start, chain_path, *, walkers: int, ndim: int, seed: int, steps
             cand = IndependenceT(None, indep.nu)
             cand.fit(x)
             if cand.weight_spread(x, lx) < indep.weight_spread(x, lx):
-                indep.mean, indep.chol, indep._inv = cand.mean, cand.chol, cand._inv
+                indep.fit(x)
 
     if proposal is not None and indep is None:
         raise ValueError("a proposal needs adapt=True")
     # where the kept draws' kernel begins: the first adaptation, or step 0 when a proposal is given
-    skip_to = 0 if proposal is not None else adapt_first
+    skip_to = 0 if proposal is not None else ADAPT_FIRST
     if indep is not None:
         refit(backend.iteration)
 
@@ -494,7 +491,7 @@ def sample(logp, start, chain_path, *, walkers: int, ndim: int, seed: int, steps
     todo = steps - first
     stopped = False
     old_tau = None
-    adapt_at = set(adaptation_steps(steps, adapt_first)) if indep is not None else set()
+    adapt_at = set(adaptation_steps(steps)) if indep is not None else set()
     if todo > 0:
         try:
             for i, _ in enumerate(sampler.sample(start if start is not None else backend.get_last_sample(),
