@@ -33,7 +33,7 @@ bench: $(STAMP)
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check bayestouch tests benchmarks data
-	$(VENV)/bin/ruff format --check bayestouch tests benchmarks
+	$(VENV)/bin/ruff format --check bayestouch tests benchmarks data
 
 clean:
 	rm -rf $(VENV) out .pytest_cache .ruff_cache

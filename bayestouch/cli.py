@@ -81,65 +81,112 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--version", action="version", version=f"bayestouch {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
 
-    rp = sub.add_parser("reproduce-paper", help="reproduce the paper's Table 2 (n-ellipsoid + FFD pipeline)",
-                        description="Reproduce Table 2 of the paper on the damaged graphite plate: "
-                        "differential-evolution fit of the 12-parameter n-ellipsoid, FFD refinement for each "
-                        "lattice size, and the indicators of eq. 3 and 11–13, beside the paper's figures.")
+    rp = sub.add_parser(
+        "reproduce-paper",
+        help="reproduce the paper's Table 2 (n-ellipsoid + FFD pipeline)",
+        description="Reproduce Table 2 of the paper on the damaged graphite plate: "
+        "differential-evolution fit of the 12-parameter n-ellipsoid, FFD refinement for each "
+        "lattice size, and the indicators of eq. 3 and 11–13, beside the paper's figures.",
+    )
     rp.add_argument("--out", required=True, type=Path, help="output folder (table2.csv, table2.md)")
     rp.add_argument("--seed", type=seed_arg, default=0, help="seed of the paths, perturbation and DE (default 0)")
-    rp.add_argument("--object", type=Path, default=DEFAULT_OBJECTS / "graphite_plate.toml",
-                    help="object TOML (default: the damaged graphite plate)")
+    rp.add_argument(
+        "--object",
+        type=Path,
+        default=DEFAULT_OBJECTS / "graphite_plate.toml",
+        help="object TOML (default: the damaged graphite plate)",
+    )
     rp.add_argument("--paths", type=_positive_int, default=25, help="number of finger paths (default 25)")
     rp.add_argument("--rate", type=float, default=20.0, help="contact samples per second at 1 cm/s (default 20)")
-    rp.add_argument("--sizes", type=_size_list, default=None,
-                    help="FFD sizes, e.g. 7x7x7,6x6x3 (default: the paper's five)")
+    rp.add_argument(
+        "--sizes", type=_size_list, default=None, help="FFD sizes, e.g. 7x7x7,6x6x3 (default: the paper's five)"
+    )
     rp.add_argument("--epsilons", type=_eps_list, default=None, help="perturbation levels (default 0,0.001)")
     rp.add_argument("--res", type=_positive_int, default=40, help="model mesh cells per cube edge (default 40)")
     rp.add_argument("--quiet", action="store_true", help="no progress bar")
 
-    fp = sub.add_parser("fit", help="posterior over the object's shape from contact points or a recording (emcee)",
-                        description="Bayesian shape fit sampled with emcee. Contact level (a .csv of contact points): "
-                        "Student-t residuals of the points against an n-ellipsoid. Raw-current level (a .nc "
-                        "recording from `bayestouch simulate` or `bayestouch device run`): the forward model "
-                        "predicts every taxel's current. Writes summary.json, posterior.nc (ArviZ), mean_shape.ply, "
-                        "uncertainty_mesh.ply and the resumable chain.h5.")
-    fp.add_argument("points", type=Path, help="contact points CSV (x,y,z in metres; optional nx,ny,nz,force) or a "
-                    "recording .nc")
+    fp = sub.add_parser(
+        "fit",
+        help="posterior over the object's shape from contact points or a recording (emcee)",
+        description="Bayesian shape fit sampled with emcee. Contact level (a .csv of contact points): "
+        "Student-t residuals of the points against an n-ellipsoid. Raw-current level (a .nc "
+        "recording from `bayestouch simulate` or `bayestouch device run`): the forward model "
+        "predicts every taxel's current. Writes summary.json, posterior.nc (ArviZ), mean_shape.ply, "
+        "uncertainty_mesh.ply and the resumable chain.h5.",
+    )
+    fp.add_argument(
+        "points", type=Path, help="contact points CSV (x,y,z in metres; optional nx,ny,nz,force) or a recording .nc"
+    )
     fp.add_argument("--out", required=True, type=Path, help="output folder")
     fp.add_argument("--seed", type=seed_arg, default=0, help="seed of the initial fit, walkers and emcee (default 0)")
     fp.add_argument("--walkers", type=_positive_int, default=32, help="emcee walkers (default 32)")
-    fp.add_argument("--steps", type=_positive_int, default=None,
-                    help="largest chain length in steps (default 20000 for contact points, 1500 for a recording); "
-                    "sampling stops earlier once converged (N > 50 autocorrelation times, R-hat < 1.01, bulk ESS "
-                    "> 400)")
+    fp.add_argument(
+        "--steps",
+        type=_positive_int,
+        default=None,
+        help="largest chain length in steps (default 20000 for contact points, 1500 for a recording); "
+        "sampling stops earlier once converged (N > 50 autocorrelation times, R-hat < 1.01, bulk ESS "
+        "> 400)",
+    )
     fp.add_argument("--no-early-stop", action="store_true", help="sample exactly --steps steps")
     fp.add_argument("--resume", action="store_true", help="continue the chain in OUT/chain.h5")
     fp.add_argument("--budget", type=float, default=None, help="wall-clock budget for sampling, seconds")
-    fp.add_argument("--noise", choices=["student", "gaussian", "multiplicative", "mixture"], default="student",
-                    help="contact level residual model: Student-t (default, robust), Gaussian, the paper's "
-                    "multiplicative (1 + r) perturbation, or Gaussian + uniform outliers")
+    fp.add_argument(
+        "--noise",
+        choices=["student", "gaussian", "multiplicative", "mixture"],
+        default="student",
+        help="contact level residual model: Student-t (default, robust), Gaussian, the paper's "
+        "multiplicative (1 + r) perturbation, or Gaussian + uniform outliers",
+    )
     fp.add_argument("--nu", type=float, default=None, help="Student-t degrees of freedom (default: models/priors.toml)")
-    fp.add_argument("--precision", choices=["auto", "float64", "mixed"], default="auto",
-                    help="arithmetic of the sampled contact-level log-density: mixed (float32 per-point "
-                    "transcendentals, ~2x faster, error < 1e-3 nat) where it applies (auto: Student-t or Gaussian "
-                    "noise, no normals, no --ffd), else float64; summaries are float64 always")
-    fp.add_argument("--ignore-normals", action="store_true",
-                    help="do not use the file's nx,ny,nz columns (by default they add a von Mises-Fisher term)")
-    fp.add_argument("--ffd", type=_one_size, default=None, metavar="LxMxK",
-                    help="contact level: refine the n-ellipsoid with an FFD lattice of this size, marginalised "
-                    "analytically (Gaussian noise), e.g. 3x3x3")
-    fp.add_argument("--ffd-tau", type=float, default=None,
-                    help="prior sd of the FFD control-point displacements, metres (default 5e-4)")
-    fp.add_argument("--texture", choices=["auto", "on", "off"], default="auto",
-                    help="recording (.nc) only: sample the surface texture (grating amplitude, wavelength, "
-                         "orientation, phase and roughness): auto = when the grating search finds one (default)")
-    fp.add_argument("--stride", type=_positive_int, default=None,
-                    help="recording (.nc) only: use every STRIDE-th frame (default 2 with texture, 5 without)")
+    fp.add_argument(
+        "--precision",
+        choices=["auto", "float64", "mixed"],
+        default="auto",
+        help="arithmetic of the sampled contact-level log-density: mixed (float32 per-point "
+        "transcendentals, ~2x faster, error < 1e-3 nat) where it applies (auto: Student-t or Gaussian "
+        "noise, no normals, no --ffd), else float64; summaries are float64 always",
+    )
+    fp.add_argument(
+        "--ignore-normals",
+        action="store_true",
+        help="do not use the file's nx,ny,nz columns (by default they add a von Mises-Fisher term)",
+    )
+    fp.add_argument(
+        "--ffd",
+        type=_one_size,
+        default=None,
+        metavar="LxMxK",
+        help="contact level: refine the n-ellipsoid with an FFD lattice of this size, marginalised "
+        "analytically (Gaussian noise), e.g. 3x3x3",
+    )
+    fp.add_argument(
+        "--ffd-tau",
+        type=float,
+        default=None,
+        help="prior sd of the FFD control-point displacements, metres (default 5e-4)",
+    )
+    fp.add_argument(
+        "--texture",
+        choices=["auto", "on", "off"],
+        default="auto",
+        help="recording (.nc) only: sample the surface texture (grating amplitude, wavelength, "
+        "orientation, phase and roughness): auto = when the grating search finds one (default)",
+    )
+    fp.add_argument(
+        "--stride",
+        type=_positive_int,
+        default=None,
+        help="recording (.nc) only: use every STRIDE-th frame (default 2 with texture, 5 without)",
+    )
     fp.add_argument("--quiet", action="store_true", help="no progress bar")
 
-    sp = sub.add_parser("simulate", help="simulate strokes of the virtual finger over an object (netCDF)",
-                        description="Run the physics forward model (SMA wires, auxetic skin, piezotronic taxels, "
-                        "noise) for random strokes over an object and write a recording (netCDF, SI units).")
+    sp = sub.add_parser(
+        "simulate",
+        help="simulate strokes of the virtual finger over an object (netCDF)",
+        description="Run the physics forward model (SMA wires, auxetic skin, piezotronic taxels, "
+        "noise) for random strokes over an object and write a recording (netCDF, SI units).",
+    )
     sp.add_argument("--object", required=True, type=Path, help="object TOML, e.g. models/objects/egg.toml")
     sp.add_argument("--strokes", type=_positive_int, default=1, help="number of strokes (default 1)")
     sp.add_argument("--seed", type=seed_arg, default=0, help="seed of the strokes and the noise (default 0)")
@@ -147,21 +194,32 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--duration", type=float, default=2.0, help="seconds per stroke at 1 cm/s (default 2)")
     sp.add_argument("--rate", type=float, default=50.0, help="taxel frames per second (default 50)")
     sp.add_argument("--depth", type=float, default=3e-4, help="pressing depth in metres (default 3e-4)")
-    sp.add_argument("--force", type=float, default=None,
-                    help="force-controlled strokes: normal force in newtons (replaces --depth), e.g. 0.07")
-    sp.add_argument("--mode", choices=["physics", "empirical"], default=None,
-                    help="taxel response (default: models/taxels.toml)")
-    sp.add_argument("--currents", default="0.15,0.05,0.05",
-                    help="hold currents of the three wires in amperes (default 0.15,0.05,0.05)")
+    sp.add_argument(
+        "--force",
+        type=float,
+        default=None,
+        help="force-controlled strokes: normal force in newtons (replaces --depth), e.g. 0.07",
+    )
+    sp.add_argument(
+        "--mode", choices=["physics", "empirical"], default=None, help="taxel response (default: models/taxels.toml)"
+    )
+    sp.add_argument(
+        "--currents",
+        default="0.15,0.05,0.05",
+        help="hold currents of the three wires in amperes (default 0.15,0.05,0.05)",
+    )
     sp.add_argument("--models", type=Path, default=DEFAULT_OBJECTS.parent, help="parameter folder (default models/)")
     sp.add_argument("--quiet", action="store_true", help="no progress bar")
 
-    dp = sub.add_parser("demo", help="the main job: eig exploration of the egg, its posterior and report.html",
-                        description="The virtual finger explores the default egg with the eig planner (a scout and "
-                        "5 planned strokes, the posterior sampled after each), then samples the posterior of every "
-                        "point touched, replays the strokes through the taxels (currents and a contact-patch "
-                        "posterior) and writes report.html with its figures, summary.json, posterior.nc and the "
-                        "meshes into --out.")
+    dp = sub.add_parser(
+        "demo",
+        help="the main job: eig exploration of the egg, its posterior and report.html",
+        description="The virtual finger explores the default egg with the eig planner (a scout and "
+        "5 planned strokes, the posterior sampled after each), then samples the posterior of every "
+        "point touched, replays the strokes through the taxels (currents and a contact-patch "
+        "posterior) and writes report.html with its figures, summary.json, posterior.nc and the "
+        "meshes into --out.",
+    )
     dp.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder (default out/demo)")
     dp.add_argument("--seed", type=seed_arg, default=0, help="seed of every stage (default 0)")
     dp.add_argument("--quick", action="store_true", help="small sizes (scout + 1 stroke, short chains): a smoke run")
@@ -201,9 +259,16 @@ def _cmd_reproduce_paper(args) -> int:
     from bayestouch.paper import reproduce_table2
 
     t0 = time.perf_counter()
-    rows = reproduce_table2(obj, sizes=tuple(args.sizes or TABLE2_SIZES), epsilons=tuple(args.epsilons or (0.0, 1e-3)),
-                            seed=args.seed, n_paths=args.paths, rate=args.rate, res=args.res,
-                            progress=not args.quiet)
+    rows = reproduce_table2(
+        obj,
+        sizes=tuple(args.sizes or TABLE2_SIZES),
+        epsilons=tuple(args.epsilons or (0.0, 1e-3)),
+        seed=args.seed,
+        n_paths=args.paths,
+        rate=args.rate,
+        res=args.res,
+        progress=not args.quiet,
+    )
     md = write_table2(rows, out)
     from bayestouch.report import plot_table2
 
@@ -213,11 +278,19 @@ def _cmd_reproduce_paper(args) -> int:
     from bayestouch.report_tables import write_table1
     from bayestouch.virtual import load_finger
 
-    rows1 = reproduce_table1(obj, load_finger(seed=args.seed), seed=args.seed, n_paths=max(args.paths, 21),
-                             rate=args.rate, progress=not args.quiet)
+    rows1 = reproduce_table1(
+        obj,
+        load_finger(seed=args.seed),
+        seed=args.seed,
+        n_paths=max(args.paths, 21),
+        rate=args.rate,
+        progress=not args.quiet,
+    )
     print(write_table1(rows1, out))
-    print(f"wrote table2.csv, table2.md, {fig.name}, table1.csv and table1.md in {out} "
-          f"in {time.perf_counter() - t0:.1f} s")
+    print(
+        f"wrote table2.csv, table2.md, {fig.name}, table1.csv and table1.md in {out} "
+        f"in {time.perf_counter() - t0:.1f} s"
+    )
     return 0
 
 
@@ -242,8 +315,9 @@ def _cmd_simulate(args) -> int:
     try:
         currents = [float(x) for x in args.currents.split(",")]
     except ValueError:
-        raise BadInput(f"--currents must be three numbers in amperes like 0.15,0.05,0.05, got {args.currents!r}") \
-            from None
+        raise BadInput(
+            f"--currents must be three numbers in amperes like 0.15,0.05,0.05, got {args.currents!r}"
+        ) from None
     if len(currents) != 3:
         raise BadInput(f"--currents must be three numbers in amperes, got {len(currents)}")
     if args.force is not None and not (0 < args.force <= 2.0):
@@ -259,21 +333,37 @@ def _cmd_simulate(args) -> int:
     max_current = float(vf.wire.max_current)
     if not all(0 <= c <= max_current for c in currents):
         raise BadInput(f"--currents: wire currents must each be in [0, {max_current:g}] A (amperes), got {currents}")
-    strokes = random_strokes(obj, args.strokes, seed=args.seed, duration=args.duration, rate=args.rate,
-                             depth=args.depth)
+    strokes = random_strokes(
+        obj, args.strokes, seed=args.seed, duration=args.duration, rate=args.rate, depth=args.depth
+    )
     t0 = time.perf_counter()
-    rec = record_strokes(obj, strokes, vf, args.seed, hold_currents=currents, mode=args.mode, force=args.force,
-                         progress=not args.quiet)
+    rec = record_strokes(
+        obj, strokes, vf, args.seed, hold_currents=currents, mode=args.mode, force=args.force, progress=not args.quiet
+    )
     lay_u = np.asarray(vf.finger.grid[..., 0]).ravel()
     lay_v = np.asarray(vf.finger.grid[..., 1]).ravel()
-    ds = build_dataset(rec, lay_u, lay_v, np.asarray(vf.finger.reference).ravel(), [s.depth for s in strokes],
-                       {"object": obj.name, "object_file": str(args.object), "seed": args.seed,
-                        "mode": args.mode or vf.mode, "wire_hold_currents_A": args.currents,
-                        "software": f"bayestouch {__version__}", "conventions": "SI units in 'units'"})
+    ds = build_dataset(
+        rec,
+        lay_u,
+        lay_v,
+        np.asarray(vf.finger.reference).ravel(),
+        [s.depth for s in strokes],
+        {
+            "object": obj.name,
+            "object_file": str(args.object),
+            "seed": args.seed,
+            "mode": args.mode or vf.mode,
+            "wire_hold_currents_A": args.currents,
+            "software": f"bayestouch {__version__}",
+            "conventions": "SI units in 'units'",
+        },
+    )
     write_recording(ds, args.out)
     f = rec["contact_force"]
-    print(f"wrote {args.out}: {len(strokes)} stroke(s), {len(rec['time'])} frames × {len(lay_u)} taxels, "
-          f"contact force {f.min():.3f}–{f.max():.3f} N, in {time.perf_counter() - t0:.1f} s")
+    print(
+        f"wrote {args.out}: {len(strokes)} stroke(s), {len(rec['time'])} frames × {len(lay_u)} taxels, "
+        f"contact force {f.min():.3f}–{f.max():.3f} N, in {time.perf_counter() - t0:.1f} s"
+    )
     return 0
 
 
@@ -281,8 +371,9 @@ def _cmd_fit(args) -> int:
     from bayestouch.errors import BadInput
 
     if args.walkers < 24 or args.walkers % 2:
-        raise BadInput(f"--walkers must be an even number ≥ 24 (twice the parameters, plus a margin), "
-                       f"got {args.walkers}")
+        raise BadInput(
+            f"--walkers must be an even number ≥ 24 (twice the parameters, plus a margin), got {args.walkers}"
+        )
     if args.budget is not None and not args.budget > 0:
         raise BadInput(f"--budget must be > 0 seconds, got {args.budget}")
     if args.out.exists() and not args.out.is_dir():
@@ -296,9 +387,19 @@ def _cmd_fit(args) -> int:
             raise BadInput("--ffd applies to contact points (.csv), not to a recording (.nc)")
         from bayestouch.inference.raw import run_raw_fit
 
-        s = run_raw_fit(args.points, args.out, seed=args.seed, walkers=args.walkers, steps=args.steps or 1500,
-                        resume=args.resume, budget_s=args.budget, progress=not args.quiet,
-                        stop_when_converged=not args.no_early_stop, texture=args.texture, stride=args.stride)
+        s = run_raw_fit(
+            args.points,
+            args.out,
+            seed=args.seed,
+            walkers=args.walkers,
+            steps=args.steps or 1500,
+            resume=args.resume,
+            budget_s=args.budget,
+            progress=not args.quiet,
+            stop_when_converged=not args.no_early_stop,
+            texture=args.texture,
+            stride=args.stride,
+        )
     else:
         from bayestouch.inference.run import run_contact_fit
         from bayestouch.io import load_contact_points
@@ -310,18 +411,32 @@ def _cmd_fit(args) -> int:
         if args.nu is not None and (args.noise != "student" or not args.nu > 0):
             raise BadInput(f"--nu must be > 0 and goes with --noise student, got --nu {args.nu} --noise {args.noise}")
         noise, nu = ("student", float("inf")) if args.noise == "gaussian" else (args.noise, args.nu)
-        s = run_contact_fit(cp.points, args.out, seed=args.seed, walkers=args.walkers, steps=args.steps or 20000,
-                            resume=args.resume, budget_s=args.budget, progress=not args.quiet,
-                            normals=None if args.ignore_normals else cp.normals, noise=noise, nu=nu, ffd=args.ffd,
-                            ffd_tau=args.ffd_tau, stop_when_converged=not args.no_early_stop,
-                            precision=args.precision)
+        s = run_contact_fit(
+            cp.points,
+            args.out,
+            seed=args.seed,
+            walkers=args.walkers,
+            steps=args.steps or 20000,
+            resume=args.resume,
+            budget_s=args.budget,
+            progress=not args.quiet,
+            normals=None if args.ignore_normals else cp.normals,
+            noise=noise,
+            nu=nu,
+            ffd=args.ffd,
+            ffd_tau=args.ffd_tau,
+            stop_when_converged=not args.no_early_stop,
+            precision=args.precision,
+        )
     d = s["diagnostics"]
     v = s["derived"]["volume_m3"]
-    print(f"wrote {args.out}/summary.json, posterior.nc, mean_shape.ply, uncertainty_mesh.ply: volume "
-          f"{v['mean'] * 1e6:.3f} ± {v['sd'] * 1e6:.3f} cm³ (90 % {v['q05'] * 1e6:.3f}–{v['q95'] * 1e6:.3f}), "
-          f"max R-hat {d['max_r_hat']:.3f}, min ESS {d['min_ess_bulk']:.0f}, "
-          f"{'converged' if d['converged'] else 'NOT converged'}"
-          f"{' (stopped by --budget)' if d.get('stopped_by_budget') else ''} ({d['seconds']:.1f} s)")
+    print(
+        f"wrote {args.out}/summary.json, posterior.nc, mean_shape.ply, uncertainty_mesh.ply: volume "
+        f"{v['mean'] * 1e6:.3f} ± {v['sd'] * 1e6:.3f} cm³ (90 % {v['q05'] * 1e6:.3f}–{v['q95'] * 1e6:.3f}), "
+        f"max R-hat {d['max_r_hat']:.3f}, min ESS {d['min_ess_bulk']:.0f}, "
+        f"{'converged' if d['converged'] else 'NOT converged'}"
+        f"{' (stopped by --budget)' if d.get('stopped_by_budget') else ''} ({d['seconds']:.1f} s)"
+    )
     for w in d.get("warnings", []):
         print(f"bayestouch fit: warning: {w}", file=sys.stderr)
     return 0
@@ -351,9 +466,16 @@ def _cmd_device(args) -> int:
     return run_device(args)
 
 
-COMMANDS = {"reproduce-paper": _cmd_reproduce_paper, "demo": _cmd_demo, "simulate": _cmd_simulate,
-            "fit": _cmd_fit, "device": _cmd_device, "explore": _cmd_explore, "experiment": _cmd_experiment,
-            "texture-id": _cmd_texture_id}
+COMMANDS = {
+    "reproduce-paper": _cmd_reproduce_paper,
+    "demo": _cmd_demo,
+    "simulate": _cmd_simulate,
+    "fit": _cmd_fit,
+    "device": _cmd_device,
+    "explore": _cmd_explore,
+    "experiment": _cmd_experiment,
+    "texture-id": _cmd_texture_id,
+}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -381,8 +503,11 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as e:  # internal error: one line unless debugging
         if os.environ.get("BAYESTOUCH_DEBUG"):
             raise
-        print(f"bayestouch {args.command}: internal error: {type(e).__name__}: {e} "
-              "(set BAYESTOUCH_DEBUG=1 for the traceback)", file=sys.stderr)
+        print(
+            f"bayestouch {args.command}: internal error: {type(e).__name__}: {e} "
+            "(set BAYESTOUCH_DEBUG=1 for the traceback)",
+            file=sys.stderr,
+        )
         return 1
 
 

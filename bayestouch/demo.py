@@ -58,14 +58,24 @@ class DemoSizes(NamedTuple):
     patch_steps: int
 
 
-FULL = DemoSizes(budget=5, candidates=64, draws=1000, steps=300, init_steps=600, fit_steps=20000, fit_budget_s=150.0,
-                 patch_steps=2000)
-QUICK = DemoSizes(budget=1, candidates=12, draws=200, steps=80, init_steps=150, fit_steps=400, fit_budget_s=30.0,
-                  patch_steps=200)
+FULL = DemoSizes(
+    budget=5,
+    candidates=64,
+    draws=1000,
+    steps=300,
+    init_steps=600,
+    fit_steps=20000,
+    fit_budget_s=150.0,
+    patch_steps=2000,
+)
+QUICK = DemoSizes(
+    budget=1, candidates=12, draws=200, steps=80, init_steps=150, fit_steps=400, fit_budget_s=30.0, patch_steps=200
+)
 
 
-def replay_strokes(obj, strokes, *, rate: float = 50.0, depth: float = 3e-4, min_samples: int = 5,
-                   frames: int = 64) -> list:
+def replay_strokes(
+    obj, strokes, *, rate: float = 50.0, depth: float = 3e-4, min_samples: int = 5, frames: int = 64
+) -> list:
     """The planned strokes as finger strokes over the true object.
 
     Each planned stroke (:class:`bayestouch.planning.candidates.Strokes`, a path over the believed surface with its
@@ -124,8 +134,15 @@ def _fmt(x: float, digits: int = 3) -> str:
     return "–" if x is None or not np.isfinite(x) else f"{x:.{digits}g}"
 
 
-def run_demo(out, *, seed: int = 0, sizes: DemoSizes = FULL, object_path=DEFAULT_OBJECT, progress: bool = True,
-             check_browser: bool = True) -> dict:
+def run_demo(
+    out,
+    *,
+    seed: int = 0,
+    sizes: DemoSizes = FULL,
+    object_path=DEFAULT_OBJECT,
+    progress: bool = True,
+    check_browser: bool = True,
+) -> dict:
     """Run the demo into the folder ``out`` and return its headline numbers.
 
     Parameters
@@ -170,13 +187,16 @@ def run_demo(out, *, seed: int = 0, sizes: DemoSizes = FULL, object_path=DEFAULT
 
     # 1. explore
     say(f"[1/4] exploring {obj.name} with the eig planner: scout + {sizes.budget} strokes")
-    settings = ExploreSettings(candidates=sizes.candidates, draws=sizes.draws, steps=sizes.steps,
-                               init_steps=sizes.init_steps)
+    settings = ExploreSettings(
+        candidates=sizes.candidates, draws=sizes.draws, steps=sizes.steps, init_steps=sizes.init_steps
+    )
     bar = tqdm(total=sizes.budget + 1, desc="strokes", unit="stroke", disable=not progress)
 
     def on_stroke(rec):
-        write_json(out / "strokes" / f"summary_{rec.stroke}.json",
-                   {**rec.summary, "seconds": rec.seconds, "eig_nats": rec.eig, "decision_s": rec.decision_s})
+        write_json(
+            out / "strokes" / f"summary_{rec.stroke}.json",
+            {**rec.summary, "seconds": rec.seconds, "eig_nats": rec.eig, "decision_s": rec.decision_s},
+        )
         bar.set_postfix(points=rec.n_points, chamfer=f"{rec.chamfer:.3f}", vol_err=f"{rec.volume_error:.3f}")
         bar.update(1)
 
@@ -185,10 +205,19 @@ def run_demo(out, *, seed: int = 0, sizes: DemoSizes = FULL, object_path=DEFAULT
     save_contact_points(out / "points.csv", res.points)
 
     # 2. the posterior of everything touched
-    say(f"[2/4] posterior of the {len(res.points)} contact points (stops once converged, at most "
-        f"{sizes.fit_budget_s:.0f} s)")
-    summary = run_contact_fit(res.points, out, seed=seed, steps=sizes.fit_steps, budget_s=sizes.fit_budget_s,
-                              progress=progress, start=res.ensemble)
+    say(
+        f"[2/4] posterior of the {len(res.points)} contact points (stops once converged, at most "
+        f"{sizes.fit_budget_s:.0f} s)"
+    )
+    summary = run_contact_fit(
+        res.points,
+        out,
+        seed=seed,
+        steps=sizes.fit_steps,
+        budget_s=sizes.fit_budget_s,
+        progress=progress,
+        start=res.ensemble,
+    )
 
     # 3. the strokes as the finger feels them
     say("[3/4] the virtual finger replays the strokes: taxel currents and a contact-patch posterior")
@@ -205,12 +234,27 @@ def run_demo(out, *, seed: int = 0, sizes: DemoSizes = FULL, object_path=DEFAULT
             check = check_in_browser(page)
     seconds = time.perf_counter() - t_start
     rows = [{k: v for k, v in r._asdict().items() if k != "summary"} for r in res.records]
-    write_json(out / "demo.json", {"object": obj.name, "planner": "eig", "seed": seed, "sizes": sizes._asdict(),
-                                    "strokes": rows, "seconds": seconds,
-                                    "browser_check": None if check is None else check._asdict()})
+    write_json(
+        out / "demo.json",
+        {
+            "object": obj.name,
+            "planner": "eig",
+            "seed": seed,
+            "sizes": sizes._asdict(),
+            "strokes": rows,
+            "seconds": seconds,
+            "browser_check": None if check is None else check._asdict(),
+        },
+    )
     _print_table(res, summary, patch_summary, truth, page, check, seconds)
-    return {"strokes": rows, "summary": summary, "patch": patch_summary, "report": page, "browser": check,
-            "seconds": seconds}
+    return {
+        "strokes": rows,
+        "summary": summary,
+        "patch": patch_summary,
+        "report": page,
+        "browser": check,
+        "seconds": seconds,
+    }
 
 
 def _taxels(obj, res, out: Path, seed: int, sizes: DemoSizes, progress: bool):
@@ -227,11 +271,23 @@ def _taxels(obj, res, out: Path, seed: int, sizes: DemoSizes, progress: bool):
     from bayestouch import __version__
 
     grid = np.asarray(vf.finger.grid)
-    ds = build_dataset(frames, grid[..., 0].ravel(), grid[..., 1].ravel(), np.asarray(vf.finger.reference).ravel(),
-                       [s.depth for s in strokes],
-                       {"object": obj.name, "object_file": str(obj.source or ""), "seed": seed, "mode": TAXEL_MODE,
-                        "wire_hold_currents_A": "0.15,0.05,0.05", "software": f"bayestouch {__version__}",
-                        "conventions": "SI units in 'units'", "made_by": "bayestouch demo (replayed eig strokes)"})
+    ds = build_dataset(
+        frames,
+        grid[..., 0].ravel(),
+        grid[..., 1].ravel(),
+        np.asarray(vf.finger.reference).ravel(),
+        [s.depth for s in strokes],
+        {
+            "object": obj.name,
+            "object_file": str(obj.source or ""),
+            "seed": seed,
+            "mode": TAXEL_MODE,
+            "wire_hold_currents_A": "0.15,0.05,0.05",
+            "software": f"bayestouch {__version__}",
+            "conventions": "SI units in 'units'",
+            "made_by": "bayestouch demo (replayed eig strokes)",
+        },
+    )
     write_recording(ds, out / "recording.nc")
     recording = read_recording(out / "recording.nc")
     # the most loaded frame of the last stroke, with its neighbours: a window of 5 frames
@@ -240,10 +296,19 @@ def _taxels(obj, res, out: Path, seed: int, sizes: DemoSizes, progress: bool):
     f = last[int(np.argmax(force[last]))]
     lo = int(np.clip(f - 2, last[0], max(last[0], last[-1] - 4)))
     window = np.asarray(recording["taxel_current"].values)[lo : lo + 5]
-    post = patch_posterior(window, vf.finger, seed=seed, mode=TAXEL_MODE, steps=sizes.patch_steps,
-                           temperature=float(np.mean(recording["skin_temperature"].values[lo : lo + 5])))
-    patch_summary = {**post.summary, "frames": [lo, lo + len(window)],
-                     "true_force_N": float(np.mean(force[lo : lo + len(window)]))}
+    post = patch_posterior(
+        window,
+        vf.finger,
+        seed=seed,
+        mode=TAXEL_MODE,
+        steps=sizes.patch_steps,
+        temperature=float(np.mean(recording["skin_temperature"].values[lo : lo + 5])),
+    )
+    patch_summary = {
+        **post.summary,
+        "frames": [lo, lo + len(window)],
+        "true_force_N": float(np.mean(force[lo : lo + len(window)])),
+    }
     write_json(out / "patch_summary.json", patch_summary)
     return patch_summary, post, recording, np.asarray(vf.finger.gains).ravel()
 
@@ -264,68 +329,173 @@ def _report(out: Path, obj, truth, res, summary: dict, patch_summary: dict, patc
     rp.plot_pair(out, idata, ["a", "b", "c", "n"])
 
     d = summary["diagnostics"]
-    conv = ('<span class="ok">converged</span>' if d["converged"] else
-            '<span class="bad">not converged</span> (the numbers below are from a chain that has not converged; '
-            "run <code>bayestouch fit points.csv --out DIR --resume</code> to continue it)")
+    conv = (
+        '<span class="ok">converged</span>'
+        if d["converged"]
+        else '<span class="bad">not converged</span> (the numbers below are from a chain that has not converged; '
+        "run <code>bayestouch fit points.csv --out DIR --resume</code> to continue it)"
+    )
     vol = summary["derived"]["volume_m3"]
-    intro = (f"<p>The virtual finger explored <b>{obj.name}</b> ({obj.description}) with the <b>eig</b> planner: a "
-             f"scout stroke and {len(res.records) - 1} planned strokes, {len(res.points)} contact points. The "
-             f"posterior of the shape is {conv}: max R-hat {d['max_r_hat']:.4f}, min bulk ESS "
-             f"{d['min_ess_bulk']:.0f}, {d['n_samples']} samples, {d['seconds']:.0f} s.</p>"
-             f'<p class="note">Volume {1e6 * vol["mean"]:.3f} cm³ (90 % interval {1e6 * vol["q05"]:.3f}–'
-             f'{1e6 * vol["q95"]:.3f}); the true object\'s {1e6 * truth.volume:.3f} cm³ is '
-             f'{"inside" if vol["q05"] <= truth.volume <= vol["q95"] else "outside"} it.</p>')
-    strokes = Table("Per stroke (0 = scout): the posterior after each stroke", [
-        "stroke", "points", "new", "EIG (nats)", "Chamfer / mean axis", "volume error", "volume sd (cm³)",
-        "decision (s)", "update (s)"], [
-        [r.stroke, r.n_points, r.new_points, _fmt(r.eig), _fmt(r.chamfer), _fmt(r.volume_error),
-         _fmt(1e6 * r.volume_sd), _fmt(r.decision_s, 2), _fmt(r.update_s, 2)] for r in res.records])
+    intro = (
+        f"<p>The virtual finger explored <b>{obj.name}</b> ({obj.description}) with the <b>eig</b> planner: a "
+        f"scout stroke and {len(res.records) - 1} planned strokes, {len(res.points)} contact points. The "
+        f"posterior of the shape is {conv}: max R-hat {d['max_r_hat']:.4f}, min bulk ESS "
+        f"{d['min_ess_bulk']:.0f}, {d['n_samples']} samples, {d['seconds']:.0f} s.</p>"
+        f'<p class="note">Volume {1e6 * vol["mean"]:.3f} cm³ (90 % interval {1e6 * vol["q05"]:.3f}–'
+        f"{1e6 * vol['q95']:.3f}); the true object's {1e6 * truth.volume:.3f} cm³ is "
+        f"{'inside' if vol['q05'] <= truth.volume <= vol['q95'] else 'outside'} it.</p>"
+    )
+    strokes = Table(
+        "Per stroke (0 = scout): the posterior after each stroke",
+        [
+            "stroke",
+            "points",
+            "new",
+            "EIG (nats)",
+            "Chamfer / mean axis",
+            "volume error",
+            "volume sd (cm³)",
+            "decision (s)",
+            "update (s)",
+        ],
+        [
+            [
+                r.stroke,
+                r.n_points,
+                r.new_points,
+                _fmt(r.eig),
+                _fmt(r.chamfer),
+                _fmt(r.volume_error),
+                _fmt(1e6 * r.volume_sd),
+                _fmt(r.decision_s, 2),
+                _fmt(r.update_s, 2),
+            ]
+            for r in res.records
+        ],
+    )
     true_vals = _true_natural(obj)
-    params = Table("Shape posterior (SI units: metres, radians); angles are canonicalised (symmetry aliases folded)",
-                   ["parameter", "truth", "mean", "sd", "q05", "q95", "R-hat", "bulk ESS"],
-                   [[k, _fmt(true_vals.get(k), 4), _fmt(v["mean"], 4), _fmt(v["sd"], 2), _fmt(v["q05"], 4),
-                     _fmt(v["q95"], 4), f"{v['r_hat']:.4f}", f"{v['ess_bulk']:.0f}"]
-                    for k, v in summary["parameters"].items()])
+    params = Table(
+        "Shape posterior (SI units: metres, radians); angles are canonicalised (symmetry aliases folded)",
+        ["parameter", "truth", "mean", "sd", "q05", "q95", "R-hat", "bulk ESS"],
+        [
+            [
+                k,
+                _fmt(true_vals.get(k), 4),
+                _fmt(v["mean"], 4),
+                _fmt(v["sd"], 2),
+                _fmt(v["q05"], 4),
+                _fmt(v["q95"], 4),
+                f"{v['r_hat']:.4f}",
+                f"{v['ess_bulk']:.0f}",
+            ]
+            for k, v in summary["parameters"].items()
+        ],
+    )
     der = summary["derived"]
-    derived = Table("Derived quantities (eq. 11–13)", ["quantity", "truth", "mean", "sd", "q05", "q95"], [
-        ["volume (m³)", _fmt(truth.volume, 4), *(_fmt(der["volume_m3"][k], 4) for k in ("mean", "sd", "q05", "q95"))],
-        ["area (m²)", "–", *(_fmt(der["area_m2"][k], 4) for k in ("mean", "sd", "q05", "q95"))],
-        ["surface spread (m), mean / q95 / max", "–", _fmt(der["surface_spread_m"]["mean"]), "–",
-         _fmt(der["surface_spread_m"]["q95"]), _fmt(der["surface_spread_m"]["max"])]])
+    derived = Table(
+        "Derived quantities (eq. 11–13)",
+        ["quantity", "truth", "mean", "sd", "q05", "q95"],
+        [
+            [
+                "volume (m³)",
+                _fmt(truth.volume, 4),
+                *(_fmt(der["volume_m3"][k], 4) for k in ("mean", "sd", "q05", "q95")),
+            ],
+            ["area (m²)", "–", *(_fmt(der["area_m2"][k], 4) for k in ("mean", "sd", "q05", "q95"))],
+            [
+                "surface spread (m), mean / q95 / max",
+                "–",
+                _fmt(der["surface_spread_m"]["mean"]),
+                "–",
+                _fmt(der["surface_spread_m"]["q95"]),
+                _fmt(der["surface_spread_m"]["max"]),
+            ],
+        ],
+    )
     pp = patch_summary["parameters"]
     pd = patch_summary["diagnostics"]
-    patch = Table(f"Contact patch, frames {patch_summary['frames'][0]}–{patch_summary['frames'][1] - 1} of the "
-                  f"recording ({'converged' if pd['converged'] else 'not converged'}, max R-hat "
-                  f"{pd['max_r_hat']:.3f})", ["parameter", "mean", "sd", "q05", "q95"],
-                  [[k, _fmt(v["mean"], 4), _fmt(v["sd"], 2), _fmt(v["q05"], 4), _fmt(v["q95"], 4)]
-                   for k, v in pp.items()]
-                  + [[f"{k} (derived)", _fmt(v["mean"], 4), _fmt(v["sd"], 2), _fmt(v["q05"], 4), _fmt(v["q95"], 4)]
-                     for k, v in patch_summary["derived"].items()])
+    patch = Table(
+        f"Contact patch, frames {patch_summary['frames'][0]}–{patch_summary['frames'][1] - 1} of the "
+        f"recording ({'converged' if pd['converged'] else 'not converged'}, max R-hat "
+        f"{pd['max_r_hat']:.3f})",
+        ["parameter", "mean", "sd", "q05", "q95"],
+        [[k, _fmt(v["mean"], 4), _fmt(v["sd"], 2), _fmt(v["q05"], 4), _fmt(v["q95"], 4)] for k, v in pp.items()]
+        + [
+            [f"{k} (derived)", _fmt(v["mean"], 4), _fmt(v["sd"], 2), _fmt(v["q05"], 4), _fmt(v["q95"], 4)]
+            for k, v in patch_summary["derived"].items()
+        ],
+    )
     sections = [
-        ("Shape", [Figure("shape.png", "Left: the posterior mean shape, coloured by the posterior spread of its "
-                          "surface along the normal, with the contact points (red). Right: sections through the "
-                          "centre: the true object (dashed), 30 posterior draws (thin blue) and the contacts near each "
-                          "plane."),
-                   derived, params]),
-        ("Exploration", [Figure("errors.png", "Error against strokes: Chamfer distance of the point estimate "
-                                "(the median-volume draw) over the true mean semi-axis and its volume error; the "
-                                "volume posterior (mean ± 2 sd) against the truth."), strokes]),
-        ("Taxels and contact patches", [
-            Figure("taxel_currents.png", "Taxel current images: Δ ln I of the most loaded frame of each stroke, "
-                   "fixed-pattern gains divided out, relative to the unloaded reference rows (dots). The taxels "
-                   "respond in the empirical mode (device-like sensitivity); the physics mode's response is far below "
-                   "the noise (physics.md, finding 2)."),
-            Figure("contact_patch.png", "Posterior of one contact patch (superellipse, eq. 16–18): outlines of "
-                   "posterior draws on the pad and the marginals of a, b and n."), patch]),
-        ("Sampler diagnostics", [
-            Figure("trace.png", "Trace plots of the semi-axes, the exponent n and the noise scale σ (one line "
-                   "per walker, burn-in removed)."),
-            Figure("pair.png", "Pair plot of the semi-axes and the exponent n (thinned draws).")]),
+        (
+            "Shape",
+            [
+                Figure(
+                    "shape.png",
+                    "Left: the posterior mean shape, coloured by the posterior spread of its "
+                    "surface along the normal, with the contact points (red). Right: sections through the "
+                    "centre: the true object (dashed), 30 posterior draws (thin blue) and the contacts near each "
+                    "plane.",
+                ),
+                derived,
+                params,
+            ],
+        ),
+        (
+            "Exploration",
+            [
+                Figure(
+                    "errors.png",
+                    "Error against strokes: Chamfer distance of the point estimate "
+                    "(the median-volume draw) over the true mean semi-axis and its volume error; the "
+                    "volume posterior (mean ± 2 sd) against the truth.",
+                ),
+                strokes,
+            ],
+        ),
+        (
+            "Taxels and contact patches",
+            [
+                Figure(
+                    "taxel_currents.png",
+                    "Taxel current images: Δ ln I of the most loaded frame of each stroke, "
+                    "fixed-pattern gains divided out, relative to the unloaded reference rows (dots). The taxels "
+                    "respond in the empirical mode (device-like sensitivity); the physics mode's response is far below "
+                    "the noise (physics.md, finding 2).",
+                ),
+                Figure(
+                    "contact_patch.png",
+                    "Posterior of one contact patch (superellipse, eq. 16–18): outlines of "
+                    "posterior draws on the pad and the marginals of a, b and n.",
+                ),
+                patch,
+            ],
+        ),
+        (
+            "Sampler diagnostics",
+            [
+                Figure(
+                    "trace.png",
+                    "Trace plots of the semi-axes, the exponent n and the noise scale σ (one line "
+                    "per walker, burn-in removed).",
+                ),
+                Figure("pair.png", "Pair plot of the semi-axes and the exponent n (thinned draws)."),
+            ],
+        ),
     ]
-    files = ["summary.json", "posterior.nc", "mean_shape.ply", "uncertainty_mesh.ply", "chain.h5", "points.csv",
-             "recording.nc", "patch_summary.json", "demo.json"]
-    return write_report(out, title=f"bayestouch demo: {obj.name}, eig exploration", intro=intro, sections=sections,
-                        files=files)
+    files = [
+        "summary.json",
+        "posterior.nc",
+        "mean_shape.ply",
+        "uncertainty_mesh.ply",
+        "chain.h5",
+        "points.csv",
+        "recording.nc",
+        "patch_summary.json",
+        "demo.json",
+    ]
+    return write_report(
+        out, title=f"bayestouch demo: {obj.name}, eig exploration", intro=intro, sections=sections, files=files
+    )
 
 
 def _posterior_shapes(path: Path, count: int) -> list:
@@ -363,12 +533,16 @@ def _read_ply(path: Path):
 def _print_table(res, summary: dict, patch: dict, truth, page: Path, check, seconds: float) -> None:
     print(f"{'stroke':>6} {'points':>6} {'EIG':>7} {'chamfer':>8} {'vol.err':>8} {'vol.sd cm3':>10}")
     for r in res.records:
-        print(f"{r.stroke:>6} {r.n_points:>6} {_fmt(r.eig):>7} {r.chamfer:>8.4f} {r.volume_error:>8.4f} "
-              f"{1e6 * r.volume_sd:>10.4f}")
+        print(
+            f"{r.stroke:>6} {r.n_points:>6} {_fmt(r.eig):>7} {r.chamfer:>8.4f} {r.volume_error:>8.4f} "
+            f"{1e6 * r.volume_sd:>10.4f}"
+        )
     d, v = summary["diagnostics"], summary["derived"]["volume_m3"]
-    print(f"posterior: volume {1e6 * v['mean']:.3f} cm3 [{1e6 * v['q05']:.3f}, {1e6 * v['q95']:.3f}] "
-          f"(truth {1e6 * truth.volume:.3f}); {'converged' if d['converged'] else 'NOT converged'} "
-          f"(max R-hat {d['max_r_hat']:.4f}, min ESS {d['min_ess_bulk']:.0f})")
+    print(
+        f"posterior: volume {1e6 * v['mean']:.3f} cm3 [{1e6 * v['q05']:.3f}, {1e6 * v['q95']:.3f}] "
+        f"(truth {1e6 * truth.volume:.3f}); {'converged' if d['converged'] else 'NOT converged'} "
+        f"(max R-hat {d['max_r_hat']:.4f}, min ESS {d['min_ess_bulk']:.0f})"
+    )
     pa = patch["parameters"]
     print(f"contact patch: a {1e3 * pa['a']['mean']:.2f} mm, b {1e3 * pa['b']['mean']:.2f} mm, n {pa['n']['mean']:.2f}")
     seen = "" if check is None else f"; browser: {check.images_ok}/{check.images_total} images render"

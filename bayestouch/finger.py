@@ -72,8 +72,16 @@ def skin_temperature(wire_temperature, ambient, dt, thermal: SkinThermal = SKIN_
     return out
 
 
-def drive(wire: sma.WireParams, rod: bd.RodParams, hold_currents, n_frames: int, dt: float, *,
-          warmup: float = 5.0, thermal: SkinThermal = SKIN_THERMAL) -> Drive:
+def drive(
+    wire: sma.WireParams,
+    rod: bd.RodParams,
+    hold_currents,
+    n_frames: int,
+    dt: float,
+    *,
+    warmup: float = 5.0,
+    thermal: SkinThermal = SKIN_THERMAL,
+) -> Drive:
     """Simulate the wires holding ``hold_currents`` for a stroke of ``n_frames`` frames of ``dt`` seconds.
 
     The wires are switched on ``warmup`` seconds before the stroke starts (the bend settles first).

@@ -29,8 +29,19 @@ from bayestouch.physics import skin as sk
 from bayestouch.physics import taxel as tx
 from bayestouch.scene.surface import Surface, signed_distance
 
-__all__ = ["Finger", "Frames", "pad_points", "contact_frame", "simulate", "clean_currents", "friction_force",
-           "make_finger", "stroke_arrays", "depths_for_force", "elastic_force"]
+__all__ = [
+    "Finger",
+    "Frames",
+    "pad_points",
+    "contact_frame",
+    "simulate",
+    "clean_currents",
+    "friction_force",
+    "make_finger",
+    "stroke_arrays",
+    "depths_for_force",
+    "elastic_force",
+]
 
 
 class Finger(NamedTuple):
@@ -90,8 +101,9 @@ class Frames(NamedTuple):
     friction: jnp.ndarray
 
 
-def make_finger(skin: sk.SkinParams, taxels: tx.TaxelParams, noise: nz.NoiseParams, *, tip_radius: float,
-                seed: int = 0) -> Finger:
+def make_finger(
+    skin: sk.SkinParams, taxels: tx.TaxelParams, noise: nz.NoiseParams, *, tip_radius: float, seed: int = 0
+) -> Finger:
     """Assemble a :class:`Finger` (NumPy edge): taxel grid from ``taxels``, fixed pattern from ``seed``.
 
     Parameters
@@ -106,8 +118,17 @@ def make_finger(skin: sk.SkinParams, taxels: tx.TaxelParams, noise: nz.NoisePara
     gains = nz.fixed_pattern(jax.random.PRNGKey(seed), noise, lay.rows * lay.cols)
     area = tx.cell_area(taxels)
     kernel = sk.blur_kernel(lay.positions, sk.blur_width(skin), area)
-    return Finger(skin, taxels, noise, jnp.asarray(grid), jnp.asarray(ref), jnp.asarray(gains),
-                  jnp.asarray(float(tip_radius)), kernel, jnp.asarray(area))
+    return Finger(
+        skin,
+        taxels,
+        noise,
+        jnp.asarray(grid),
+        jnp.asarray(ref),
+        jnp.asarray(gains),
+        jnp.asarray(float(tip_radius)),
+        kernel,
+        jnp.asarray(area),
+    )
 
 
 def elastic_force(finger: Finger, pressure):
@@ -177,8 +198,17 @@ def friction_force(finger: Finger, stroke_arrays, force, delta):
     return sk.friction(finger.skin.mu, jnp.maximum(force, 1e-12), kt, slid)
 
 
-def simulate(surf: Surface, stroke_arrays, finger: Finger, key, *, skin_temperature=300.0, dt: float = 0.02,
-             mode: str = "physics", noise: bool = True) -> Frames:
+def simulate(
+    surf: Surface,
+    stroke_arrays,
+    finger: Finger,
+    key,
+    *,
+    skin_temperature=300.0,
+    dt: float = 0.02,
+    mode: str = "physics",
+    noise: bool = True,
+) -> Frames:
     """The whole chain for one stroke.
 
     Parameters
@@ -234,8 +264,12 @@ def depths_for_force(surf: Surface, finger: Finger, stroke_arrays, force, max_de
 
 def stroke_arrays(stroke) -> tuple:
     """JAX arrays of a :class:`~bayestouch.scene.strokes.Stroke` for :func:`simulate`."""
-    return (jnp.asarray(stroke.contact), jnp.asarray(stroke.normal), jnp.asarray(stroke.tangent),
-            jnp.asarray(float(stroke.depth)))
+    return (
+        jnp.asarray(stroke.contact),
+        jnp.asarray(stroke.normal),
+        jnp.asarray(stroke.tangent),
+        jnp.asarray(float(stroke.depth)),
+    )
 
 
 simulate_jit = jax.jit(simulate, static_argnames=("mode", "noise", "dt"))

@@ -135,11 +135,11 @@ def _read_records(path: str | os.PathLike[str], source: str) -> Iterator[tuple[i
                     continue
                 yield start, fields
     except UnicodeDecodeError as err:
-        raise _bad(source, f"is not UTF-8 text ({err.reason} at byte {err.start}); expected a UTF-8 CSV file"
-                   ) from None
+        raise _bad(source, f"is not UTF-8 text ({err.reason} at byte {err.start}); expected a UTF-8 CSV file") from None
     except csv.Error as err:
-        raise _bad(source, f"is not valid CSV near line {last_line + 1} ({err}); expected a comma-separated "
-                   "file") from None
+        raise _bad(
+            source, f"is not valid CSV near line {last_line + 1} ({err}); expected a comma-separated file"
+        ) from None
     except OSError as err:
         raise _bad(source, f"cannot be read ({err.strerror or err}); expected a readable CSV file") from None
 
@@ -147,8 +147,11 @@ def _read_records(path: str | os.PathLike[str], source: str) -> Iterator[tuple[i
 def _ragged(source: str, line: int, k: int, h: int, row: int | None = None) -> BadInput:
     """Error for a line with ``k`` fields under a header of ``h``."""
     data_row = f" (data row {row})" if row is not None else ""
-    return _bad(source, f"file line {line} has {k} field{'s' if k != 1 else ''} but the header has {h}"
-                f"{data_row}; expected {h} comma-separated fields on every line")
+    return _bad(
+        source,
+        f"file line {line} has {k} field{'s' if k != 1 else ''} but the header has {h}"
+        f"{data_row}; expected {h} comma-separated fields on every line",
+    )
 
 
 def _parse_header(fields: list[str], source: str) -> dict[str, int]:
@@ -159,25 +162,36 @@ def _parse_header(fields: list[str], source: str) -> dict[str, int]:
     for i, name in enumerate(names):
         if name in known:
             if name in index:
-                raise _bad(source, f"column {name!r} appears twice in the header; expected each of "
-                           f"{_EXPECTED_HEADER} at most once")
+                raise _bad(
+                    source,
+                    f"column {name!r} appears twice in the header; expected each of {_EXPECTED_HEADER} at most once",
+                )
             index[name] = i
     missing = [c for c in _POS if c not in index]
     if missing:
         found = ",".join(s.strip() for s in fields)
         if all(_is_number(s) for s in fields):
-            raise _bad(source, f"has no header line (first line {_show(found)} is numbers); expected a "
-                       f"header line {_EXPECTED_HEADER} before the data")
+            raise _bad(
+                source,
+                f"has no header line (first line {_show(found)} is numbers); expected a "
+                f"header line {_EXPECTED_HEADER} before the data",
+            )
         hint = ""
         if len(fields) == 1 and any(sep in fields[0] for sep in ";\t|"):
             hint = " (is the file separated by ';' or tabs? expected commas)"
-        raise _bad(source, f"missing column(s) {','.join(missing)} (found {_show(found, 80)})"
-                   f"{hint}; expected a header {_EXPECTED_HEADER}")
+        raise _bad(
+            source,
+            f"missing column(s) {','.join(missing)} (found {_show(found, 80)})"
+            f"{hint}; expected a header {_EXPECTED_HEADER}",
+        )
     have_normals = [c for c in _NORMAL if c in index]
     if 0 < len(have_normals) < 3:
         lacking = [c for c in _NORMAL if c not in index]
-        raise _bad(source, f"has normal column(s) {','.join(have_normals)} but not {','.join(lacking)}; "
-                   "expected all of nx,ny,nz or none")
+        raise _bad(
+            source,
+            f"has normal column(s) {','.join(have_normals)} but not {','.join(lacking)}; "
+            "expected all of nx,ny,nz or none",
+        )
     return index
 
 
@@ -197,17 +211,15 @@ def _parse_cell(text: str, col: str, row: int, line: int, source: str) -> float:
     try:
         v = float(s)
     except ValueError:
-        raise _bad(source, f"{_where(row, line)}, column {col}: {_show(s)} is not a number; expected a "
-                   f"decimal number{unit}") from None
+        raise _bad(
+            source, f"{_where(row, line)}, column {col}: {_show(s)} is not a number; expected a decimal number{unit}"
+        ) from None
     if not math.isfinite(v):
-        raise _bad(source, f"{_where(row, line)}, column {col} is {s} (not finite); expected a finite "
-                   f"number{unit}")
+        raise _bad(source, f"{_where(row, line)}, column {col} is {s} (not finite); expected a finite number{unit}")
     return v
 
 
-def load_contact_points(
-    path: str | os.PathLike[str], *, min_points: int = N_ELLIPSOID_PARAMS
-) -> ContactPoints:
+def load_contact_points(path: str | os.PathLike[str], *, min_points: int = N_ELLIPSOID_PARAMS) -> ContactPoints:
     """Read contact points from a CSV file with a header line.
 
     Parameters
@@ -248,8 +260,7 @@ def load_contact_points(
     with contextlib.closing(_read_records(path, source)) as records:
         first = next(records, None)
         if first is None:
-            raise _bad(source, f"is empty (no header line); expected a CSV file with header "
-                       f"{_EXPECTED_HEADER}")
+            raise _bad(source, f"is empty (no header line); expected a CSV file with header {_EXPECTED_HEADER}")
         _, header = first
         index = _parse_header(header, source)
         columns = [c for c in (*_POS, *_NORMAL, _FORCE) if c in index]
@@ -267,8 +278,11 @@ def load_contact_points(
     if n < max(min_points, 1):
         need = max(min_points, 1)
         why = f" (the {need} parameters of the n-ellipsoid)" if need == N_ELLIPSOID_PARAMS else ""
-        raise _bad(source, f"has {n} point(s); need at least {need} point{'s' if need != 1 else ''}{why}; "
-                   f"expected one contact per line after the header {_EXPECTED_HEADER}")
+        raise _bad(
+            source,
+            f"has {n} point(s); need at least {need} point{'s' if need != 1 else ''}{why}; "
+            f"expected one contact per line after the header {_EXPECTED_HEADER}",
+        )
 
     table = np.asarray(values, dtype=np.float64).reshape(n, len(columns))
     col = {c: j for j, c in enumerate(columns)}
@@ -277,13 +291,17 @@ def load_contact_points(
     max_abs = float(np.max(np.abs(points)))
     diagonal = float(np.linalg.norm(np.ptp(points, axis=0)))
     if max_abs > MM_MAX_ABS_M or diagonal > MM_MAX_DIAGONAL_M:
-        raise _bad(source, f"x,y,z look like millimetres (largest |value| {_num(max_abs)}, bounding-box "
-                   f"diagonal {_num(diagonal)}); give metres (e.g. divide by 1000), within "
-                   f"±{MM_MAX_ABS_M} m and a bounding-box diagonal ≤ {MM_MAX_DIAGONAL_M} m")
+        raise _bad(
+            source,
+            f"x,y,z look like millimetres (largest |value| {_num(max_abs)}, bounding-box "
+            f"diagonal {_num(diagonal)}); give metres (e.g. divide by 1000), within "
+            f"±{MM_MAX_ABS_M} m and a bounding-box diagonal ≤ {MM_MAX_DIAGONAL_M} m",
+        )
     if diagonal == 0.0:
         at = ", ".join(_num(v) for v in points[0])
-        raise _bad(source, f"all {n} points are identical ({at}); expected contact points spread over the "
-                   "object's surface")
+        raise _bad(
+            source, f"all {n} points are identical ({at}); expected contact points spread over the object's surface"
+        )
 
     normals = None
     if "nx" in col:
@@ -292,8 +310,11 @@ def load_contact_points(
         short = np.flatnonzero(~(length >= MIN_NORMAL_LENGTH))
         if short.size:
             i = int(short[0])
-            raise _bad(source, f"{_where(i + 1, lines[i])}, columns nx,ny,nz: normal has zero length "
-                       f"({_num(length[i])}; {short.size} row(s) in all); expected a non-zero normal vector")
+            raise _bad(
+                source,
+                f"{_where(i + 1, lines[i])}, columns nx,ny,nz: normal has zero length "
+                f"({_num(length[i])}; {short.size} row(s) in all); expected a non-zero normal vector",
+            )
         # normals already of unit length to within a few ulp are kept bit for bit, so that saving and
         # reloading a loaded file gives identical arrays
         unit = np.abs(length - 1.0) <= 4 * np.finfo(np.float64).eps
@@ -305,8 +326,11 @@ def load_contact_points(
         negative = np.flatnonzero(force < 0)
         if negative.size:
             i = int(negative[0])
-            raise _bad(source, f"{_where(i + 1, lines[i])}, column force is {_num(force[i])} N, negative "
-                       f"({negative.size} row(s) in all); expected force ≥ 0 newtons")
+            raise _bad(
+                source,
+                f"{_where(i + 1, lines[i])}, column force is {_num(force[i])} N, negative "
+                f"({negative.size} row(s) in all); expected force ≥ 0 newtons",
+            )
 
     return ContactPoints(points=points, normals=normals, force=force, source=source)
 
@@ -392,8 +416,10 @@ def _cell(value: Any, column: str) -> str:
         return value
     if isinstance(value, os.PathLike):
         return os.fspath(value)
-    raise TypeError(f"column {column!r}: cannot write a {type(value).__name__} to a CSV cell; expected a "
-                    "number, string, bool or None")
+    raise TypeError(
+        f"column {column!r}: cannot write a {type(value).__name__} to a CSV cell; expected a "
+        "number, string, bool or None"
+    )
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -467,16 +493,18 @@ def save_contact_points(
         nrm = _as_array(normals, "normals", (n, 3), f"an ({n}, 3) array like points")
         short = np.flatnonzero(~(np.linalg.norm(nrm, axis=1) >= MIN_NORMAL_LENGTH))
         if short.size:
-            raise BadInput(f"normals must have non-zero length, row {int(short[0]) + 1} (1-based) is "
-                           f"{nrm[short[0]].tolist()}")
+            raise BadInput(
+                f"normals must have non-zero length, row {int(short[0]) + 1} (1-based) is {nrm[short[0]].tolist()}"
+            )
         columns += _NORMAL
         parts.append(nrm)
     if force is not None:
         f = _as_array(force, "force", (n,), f"an ({n},) array (newtons)")
         negative = np.flatnonzero(f < 0)
         if negative.size:
-            raise BadInput(f"force must be ≥ 0 newtons, row {int(negative[0]) + 1} (1-based) is "
-                           f"{float(f[negative[0]])}")
+            raise BadInput(
+                f"force must be ≥ 0 newtons, row {int(negative[0]) + 1} (1-based) is {float(f[negative[0]])}"
+            )
         columns.append(_FORCE)
         parts.append(f[:, None])
     table = np.hstack(parts) if n else np.empty((0, len(columns)))
@@ -592,8 +620,10 @@ def _jsonable(obj: Any) -> Any:
         return os.fspath(obj)
     if isinstance(obj, complex):
         raise TypeError(f"cannot write a complex number {obj!r} to JSON")
-    raise TypeError(f"cannot write a {type(obj).__name__} to JSON; expected numbers, strings, bools, None, "
-                    "lists, dicts or NumPy arrays")
+    raise TypeError(
+        f"cannot write a {type(obj).__name__} to JSON; expected numbers, strings, bools, None, "
+        "lists, dicts or NumPy arrays"
+    )
 
 
 def _json_key(key: Any) -> Any:

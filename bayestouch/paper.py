@@ -89,9 +89,19 @@ class DEFit(NamedTuple):
     seconds: float
 
 
-def fit_nellipsoid_de(points, seed=0, *, p: float = 1.0, q: float = 2.0, popsize: int = 20,
-                      maxiter: int = 400, tol: float = 1e-8, n_bounds=(1.2, 16.0), centre_pad: float | None = None,
-                      axis_max: float | None = None) -> DEFit:
+def fit_nellipsoid_de(
+    points,
+    seed=0,
+    *,
+    p: float = 1.0,
+    q: float = 2.0,
+    popsize: int = 20,
+    maxiter: int = 400,
+    tol: float = 1e-8,
+    n_bounds=(1.2, 16.0),
+    centre_pad: float | None = None,
+    axis_max: float | None = None,
+) -> DEFit:
     """Fit the n-ellipsoid to points by differential evolution, then polish with L-BFGS-B on exact
     JAX gradients.
 
@@ -133,11 +143,24 @@ def fit_nellipsoid_de(points, seed=0, *, p: float = 1.0, q: float = 2.0, popsize
 
     def f(x):
         x = np.asarray(x)
-        return np.asarray(_cost_batch(jnp.asarray(np.atleast_2d(x.T)), pts)) if x.ndim == 2 else \
-            float(_cost_batch(jnp.asarray(x[None]), pts)[0])
+        return (
+            np.asarray(_cost_batch(jnp.asarray(np.atleast_2d(x.T)), pts))
+            if x.ndim == 2
+            else float(_cost_batch(jnp.asarray(x[None]), pts)[0])
+        )
 
-    res = differential_evolution(f, bounds, seed=rng, popsize=popsize, maxiter=maxiter, tol=tol,
-                                 polish=False, vectorized=True, updating="deferred", init="sobol")
+    res = differential_evolution(
+        f,
+        bounds,
+        seed=rng,
+        popsize=popsize,
+        maxiter=maxiter,
+        tol=tol,
+        polish=False,
+        vectorized=True,
+        updating="deferred",
+        init="sobol",
+    )
 
     def fg(x):
         v, g = _cost_grad(jnp.asarray(x), pts)
@@ -146,8 +169,7 @@ def fit_nellipsoid_de(points, seed=0, *, p: float = 1.0, q: float = 2.0, popsize
     pol = minimize(fg, res.x, jac=True, method="L-BFGS-B", bounds=bounds, options={"maxiter": 2000})
     x = pol.x if pol.fun <= res.fun else res.x
     d = np.concatenate([x, [p, q]])
-    return DEFit(ne.from_vector(x), d, int(res.nit), float(np.sqrt(min(pol.fun, res.fun))),
-                 time.perf_counter() - t0)
+    return DEFit(ne.from_vector(x), d, int(res.nit), float(np.sqrt(min(pol.fun, res.fun))), time.perf_counter() - t0)
 
 
 def _signed_mesh_distance(vertices, faces, points) -> np.ndarray:
@@ -160,8 +182,17 @@ def _signed_mesh_distance(vertices, faces, points) -> np.ndarray:
     return d * np.where(sign == 0, 1.0, sign)
 
 
-def refine_ffd(shape: ne.NEllipsoid, data, dims, *, res: int = 40, margin: float = 0.15, ridge: float = 1e-4,
-               max_iter: int = 200, tol: float = 1e-3):
+def refine_ffd(
+    shape: ne.NEllipsoid,
+    data,
+    dims,
+    *,
+    res: int = 40,
+    margin: float = 0.15,
+    ridge: float = 1e-4,
+    max_iter: int = 200,
+    tol: float = 1e-3,
+):
     """FFD refinement of a fitted n-ellipsoid (eq. 8–10), in its principal frame.
 
     The lattice box is aligned with the n-ellipsoid's principal axes and covers it and the data with a
@@ -189,8 +220,19 @@ def plate_data(obj: SceneObject, n_paths: int = 25, seed=0, rate: float = 20.0) 
     return np.concatenate([p.points for p in paths])
 
 
-def table2_row(obj: SceneObject, data, truth, size: str, epsilon: float, seed=0, *, de: DEFit | None = None,
-               res: int = 40, p: float = 1.0, q: float = 2.0) -> dict:
+def table2_row(
+    obj: SceneObject,
+    data,
+    truth,
+    size: str,
+    epsilon: float,
+    seed=0,
+    *,
+    de: DEFit | None = None,
+    res: int = 40,
+    p: float = 1.0,
+    q: float = 2.0,
+) -> dict:
     """One Table 2 row: fit (or reuse ``de``), refine with an FFD lattice of ``size`` (e.g. "6x6x3").
 
     Parameters
@@ -235,17 +277,32 @@ def table2_row(obj: SceneObject, data, truth, size: str, epsilon: float, seed=0,
         "seconds": time.perf_counter() - t0,
     }
     if paper is not None:
-        row.update({
-            "paper_iterations": paper[0], "paper_bp_minus_x_percent": paper[1],
-            "paper_j_ratio": paper[2] * 1e-7, "paper_eps_v": paper[3] * 1e-7,
-            "paper_eps_a": paper[4] * 1e-6, "paper_eps_i": paper[5] * 1e-5,
-        })
+        row.update(
+            {
+                "paper_iterations": paper[0],
+                "paper_bp_minus_x_percent": paper[1],
+                "paper_j_ratio": paper[2] * 1e-7,
+                "paper_eps_v": paper[3] * 1e-7,
+                "paper_eps_a": paper[4] * 1e-6,
+                "paper_eps_i": paper[5] * 1e-5,
+            }
+        )
     return row
 
 
-def reproduce_table2(obj: SceneObject, *, sizes=TABLE2_SIZES, epsilons=(0.0, 1e-3), seed: int = 0,
-                     n_paths: int = 25, rate: float = 20.0, res: int = 40, truth_res: int = 96,
-                     control: bool = True, progress: bool = False) -> list[dict]:
+def reproduce_table2(
+    obj: SceneObject,
+    *,
+    sizes=TABLE2_SIZES,
+    epsilons=(0.0, 1e-3),
+    seed: int = 0,
+    n_paths: int = 25,
+    rate: float = 20.0,
+    res: int = 40,
+    truth_res: int = 96,
+    control: bool = True,
+    progress: bool = False,
+) -> list[dict]:
     """All Table 2 rows for ``obj`` (the damaged graphite plate in the paper).
 
     One data set of ``n_paths`` paths is probed; for ε > 0 it is perturbed once (seeded) and the
@@ -308,9 +365,18 @@ def depth_for_load(surf, finger, contact, normal, tangent, load: float, *, max_d
     return d
 
 
-def reproduce_table1(obj: SceneObject, vf, *, seed: int = 0, n_paths: int = 25, rate: float = 20.0,
-                     paths=tuple(PAPER_TABLE1), loads=(0.04, 0.06, 0.07, 0.09), threshold: float = 100.0,
-                     progress: bool = False) -> list[dict]:
+def reproduce_table1(
+    obj: SceneObject,
+    vf,
+    *,
+    seed: int = 0,
+    n_paths: int = 25,
+    rate: float = 20.0,
+    paths=tuple(PAPER_TABLE1),
+    loads=(0.04, 0.06, 0.07, 0.09),
+    threshold: float = 100.0,
+    progress: bool = False,
+) -> list[dict]:
     """Table 1: the contact patch (eq. 16) of the virtual finger on the paper's paths and loads.
 
     The paths are those of :func:`plate_data` (same seed, numbered from 1); on each, the pad touches at
@@ -363,13 +429,22 @@ def reproduce_table1(obj: SceneObject, vf, *, seed: int = 0, n_paths: int = 25, 
                 p = griddata(pos, p.ravel(), (X, Y), method="linear", fill_value=0.0)
             patch = fit_patch(p, xs, ys, threshold)
             pa = paper.get(load)
-            rows.append({
-                "path": k, "load_N": load, "a_mm": 1e3 * patch.a, "b_mm": 1e3 * patch.b, "n": patch.n,
-                "area_mm2": 1e6 * patch.area, "depth_mm": 1e3 * d, "angle_rad": patch.angle,
-                "peak_pressure_Pa": float(p.max()),
-                "paper_a_mm": pa[0] if pa else None, "paper_b_mm": pa[1] if pa else None,
-                "paper_n": pa[2] if pa else None,
-            })
+            rows.append(
+                {
+                    "path": k,
+                    "load_N": load,
+                    "a_mm": 1e3 * patch.a,
+                    "b_mm": 1e3 * patch.b,
+                    "n": patch.n,
+                    "area_mm2": 1e6 * patch.area,
+                    "depth_mm": 1e3 * d,
+                    "angle_rad": patch.angle,
+                    "peak_pressure_Pa": float(p.max()),
+                    "paper_a_mm": pa[0] if pa else None,
+                    "paper_b_mm": pa[1] if pa else None,
+                    "paper_n": pa[2] if pa else None,
+                }
+            )
             bar.update()
     bar.close()
     return rows

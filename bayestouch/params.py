@@ -75,23 +75,23 @@ def read_section(doc: dict, section: str, specs: dict[str, Spec], where: str = "
         raise BadInput(f"{where}: missing table [{section}] (expected the constants {', '.join(specs)})")
     unknown = sorted(set(tab) - set(specs))
     if unknown:
-        raise BadInput(f"{where} [{section}]: unknown constant(s) {', '.join(unknown)}; "
-                       f"expected {', '.join(specs)}")
+        raise BadInput(f"{where} [{section}]: unknown constant(s) {', '.join(unknown)}; expected {', '.join(specs)}")
     out = {}
     for name, spec in specs.items():
         field = f"{where} [{section}] {name}"
         entry = tab.get(name)
         if entry is None:
-            raise BadInput(f"{field}: missing; expected {{ value = …, unit = \"{spec.unit}\", source = \"…\" }}")
+            raise BadInput(f'{field}: missing; expected {{ value = …, unit = "{spec.unit}", source = "…" }}')
         if not isinstance(entry, dict):
-            raise BadInput(f"{field}: expected an inline table {{ value = …, unit = \"{spec.unit}\", "
-                           f"source = \"…\" }}, got {entry!r}")
+            raise BadInput(
+                f'{field}: expected an inline table {{ value = …, unit = "{spec.unit}", source = "…" }}, got {entry!r}'
+            )
         v = entry.get("value")
         if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
             raise BadInput(f"{field}: value must be a finite number, got {v!r}")
         unit = entry.get("unit")
         if unit != spec.unit:
-            raise BadInput(f"{field}: unit must be \"{spec.unit}\" (SI), got {unit!r}")
+            raise BadInput(f'{field}: unit must be "{spec.unit}" (SI), got {unit!r}')
         if not isinstance(entry.get("source"), str) or not entry["source"].strip():
             raise BadInput(f"{field}: needs a source (paper, datasheet or 'assumption: …')")
         if not spec.lo <= v <= spec.hi:

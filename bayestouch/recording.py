@@ -20,11 +20,25 @@ import numpy as np
 __all__ = ["UNITS", "build_dataset", "write_recording", "read_recording"]
 
 UNITS = {
-    "time": "s", "stroke_index": "1", "taxel_current": "A", "taxel_current_clean": "A", "pressure": "Pa",
-    "contact_force": "N", "friction_force": "N", "pressing_depth": "m",
-    "contact_point": "m", "contact_normal": "1", "wire_current": "A",
-    "wire_temperature": "K", "skin_temperature": "K", "finger_tip_position": "m", "finger_curvature": "1/m",
-    "taxel_u": "m", "taxel_v": "m", "taxel_reference": "1", "stroke_depth": "m",
+    "time": "s",
+    "stroke_index": "1",
+    "taxel_current": "A",
+    "taxel_current_clean": "A",
+    "pressure": "Pa",
+    "contact_force": "N",
+    "friction_force": "N",
+    "pressing_depth": "m",
+    "contact_point": "m",
+    "contact_normal": "1",
+    "wire_current": "A",
+    "wire_temperature": "K",
+    "skin_temperature": "K",
+    "finger_tip_position": "m",
+    "finger_curvature": "1/m",
+    "taxel_u": "m",
+    "taxel_v": "m",
+    "taxel_reference": "1",
+    "stroke_depth": "m",
 }
 
 DESCRIPTIONS = {
@@ -51,22 +65,33 @@ def build_dataset(frames: dict[str, np.ndarray], taxel_u, taxel_v, reference, de
     import xarray as xr
 
     dims = {
-        "time": ("frame",), "stroke_index": ("frame",), "taxel_current": ("frame", "taxel"),
-        "taxel_current_clean": ("frame", "taxel"), "pressure": ("frame", "taxel"), "contact_force": ("frame",),
-        "friction_force": ("frame",), "pressing_depth": ("frame",),
-        "contact_point": ("frame", "xyz"), "contact_normal": ("frame", "xyz"), "wire_current": ("frame", "wire"),
-        "wire_temperature": ("frame", "wire"), "skin_temperature": ("frame",),
-        "finger_tip_position": ("frame", "xyz"), "finger_curvature": ("frame", "uv"),
+        "time": ("frame",),
+        "stroke_index": ("frame",),
+        "taxel_current": ("frame", "taxel"),
+        "taxel_current_clean": ("frame", "taxel"),
+        "pressure": ("frame", "taxel"),
+        "contact_force": ("frame",),
+        "friction_force": ("frame",),
+        "pressing_depth": ("frame",),
+        "contact_point": ("frame", "xyz"),
+        "contact_normal": ("frame", "xyz"),
+        "wire_current": ("frame", "wire"),
+        "wire_temperature": ("frame", "wire"),
+        "skin_temperature": ("frame",),
+        "finger_tip_position": ("frame", "xyz"),
+        "finger_curvature": ("frame", "uv"),
     }
     data = {}
     for k, v in frames.items():
         data[k] = xr.Variable(dims[k], np.asarray(v), {"units": UNITS[k], "long_name": DESCRIPTIONS.get(k, k)})
     data["taxel_u"] = xr.Variable(("taxel",), np.asarray(taxel_u), {"units": "m"})
     data["taxel_v"] = xr.Variable(("taxel",), np.asarray(taxel_v), {"units": "m"})
-    data["taxel_reference"] = xr.Variable(("taxel",), np.asarray(reference, dtype=np.int8),
-                                          {"units": "1", "long_name": DESCRIPTIONS["taxel_reference"]})
-    data["stroke_depth"] = xr.Variable(("stroke",), np.asarray(depths, float),
-                                       {"units": "m", "long_name": DESCRIPTIONS["stroke_depth"]})
+    data["taxel_reference"] = xr.Variable(
+        ("taxel",), np.asarray(reference, dtype=np.int8), {"units": "1", "long_name": DESCRIPTIONS["taxel_reference"]}
+    )
+    data["stroke_depth"] = xr.Variable(
+        ("stroke",), np.asarray(depths, float), {"units": "m", "long_name": DESCRIPTIONS["stroke_depth"]}
+    )
     coords = {"xyz": ["x", "y", "z"], "wire": [1, 2, 3], "uv": ["u_x", "u_y"]}
     return xr.Dataset(data, coords=coords, attrs={k: str(v) for k, v in attrs.items()})
 

@@ -6,8 +6,15 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["plot_table2", "plot_shape", "plot_errors", "plot_taxel_frames", "plot_patch_posterior", "plot_trace",
-           "plot_pair"]
+__all__ = [
+    "plot_table2",
+    "plot_shape",
+    "plot_errors",
+    "plot_taxel_frames",
+    "plot_patch_posterior",
+    "plot_trace",
+    "plot_pair",
+]
 
 
 def _pyplot():
@@ -44,8 +51,13 @@ def plot_table2(rows: list[dict], out) -> Path:
         ax.bar(x - 0.27, [r["bp_minus_x_percent"] for r in sub], 0.27, label="ours", color="C0")
         ax.bar(x, [r.get("paper_bp_minus_x_percent", np.nan) for r in sub], 0.27, label="paper", color="C1")
         if any("defect_free_bp_minus_x_percent" in r for r in sub):
-            ax.bar(x + 0.27, [r.get("defect_free_bp_minus_x_percent", np.nan) for r in sub], 0.27,
-                   label="ours, plate without defects", color="C2")
+            ax.bar(
+                x + 0.27,
+                [r.get("defect_free_bp_minus_x_percent", np.nan) for r in sub],
+                0.27,
+                label="ours, plate without defects",
+                color="C2",
+            )
         ax.set_yscale("log")
         ax.set_xticks(x, sizes)
         ax.set_ylabel("‖BP − X‖ (%)")
@@ -54,8 +66,14 @@ def plot_table2(rows: list[dict], out) -> Path:
         ax = axes[i, 1]
         for k, (key, label) in enumerate([("eps_v", "ε_V"), ("eps_a", "ε_A"), ("eps_i", "ε_I")]):
             ax.plot(x, [abs(r[key]) for r in sub], "o-", color=f"C{k}", label=f"{label} ours")
-            ax.plot(x, [abs(r.get(f"paper_{key}", np.nan)) for r in sub], "s--", color=f"C{k}", alpha=0.6,
-                    label=f"{label} paper")
+            ax.plot(
+                x,
+                [abs(r.get(f"paper_{key}", np.nan)) for r in sub],
+                "s--",
+                color=f"C{k}",
+                alpha=0.6,
+                label=f"{label} paper",
+            )
         ax.set_yscale("log")
         ax.set_xticks(x, sizes)
         ax.set_ylabel("|relative error|")
@@ -124,8 +142,13 @@ def plot_shape(out, truth, mean_mesh, spread, points, draws, *, name: str = "sha
     ax.set_ylabel("y (mm)")
     ax.set_zlabel("z (mm)")
     ax.set_box_aspect((1, 1, 1))
-    fig.colorbar(mpl.cm.ScalarMappable(norm=norm, cmap=cmap), ax=ax, shrink=0.6, location="left",
-                 label="posterior spread of the surface (mm)")
+    fig.colorbar(
+        mpl.cm.ScalarMappable(norm=norm, cmap=cmap),
+        ax=ax,
+        shrink=0.6,
+        location="left",
+        label="posterior spread of the surface (mm)",
+    )
     centre = mv.mean(axis=0)
     half = 1.25 * np.abs(mv - centre).max()
     g = np.linspace(-half, half, 161)
@@ -138,19 +161,35 @@ def plot_shape(out, truth, mean_mesh, spread, points, draws, *, name: str = "sha
 
         X, Y = 1e3 * (centre[i] + A), 1e3 * (centre[j] + B)
         for d in draws:
-            axk.contour(X, Y, ne.evaluate(ne.inside_outside, d, pts).reshape(A.shape), levels=[1.0], colors="C0",
-                        linewidths=0.4, alpha=0.35)
+            axk.contour(
+                X,
+                Y,
+                ne.evaluate(ne.inside_outside, d, pts).reshape(A.shape),
+                levels=[1.0],
+                colors="C0",
+                linewidths=0.4,
+                alpha=0.35,
+            )
         if truth is not None:
-            axk.contour(X, Y, ne.evaluate(ne.inside_outside, truth, pts).reshape(A.shape), levels=[1.0], colors="k",
-                        linewidths=1.2, linestyles="--")
+            axk.contour(
+                X,
+                Y,
+                ne.evaluate(ne.inside_outside, truth, pts).reshape(A.shape),
+                levels=[1.0],
+                colors="k",
+                linewidths=1.2,
+                linestyles="--",
+            )
         near = np.abs(points[:, 3 - i - j] - centre[3 - i - j]) < 0.15 * half
         axk.plot(1e3 * points[near, i], 1e3 * points[near, j], ".", color="crimson", ms=3)
         axk.set_aspect("equal")
         axk.set_xlabel(f"{'xyz'[i]} (mm)")
         axk.set_ylabel(f"{'xyz'[j]} (mm)")
         axk.set_title(f"{label} section through the centre", fontsize=9)
-    handles = [mpl.lines.Line2D([], [], color="C0", lw=0.8, label="posterior draws"),
-               mpl.lines.Line2D([], [], color="crimson", marker=".", ls="", label="contacts near the plane")]
+    handles = [
+        mpl.lines.Line2D([], [], color="C0", lw=0.8, label="posterior draws"),
+        mpl.lines.Line2D([], [], color="crimson", marker=".", ls="", label="contacts near the plane"),
+    ]
     if truth is not None:
         handles.insert(0, mpl.lines.Line2D([], [], color="k", ls="--", label="true object"))
     fig.legend(handles=handles, loc="lower right", fontsize=8, ncol=3)
@@ -256,8 +295,11 @@ def plot_patch_posterior(out, post, *, draws: int = 40, name: str = "contact_pat
     ax.set_xlabel("u (mm)")
     ax.set_ylabel("v (mm)")
     ax.set_title(f"patch outlines, {len(idx)} draws")
-    for ax, key, scale, label in [(axes[1], "a", 1e3, "a (mm)"), (axes[2], "b", 1e3, "b (mm)"),
-                                  (axes[3], "n", 1.0, "n")]:
+    for ax, key, scale, label in [
+        (axes[1], "a", 1e3, "a (mm)"),
+        (axes[2], "b", 1e3, "b (mm)"),
+        (axes[3], "n", 1.0, "n"),
+    ]:
         ax.hist(scale * np.asarray(d[key]), bins=40, color="C0", alpha=0.8)
         q = post.summary["parameters"][key]
         for k in ("q05", "q95"):
@@ -276,8 +318,14 @@ def plot_trace(out, idata, var_names, *, max_chains: int = 32, name: str = "trac
     plt = _pyplot()
     post = idata.posterior
     rhat = az.rhat(post[list(var_names)])
-    fig, axes = plt.subplots(len(var_names), 2, figsize=(11, 1.7 * len(var_names)), squeeze=False,
-                             gridspec_kw={"width_ratios": [1, 3]}, constrained_layout=True)
+    fig, axes = plt.subplots(
+        len(var_names),
+        2,
+        figsize=(11, 1.7 * len(var_names)),
+        squeeze=False,
+        gridspec_kw={"width_ratios": [1, 3]},
+        constrained_layout=True,
+    )
     for k, v in enumerate(var_names):
         x = np.asarray(post[v].values)  # (chain, draw)
         axes[k, 0].hist(x.ravel(), bins=50, color="C0", alpha=0.8)

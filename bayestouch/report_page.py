@@ -109,17 +109,21 @@ def write_report(out, *, title: str, intro: str, sections: list, files: list | N
                 if not (out / it.file).is_file():
                     raise FileNotFoundError(f"report: figure {it.file} is not in {out}")
                 src = html.escape(it.file, quote=True)
-                parts.append(f'<figure><img src="{src}" alt="{html.escape(it.caption, quote=True)}">'
-                             f"<figcaption>{html.escape(it.caption)}</figcaption></figure>")
+                parts.append(
+                    f'<figure><img src="{src}" alt="{html.escape(it.caption, quote=True)}">'
+                    f"<figcaption>{html.escape(it.caption)}</figcaption></figure>"
+                )
             else:
                 parts.append(str(it))
     if files:
-        links = "".join(f'<li><a href="{html.escape(f, quote=True)}">{html.escape(f)}</a></li>'
-                        for f in files if (out / f).exists())
+        links = "".join(
+            f'<li><a href="{html.escape(f, quote=True)}">{html.escape(f)}</a></li>' for f in files if (out / f).exists()
+        )
         parts.append(f"<h2>Files</h2><ul>{links}</ul>")
-    page = (f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title>'
-            f"<style>{_STYLE}</style><script>{_SCRIPT}</script></head>\n<body>\n" + "\n".join(parts)
-            + "\n</body></html>\n")
+    page = (
+        f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title>'
+        f"<style>{_STYLE}</style><script>{_SCRIPT}</script></head>\n<body>\n" + "\n".join(parts) + "\n</body></html>\n"
+    )
     path = out / "report.html"
     path.write_text(page, encoding="utf-8")
     return path
@@ -162,10 +166,22 @@ def check_in_browser(page, *, browser: str | None = None, timeout_s: float = 60.
     if browser is None:
         raise FileNotFoundError("no headless browser: install Debian's chromium (apt-get install chromium)")
     with tempfile.TemporaryDirectory(dir="/tmp" if os.path.isdir("/tmp") else None) as profile:
-        cmd = [browser, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-               "--disable-background-networking", "--disable-component-update", "--disable-sync",
-               "--allow-file-access-from-files", f"--user-data-dir={profile}", "--virtual-time-budget=5000",
-               "--dump-dom", page.as_uri()]
+        cmd = [
+            browser,
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-quic",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            "--allow-file-access-from-files",
+            f"--user-data-dir={profile}",
+            "--virtual-time-budget=5000",
+            "--dump-dom",
+            page.as_uri(),
+        ]
         # a short TMPDIR: Chromium's singleton socket path must fit in 108 bytes
         env = {**os.environ, "TMPDIR": "/tmp"} if os.path.isdir("/tmp") else None
         proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s, check=False, env=env)
@@ -177,5 +193,9 @@ def check_in_browser(page, *, browser: str | None = None, timeout_s: float = 60.
     if "data-images-total" not in attrs:
         raise RuntimeError(f"{page.name}: the page's load handler did not run (no data-images-total on <body>)")
     title = re.search(r"<title>(.*?)</title>", dom, re.S)
-    return BrowserCheck(int(attrs["data-images-ok"]), int(attrs["data-images-total"]),
-                        attrs.get("data-images-broken", "").split(), html.unescape(title.group(1)) if title else "")
+    return BrowserCheck(
+        int(attrs["data-images-ok"]),
+        int(attrs["data-images-total"]),
+        attrs.get("data-images-broken", "").split(),
+        html.unescape(title.group(1)) if title else "",
+    )

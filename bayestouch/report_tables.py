@@ -11,10 +11,30 @@ from bayestouch.io import write_text
 __all__ = ["write_table2", "write_table1", "TABLE2_COLUMNS", "TABLE1_COLUMNS"]
 
 #: the contract's columns first, then ours
-TABLE2_COLUMNS = ["epsilon", "ffd_size", "iterations", "bp_minus_x_percent", "j_ratio", "eps_v", "eps_a", "eps_i",
-                  "converged", "de_generations", "de_rms_m", "n_points", "seconds", "object",
-                  "paper_iterations", "paper_bp_minus_x_percent", "paper_j_ratio", "paper_eps_v", "paper_eps_a",
-                  "paper_eps_i", "defect_free_bp_minus_x_percent", "defect_free_eps_v"]
+TABLE2_COLUMNS = [
+    "epsilon",
+    "ffd_size",
+    "iterations",
+    "bp_minus_x_percent",
+    "j_ratio",
+    "eps_v",
+    "eps_a",
+    "eps_i",
+    "converged",
+    "de_generations",
+    "de_rms_m",
+    "n_points",
+    "seconds",
+    "object",
+    "paper_iterations",
+    "paper_bp_minus_x_percent",
+    "paper_j_ratio",
+    "paper_eps_v",
+    "paper_eps_a",
+    "paper_eps_i",
+    "defect_free_bp_minus_x_percent",
+    "defect_free_eps_v",
+]
 
 
 def _fmt(x, digits=3) -> str:
@@ -50,14 +70,17 @@ def write_table2(rows: list[dict], out: Path) -> str:
         head,
         rule,
     ]
+
     def pair(r, key, digits=3):
         ours = _fmt(r.get(key), digits)
         paper = r.get(f"paper_{key}")
         return f"{ours} [{_fmt(paper, digits)}]" if paper is not None else ours
 
     for r in rows:
-        line = (f"| {r['epsilon']:g} | {r['ffd_size']} | {pair(r, 'iterations')} | {pair(r, 'bp_minus_x_percent')} | "
-                f"{pair(r, 'j_ratio')} | {pair(r, 'eps_v')} | {pair(r, 'eps_a')} | {pair(r, 'eps_i')} |")
+        line = (
+            f"| {r['epsilon']:g} | {r['ffd_size']} | {pair(r, 'iterations')} | {pair(r, 'bp_minus_x_percent')} | "
+            f"{pair(r, 'j_ratio')} | {pair(r, 'eps_v')} | {pair(r, 'eps_a')} | {pair(r, 'eps_i')} |"
+        )
         if control:
             line += f" {_fmt(r.get('defect_free_bp_minus_x_percent'))} |"
         lines.append(line)
@@ -73,14 +96,27 @@ def write_table2(rows: list[dict], out: Path) -> str:
         lines.append(
             "The last column repeats the run on the same object without its defects: the difference is the part "
             "of ‖BP − X‖ that comes from cracks and shallows narrower than the lattice spacing, which no lattice "
-            "of these sizes can follow.")
+            "of these sizes can follow."
+        )
     md = "\n".join(lines) + "\n"
     write_text(out / "table2.md", md)
     return md
 
 
-TABLE1_COLUMNS = ["path", "load_N", "a_mm", "b_mm", "n", "area_mm2", "depth_mm", "angle_rad", "peak_pressure_Pa",
-                  "paper_a_mm", "paper_b_mm", "paper_n"]
+TABLE1_COLUMNS = [
+    "path",
+    "load_N",
+    "a_mm",
+    "b_mm",
+    "n",
+    "area_mm2",
+    "depth_mm",
+    "angle_rad",
+    "peak_pressure_Pa",
+    "paper_a_mm",
+    "paper_b_mm",
+    "paper_n",
+]
 
 
 def write_table1(rows: list[dict], out: Path) -> str:
@@ -102,13 +138,16 @@ def write_table1(rows: list[dict], out: Path) -> str:
         "| path | load N | a mm | b mm | n | area mm² | depth mm |",
         "|---|---|---|---|---|---|---|",
     ]
+
     def pp(r, k, d=3):
         paper = r.get(f"paper_{k}")
         return f"{_fmt(r[k], d)} [{_fmt(paper, d)}]" if paper is not None else _fmt(r[k], d)
 
     for r in rows:
-        lines.append(f"| {r['path']} | {r['load_N']:g} | {pp(r, 'a_mm')} | {pp(r, 'b_mm')} | {pp(r, 'n')} | "
-                     f"{_fmt(r['area_mm2'])} | {_fmt(r['depth_mm'])} |")
+        lines.append(
+            f"| {r['path']} | {r['load_N']:g} | {pp(r, 'a_mm')} | {pp(r, 'b_mm')} | {pp(r, 'n')} | "
+            f"{_fmt(r['area_mm2'])} | {_fmt(r['depth_mm'])} |"
+        )
     lines += [
         "",
         "Our patches are round (n ≈ 2) and 4–5 mm in semi-axis: a hemispherical tip on a flat face gives a "

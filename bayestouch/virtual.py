@@ -36,14 +36,27 @@ def load_finger(models: Path = MODELS, seed: int = 0) -> VirtualFinger:
     rod = bending.load_rod(models / "finger.toml")
     wire = sma.load_wire(models / "finger.toml")
     sk = skin.load_skin(models / "skin.toml")
-    fg = make_finger(sk, taxel.load_taxels(models / "taxels.toml"), noise.load_noise(models / "noise.toml"),
-                     tip_radius=float(rod.radius) + float(sk.h), seed=seed)
+    fg = make_finger(
+        sk,
+        taxel.load_taxels(models / "taxels.toml"),
+        noise.load_noise(models / "noise.toml"),
+        tip_radius=float(rod.radius) + float(sk.h),
+        seed=seed,
+    )
     return VirtualFinger(fg, wire, rod, taxel.load_taxel_mode(models / "taxels.toml"))
 
 
-def record_strokes(obj, strokes, vf: VirtualFinger, seed: int, *, hold_currents=(0.15, 0.05, 0.05),
-                   mode: str | None = None, force: float | None = None,
-                   progress: bool = False) -> dict[str, np.ndarray]:
+def record_strokes(
+    obj,
+    strokes,
+    vf: VirtualFinger,
+    seed: int,
+    *,
+    hold_currents=(0.15, 0.05, 0.05),
+    mode: str | None = None,
+    force: float | None = None,
+    progress: bool = False,
+) -> dict[str, np.ndarray]:
     """Simulate ``strokes`` over ``obj`` and collect the recording arrays (frames of all strokes in order).
 
     With ``force`` (N) the strokes are force-controlled: each frame's depth is solved for that normal force
@@ -59,10 +72,26 @@ def record_strokes(obj, strokes, vf: VirtualFinger, seed: int, *, hold_currents=
         raise BadInput(f"--mode must be physics or empirical, got {mode!r}")
     surf = obj.surface()
     keys = jax.random.split(jax.random.PRNGKey(seed), len(strokes))
-    cols: dict[str, list] = {k: [] for k in (
-        "time", "stroke_index", "taxel_current", "taxel_current_clean", "pressure", "contact_force", "friction_force",
-        "contact_point", "contact_normal", "wire_current", "wire_temperature", "skin_temperature",
-        "finger_tip_position", "finger_curvature", "pressing_depth")}
+    cols: dict[str, list] = {
+        k: []
+        for k in (
+            "time",
+            "stroke_index",
+            "taxel_current",
+            "taxel_current_clean",
+            "pressure",
+            "contact_force",
+            "friction_force",
+            "contact_point",
+            "contact_normal",
+            "wire_current",
+            "wire_temperature",
+            "skin_temperature",
+            "finger_tip_position",
+            "finger_curvature",
+            "pressing_depth",
+        )
+    }
     t0 = 0.0
     for i, st in enumerate(tqdm(strokes, desc="strokes", unit="stroke", disable=not progress)):
         dt = fw.frame_rate_dt(st)
@@ -70,8 +99,7 @@ def record_strokes(obj, strokes, vf: VirtualFinger, seed: int, *, hold_currents=
         arrs = fw.stroke_arrays(st)
         if force is not None:
             arrs = (*arrs[:3], fw.depths_for_force(surf, vf.finger, arrs, force))
-        fr = fw.simulate_jit(surf, arrs, vf.finger, keys[i], skin_temperature=dr.skin_temperature,
-                             dt=dt, mode=mode)
+        fr = fw.simulate_jit(surf, arrs, vf.finger, keys[i], skin_temperature=dr.skin_temperature, dt=dt, mode=mode)
         n = len(st.time)
         cols["time"].append(t0 + st.time)
         t0 += float(st.time[-1]) + dt

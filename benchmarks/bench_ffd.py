@@ -23,14 +23,32 @@ def bench_ffd_marginal():
     f, _ = cm.make_log_prob(pts, nu=np.inf)
     f(W)
     t = best_of(lambda: f(W), repeat=5, number=5)
-    rows.append({"metric": "rigid Gaussian log-probability evaluations/s", "value": 32 / t, "unit": "1/s",
-                 "points": 1000, "batch": 32, "lattice": "none", "sampled_dimension": 11})
+    rows.append(
+        {
+            "metric": "rigid Gaussian log-probability evaluations/s",
+            "value": 32 / t,
+            "unit": "1/s",
+            "points": 1000,
+            "batch": 32,
+            "lattice": "none",
+            "sampled_dimension": 11,
+        }
+    )
     for dims in ((3, 3, 3), (4, 4, 4), (5, 5, 5)):
         g, _ = fm.make_ffd_log_prob(pts, dims)
         g(W)
         t = best_of(lambda g=g: g(W), repeat=3, number=2)
         k = int(np.prod(dims))
-        rows.append({"metric": "FFD-marginal log-probability evaluations/s", "value": 32 / t, "unit": "1/s",
-                     "points": 1000, "batch": 32, "lattice": "x".join(map(str, dims)), "sampled_dimension": 11,
-                     "dimension_if_sampled": 11 + 3 * k})
+        rows.append(
+            {
+                "metric": "FFD-marginal log-probability evaluations/s",
+                "value": 32 / t,
+                "unit": "1/s",
+                "points": 1000,
+                "batch": 32,
+                "lattice": "x".join(map(str, dims)),
+                "sampled_dimension": 11,
+                "dimension_if_sampled": 11 + 3 * k,
+            }
+        )
     return rows

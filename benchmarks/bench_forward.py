@@ -35,17 +35,31 @@ def bench_simulate_batch():
     f(batch, keys).block_until_ready()
     t = best_of(lambda: f(batch, keys).block_until_ready(), repeat=3)
     n_frames = st[0].shape[0]
-    out = [{"metric": "simulate, taxel frames/s (batch of 64 surfaces)", "value": B * n_frames / t, "unit": "1/s",
-            "taxels": 256, "frames_per_stroke": n_frames, "batch": B}]
-    g = jax.jit(jax.vmap(jax.grad(lambda s: jnp.sum(
-        fw.clean_currents(s, vf.finger, st, 300.0, 0.02, "physics")[0]) * 1e6)))
+    out = [
+        {
+            "metric": "simulate, taxel frames/s (batch of 64 surfaces)",
+            "value": B * n_frames / t,
+            "unit": "1/s",
+            "taxels": 256,
+            "frames_per_stroke": n_frames,
+            "batch": B,
+        }
+    ]
+    g = jax.jit(
+        jax.vmap(jax.grad(lambda s: jnp.sum(fw.clean_currents(s, vf.finger, st, 300.0, 0.02, "physics")[0]) * 1e6))
+    )
     g(batch).shape  # noqa: B018
     jax.block_until_ready(g(batch))
     tg = best_of(lambda: jax.block_until_ready(g(batch)), repeat=3)
-    out.append({"metric": "gradient of Σ current w.r.t. the surface, per frame", "value": tg / (B * n_frames) * 1e6,
-                "unit": "µs", "batch": B})
-    out.append({"metric": "gradient / forward cost ratio (noise-free vs noisy forward)", "value": tg / t,
-                "unit": "1"})
+    out.append(
+        {
+            "metric": "gradient of Σ current w.r.t. the surface, per frame",
+            "value": tg / (B * n_frames) * 1e6,
+            "unit": "µs",
+            "batch": B,
+        }
+    )
+    out.append({"metric": "gradient / forward cost ratio (noise-free vs noisy forward)", "value": tg / t, "unit": "1"})
     return out
 
 
@@ -58,5 +72,11 @@ def bench_standard_scenario():
     f = jax.jit(lambda s: sum(jnp.sum(fw.clean_currents(s, vf.finger, a, 300.0, 0.02, "physics")[0]) for a in arrs))
     f(surf).block_until_ready()
     t = best_of(lambda: f(surf).block_until_ready(), repeat=3)
-    return [{"metric": "standard scenario (egg, 10 strokes × 101 frames), one noise-free forward", "value": t * 1e3,
-             "unit": "ms", "frames": 10 * 101}]
+    return [
+        {
+            "metric": "standard scenario (egg, 10 strokes × 101 frames), one noise-free forward",
+            "value": t * 1e3,
+            "unit": "ms",
+            "frames": 10 * 101,
+        }
+    ]

@@ -10,12 +10,14 @@ from benchmarks.harness import best_of
 
 
 def _params(batch: int, rng) -> jnp.ndarray:
-    v = np.column_stack([
-        rng.normal(0, 0.005, (batch, 3)),
-        rng.uniform(0.01, 0.04, (batch, 3)),
-        rng.uniform(-np.pi, np.pi, (batch, 3)),
-        rng.uniform(1.5, 8.0, batch),
-    ])
+    v = np.column_stack(
+        [
+            rng.normal(0, 0.005, (batch, 3)),
+            rng.uniform(0.01, 0.04, (batch, 3)),
+            rng.uniform(-np.pi, np.pi, (batch, 3)),
+            rng.uniform(1.5, 8.0, batch),
+        ]
+    )
     return jnp.asarray(v)
 
 
@@ -27,16 +29,25 @@ def bench_inside_outside():
     f = jax.jit(jax.vmap(lambda v: ne.inside_outside(ne.from_vector(v), pts)))
     f(V).block_until_ready()
     t = best_of(lambda: f(V).block_until_ready(), repeat=20, number=20)
-    out = [{"metric": "inside_outside evaluations/s", "value": 64 * 1000 / t, "unit": "1/s",
-            "points": 1000, "batch": 64}]
+    out = [
+        {"metric": "inside_outside evaluations/s", "value": 64 * 1000 / t, "unit": "1/s", "points": 1000, "batch": 64}
+    ]
     g = jax.jit(jax.vmap(lambda v: ne.radial_distance(ne.from_vector(v), pts)))
     g(V).block_until_ready()
     t = best_of(lambda: g(V).block_until_ready(), repeat=20, number=20)
-    out.append({"metric": "radial_distance evaluations/s", "value": 64 * 1000 / t, "unit": "1/s",
-                "points": 1000, "batch": 64})
+    out.append(
+        {"metric": "radial_distance evaluations/s", "value": 64 * 1000 / t, "unit": "1/s", "points": 1000, "batch": 64}
+    )
     h = jax.jit(jax.vmap(jax.grad(lambda v: jnp.sum(ne.radial_distance(ne.from_vector(v), pts) ** 2))))
     h(V).block_until_ready()
     t = best_of(lambda: h(V).block_until_ready(), repeat=20, number=10)
-    out.append({"metric": "gradient of Σ radial² per parameter set", "value": t / 64 * 1e6, "unit": "µs",
-                "points": 1000, "batch": 64})
+    out.append(
+        {
+            "metric": "gradient of Σ radial² per parameter set",
+            "value": t / 64 * 1e6,
+            "unit": "µs",
+            "points": 1000,
+            "batch": 64,
+        }
+    )
     return out

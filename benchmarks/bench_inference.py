@@ -119,8 +119,14 @@ def bench_contact_log_prob():
     pts, nrm, walkers = _setup()
     f, _ = cm.make_log_prob(pts)
     base = {"unit": "1/s", "points": M, "batch": W}
-    out = [{"metric": "contact log-probability evaluations/s, float64", "value": _rate(f, walkers), **base,
-            "note": "the target applies to the sampled (mixed-precision) density: bench_contact_log_prob_mixed"}]
+    out = [
+        {
+            "metric": "contact log-probability evaluations/s, float64",
+            "value": _rate(f, walkers),
+            **base,
+            "note": "the target applies to the sampled (mixed-precision) density: bench_contact_log_prob_mixed",
+        }
+    ]
     ref = _reference(pts, cm.load_priors().student_nu)
     err = float(np.max(np.abs(f(walkers) / ref(walkers) - 1)))
     out.append(

@@ -23,15 +23,29 @@ def bench_table2_rows():
     truth = surface_integrals(*plate.mesh(96))
     t = time.perf_counter()
     de = fit_nellipsoid_de(data, 0)
-    out.append({"metric": "differential-evolution fit", "value": time.perf_counter() - t, "unit": "s",
-                "generations": de.generations, "points": len(data)})
+    out.append(
+        {
+            "metric": "differential-evolution fit",
+            "value": time.perf_counter() - t,
+            "unit": "s",
+            "generations": de.generations,
+            "points": len(data),
+        }
+    )
     secs = []
     for size in TABLE2_SIZES:
         row = table2_row(plate, data, truth, size, 0.0, 0, de=de)
         secs.append(row["seconds"])
-        out.append({"metric": f"Table 2 row {size} (FFD + indicators)", "value": row["seconds"], "unit": "s",
-                    "iterations": row["iterations"]})
-    out.append({"metric": "Table 2 row, mean over sizes (DE fit shared per ε)", "value": float(np.mean(secs)),
-                "unit": "s"})
+        out.append(
+            {
+                "metric": f"Table 2 row {size} (FFD + indicators)",
+                "value": row["seconds"],
+                "unit": "s",
+                "iterations": row["iterations"],
+            }
+        )
+    out.append(
+        {"metric": "Table 2 row, mean over sizes (DE fit shared per ε)", "value": float(np.mean(secs)), "unit": "s"}
+    )
     out.append({"metric": "peak memory of the benchmark process so far", "value": peak_rss_mib(), "unit": "MiB"})
     return out

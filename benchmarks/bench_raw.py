@@ -56,8 +56,9 @@ def _texture_truth(obj, data):
 
     t = obj.texture
     u, v = gr.scene_uv(obj.shape, t.amplitude, t.wavelength, t.orientation, raw.texture_reference(data))
-    return np.concatenate([_truth(obj)[:10], [np.log(1.0), u, v, np.log(t.wavelength), t.orientation,
-                                              np.log(t.roughness)]])
+    return np.concatenate(
+        [_truth(obj)[:10], [np.log(1.0), u, v, np.log(t.wavelength), t.orientation, np.log(t.roughness)]]
+    )
 
 
 def bench_raw_log_prob(ds_obj=None):
@@ -106,8 +107,7 @@ def bench_raw_fit(steps: int = 3000, ds_obj=None):
     for texture in ("auto", "off"):
         with tempfile.TemporaryDirectory() as tmp:
             t0 = time.perf_counter()
-            s = raw.run_raw_fit(ds, Path(tmp) / "fit", seed=0, walkers=W, steps=steps, progress=False,
-                                texture=texture)
+            s = raw.run_raw_fit(ds, Path(tmp) / "fit", seed=0, walkers=W, steps=steps, progress=False, texture=texture)
             secs = time.perf_counter() - t0
         v_true = float(ne.volume(obj.shape))
         vol = s["derived"]["volume_m3"]
@@ -135,15 +135,22 @@ def bench_raw_fit(steps: int = 3000, ds_obj=None):
         if "amplitude" in p:
             t = obj.texture
             o = p["orientation"]["mean"]
-            row.update({
-                "grating_gain_nats": s["model"]["texture_search"]["grating_gain_nats"],
-                "amplitude_m": [p["amplitude"]["mean"], p["amplitude"]["sd"], t.amplitude],
-                "wavelength_m": [p["wavelength"]["mean"], p["wavelength"]["sd"], t.wavelength],
-                # from the long axis: o, or π − o when the grating's plane is the long axis with the other short axis
-                "orientation_rad": [o, p["orientation"]["sd"], t.orientation, min(abs(o - t.orientation),
-                                                                                 abs(np.pi - o - t.orientation))],
-                "roughness_m": [p["roughness"]["mean"], p["roughness"]["sd"], t.roughness],
-            })
+            row.update(
+                {
+                    "grating_gain_nats": s["model"]["texture_search"]["grating_gain_nats"],
+                    "amplitude_m": [p["amplitude"]["mean"], p["amplitude"]["sd"], t.amplitude],
+                    "wavelength_m": [p["wavelength"]["mean"], p["wavelength"]["sd"], t.wavelength],
+                    # from the long axis: o, or π − o when the grating's plane is the long axis with the other
+                    # short axis
+                    "orientation_rad": [
+                        o,
+                        p["orientation"]["sd"],
+                        t.orientation,
+                        min(abs(o - t.orientation), abs(np.pi - o - t.orientation)),
+                    ],
+                    "roughness_m": [p["roughness"]["mean"], p["roughness"]["sd"], t.roughness],
+                }
+            )
         out.append(row)
     return out
 

@@ -52,8 +52,17 @@ def bench_emcee_vs_nuts():
     ess_e = _min_ess(ch.kept)
     logp(THETA[None].repeat(walkers // 2, axis=0))  # the half-ensemble batch, compiled outside the timing
     with tempfile.TemporaryDirectory() as tmp:
-        ad = sample(logp, _walkers(THETA, bounds, walkers, np.random.default_rng(0)), Path(tmp) / "a.h5",
-                    walkers=walkers, ndim=11, seed=0, steps=1000, progress=False, adapt=True)
+        ad = sample(
+            logp,
+            _walkers(THETA, bounds, walkers, np.random.default_rng(0)),
+            Path(tmp) / "a.h5",
+            walkers=walkers,
+            ndim=11,
+            seed=0,
+            steps=1000,
+            progress=False,
+            adapt=True,
+        )
     ess_a = _min_ess(ad.kept)
     t = time.perf_counter()
     out = nuts_contact(pts, seed=0, num_warmup=500, num_samples=1000, init=THETA)
@@ -103,8 +112,12 @@ def bench_emcee_vs_nuts():
             "moves": "adaptive_moves (t independence proposal refitted at steps 100, 200, 400, 800 + DE + snooker)",
             **common,
         },
-        {"metric": "emcee / NUTS ESS/s, adaptive moves", "value": (ess_a / ad.seconds) / (ess_n / t_nuts), "unit": "1",
-         "target": 1},
+        {
+            "metric": "emcee / NUTS ESS/s, adaptive moves",
+            "value": (ess_a / ad.seconds) / (ess_n / t_nuts),
+            "unit": "1",
+            "target": 1,
+        },
         {"metric": "emcee / NUTS ESS/s", "value": (ess_e / ch.seconds) / (ess_n / t_nuts), "unit": "1", "target": 1},
     ]
 
@@ -119,8 +132,12 @@ def _cli_fit(csv: Path, out: Path, cache: str) -> tuple[dict, float]:
 
     env = {**os.environ, "BAYESTOUCH_JAX_CACHE": cache, "OMP_NUM_THREADS": "1"}
     t = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "bayestouch.cli", "fit", str(csv), "--out", str(out), "--seed", "0",
-                    "--quiet"], check=True, env=env, capture_output=True)
+    subprocess.run(
+        [sys.executable, "-m", "bayestouch.cli", "fit", str(csv), "--out", str(out), "--seed", "0", "--quiet"],
+        check=True,
+        env=env,
+        capture_output=True,
+    )
     wall = time.perf_counter() - t
     return json.loads((out / "summary.json").read_text())["diagnostics"], wall
 
@@ -159,8 +176,12 @@ def bench_time_to_converged():
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         run_contact_fit(pts, tmp / "first", seed=1, progress=False)  # compiles
-        rows.append(row("process that has fitted before", run_contact_fit(pts, tmp / "warm", seed=0,
-                                                                          progress=False)["diagnostics"]))
+        rows.append(
+            row(
+                "process that has fitted before",
+                run_contact_fit(pts, tmp / "warm", seed=0, progress=False)["diagnostics"],
+            )
+        )
         csv = tmp / "points.csv"
         save_contact_points(csv, pts)
         cache = tmp / "jax-cache"

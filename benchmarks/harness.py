@@ -81,10 +81,15 @@ def run(names: list[str] | None = None) -> dict[str, list[dict]]:
 
 
 def _markdown(info: dict) -> str:
-    lines = ["# Benchmark results", "",
-             f"Machine: {info['platform']}, {info['cpu_count']} CPUs, Python {info['python']}, "
-             f"JAX {info['jax']} ({info['jax_backend']}); {info['date']}. Written by `make bench`.", "",
-             "| module | benchmark | metric | value | unit | notes |", "|---|---|---|---|---|---|"]
+    lines = [
+        "# Benchmark results",
+        "",
+        f"Machine: {info['platform']}, {info['cpu_count']} CPUs, Python {info['python']}, "
+        f"JAX {info['jax']} ({info['jax_backend']}); {info['date']}. Written by `make bench`.",
+        "",
+        "| module | benchmark | metric | value | unit | notes |",
+        "|---|---|---|---|---|---|",
+    ]
     for path in sorted(RESULTS.glob("bench_*.json")):
         doc = json.loads(path.read_text())
         for r in doc["results"]:

@@ -94,10 +94,18 @@ def _files(tmp):
     (tmp / "text_values.csv").write_text("x,y,z\n0.01,abc,0.03\n")
     (tmp / "nan_values.csv").write_text("x,y,z\n0.01,nan,0.03\n" * 20)
     (tmp / "empty.csv").write_text("x,y,z\n")
-    (tmp / "millimetres.csv").write_text("x,y,z\n" + "".join(f"{30 * c:.3f},{20 * s:.3f},5.0\n" for c, s in
-                                                             zip([1, 0, -1, 0] * 10, [0, 1, 0, -1] * 10, strict=True)))
-    (tmp / "good.csv").write_text("x,y,z\n" + "".join(f"{0.03 * c:.4f},{0.02 * s:.4f},0.0\n" for c, s in
-                                                      zip([1, 0, -1, 0] * 10, [0, 1, 0, -1] * 10, strict=True)))
+    (tmp / "millimetres.csv").write_text(
+        "x,y,z\n"
+        + "".join(
+            f"{30 * c:.3f},{20 * s:.3f},5.0\n" for c, s in zip([1, 0, -1, 0] * 10, [0, 1, 0, -1] * 10, strict=True)
+        )
+    )
+    (tmp / "good.csv").write_text(
+        "x,y,z\n"
+        + "".join(
+            f"{0.03 * c:.4f},{0.02 * s:.4f},0.0\n" for c, s in zip([1, 0, -1, 0] * 10, [0, 1, 0, -1] * 10, strict=True)
+        )
+    )
     (tmp / "not_a_recording.nc").write_bytes(b"this is not netCDF")
     (tmp / "no_shape.toml").write_text('[object]\nname = "x"\n')
     (tmp / "broken.toml").write_text("[shape\ncentre_m = [0, 0\n")

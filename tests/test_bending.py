@@ -52,11 +52,14 @@ def test_shipped_rod_loads(rod, wire):
     assert rod.wire_area == pytest.approx(float(sma.wire_area(wire)), rel=1e-12)
 
 
-@pytest.mark.parametrize("pattern,repl,needle", [
-    (r'^(EI = \{ value = 7e-4, unit = )"N m\^2"', r'\1"N mm^2"', 'EI: unit must be "N m^2"'),
-    (r'^(wire_radius = \{ value = )0\.003', r'\g<1>0.006', "must be less than radius"),
-    (r'^(theta0 = \{ value = 0\.0, unit = "rad"), source = "[^"]*"', r'\1, source = ""', "needs a source"),
-])
+@pytest.mark.parametrize(
+    "pattern,repl,needle",
+    [
+        (r'^(EI = \{ value = 7e-4, unit = )"N m\^2"', r'\1"N mm^2"', 'EI: unit must be "N m^2"'),
+        (r"^(wire_radius = \{ value = )0\.003", r"\g<1>0.006", "must be less than radius"),
+        (r'^(theta0 = \{ value = 0\.0, unit = "rad"), source = "[^"]*"', r'\1, source = ""', "needs a source"),
+    ],
+)
 def test_bad_rod_file_is_rejected(tmp_path, pattern, repl, needle):
     text = (MODELS / "finger.toml").read_text(encoding="utf-8")
     new, n = re.subn(pattern, repl, text, count=1, flags=re.M)
@@ -69,6 +72,7 @@ def test_bad_rod_file_is_rejected(tmp_path, pattern, repl, needle):
 
 
 # ---------------------------------------------------------------- pose
+
 
 def test_straight_limit(rod):
     p, R = bd.tip_pose(rod, jnp.zeros(2))
@@ -122,10 +126,11 @@ def test_pose_gradients(rod):
         check_grads(f, (jnp.array(u),), order=1, modes=("fwd", "rev"), eps=1e-4)
     # curvature of the tip height at the straight pose: z = L sinc(κL) ≈ L − κ²L³/6
     H = jax.jit(jax.hessian(lambda u: bd.tip_pose(rod, u)[0][2]))(jnp.zeros(2))
-    assert np.allclose(np.asarray(H), -rod.length**3 / 3 * np.eye(2), rtol=1e-10)
+    assert np.allclose(np.asarray(H), -(rod.length**3) / 3 * np.eye(2), rtol=1e-10)
 
 
 # ---------------------------------------------------------------- curvature from forces
+
 
 def test_symmetric_stresses_do_not_bend(rod):
     c = bd.curvature_from_stresses(rod, jnp.full(3, 150e6))
@@ -147,14 +152,14 @@ def test_one_wire_bends_toward_itself(rod, i):
 def test_closed_form_matches_vector_sum(rod):
     s = np.array([210e6, 95e6, 160e6])
     c = bd.curvature_from_stresses(rod, jnp.asarray(s))
-    k = rod.wire_radius * rod.wire_area / rod.EI * math.sqrt(
-        np.sum(s**2) - s[0] * s[1] - s[1] * s[2] - s[2] * s[0])
+    k = rod.wire_radius * rod.wire_area / rod.EI * math.sqrt(np.sum(s**2) - s[0] * s[1] - s[1] * s[2] - s[2] * s[0])
     th = np.asarray(bd.wire_angles(rod))
     phi = math.atan2(np.sum(s * np.sin(th)), np.sum(s * np.cos(th)))
     assert float(c.kappa) == pytest.approx(k, rel=1e-12) and float(c.phi) == pytest.approx(phi, abs=1e-12)
 
 
 # ---------------------------------------------------------------- equilibrium with Brinson wires
+
 
 def test_equilibrium_cold_and_hot(rod, wire):
     cold = bd.curvature_equilibrium(rod, wire, jnp.full(3, wire.ambient))
@@ -172,8 +177,7 @@ def test_equilibrium_cold_and_hot(rod, wire):
         # moment balance and the wire law hold at the returned state
         assert np.abs(np.asarray(eq.residual)).max() < 1e-12
         assert np.allclose(np.asarray(eq.strain), np.asarray(bd.wire_strains(rod, wire.prestrain, eq.u)))
-        assert np.allclose(np.asarray(sma.quasi_static_strain(wire, eq.stress, T)), np.asarray(eq.strain),
-                           rtol=1e-10)
+        assert np.allclose(np.asarray(sma.quasi_static_strain(wire, eq.stress, T)), np.asarray(eq.strain), rtol=1e-10)
         # the heated wire is austenite at its stress and pulls hardest
         sig = np.asarray(eq.stress)
         assert hot > wire.A_f + sig[i] / wire.C_A and sig[i] == sig.max()
@@ -189,8 +193,9 @@ def test_equilibrium_gradient_matches_finite_differences(rod, wire):
 
     J = np.asarray(jax.jacfwd(f)(T))
     h = 1e-3
-    J_fd = np.stack([(np.asarray(f(T.at[j].add(h))) - np.asarray(f(T.at[j].add(-h)))) / (2 * h)
-                     for j in range(3)], axis=1)
+    J_fd = np.stack(
+        [(np.asarray(f(T.at[j].add(h))) - np.asarray(f(T.at[j].add(-h)))) / (2 * h) for j in range(3)], axis=1
+    )
     assert np.allclose(J, J_fd, rtol=1e-5, atol=1e-8)
     assert J[0, 0] > 0.1  # heating wire 1 (at θ = 0) bends further toward +x
 

@@ -14,19 +14,23 @@ CONTRACT = ["epsilon", "ffd_size", "iterations", "bp_minus_x_percent", "j_ratio"
 
 def test_every_subcommand_of_the_issues_exists():
     sub = next(a for a in build_parser()._actions if a.dest == "command")
-    assert {"reproduce-paper", "simulate", "fit", "demo", "device", "explore", "experiment",
-            "texture-id"} <= set(sub.choices)
+    assert {"reproduce-paper", "simulate", "fit", "demo", "device", "explore", "experiment", "texture-id"} <= set(
+        sub.choices
+    )
 
 
-@pytest.mark.parametrize("args,needle", [
-    (["reproduce-paper"], "--out"),
-    (["reproduce-paper", "--out", "X", "--sizes", "6x6"], "6x6x3"),
-    (["reproduce-paper", "--out", "X", "--sizes", "6x1x3"], "6x6x3"),
-    (["reproduce-paper", "--out", "X", "--epsilons", "abc"], "epsilons"),
-    (["reproduce-paper", "--out", "X", "--epsilons", "0.7"], "[0, 0.5)"),
-    (["reproduce-paper", "--out", "X", "--paths", "0"], "positive integer"),
-    (["nonsense"], "invalid choice"),
-])
+@pytest.mark.parametrize(
+    "args,needle",
+    [
+        (["reproduce-paper"], "--out"),
+        (["reproduce-paper", "--out", "X", "--sizes", "6x6"], "6x6x3"),
+        (["reproduce-paper", "--out", "X", "--sizes", "6x1x3"], "6x6x3"),
+        (["reproduce-paper", "--out", "X", "--epsilons", "abc"], "epsilons"),
+        (["reproduce-paper", "--out", "X", "--epsilons", "0.7"], "[0, 0.5)"),
+        (["reproduce-paper", "--out", "X", "--paths", "0"], "positive integer"),
+        (["nonsense"], "invalid choice"),
+    ],
+)
 def test_bad_arguments_exit_2(args, needle, capsys):
     with pytest.raises(SystemExit) as e:
         main(args)
@@ -39,7 +43,7 @@ def test_bad_files_exit_2_with_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert "no.toml" in err and "\n" not in err
     bad = tmp_path / "mm.toml"
-    bad.write_text('[shape]\ncentre_m = [0, 0, 0]\naxes_m = [45, 25, 5]\nn = 10\n')
+    bad.write_text("[shape]\ncentre_m = [0, 0, 0]\naxes_m = [45, 25, 5]\nn = 10\n")
     assert main(["reproduce-paper", "--out", str(tmp_path / "o"), "--object", str(bad)]) == 2
     assert "millimetres" in capsys.readouterr().err
     afile = tmp_path / "file"
@@ -52,14 +56,34 @@ def test_bad_files_exit_2_with_one_line(tmp_path, capsys):
 @pytest.mark.slow
 def test_reproduce_paper_small_run_writes_contract_files(tmp_path, capsys):
     out = tmp_path / "paper"
-    code = main(["reproduce-paper", "--out", str(out), "--paths", "5", "--rate", "5", "--sizes", "6x6x3,7x7x7",
-                 "--epsilons", "0,0.001", "--res", "20", "--quiet"])
+    code = main(
+        [
+            "reproduce-paper",
+            "--out",
+            str(out),
+            "--paths",
+            "5",
+            "--rate",
+            "5",
+            "--sizes",
+            "6x6x3,7x7x7",
+            "--epsilons",
+            "0,0.001",
+            "--res",
+            "20",
+            "--quiet",
+        ]
+    )
     assert code == 0
     with open(out / "table2.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
     assert list(rows[0])[: len(CONTRACT)] == CONTRACT
-    assert [(r["epsilon"], r["ffd_size"]) for r in rows] == [("0.0", "6x6x3"), ("0.0", "7x7x7"),
-                                                             ("0.001", "6x6x3"), ("0.001", "7x7x7")]
+    assert [(r["epsilon"], r["ffd_size"]) for r in rows] == [
+        ("0.0", "6x6x3"),
+        ("0.0", "7x7x7"),
+        ("0.001", "6x6x3"),
+        ("0.001", "7x7x7"),
+    ]
     for r in rows:
         assert 0 < float(r["bp_minus_x_percent"]) < 1.0  # the issue's goal for perturbed rows, met here too
         assert int(r["iterations"]) >= 1 and float(r["paper_iterations"]) > 0

@@ -20,8 +20,9 @@ RES = 12
 
 
 def make(axes, n, angles=(0.0, 0.0, 0.0), centre=(0.0, 0.0, 0.0)):
-    return ne.NEllipsoid(jnp.array(centre, float), jnp.array(axes, float), jnp.array(angles, float),
-                         jnp.array(float(n)))
+    return ne.NEllipsoid(
+        jnp.array(centre, float), jnp.array(axes, float), jnp.array(angles, float), jnp.array(float(n))
+    )
 
 
 def F(s, pts):
@@ -57,6 +58,7 @@ def sphere(r, centre=(0.0, 0.0, 0.0)):
 
 # ---------------------------------------------------------------------------------------- canonical form
 
+
 def test_canonicalize_is_rule_on_a_hand_example():
     s = make((0.01, 0.02, 0.03), 3.0)  # R = I
     c = cmp.canonicalize(s)
@@ -82,8 +84,11 @@ def test_aliases_canonicalise_to_one_vector_and_one_surface(shape, rng):
 
 def test_canonicalize_idempotent_proper_and_sign_rule(shape, rng):
     for _ in range(20):
-        s = make(rng.uniform(0.01, 0.04, 3), rng.uniform(1.5, 5.0),
-                 angles=(rng.uniform(0, math.pi), rng.uniform(-3, 3), rng.uniform(-3, 3)))
+        s = make(
+            rng.uniform(0.01, 0.04, 3),
+            rng.uniform(1.5, 5.0),
+            angles=(rng.uniform(0, math.pi), rng.uniform(-3, 3), rng.uniform(-3, 3)),
+        )
         c = cmp.canonicalize(s)
         np.testing.assert_allclose(ne.to_vector(cmp.canonicalize(c)), ne.to_vector(c), atol=1e-9)
         R = np.asarray(c.rotation)
@@ -97,8 +102,11 @@ def test_canonicalize_idempotent_proper_and_sign_rule(shape, rng):
 def test_canonicalize_batch_matches_rows(shape, rng):
     rows = [np.asarray(ne.to_vector(s)) for s in aliases(shape)]
     for _ in range(10):
-        rows.append(np.concatenate([rng.normal(size=3) * 0.01, rng.uniform(0.01, 0.04, 3),
-                                    rng.uniform(-4, 4, 3), [rng.uniform(1.5, 5.0)]]))
+        rows.append(
+            np.concatenate(
+                [rng.normal(size=3) * 0.01, rng.uniform(0.01, 0.04, 3), rng.uniform(-4, 4, 3), [rng.uniform(1.5, 5.0)]]
+            )
+        )
     V = np.array(rows)
     out = cmp.canonicalize_batch(V)
     assert isinstance(out, np.ndarray) and out.shape == V.shape
@@ -109,6 +117,7 @@ def test_canonicalize_batch_matches_rows(shape, rng):
 
 
 # ---------------------------------------------------------------------------------------- parameter distance
+
 
 def test_param_distance_of_aliases_is_zero(shape):
     for s in aliases(shape):
@@ -149,6 +158,7 @@ def test_param_distance_equal_axes_permutation():
 
 # ---------------------------------------------------------------------------------------- IoU
 
+
 def test_iou_of_a_shape_with_itself_and_its_alias_is_one(shape):
     assert cmp.iou(shape, shape, count=N_MC) == (1.0, 0.0)
     assert cmp.iou(shape, aliases(shape)[7], count=N_MC) == (1.0, 0.0)
@@ -174,6 +184,7 @@ def test_iou_of_disjoint_shapes_is_zero(shape):
 
 # ---------------------------------------------------------------------------------------- Chamfer
 
+
 def test_chamfer_identical_and_translated_points(rng):
     p = rng.normal(size=(512, 3))
     assert cmp.chamfer(p, p) == 0.0
@@ -196,6 +207,7 @@ def test_chamfer_of_concentric_spheres():
 
 
 # ---------------------------------------------------------------------------------------- winding numbers
+
 
 def test_mesh_inside_sphere_away_from_the_surface(rng):
     r = 0.03
@@ -235,6 +247,7 @@ def test_iou_of_inscribed_mesh_is_its_volume_fraction(shape):
 
 
 # ---------------------------------------------------------------------------------------- everything
+
 
 def test_compare_shapes(shape):
     out = cmp.compare_shapes(shape, aliases(shape)[5], count=N_MC)

@@ -8,8 +8,9 @@ from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.integrals import surface_integrals, surface_integrals_batch
 from bayestouch.geometry.mesh import sample_surface
 
-TRUE = ne.NEllipsoid(jnp.array([0.01, -0.02, 0.005]), jnp.array([0.03, 0.02, 0.012]), jnp.array([0.7, 0.4, -1.1]),
-                     jnp.array(3.0))
+TRUE = ne.NEllipsoid(
+    jnp.array([0.01, -0.02, 0.005]), jnp.array([0.03, 0.02, 0.012]), jnp.array([0.7, 0.4, -1.1]), jnp.array(3.0)
+)
 
 
 def _box(pts):
@@ -61,8 +62,14 @@ def test_batched_surface_integrals_equal_the_single_mesh_ones():
     from bayestouch.inference.run import _draw_meshes
 
     rng = np.random.default_rng(0)
-    vecs = np.column_stack([rng.normal(size=(40, 3)) * 0.01, rng.uniform(0.01, 0.03, (40, 3)),
-                            rng.uniform(0, 3, (40, 3)), rng.uniform(1.5, 6, 40)])
+    vecs = np.column_stack(
+        [
+            rng.normal(size=(40, 3)) * 0.01,
+            rng.uniform(0.01, 0.03, (40, 3)),
+            rng.uniform(0, 3, (40, 3)),
+            rng.uniform(1.5, 6, 40),
+        ]
+    )
     meshes, tri = _draw_meshes(vecs, 8)
     b = surface_integrals_batch(meshes, tri, chunk=16)  # chunks of 16, 16 and 8
     for i in (0, 17, 39):

@@ -11,8 +11,9 @@ from bayestouch.geometry.mesh import sample_surface
 from bayestouch.inference import contact as cm
 from bayestouch.inference import ffd_marginal as fm
 
-TRUTH = np.concatenate([[0.004, -0.002, 0.001], np.log([0.03, 0.022, 0.015]), [0.4, 0.3, -0.5], [np.log(2.5)],
-                        [np.log(1e-4)]])
+TRUTH = np.concatenate(
+    [[0.004, -0.002, 0.001], np.log([0.03, 0.022, 0.015]), [0.4, 0.3, -0.5], [np.log(2.5)], [np.log(1e-4)]]
+)
 DIMS = (3, 3, 3)
 NOISE = 1e-4  # m
 TAU = 2e-3  # m: lattice displacements of the data sets, and the matched prior sd
@@ -45,8 +46,9 @@ def test_woodbury_equals_the_dense_gaussian():
     tau = 4e-4
     C = NOISE**2 * np.eye(80) + tau**2 * A @ A.T
     dense = multivariate_normal(np.zeros(80), C).logpdf(r)
-    assert float(fm.marginal_log_likelihood(th, jnp.asarray(pts[:80]), DIMS, tau=tau)) == pytest.approx(dense,
-                                                                                                     rel=1e-10)
+    assert float(fm.marginal_log_likelihood(th, jnp.asarray(pts[:80]), DIMS, tau=tau)) == pytest.approx(
+        dense, rel=1e-10
+    )
 
 
 def test_conditional_lattice_recovers_the_deformed_surface():

@@ -11,8 +11,9 @@ from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.mesh import sample_surface
 from bayestouch.io import save_contact_points
 
-TRUE = ne.NEllipsoid(jnp.array([0.004, -0.002, 0.001]), jnp.array([0.03, 0.022, 0.015]),
-                     jnp.array([0.4, 0.3, -0.5]), jnp.array(3.0))
+TRUE = ne.NEllipsoid(
+    jnp.array([0.004, -0.002, 0.001]), jnp.array([0.03, 0.022, 0.015]), jnp.array([0.4, 0.3, -0.5]), jnp.array(3.0)
+)
 
 
 @pytest.fixture(scope="module")
@@ -43,8 +44,10 @@ def test_fit_writes_outputs_and_resumes(points_csv, tmp_path):
     _check_uncertainty_mesh(out, s)
     first = emcee.backends.HDFBackend(str(out / "chain.h5"), read_only=True).get_chain()
     # resume to 300 steps: the first 200 are kept bit for bit
-    assert main(["fit", str(points_csv), "--out", str(out), "--steps", "300", "--walkers", "24", "--resume",
-                 "--quiet"]) == 0
+    assert (
+        main(["fit", str(points_csv), "--out", str(out), "--steps", "300", "--walkers", "24", "--resume", "--quiet"])
+        == 0
+    )
     chain = emcee.backends.HDFBackend(str(out / "chain.h5"), read_only=True).get_chain()
     assert chain.shape == (300, 24, 11) and np.array_equal(chain[:200], first)
 
@@ -116,25 +119,48 @@ def test_fit_with_ffd_lattice_follows_a_dented_surface(tmp_path):
     from bayestouch.geometry.mesh import closest_points, nellipsoid_mesh
     from bayestouch.inference import ffd_marginal as fm
 
-    theta = np.concatenate([np.asarray(TRUE.centre), np.log(np.asarray(TRUE.axes)), np.asarray(TRUE.angles),
-                            [np.log(3.0)], [np.log(1e-4)]])
+    theta = np.concatenate(
+        [np.asarray(TRUE.centre), np.log(np.asarray(TRUE.axes)), np.asarray(TRUE.angles), [np.log(3.0)], [np.log(1e-4)]]
+    )
     rng = np.random.default_rng(7)
     local = np.asarray(ne.to_local(TRUE, jnp.asarray(sample_surface(TRUE, 300, seed=7))))
-    moved = np.asarray(fm.deformed_points(jnp.asarray(theta), jnp.asarray(rng.normal(0, 2e-3, (27, 3))),
-                                          jnp.asarray(local), (3, 3, 3)))
+    moved = np.asarray(
+        fm.deformed_points(jnp.asarray(theta), jnp.asarray(rng.normal(0, 2e-3, (27, 3))), jnp.asarray(local), (3, 3, 3))
+    )
     pts = moved + rng.normal(0, 1e-4, moved.shape)
     path = tmp_path / "dented.csv"
     save_contact_points(path, pts)
     out = tmp_path / "ffd"
-    assert main(["fit", str(path), "--out", str(out), "--steps", "150", "--walkers", "24", "--ffd", "3x3x3",
-                 "--ffd-tau", "2e-3", "--quiet"]) == 0
+    assert (
+        main(
+            [
+                "fit",
+                str(path),
+                "--out",
+                str(out),
+                "--steps",
+                "150",
+                "--walkers",
+                "24",
+                "--ffd",
+                "3x3x3",
+                "--ffd-tau",
+                "2e-3",
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     s = json.loads((out / "summary.json").read_text())
     assert s["model"]["ffd_size"] == "3x3x3"
     refined = trimesh.load(str(out / "mean_shape.ply"), process=False)
     p = s["parameters"]
-    rigid = ne.NEllipsoid(jnp.array([p[k]["mean"] for k in ("x_G", "y_G", "z_G")]),
-                          jnp.array([p[k]["mean"] for k in ("a", "b", "c")]),
-                          jnp.array([p[k]["mean"] for k in ("xi", "psi", "zeta")]), jnp.array(p["n"]["mean"]))
+    rigid = ne.NEllipsoid(
+        jnp.array([p[k]["mean"] for k in ("x_G", "y_G", "z_G")]),
+        jnp.array([p[k]["mean"] for k in ("a", "b", "c")]),
+        jnp.array([p[k]["mean"] for k in ("xi", "psi", "zeta")]),
+        jnp.array(p["n"]["mean"]),
+    )
     d_ref = closest_points(np.asarray(refined.vertices), np.asarray(refined.faces), pts)[1]
     d_rig = closest_points(*nellipsoid_mesh(rigid, 32), pts)[1]
     assert np.sqrt(np.mean(d_ref**2)) < 0.5 * np.sqrt(np.mean(d_rig**2))
@@ -153,8 +179,20 @@ def test_fit_killed_mid_run_resumes_with_nothing_lost(points_csv, tmp_path):
     import emcee
 
     out = tmp_path / "killed"
-    cmd = [sys.executable, "-m", "bayestouch.cli", "fit", str(points_csv), "--out", str(out), "--steps", "3000",
-           "--walkers", "24", "--quiet"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "bayestouch.cli",
+        "fit",
+        str(points_csv),
+        "--out",
+        str(out),
+        "--steps",
+        "3000",
+        "--walkers",
+        "24",
+        "--quiet",
+    ]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         deadline = time.time() + 300
@@ -171,8 +209,12 @@ def test_fit_killed_mid_run_resumes_with_nothing_lost(points_csv, tmp_path):
     before = emcee.backends.HDFBackend(str(out / "chain.h5"), read_only=True).get_chain()
     assert 50 <= len(before) < 3000
     done = len(before) + 40
-    assert main(["fit", str(points_csv), "--out", str(out), "--steps", str(done), "--walkers", "24", "--resume",
-                 "--quiet"]) == 0
+    assert (
+        main(
+            ["fit", str(points_csv), "--out", str(out), "--steps", str(done), "--walkers", "24", "--resume", "--quiet"]
+        )
+        == 0
+    )
     after = emcee.backends.HDFBackend(str(out / "chain.h5"), read_only=True).get_chain()
     assert after.shape == (done, 24, 11) and np.array_equal(after[: len(before)], before)
 
@@ -193,8 +235,12 @@ def test_fit_with_normals_and_outlier_mixture(tmp_path):
     path = tmp_path / "with_normals.csv"
     save_contact_points(path, pts, normals=measured_n)
     out = tmp_path / "mix"
-    assert main(["fit", str(path), "--out", str(out), "--steps", "300", "--walkers", "28", "--noise", "mixture",
-                 "--quiet"]) == 0
+    assert (
+        main(
+            ["fit", str(path), "--out", str(out), "--steps", "300", "--walkers", "28", "--noise", "mixture", "--quiet"]
+        )
+        == 0
+    )
     s = json.loads((out / "summary.json").read_text())
     assert s["model"]["normals_used"] is True and s["model"]["noise"] == "mixture"
     assert s["model"]["precision"] == "float64"  # mixed precision does not apply to normals or the mixture

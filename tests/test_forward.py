@@ -27,8 +27,12 @@ def _flat_stroke(depth, n=5, z=0.005):
     """A straight stroke along x on the plate's top face (z = 5 mm), 1 cm/s at 50 Hz."""
     x = 0.002 * np.arange(n) / n
     contact = np.stack([x, np.zeros(n), np.full(n, z)], 1)
-    return (jnp.asarray(contact), jnp.tile(jnp.array([0.0, 0.0, 1.0]), (n, 1)),
-            jnp.tile(jnp.array([1.0, 0.0, 0.0]), (n, 1)), jnp.asarray(depth))
+    return (
+        jnp.asarray(contact),
+        jnp.tile(jnp.array([0.0, 0.0, 1.0]), (n, 1)),
+        jnp.tile(jnp.array([1.0, 0.0, 0.0]), (n, 1)),
+        jnp.asarray(depth),
+    )
 
 
 def test_pad_geometry():
@@ -112,8 +116,9 @@ def test_gradient_with_respect_to_shape_and_texture():
 
     g = jax.grad(total, argnums=(0, 1))(surf.shape.axes, surf.texture.amplitude)
     assert np.all(np.isfinite(np.asarray(g[0]))) and abs(float(g[1])) > 0
-    check_grads(lambda a: total(a, surf.texture.amplitude), (surf.shape.axes,), order=1, modes=["rev"], eps=1e-7,
-                rtol=1e-3)
+    check_grads(
+        lambda a: total(a, surf.texture.amplitude), (surf.shape.axes,), order=1, modes=["rev"], eps=1e-7, rtol=1e-3
+    )
 
 
 def test_finger_drive():
@@ -132,8 +137,25 @@ def test_finger_drive():
 def test_simulate_cli_writes_recording(tmp_path, capsys):
     out = tmp_path / "rec.nc"
     egg = str(ROOT / "models" / "objects" / "egg.toml")
-    assert main(["simulate", "--object", egg, "--strokes", "2", "--seed", "3", "--out", str(out),
-                 "--duration", "0.5", "--quiet"]) == 0
+    assert (
+        main(
+            [
+                "simulate",
+                "--object",
+                egg,
+                "--strokes",
+                "2",
+                "--seed",
+                "3",
+                "--out",
+                str(out),
+                "--duration",
+                "0.5",
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     ds = read_recording(out)
     for name, unit in UNITS.items():
         assert ds[name].attrs["units"] == unit
@@ -142,8 +164,11 @@ def test_simulate_cli_writes_recording(tmp_path, capsys):
     assert float(ds["contact_force"].max()) > 0.01
     # bad inputs: one line, exit 2, the earlier recording untouched
     before = out.read_bytes()
-    for args, needle in [(["--currents", "0.9,0,0"], "wire currents"), (["--duration", "-1"], "--duration"),
-                         (["--object", str(tmp_path / "none.toml")], "does not exist")]:
+    for args, needle in [
+        (["--currents", "0.9,0,0"], "wire currents"),
+        (["--duration", "-1"], "--duration"),
+        (["--object", str(tmp_path / "none.toml")], "does not exist"),
+    ]:
         argv = ["simulate", "--object", egg, "--out", str(out), "--quiet", *args]
         assert main(argv) == 2
         err = capsys.readouterr().err.strip()
@@ -172,7 +197,22 @@ def test_force_controlled_stroke_holds_the_force(tmp_path):
     assert np.allclose(f_el, 0.07, rtol=1e-6)
     assert np.ptp(np.asarray(d)) > 0  # the egg's curvature changes along the path: so does the depth
     out = tmp_path / "f.nc"
-    assert main(["simulate", "--object", str(ROOT / "models/objects/egg.toml"), "--out", str(out), "--force",
-                 "0.07", "--duration", "0.2", "--quiet"]) == 0
+    assert (
+        main(
+            [
+                "simulate",
+                "--object",
+                str(ROOT / "models/objects/egg.toml"),
+                "--out",
+                str(out),
+                "--force",
+                "0.07",
+                "--duration",
+                "0.2",
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     ds = read_recording(out)
     assert ds["pressing_depth"].attrs["units"] == "m" and float(ds["pressing_depth"].min()) > 0

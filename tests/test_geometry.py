@@ -16,8 +16,9 @@ from bayestouch.geometry.rotation import euler_from_matrix, rot_x, rot_z, rotati
 
 
 def make(axes, n, angles=(0.0, 0.0, 0.0), centre=(0.0, 0.0, 0.0)):
-    return ne.NEllipsoid(jnp.array(centre, float), jnp.array(axes, float), jnp.array(angles, float),
-                         jnp.array(float(n)))
+    return ne.NEllipsoid(
+        jnp.array(centre, float), jnp.array(axes, float), jnp.array(angles, float), jnp.array(float(n))
+    )
 
 
 def ellipsoid_area(a, b, c):
@@ -32,6 +33,7 @@ def ellipsoid_area(a, b, c):
 
 
 # ---------------------------------------------------------------- rotations (eq. 2)
+
 
 def test_rotation_is_eq2_product():
     xi, psi, zeta = 0.4, -1.2, 2.5
@@ -56,6 +58,7 @@ def test_euler_round_trip_and_poles(rng):
 
 # ---------------------------------------------------------------- implicit surface
 
+
 def test_surface_points_satisfy_eq4(shape, rng):
     Y = ne.unit_nsphere(jnp.asarray(rng.normal(size=(200, 3))), shape.n)
     np.testing.assert_allclose(jnp.sum(jnp.abs(Y) ** shape.n, axis=1), 1.0, rtol=1e-12)
@@ -67,8 +70,9 @@ def test_surface_points_satisfy_eq4(shape, rng):
 def test_radial_distance_exact_for_sphere(rng):
     s = make((0.02, 0.02, 0.02), 2.0, centre=(0.1, -0.2, 0.3))
     p = np.asarray(s.centre) + rng.normal(0, 0.03, (100, 3))
-    np.testing.assert_allclose(ne.radial_distance(s, p), np.linalg.norm(p - np.asarray(s.centre), axis=1) - 0.02,
-                               atol=1e-15)
+    np.testing.assert_allclose(
+        ne.radial_distance(s, p), np.linalg.norm(p - np.asarray(s.centre), axis=1) - 0.02, atol=1e-15
+    )
 
 
 def test_inside_outside_sign(shape):
@@ -89,8 +93,15 @@ def test_normals_are_gradient_direction(shape, rng):
 
 def test_gradients_wrt_parameters(shape, rng):
     p = jnp.asarray(mesh.sample_surface(shape, 20, seed=rng) * 1.05)
-    check_grads(lambda v: ne.radial_distance(ne.from_vector(v), p), (ne.to_vector(shape),), order=1,
-                modes=("fwd", "rev"), eps=1e-6, atol=1e-6, rtol=1e-5)
+    check_grads(
+        lambda v: ne.radial_distance(ne.from_vector(v), p),
+        (ne.to_vector(shape),),
+        order=1,
+        modes=("fwd", "rev"),
+        eps=1e-6,
+        atol=1e-6,
+        rtol=1e-5,
+    )
 
 
 def test_vmap_over_parameter_sets(shape, rng):
@@ -102,6 +113,7 @@ def test_vmap_over_parameter_sets(shape, rng):
 
 
 # ---------------------------------------------------------------- closed forms
+
 
 @pytest.mark.parametrize("n", [1.0, 2.0, 3.5, 10.0])
 def test_closed_form_volume(n):
@@ -132,6 +144,7 @@ def test_second_moment_of_ellipsoid():
 
 
 # ---------------------------------------------------------------- meshes and eq. 11–13
+
 
 def test_mesh_is_watertight_and_outward(shape):
     v, f = mesh.nellipsoid_mesh(shape, 12)
@@ -188,6 +201,7 @@ def test_relative_errors_zero_for_identical_and_signed():
 
 # ---------------------------------------------------------------- sampling uniform by area
 
+
 def test_sphere_samples_uniform_by_area():
     # Archimedes: for area-uniform points on a sphere, z is uniform on [−r, r]
     s = make((0.02, 0.02, 0.02), 2.0)
@@ -215,8 +229,9 @@ def test_ellipsoid_samples_follow_area(rng):
     share = area[v[f].mean(axis=1)[:, 0] > 0.02].sum() / area.sum()
     assert abs(frac - share) < 4 * math.sqrt(share * (1 - share) / N)
     # and it is not the parameter-uniform share (the ends are under-weighted by area)
-    assert abs(np.mean(np.abs(np.asarray(ne.unit_nsphere(jnp.asarray(rng.normal(size=(N, 3))), 2.0))[:, 0]) > 0.5)
-               - share) > 10 * math.sqrt(share * (1 - share) / N)
+    assert abs(
+        np.mean(np.abs(np.asarray(ne.unit_nsphere(jnp.asarray(rng.normal(size=(N, 3))), 2.0))[:, 0]) > 0.5) - share
+    ) > 10 * math.sqrt(share * (1 - share) / N)
 
 
 def test_sampling_is_seeded(shape):
@@ -236,5 +251,5 @@ def test_closest_points_on_mesh(rng):
     # brute force over all triangles for a few points
     tri = v[f]
     for i in range(5):
-        q = mesh._closest_on_triangles(np.repeat(p[i:i + 1], len(f), 0), tri[:, 0], tri[:, 1], tri[:, 2])
+        q = mesh._closest_on_triangles(np.repeat(p[i : i + 1], len(f), 0), tri[:, 0], tri[:, 1], tri[:, 2])
         assert d[i] == pytest.approx(np.linalg.norm(q - p[i], axis=1).min(), rel=1e-12)

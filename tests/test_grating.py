@@ -31,8 +31,20 @@ def _egg_points(rng, n=4000, spread=1e-3):
 
 def _theta(obj, u, v, lam, o, rough=1e-6):
     s = obj.shape
-    return np.asarray([*np.asarray(s.centre), *np.log(np.asarray(s.axes)), *np.asarray(s.angles), np.log(float(s.n)),
-                       0.0, u, v, np.log(lam), o, np.log(rough)])
+    return np.asarray(
+        [
+            *np.asarray(s.centre),
+            *np.log(np.asarray(s.axes)),
+            *np.asarray(s.angles),
+            np.log(float(s.n)),
+            0.0,
+            u,
+            v,
+            np.log(lam),
+            o,
+            np.log(rough),
+        ]
+    )
 
 
 def _hom(p):
@@ -133,8 +145,11 @@ def test_texture_priors_are_checked(tmp_path):
     assert tp.wavelength_min < tp.wavelength_max and tp.roughness_min < tp.roughness_max
     lo, hi = gr.texture_bounds(tp, 0.5)
     assert hi[3] - lo[3] == pytest.approx(np.pi) and lo[2] == pytest.approx(np.log(tp.wavelength_min))
-    text = (MODELS / "priors.toml").read_text().replace(
-        'wavelength_max = { value = 1.2e-2', 'wavelength_max = { value = 1e-4')
+    text = (
+        (MODELS / "priors.toml")
+        .read_text()
+        .replace("wavelength_max = { value = 1.2e-2", "wavelength_max = { value = 1e-4")
+    )
     bad = tmp_path / "priors.toml"
     bad.write_text(text)
     with pytest.raises(BadInput, match="wavelength_min < wavelength_max") as e:

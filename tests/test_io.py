@@ -113,8 +113,7 @@ def test_min_points_is_adjustable(tmp_path):
 
 
 #: 20 valid contact rows (metres): a helix of radius 3 cm
-RING = [f"{0.03 * math.cos(t)!r},{0.03 * math.sin(t)!r},{0.002 * t!r}"
-        for t in np.linspace(0, 6, 20).tolist()]
+RING = [f"{0.03 * math.cos(t)!r},{0.03 * math.sin(t)!r},{0.002 * t!r}" for t in np.linspace(0, 6, 20).tolist()]
 
 
 def _csv(rows, header="x,y,z", at=None, bad=None):
@@ -218,18 +217,20 @@ def test_millimetre_check_spares_a_large_object_in_metres(tmp_path):
 # saving contact points: validation
 
 
-@pytest.mark.parametrize("kwargs,needle", [
-    ({"cp_or_points": np.zeros((5, 2))}, "points must be an (N, 3) array"),
-    ({"cp_or_points": np.zeros(3)}, "points must be"),
-    ({"cp_or_points": [["a", "b", "c"]]}, "points must be"),
-    ({"cp_or_points": np.array([[0.0, 0.0, 0.0], [0.0, np.nan, 0.0]])}, "points must be finite, row 2"),
-    ({"cp_or_points": np.ones((5, 3)), "normals": np.ones((4, 3))}, "normals must be"),
-    ({"cp_or_points": np.ones((5, 3)), "normals": np.zeros((5, 3))}, "normals must have non-zero length"),
-    ({"cp_or_points": np.ones((5, 3)), "force": np.ones(4)}, "force must be"),
-    ({"cp_or_points": np.ones((5, 3)), "force": -np.ones(5)}, "force must be ≥ 0"),
-    ({"cp_or_points": ContactPoints(np.ones((5, 3)), force=np.ones(5)), "force": np.ones(5)},
-     "force given both"),
-])
+@pytest.mark.parametrize(
+    "kwargs,needle",
+    [
+        ({"cp_or_points": np.zeros((5, 2))}, "points must be an (N, 3) array"),
+        ({"cp_or_points": np.zeros(3)}, "points must be"),
+        ({"cp_or_points": [["a", "b", "c"]]}, "points must be"),
+        ({"cp_or_points": np.array([[0.0, 0.0, 0.0], [0.0, np.nan, 0.0]])}, "points must be finite, row 2"),
+        ({"cp_or_points": np.ones((5, 3)), "normals": np.ones((4, 3))}, "normals must be"),
+        ({"cp_or_points": np.ones((5, 3)), "normals": np.zeros((5, 3))}, "normals must have non-zero length"),
+        ({"cp_or_points": np.ones((5, 3)), "force": np.ones(4)}, "force must be"),
+        ({"cp_or_points": np.ones((5, 3)), "force": -np.ones(5)}, "force must be ≥ 0"),
+        ({"cp_or_points": ContactPoints(np.ones((5, 3)), force=np.ones(5)), "force": np.ones(5)}, "force given both"),
+    ],
+)
 def test_save_rejects_bad_arrays_and_writes_nothing(tmp_path, kwargs, needle):
     path = tmp_path / "out" / "a.csv"
     with pytest.raises(BadInput) as e:
@@ -257,11 +258,15 @@ def test_failure_mid_write_leaves_old_file_and_no_temp(tmp_path):
     assert _leftovers(tmp_path) == ["t.csv"]
 
 
-@pytest.mark.parametrize("writer", [
-    lambda p: save_contact_points(p, np.ones((3, 3)) * [1, 2, 3]),
-    lambda p: write_csv_rows(p, [{"a": 9}]),
-    lambda p: write_json(p, {"a": 9}),
-], ids=["save_contact_points", "write_csv_rows", "write_json"])
+@pytest.mark.parametrize(
+    "writer",
+    [
+        lambda p: save_contact_points(p, np.ones((3, 3)) * [1, 2, 3]),
+        lambda p: write_csv_rows(p, [{"a": 9}]),
+        lambda p: write_json(p, {"a": 9}),
+    ],
+    ids=["save_contact_points", "write_csv_rows", "write_json"],
+)
 def test_failed_replace_leaves_old_file_and_no_temp(tmp_path, monkeypatch, writer):
     path = tmp_path / "t.txt"
     path.write_text("old content\n")
@@ -315,8 +320,7 @@ def test_write_csv_rows_format_and_column_order(tmp_path):
     assert math.isnan(float(back[1]["eps"])) and back[1]["extra"] == ""
 
     write_csv_rows(path, rows[:1], columns=["ok", "missing", "name", "eps", "n"])
-    assert read_csv_rows(path) == [{"ok": "true", "missing": "", "name": "a,b", "eps": "0.30000000000000004",
-                                    "n": "3"}]
+    assert read_csv_rows(path) == [{"ok": "true", "missing": "", "name": "a,b", "eps": "0.30000000000000004", "n": "3"}]
     with pytest.raises(ValueError, match="not in columns"):
         write_csv_rows(path, rows, columns=["name"])
 

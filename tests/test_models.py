@@ -36,8 +36,17 @@ def _loaders():
     }
 
 
-CASES = ["finger.toml/wire", "finger.toml/rod", "noise.toml", "priors.toml", "priors.toml/raw", "priors.toml/patch",
-         "priors.toml/ffd", "skin.toml", "taxels.toml"]
+CASES = [
+    "finger.toml/wire",
+    "finger.toml/rod",
+    "noise.toml",
+    "priors.toml",
+    "priors.toml/raw",
+    "priors.toml/patch",
+    "priors.toml/ffd",
+    "skin.toml",
+    "taxels.toml",
+]
 
 
 @pytest.mark.parametrize("case", CASES)
@@ -97,8 +106,10 @@ def test_objects_load_and_a_missing_one_is_named(tmp_path):
     assert "\n" not in str(e.value)
 
 
-@pytest.mark.parametrize("case,entry", [("priors.toml/raw", "log_noise_scale_sd"), ("priors.toml/patch", "n_max"),
-                                        ("priors.toml/ffd", "tau")])
+@pytest.mark.parametrize(
+    "case,entry",
+    [("priors.toml/raw", "log_noise_scale_sd"), ("priors.toml/patch", "n_max"), ("priors.toml/ffd", "tau")],
+)
 def test_each_prior_table_refuses_its_own_broken_entry(case, entry, tmp_path):
     """The raw, patch and FFD prior tables are validated on their own: an entry of theirs removed or non-finite is
     refused with one line naming the file and the entry."""

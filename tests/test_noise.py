@@ -19,8 +19,15 @@ def params():
 
 def _quiet(p, **over):
     """Only the components named in ``over`` are on."""
-    base = dict(flicker=0.0, drift_common=0.0, drift_local=0.0, barrier_spread=0.0, outlier_probability=0.0,
-                offset=0.0, bandwidth=0.0)
+    base = dict(
+        flicker=0.0,
+        drift_common=0.0,
+        drift_local=0.0,
+        barrier_spread=0.0,
+        outlier_probability=0.0,
+        offset=0.0,
+        bandwidth=0.0,
+    )
     base.update(over)
     return p._replace(**base)
 
@@ -32,14 +39,18 @@ def test_shipped_toml_loads(params):
     assert math.sqrt(4 * K_B * 300 * 1e3 / 1e6) == pytest.approx(4.07e-12, rel=0.01)
     assert float(nz.noise_std(params, 1e-6, adc=False)) == pytest.approx(math.hypot(17.90e-12, 4.07e-12), rel=0.01)
     lsb = 2e-6 / 2**16
-    assert float(nz.noise_std(params, 1e-6)) == pytest.approx(math.sqrt(17.90e-12**2 + 4.07e-12**2 + lsb**2 / 12),
-                                                              rel=0.01)
+    assert float(nz.noise_std(params, 1e-6)) == pytest.approx(
+        math.sqrt(17.90e-12**2 + 4.07e-12**2 + lsb**2 / 12), rel=0.01
+    )
 
 
-@pytest.mark.parametrize("old,new,needle", [
-    ('unit = "Ohm"', 'unit = "MOhm"', 'feedback_resistance: unit must be "Ohm"'),
-    ('flicker_f_max = { value = 1.0e2,', 'flicker_f_max = { value = 1.0e-3,', "must exceed flicker_f_min"),
-])
+@pytest.mark.parametrize(
+    "old,new,needle",
+    [
+        ('unit = "Ohm"', 'unit = "MOhm"', 'feedback_resistance: unit must be "Ohm"'),
+        ("flicker_f_max = { value = 1.0e2,", "flicker_f_max = { value = 1.0e-3,", "must exceed flicker_f_min"),
+    ],
+)
 def test_bad_toml_raises_badinput(tmp_path, old, new, needle):
     text = (MODELS / "noise.toml").read_text(encoding="utf-8")
     assert old in text
@@ -63,7 +74,7 @@ def _run(p, key, current=1e-6, dt=1e-3, gains=None):
 def test_seeded_reproducibility(params):
     a, b, c = (_run(params, k, 3e-7) for k in (7, 7, 8))
     np.testing.assert_array_equal(a, b)
-    assert np.mean(np.asarray(a) != np.asarray(c)) > 0.9     # negative control: another key differs
+    assert np.mean(np.asarray(a) != np.asarray(c)) > 0.9  # negative control: another key differs
     g1 = nz.fixed_pattern(jax.random.key(1), params, SHAPE[1])
     np.testing.assert_array_equal(g1, nz.fixed_pattern(jax.random.key(1), params, SHAPE[1]))
     assert not np.allclose(g1, nz.fixed_pattern(jax.random.key(2), params, SHAPE[1]))
@@ -75,9 +86,9 @@ def test_white_noise_sigma(params):
     y = _run(_quiet(params, bandwidth=1e3), 3, I0)
     s = float(jnp.std(y - I0))
     expected = math.sqrt(2 * Q_E * I0 * 1e3 + 4 * K_B * 300.0 * 1e3 / 1e6)
-    tol = 4 / math.sqrt(2 * N_SAMPLES)          # = 0.45 %
+    tol = 4 / math.sqrt(2 * N_SAMPLES)  # = 0.45 %
     assert abs(s / expected - 1) < tol
-    assert abs(s / math.sqrt(2 * Q_E * I0 * 1e3) - 1) > tol   # shot noise alone (2.5 % lower) would fail
+    assert abs(s / math.sqrt(2 * Q_E * I0 * 1e3) - 1) > tol  # shot noise alone (2.5 % lower) would fail
     assert abs(float(jnp.mean(y - I0))) < 4 * expected / math.sqrt(N_SAMPLES)
     assert float(nz.noise_std(params, I0, adc=False)) == pytest.approx(expected, rel=1e-12)
 
@@ -100,7 +111,7 @@ def test_adc_quantisation_uniform(params):
 
 
 def test_flicker_psd_is_one_over_f(params):
-    f = jnp.logspace(-1, 1, 41)      # a decade inside each end of [f_min, f_max] = [0.01, 100] Hz
+    f = jnp.logspace(-1, 1, 41)  # a decade inside each end of [f_min, f_max] = [0.01, 100] Hz
     ratio = nz.flicker_psd(params, f) * f / params.flicker
     assert float(jnp.max(jnp.abs(ratio - 1))) < 0.06
     # outside the band the synthesis rolls off (1/f² above f_max)
@@ -120,7 +131,7 @@ def test_random_walk_drift(params):
     dt, rate = 0.01, 1e-3
     x = jnp.log(_run(_quiet(params, drift_local=rate), 6, dt=dt) / 1e-6)
     np.testing.assert_array_equal(x[0], 0.0)
-    expected = rate * math.sqrt((SHAPE[0] - 1) * dt)         # Var = rate² t
+    expected = rate * math.sqrt((SHAPE[0] - 1) * dt)  # Var = rate² t
     assert abs(float(jnp.std(x[-1])) / expected - 1) < 4 / math.sqrt(2 * SHAPE[1])
     # the common drift is one walk shared by all taxels
     c = jnp.log(_run(_quiet(params, drift_common=rate), 6, dt=dt) / 1e-6)
@@ -130,7 +141,7 @@ def test_random_walk_drift(params):
 def test_fixed_pattern_spread(params):
     n = SHAPE[1]
     g = nz.fixed_pattern(jax.random.key(9), params, n)
-    expected = params.barrier_spread / float(thermal_voltage(300.0))   # σ_lnI₀ = σ_Φ/V_T
+    expected = params.barrier_spread / float(thermal_voltage(300.0))  # σ_lnI₀ = σ_Φ/V_T
     assert abs(float(jnp.std(jnp.log(g))) / expected - 1) < 4 / math.sqrt(2 * n)
 
 
@@ -153,7 +164,7 @@ def test_drift_compensation_exact_noiseless(params):
     t = np.arange(n_t)[:, None]
     base = np.where(ref, 1e-7, 1e-7 * (1 + 0.3 * np.sin(0.5 * t + np.arange(n_x))))
     y = _run(_quiet(params, drift_common=1e-1), 12, base, dt=1e-2)
-    assert np.max(np.abs(np.log(np.asarray(y) / base))) > 1e-2     # the drift is really there
+    assert np.max(np.abs(np.log(np.asarray(y) / base))) > 1e-2  # the drift is really there
     np.testing.assert_allclose(nz.drift_compensate(y, ref), base, rtol=1e-12)
     # a multiplicative common factor (e.g. uniform ΔT) is also removed, relative to the first sample
     common = np.exp(0.08 * np.linspace(0.0, 1.0, n_t))[:, None]
@@ -167,7 +178,7 @@ def test_gains_and_gradient(params):
     """Without white noise y = G I exp(log-noise), so ∂y/∂I = y/I exactly; the ADC passes it straight through."""
     p = _quiet(params, flicker=1e-8, drift_local=1e-3)
     gains = nz.fixed_pattern(jax.random.key(11), params, SHAPE[1])
-    i0 = 2e-8      # small enough that G I stays inside the ADC range (no clipping, so ∂/∂I ≠ 0)
+    i0 = 2e-8  # small enough that G I stays inside the ADC range (no clipping, so ∂/∂I ≠ 0)
     i = jnp.full(SHAPE, i0)
     y = _run(p, 13, i, gains=gains)
     assert float(jnp.max(y)) < params.adc_full_scale

@@ -9,8 +9,10 @@ SPECS = {"diameter": Spec("m", 0.0, 1e-3), "current": Spec("A", 0.0, 2.0)}
 
 
 def _doc(**over):
-    tab = {"diameter": {"value": 1e-4, "unit": "m", "source": "Dynalloy"},
-           "current": {"value": 0.15, "unit": "A", "source": "physics.md §1"}}
+    tab = {
+        "diameter": {"value": 1e-4, "unit": "m", "source": "Dynalloy"},
+        "current": {"value": 0.15, "unit": "A", "source": "physics.md §1"},
+    }
     tab.update(over)
     return {"wire": tab}
 
@@ -19,14 +21,17 @@ def test_good_section():
     assert read_section(_doc(), "wire", SPECS, "f.toml") == {"diameter": 1e-4, "current": 0.15}
 
 
-@pytest.mark.parametrize("over,needle", [
-    ({"diameter": {"value": 100, "unit": "um", "source": "x"}}, 'unit must be "m"'),
-    ({"diameter": {"value": float("nan"), "unit": "m", "source": "x"}}, "finite"),
-    ({"diameter": {"value": 1e-4, "unit": "m"}}, "source"),
-    ({"diameter": 1e-4}, "inline table"),
-    ({"current": {"value": 5.0, "unit": "A", "source": "x"}}, "outside the allowed range"),
-    ({"colour": {"value": 1.0, "unit": "", "source": "x"}}, "unknown constant(s) colour"),
-])
+@pytest.mark.parametrize(
+    "over,needle",
+    [
+        ({"diameter": {"value": 100, "unit": "um", "source": "x"}}, 'unit must be "m"'),
+        ({"diameter": {"value": float("nan"), "unit": "m", "source": "x"}}, "finite"),
+        ({"diameter": {"value": 1e-4, "unit": "m"}}, "source"),
+        ({"diameter": 1e-4}, "inline table"),
+        ({"current": {"value": 5.0, "unit": "A", "source": "x"}}, "outside the allowed range"),
+        ({"colour": {"value": 1.0, "unit": "", "source": "x"}}, "unknown constant(s) colour"),
+    ],
+)
 def test_bad_sections(over, needle):
     with pytest.raises(BadInput) as e:
         read_section(_doc(**over), "wire", SPECS, "f.toml")

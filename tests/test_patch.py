@@ -39,8 +39,9 @@ def test_area_limits_and_eq18():
     assert float(P.superellipse_area(a, b, 1.0)) == pytest.approx(2 * a * b, rel=1e-12)
     assert float(P.superellipse_area(a, b, 1e6)) == pytest.approx(4 * a * b, rel=1e-5)
     ns = jnp.logspace(-0.5, 1.5, 25)
-    np.testing.assert_allclose(np.asarray(P.superellipse_area_eq18(a, b, ns)),
-                               np.asarray(P.superellipse_area(a, b, ns)), rtol=1e-12)
+    np.testing.assert_allclose(
+        np.asarray(P.superellipse_area_eq18(a, b, ns)), np.asarray(P.superellipse_area(a, b, ns)), rtol=1e-12
+    )
     # eq. 18's integral 4b ∫0^a (1 − (x/a)^n)^(1/n) dx, by quadrature
     for n in (0.7, 2.6, 5.0):
         integral = 4 * b * quad(lambda x, n=n: (1 - (x / a) ** n) ** (1 / n), 0, a, epsabs=0, epsrel=1e-12)[0]
@@ -48,8 +49,9 @@ def test_area_limits_and_eq18():
 
 
 @pytest.mark.parametrize("binary", [False, True])
-@pytest.mark.parametrize("a,b,n,deg", [(3e-3, 2e-3, 3.0, 25.0), (2.5e-3, 1.5e-3, 2.0, -60.0),
-                                       (3e-3, 2.2e-3, 5.0, 80.0)])
+@pytest.mark.parametrize(
+    "a,b,n,deg", [(3e-3, 2e-3, 3.0, 25.0), (2.5e-3, 1.5e-3, 2.0, -60.0), (3e-3, 2.2e-3, 5.0, 80.0)]
+)
 def test_fit_recovers_superellipse(a, b, n, deg, binary):
     centre = (0.4e-3, -0.3e-3)
     p, xs, ys = synthetic(a, b, n, math.radians(deg), centre, binary=binary)

@@ -289,9 +289,20 @@ def test_a_dask_worker_killed_mid_run_loses_no_finished_trial(tmp_path):
 
         def run():
             try:
-                result.update(run_experiment(tmp_path, planners=("random",), objects=("sphere",), trials=4, budget=1,
-                                             seed=7, scheduler=lc.scheduler_address, settings=SMALL, plot=False,
-                                             log=lambda m: None))
+                result.update(
+                    run_experiment(
+                        tmp_path,
+                        planners=("random",),
+                        objects=("sphere",),
+                        trials=4,
+                        budget=1,
+                        seed=7,
+                        scheduler=lc.scheduler_address,
+                        settings=SMALL,
+                        plot=False,
+                        log=lambda m: None,
+                    )
+                )
             except Exception as e:  # reported below
                 errors.append(e)
 

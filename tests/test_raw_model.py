@@ -160,8 +160,7 @@ def test_bad_input_raises_one_line(tmp_path, empirical):
 
 
 def _fit(ds, out, steps):
-    return raw.run_raw_fit(ds, out, seed=1, walkers=32, steps=steps, progress=False, stride=3, starts=2,
-                           texture="off")
+    return raw.run_raw_fit(ds, out, seed=1, walkers=32, steps=steps, progress=False, stride=3, starts=2, texture="off")
 
 
 @pytest.mark.slow
@@ -220,8 +219,16 @@ def test_raw_fit_resumed_has_the_uninterrupted_chain(tmp_path, empirical):
     import emcee
 
     ds, _ = empirical
-    kw = {"seed": 2, "walkers": 32, "progress": False, "stride": 5, "starts": 1, "texture": "off",
-          "stop_when_converged": False, "adjust": False}
+    kw = {
+        "seed": 2,
+        "walkers": 32,
+        "progress": False,
+        "stride": 5,
+        "starts": 1,
+        "texture": "off",
+        "stop_when_converged": False,
+        "adjust": False,
+    }
     raw.run_raw_fit(ds, tmp_path / "full", steps=130, **kw)
     raw.run_raw_fit(ds, tmp_path / "cut", steps=60, **kw)
     s = raw.run_raw_fit(ds, tmp_path / "cut", steps=130, resume=True, **kw)

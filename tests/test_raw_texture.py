@@ -29,8 +29,14 @@ def _record(textured: bool, strokes: int = 4, seed: int = 5):
     st = random_strokes(obj, strokes, seed=seed, duration=2.0)
     rec = record_strokes(obj, st, vf, seed, mode="empirical")
     g = np.asarray(vf.finger.grid).reshape(-1, 2)
-    ds = build_dataset(rec, g[:, 0], g[:, 1], np.asarray(vf.finger.reference).ravel(), [s.depth for s in st],
-                       {"object": "egg", "seed": seed, "mode": "empirical"})
+    ds = build_dataset(
+        rec,
+        g[:, 0],
+        g[:, 1],
+        np.asarray(vf.finger.reference).ravel(),
+        [s.depth for s in st],
+        {"object": "egg", "seed": seed, "mode": "empirical"},
+    )
     return ds, obj
 
 
@@ -38,8 +44,9 @@ def _start(ds):
     """The bare start at stride 5 and the data at the textured stride."""
     priors = cm.load_priors()
     d5, finger = raw.load_raw_data(ds, stride=raw.BARE_STRIDE)
-    th0 = raw.initial_raw_theta(d5, finger, raw._contact_points(ds, d5.frames), 0, priors, raw.raw_bounds(d5, priors),
-                                starts=2)
+    th0 = raw.initial_raw_theta(
+        d5, finger, raw._contact_points(ds, d5.frames), 0, priors, raw.raw_bounds(d5, priors), starts=2
+    )
     d2, _ = raw.load_raw_data(ds, stride=raw.TEXTURE_STRIDE, finger=finger)
     return th0, d2, finger, priors
 
@@ -53,8 +60,20 @@ def _truth16(obj, data):
     t = obj.texture
     s = obj.shape
     u, v = gr.scene_uv(s, t.amplitude, t.wavelength, t.orientation, raw.texture_reference(data))
-    return np.asarray([*np.asarray(s.centre), *np.log(np.asarray(s.axes)), *np.asarray(s.angles), np.log(float(s.n)),
-                       0.0, u, v, np.log(t.wavelength), t.orientation, np.log(t.roughness)])
+    return np.asarray(
+        [
+            *np.asarray(s.centre),
+            *np.log(np.asarray(s.axes)),
+            *np.asarray(s.angles),
+            np.log(float(s.n)),
+            0.0,
+            u,
+            v,
+            np.log(t.wavelength),
+            t.orientation,
+            np.log(t.roughness),
+        ]
+    )
 
 
 @pytest.mark.slow
@@ -82,8 +101,10 @@ def test_textured_likelihood_reduces_to_the_bare_one(textured):
     # in wavelength or turned by 0.05 rad
     th2 = _truth16(obj, data)
     th2[15] = np.log(1e-12)
-    ll = [float(raw.raw_log_likelihood(jnp.asarray(t), data, finger, texture=tex))
-          for t in (th2, th2 + np.eye(16)[13] * np.log(1.03), th2 + np.eye(16)[14] * 0.05)]
+    ll = [
+        float(raw.raw_log_likelihood(jnp.asarray(t), data, finger, texture=tex))
+        for t in (th2, th2 + np.eye(16)[13] * np.log(1.03), th2 + np.eye(16)[14] * 0.05)
+    ]
     assert ll[0] > float(bare) + 100 and ll[0] > max(ll[1:]) + 100, (ll, float(bare))
 
 
@@ -124,8 +145,9 @@ def test_textured_raw_fit_detects_and_recovers_the_grating(tmp_path, textured):
     orientation (measured from the long axis, in the grating's principal plane), amplitude and roughness come out
     near the truth, and the summary and posterior.nc carry them."""
     ds, obj = textured
-    s = raw.run_raw_fit(ds, tmp_path / "fit", seed=0, walkers=32, steps=300, progress=False, starts=2,
-                        stop_when_converged=False)
+    s = raw.run_raw_fit(
+        ds, tmp_path / "fit", seed=0, walkers=32, steps=300, progress=False, starts=2, stop_when_converged=False
+    )
     p = s["parameters"]
     for name in gr.TEXTURE_NATURAL_NAMES:
         assert name in p and np.isfinite(p[name]["mean"]), name

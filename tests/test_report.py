@@ -32,9 +32,13 @@ def _page(tmp_path, names):
     for k, n in enumerate(names):
         _png(tmp_path / n, k)
     table = Table("numbers", ["name", "value"], [["a", "1"], ["b", "2"]])
-    return write_report(tmp_path, title="a test report", intro="<p>intro</p>",
-                        sections=[("figures", [Figure(n, f"figure {n}") for n in names] + [table])],
-                        files=["a.png", "not_there.csv"])
+    return write_report(
+        tmp_path,
+        title="a test report",
+        intro="<p>intro</p>",
+        sections=[("figures", [Figure(n, f"figure {n}") for n in names] + [table])],
+        files=["a.png", "not_there.csv"],
+    )
 
 
 def test_report_lists_figures_tables_and_existing_files(tmp_path):
@@ -75,9 +79,25 @@ def test_demo_end_to_end_quick(tmp_path):
 
     out = tmp_path / "demo"
     assert main(["demo", "--quick", "--quiet", "--out", str(out), "--seed", "1"]) == 0
-    for f in ["report.html", "summary.json", "posterior.nc", "mean_shape.ply", "uncertainty_mesh.ply", "chain.h5",
-              "points.csv", "recording.nc", "patch_summary.json", "demo.json", "shape.png", "errors.png",
-              "taxel_currents.png", "contact_patch.png", "trace.png", "pair.png", "strokes/summary_0.json"]:
+    for f in [
+        "report.html",
+        "summary.json",
+        "posterior.nc",
+        "mean_shape.ply",
+        "uncertainty_mesh.ply",
+        "chain.h5",
+        "points.csv",
+        "recording.nc",
+        "patch_summary.json",
+        "demo.json",
+        "shape.png",
+        "errors.png",
+        "taxel_currents.png",
+        "contact_patch.png",
+        "trace.png",
+        "pair.png",
+        "strokes/summary_0.json",
+    ]:
         assert (out / f).is_file(), f
     summary = json.loads((out / "summary.json").read_text())
     for name in ("a", "b", "c", "n"):

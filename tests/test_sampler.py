@@ -225,10 +225,26 @@ def test_emcee_snooker_is_biased_and_ours_is_not():
 
     A, y, mean, cov = _problem()
     run = {"walkers": 64, "steps": 1500}
-    stock = sample(_log_prob(A, y, NOISE_SD**2), _start(walkers=64), None, ndim=D, seed=4, progress=False,
-                   moves=[(emcee.moves.DESnookerMove(), 1.0)], **run)
-    ours = sample(_log_prob(A, y, NOISE_SD**2), _start(walkers=64), None, ndim=D, seed=4, progress=False,
-                  moves=[(_snooker_move(), 1.0)], **run)
+    stock = sample(
+        _log_prob(A, y, NOISE_SD**2),
+        _start(walkers=64),
+        None,
+        ndim=D,
+        seed=4,
+        progress=False,
+        moves=[(emcee.moves.DESnookerMove(), 1.0)],
+        **run,
+    )
+    ours = sample(
+        _log_prob(A, y, NOISE_SD**2),
+        _start(walkers=64),
+        None,
+        ndim=D,
+        seed=4,
+        progress=False,
+        moves=[(_snooker_move(), 1.0)],
+        **run,
+    )
     assert not _agrees(stock, mean, cov)
     assert np.all(np.var(stock.kept.reshape(-1, D), axis=0) < 0.8 * np.diag(cov))
     assert _agrees(ours, mean, cov)
@@ -300,8 +316,10 @@ def _gamma_moments_agree(chain, k: float = 4.0) -> bool:
     MCSE of a mean √(var/ESS), of a sample variance var·√((κ − 1)/ESS) with kurtosis κ = 3 + 6/k_shape = 5."""
     flat = chain.kept.reshape(-1, 3)
     ess = flat.shape[0] / chain.tau_max
-    return bool(np.all(np.abs(flat.mean(axis=0) - 3.0) < k * np.sqrt(3.0 / ess))
-                and np.all(np.abs(flat.var(axis=0) - 3.0) < k * 3.0 * np.sqrt(4.0 / ess)))
+    return bool(
+        np.all(np.abs(flat.mean(axis=0) - 3.0) < k * np.sqrt(3.0 / ess))
+        and np.all(np.abs(flat.var(axis=0) - 3.0) < k * 3.0 * np.sqrt(4.0 / ess))
+    )
 
 
 def test_independence_move_keeps_a_skewed_target_and_dropping_the_hastings_factor_does_not():
@@ -330,8 +348,16 @@ def test_adaptive_run_recovers_the_known_posterior_with_a_short_autocorrelation_
     """The adaptive moves on the linear-Gaussian target: the same moment check as DE, and τ at most a third of DE's
     (the independence proposal fitted to a Gaussian accepts most proposals)."""
     A, y, mean, cov, de_chain = known
-    ch = sample(_log_prob(A, y, NOISE_SD**2), _start(walkers=KNOWN["walkers"]), tmp_path / "a.h5", ndim=D, seed=3,
-                progress=False, adapt=True, **KNOWN)
+    ch = sample(
+        _log_prob(A, y, NOISE_SD**2),
+        _start(walkers=KNOWN["walkers"]),
+        tmp_path / "a.h5",
+        ndim=D,
+        seed=3,
+        progress=False,
+        adapt=True,
+        **KNOWN,
+    )
     assert ch.tau_steps == KNOWN["steps"] - 100 and ch.burn >= 100
     assert _agrees(ch, mean, cov)
     assert ch.tau_max < de_chain.tau_max / 3, (ch.tau_max, de_chain.tau_max)
@@ -352,22 +378,36 @@ def test_adaptive_resume_rebuilds_the_proposal_of_the_uninterrupted_run(tmp_path
         return ind, [(ind, 0.8), (emcee.moves.DEMove(), 0.2)]
 
     ind_full, mv = moves()
-    sample(f, _start(), tmp_path / "full.h5", walkers=32, ndim=D, seed=9, steps=250, progress=False, adapt=True,
-           moves=mv)
+    sample(
+        f, _start(), tmp_path / "full.h5", walkers=32, ndim=D, seed=9, steps=250, progress=False, adapt=True, moves=mv
+    )
     ind_cut, mv = moves()
-    sample(f, _start(), tmp_path / "cut.h5", walkers=32, ndim=D, seed=9, steps=200, progress=False, adapt=True,
-           moves=mv)
+    sample(
+        f, _start(), tmp_path / "cut.h5", walkers=32, ndim=D, seed=9, steps=200, progress=False, adapt=True, moves=mv
+    )
     np.testing.assert_array_equal(_full_chain(tmp_path / "cut.h5"), _full_chain(tmp_path / "full.h5")[:200])
     ind_resumed, mv = moves()
-    sample(f, None, tmp_path / "cut.h5", walkers=32, ndim=D, seed=9, steps=200, progress=False, adapt=True, moves=mv,
-           resume=True)
+    sample(
+        f,
+        None,
+        tmp_path / "cut.h5",
+        walkers=32,
+        ndim=D,
+        seed=9,
+        steps=200,
+        progress=False,
+        adapt=True,
+        moves=mv,
+        resume=True,
+    )
     assert ind_full.mean is not None
     np.testing.assert_array_equal(ind_resumed.mean, ind_full.mean)
     np.testing.assert_array_equal(ind_resumed.chol, ind_full.chol)
     # negative control: the fit at step 100 (what a resume at step 150 would rebuild) is a different proposal
     ind_100, mv = moves()
-    sample(f, _start(), tmp_path / "c100.h5", walkers=32, ndim=D, seed=9, steps=150, progress=False, adapt=True,
-           moves=mv)
+    sample(
+        f, _start(), tmp_path / "c100.h5", walkers=32, ndim=D, seed=9, steps=150, progress=False, adapt=True, moves=mv
+    )
     assert not np.array_equal(ind_100.mean, ind_full.mean)
 
 
@@ -382,15 +422,35 @@ def test_a_given_proposal_starts_at_step_0_keeps_the_target_and_a_better_fit_rep
 
     A, y, mean, cov, _ = known
     f = _log_prob(A, y, NOISE_SD**2)
-    exact = sample(f, _start(walkers=KNOWN["walkers"]), tmp_path / "e.h5", ndim=D, seed=4, progress=False, adapt=True,
-                   proposal=(mean, cov), moves=adaptive_moves(30.0), **KNOWN)
+    exact = sample(
+        f,
+        _start(walkers=KNOWN["walkers"]),
+        tmp_path / "e.h5",
+        ndim=D,
+        seed=4,
+        progress=False,
+        adapt=True,
+        proposal=(mean, cov),
+        moves=adaptive_moves(30.0),
+        **KNOWN,
+    )
     assert exact.tau_steps is None and exact.burn == KNOWN["steps"] // 4  # no adaptation stretch skipped
     assert _agrees(exact, mean, cov)
     assert exact.tau_max < 2.0, exact.tau_max
     poor = (mean + 1.5 * np.sqrt(np.diag(cov)), 0.25 * cov)
     moves = adaptive_moves(30.0)
-    ch = sample(f, _start(walkers=KNOWN["walkers"]), tmp_path / "p.h5", ndim=D, seed=4, progress=False, adapt=True,
-                proposal=poor, moves=moves, **KNOWN)
+    ch = sample(
+        f,
+        _start(walkers=KNOWN["walkers"]),
+        tmp_path / "p.h5",
+        ndim=D,
+        seed=4,
+        progress=False,
+        adapt=True,
+        proposal=poor,
+        moves=moves,
+        **KNOWN,
+    )
     assert _agrees(ch, mean, cov)
     ind = moves[0][0]
     assert not np.allclose(ind.mean, poor[0])  # replaced by a fit to the chain
@@ -418,8 +478,9 @@ def test_adaptive_resume_with_a_given_proposal_continues_bit_for_bit(tmp_path):
     shutil.copy(tmp_path / "cut.h5", tmp_path / "cut2.h5")
     sample(f, None, tmp_path / "cut.h5", steps=250, moves=adaptive_moves(30.0), resume=True, **run)
     np.testing.assert_array_equal(_full_chain(tmp_path / "cut.h5"), _full_chain(tmp_path / "full.h5"))
-    sample(f, None, tmp_path / "cut2.h5", steps=250, moves=adaptive_moves(30.0), resume=True,
-           **{**run, "proposal": None})
+    sample(
+        f, None, tmp_path / "cut2.h5", steps=250, moves=adaptive_moves(30.0), resume=True, **{**run, "proposal": None}
+    )
     assert not np.array_equal(_full_chain(tmp_path / "cut2.h5"), _full_chain(tmp_path / "full.h5"))
 
 
@@ -429,8 +490,15 @@ def test_stop_rule_judges_the_monitored_quantities(tmp_path):
     will be judged on, not only the sampled parameters."""
     A, y, _, _ = _problem()
     f = _log_prob(A, y, NOISE_SD**2)
-    kw = {"walkers": 32, "ndim": D, "seed": 1, "steps": 2000, "progress": False, "stop_when_converged": True,
-          "adapt": True}
+    kw = {
+        "walkers": 32,
+        "ndim": D,
+        "seed": 1,
+        "steps": 2000,
+        "progress": False,
+        "stop_when_converged": True,
+        "adapt": True,
+    }
     free = sample(f, _start(), tmp_path / "free.h5", **kw)
     assert free.steps < 2000, free.steps
 

@@ -33,20 +33,26 @@ def test_plate_matches_paper_size():
 GOOD = {"shape": {"centre_m": [0, 0, 0], "axes_m": [0.03, 0.02, 0.01], "n": 2.0}}
 
 
-@pytest.mark.parametrize("doc,needle", [
-    ({}, "[shape]"),
-    ({"shape": {**GOOD["shape"], "axes_m": [30, 20, 10]}}, "millimetres"),
-    ({"shape": {**GOOD["shape"], "axes_m": [0.03, 0.02]}}, "axes_m"),
-    ({"shape": {**GOOD["shape"], "axes_m": [0.03, -0.02, 0.01]}}, "axes_m"),
-    ({"shape": {**GOOD["shape"], "n": 0.5}}, "'n'"),
-    ({"shape": {**GOOD["shape"], "n": "two"}}, "'n'"),
-    ({**GOOD, "defects": [{"kind": "dent", "centre_m": [0, 0, 0.01], "radius_m": 0.001, "depth_m": 1e-4}]},
-     "kind"),
-    ({**GOOD, "defects": [{"kind": "crack", "centre_m": [0, 0, 0.01], "radius_m": 0.001, "depth_m": 1e-4}]},
-     "end_m"),
-    ({**GOOD, "defects": [{"kind": "bump", "centre_m": [0, 0, 0.01], "radius_m": 0.0, "depth_m": 1e-4}]},
-     "radius_m"),
-])
+@pytest.mark.parametrize(
+    "doc,needle",
+    [
+        ({}, "[shape]"),
+        ({"shape": {**GOOD["shape"], "axes_m": [30, 20, 10]}}, "millimetres"),
+        ({"shape": {**GOOD["shape"], "axes_m": [0.03, 0.02]}}, "axes_m"),
+        ({"shape": {**GOOD["shape"], "axes_m": [0.03, -0.02, 0.01]}}, "axes_m"),
+        ({"shape": {**GOOD["shape"], "n": 0.5}}, "'n'"),
+        ({"shape": {**GOOD["shape"], "n": "two"}}, "'n'"),
+        ({**GOOD, "defects": [{"kind": "dent", "centre_m": [0, 0, 0.01], "radius_m": 0.001, "depth_m": 1e-4}]}, "kind"),
+        (
+            {**GOOD, "defects": [{"kind": "crack", "centre_m": [0, 0, 0.01], "radius_m": 0.001, "depth_m": 1e-4}]},
+            "end_m",
+        ),
+        (
+            {**GOOD, "defects": [{"kind": "bump", "centre_m": [0, 0, 0.01], "radius_m": 0.0, "depth_m": 1e-4}]},
+            "radius_m",
+        ),
+    ],
+)
 def test_bad_object_documents(doc, needle):
     with pytest.raises(BadInput) as e:
         object_from_dict(doc, "obj.toml")

@@ -31,6 +31,7 @@ def grid(half, pitch):
 
 # ---------------------------------------------------------------- parameter file
 
+
 def test_shipped_file_loads(params):
     assert isinstance(params, S.SkinParams)
     assert params.E == 100e3 and params.nu == -0.185 and params.h == 2e-3 and params.s == 1e-6
@@ -60,6 +61,7 @@ def test_out_of_range_poisson_is_bad_input(tmp_path):
 
 # ---------------------------------------------------------------- penetration
 
+
 def test_penetration_is_smooth_relu():
     s = 1e-6
     phi = jnp.array([-1e-3, -1e-4, 0.0, 1e-4])
@@ -78,6 +80,7 @@ def test_penetration_gradients():
 
 
 # ---------------------------------------------------------------- closed forms
+
 
 def test_hertz_hand_case():
     # E* = 0.75 MPa / (1 − 0.25) = 1 MPa; a³ = 3·1 N·(4/3 mm)/(4·1 MPa) = 1e-9 m³ → a = 1 mm;
@@ -118,6 +121,7 @@ def test_winkler_sphere(params):
 
 
 # ---------------------------------------------------------------- foam law and blur
+
 
 def test_foam_stress(params, linear):
     M = float(S.bonded_layer_modulus(params.E, params.nu))
@@ -191,15 +195,20 @@ def test_pressure_map_gradients(params):
     rng = np.random.default_rng(0)
     delta = jnp.asarray(rng.uniform(0.0, 4e-4, (6, 7)))
     # checked with δ in mm and p in kPa (finite differences need O(1) numbers); same function, rescaled
-    check_grads(jax.jit(lambda d: S.pressure_map(params, d * 1e-3, 2e-4) / 1e3), (delta / 1e-3,), order=1,
-                modes=("fwd", "rev"))
+    check_grads(
+        jax.jit(lambda d: S.pressure_map(params, d * 1e-3, 2e-4) / 1e3), (delta / 1e-3,), order=1, modes=("fwd", "rev")
+    )
 
     def by_params(v):  # E [100 kPa], h [mm], ℓ_b [mm] traced: the blur width is differentiable too
         q = params._replace(E=v[0] * 1e5, h=v[1] * 1e-3, ell_b=v[2] * 1e-3)
         return S.pressure_map(q, delta, 2e-4) / 1e3
 
-    check_grads(jax.jit(by_params), (jnp.array([params.E / 1e5, params.h / 1e-3, params.ell_b / 1e-3]),), order=1,
-                modes=("fwd", "rev"))
+    check_grads(
+        jax.jit(by_params),
+        (jnp.array([params.E / 1e5, params.h / 1e-3, params.ell_b / 1e-3]),),
+        order=1,
+        modes=("fwd", "rev"),
+    )
 
 
 def test_cosserat_stiffening_bounded(params):
@@ -208,6 +217,7 @@ def test_cosserat_stiffening_bounded(params):
 
 
 # ---------------------------------------------------------------- normal and tangential force
+
 
 def test_hunt_crossley_m1_is_eq19():
     K, lam = 800.0, 240.0  # N/m, N·s/m²

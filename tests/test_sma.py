@@ -39,12 +39,15 @@ def _with(tmp_path, pattern, repl):
     return f
 
 
-@pytest.mark.parametrize("pattern,repl,needle", [
-    (r'^(diameter = \{ value = 100e-6, unit = )"m"', r'\1"um"', 'diameter: unit must be "m"'),
-    (r'^(A_f = \{ value = )322\.15, unit = "K"', r'\g<1>49.0, unit = "degC"', 'A_f: unit must be "K"'),
-    (r'^(convection = \{ value = )135\.0', r'\g<1>-1.0', "outside the allowed range"),
-    (r'^(A_s = \{ value = )307\.65', r'\g<1>330.0', "need A_s < A_f"),
-])
+@pytest.mark.parametrize(
+    "pattern,repl,needle",
+    [
+        (r'^(diameter = \{ value = 100e-6, unit = )"m"', r'\1"um"', 'diameter: unit must be "m"'),
+        (r'^(A_f = \{ value = )322\.15, unit = "K"', r'\g<1>49.0, unit = "degC"', 'A_f: unit must be "K"'),
+        (r"^(convection = \{ value = )135\.0", r"\g<1>-1.0", "outside the allowed range"),
+        (r"^(A_s = \{ value = )307\.65", r"\g<1>330.0", "need A_s < A_f"),
+    ],
+)
 def test_bad_wire_file_is_rejected(tmp_path, pattern, repl, needle):
     with pytest.raises(BadInput) as e:
         sma.load_wire(_with(tmp_path, pattern, repl))
@@ -52,6 +55,7 @@ def test_bad_wire_file_is_rejected(tmp_path, pattern, repl, needle):
 
 
 # ---------------------------------------------------------------- thermal
+
 
 def test_time_constant_from_step_response(wire):
     tau = float(sma.time_constant(wire))
@@ -89,7 +93,8 @@ def test_thermal_rhs_is_the_energy_balance(wire):
     T = sma.steady_state_temperature(wire, 0.15, xi=0.3)
     assert abs(float(sma.thermal_rhs(wire, T, 0.15, 0.3))) < 1e-9
     assert float(sma.thermal_rhs(wire, T, 0.15, 0.3, xi_rate=-1.0)) == pytest.approx(
-        -wire.latent_heat / wire.specific_heat)
+        -wire.latent_heat / wire.specific_heat
+    )
 
 
 def test_latent_heat_slows_heating_and_energy_is_conserved(wire):
@@ -107,7 +112,8 @@ def test_latent_heat_slows_heating_and_energy_is_conserved(wire):
     assert xi[-1] == 0.0
     V = float(sma.wire_area(wire)) * wire.length
     power = I**2 * np.asarray(sma.resistance(wire, xi)) - wire.convection * float(sma.surface_area(wire)) * (
-        Ts - wire.ambient)
+        Ts - wire.ambient
+    )
     e_in = np.trapezoid(power, dx=dt)
     stored = wire.density * V * (wire.specific_heat * (Ts[-1] - Ts[0]) - wire.latent_heat * (xi[-1] - xi[0]))
     assert e_in == pytest.approx(stored, rel=0.01)
@@ -128,6 +134,7 @@ def test_thermal_scan_gradients(wire):
 
 # ---------------------------------------------------------------- Brinson kinetics
 
+
 def _tri(lo, hi, n):
     return jnp.concatenate([jnp.linspace(lo, hi, n), jnp.linspace(hi, lo, n)[1:]])
 
@@ -144,8 +151,8 @@ def test_brinson_major_loop_and_hysteresis(wire):
     xi = np.asarray(sma.transformation(wire, T, 0.1).xi)
     assert xi[0] == 1.0 and xi[n - 1] == 0.0 and xi[-1] == pytest.approx(1.0)
     d = np.diff(xi)
-    assert np.all(d[: n - 1] <= 1e-15) and np.all(d[n - 1:] >= -1e-15)  # heating lowers ξ, cooling raises it
-    Th, Tc = _cross(T[:n], xi[:n]), _cross(T[n - 1:], xi[n - 1:])
+    assert np.all(d[: n - 1] <= 1e-15) and np.all(d[n - 1 :] >= -1e-15)  # heating lowers ξ, cooling raises it
+    Th, Tc = _cross(T[:n], xi[:n]), _cross(T[n - 1 :], xi[n - 1 :])
     # cosine kinetics: ξ = ½ at the middle of each window (Brinson 1993)
     assert Th == pytest.approx(0.5 * (wire.A_s + wire.A_f), abs=0.3)
     assert Tc == pytest.approx(0.5 * (wire.M_s + wire.M_f), abs=0.3)
@@ -160,7 +167,7 @@ def test_stress_shifts_the_windows(wire):
     T = _tri(C0 - 5.0, C0 + 115.0, n)
     s = 200e6
     xi = np.asarray(sma.transformation(wire, T, 0.1, stress=s).xi)
-    Th, Tc = _cross(T[:n], xi[:n]), _cross(T[n - 1:], xi[n - 1:])
+    Th, Tc = _cross(T[:n], xi[:n]), _cross(T[n - 1 :], xi[n - 1 :])
     assert Th == pytest.approx(0.5 * (wire.A_s + wire.A_f) + s / wire.C_A, abs=0.3)
     assert Tc == pytest.approx(0.5 * (wire.M_s + wire.M_f) + (s - wire.sigma_s_cr) / wire.C_M, abs=0.3)
 
@@ -176,7 +183,7 @@ def test_minor_loop_has_no_jump(wire):
     i_rev = 220
     assert 0.3 < xi[i_rev] < 0.7
     assert np.all(np.abs(np.diff(xi)) < 0.02)  # continuous at both reversals
-    assert np.allclose(xi[i_rev:i_rev + 41], xi[i_rev])  # cooling above M_s leaves ξ unchanged
+    assert np.allclose(xi[i_rev : i_rev + 41], xi[i_rev])  # cooling above M_s leaves ξ unchanged
     assert xi[-1] == 0.0
 
 
@@ -200,6 +207,7 @@ def test_steady_state_in_window_does_not_drift(wire):
 
 # ---------------------------------------------------------------- quasi-static law
 
+
 def test_quasi_static_stress_inverts_strain(wire):
     T = jnp.array([wire.ambient, C0 + 40.0, C0 + 90.0, wire.ambient])
     s = jnp.array([135e6, 250e6, 400e6, 300e6])
@@ -208,11 +216,13 @@ def test_quasi_static_stress_inverts_strain(wire):
     # cold wire on the detwinning plateau: σ_s^cr ≤ σ ≤ σ_f^cr for strains between the plateau ends
     cold = np.asarray(sma.quasi_static_stress(wire, jnp.array([0.01, 0.04, 0.07]), wire.ambient))
     assert wire.sigma_s_cr <= cold[0] <= cold[1] <= cold[2] and cold[1] < wire.sigma_f_cr
-    check_grads(jax.jit(lambda e, t: sma.quasi_static_stress(wire, e, t)), (eps, T), order=1,
-                modes=("fwd", "rev"), eps=1e-7)
+    check_grads(
+        jax.jit(lambda e, t: sma.quasi_static_stress(wire, e, t)), (eps, T), order=1, modes=("fwd", "rev"), eps=1e-7
+    )
 
 
 # ---------------------------------------------------------------- Bouc–Wen
+
 
 def test_bouc_wen_hysteresis():
     bw = sma.BoucWenParams(alpha=0.2, k=1.0, A=1.0, beta=0.5, gamma=0.5, n=1.0)
@@ -229,6 +239,7 @@ def test_bouc_wen_hysteresis():
 
 
 # ---------------------------------------------------------------- safety
+
 
 def test_safety_limits(wire):
     s = sma.check_safety(wire, jnp.array([0.1, 0.3, 0.1]), jnp.array([350.0, 350.0, 400.0]))

@@ -67,8 +67,11 @@ def test_gradients_and_vmap():
     egg = load_object(OBJ / "egg.toml")
     surf = egg.surface()
     x = jnp.asarray(egg.mesh(8)[0][:20]) * 1.01
-    f = lambda amp, axes: jnp.sum(signed_distance(surf._replace(  # noqa: E731
-        texture=surf.texture._replace(amplitude=amp), shape=surf.shape._replace(axes=axes)), x))
+
+    def f(amp, axes):
+        tex = surf.texture._replace(amplitude=amp)
+        return jnp.sum(signed_distance(surf._replace(texture=tex, shape=surf.shape._replace(axes=axes)), x))
+
     check_grads(f, (surf.texture.amplitude, surf.shape.axes), order=1, modes=["rev"], eps=1e-7)
     batch = jax.tree_util.tree_map(lambda a: jnp.stack([a, a]), surf)
     out = jax.vmap(signed_distance, in_axes=(0, None))(batch, x)

@@ -37,13 +37,16 @@ def _write(tmp_path, old, new):
     return f
 
 
-@pytest.mark.parametrize("old,new,needle", [
-    ('unit = "m", source = "Wu', 'unit = "um", source = "Wu', 'pitch: unit must be "m"'),
-    ("rows = { value = 16,", "rows = { value = 16.5,", "rows: must be a whole number"),
-    ("polarity = { value = 1,", "polarity = { value = 0.5,", "polarity: must be 1 or -1"),
-    ("reference_rows = { value = 1,", "reference_rows = { value = 16,", "leaves no loaded rows"),
-    ('mode = "physics"', 'mode = "magic"', "mode: must be one of"),
-])
+@pytest.mark.parametrize(
+    "old,new,needle",
+    [
+        ('unit = "m", source = "Wu', 'unit = "um", source = "Wu', 'pitch: unit must be "m"'),
+        ("rows = { value = 16,", "rows = { value = 16.5,", "rows: must be a whole number"),
+        ("polarity = { value = 1,", "polarity = { value = 0.5,", "polarity: must be 1 or -1"),
+        ("reference_rows = { value = 1,", "reference_rows = { value = 16,", "leaves no loaded rows"),
+        ('mode = "physics"', 'mode = "magic"', "mode: must be one of"),
+    ],
+)
 def test_bad_toml_raises_badinput(tmp_path, params, old, new, needle):
     f = _write(tmp_path, old, new)
     with pytest.raises(BadInput, match=needle) as e:
@@ -81,7 +84,7 @@ def test_layout_hexagonal_pores(params):
 
 def test_msm_limits():
     v_t = 0.025
-    i_ss, i_sd = 2e-7, 5e-8   # unequal, so swapping the two limits would fail
+    i_ss, i_sd = 2e-7, 5e-8  # unequal, so swapping the two limits would fail
     assert float(tx.msm_current(i_ss, i_sd, 40 * v_t, v_t)) == pytest.approx(i_sd, rel=1e-12)
     assert float(tx.msm_current(i_ss, i_sd, -40 * v_t, v_t)) == pytest.approx(-i_ss, rel=1e-12)
     assert float(tx.msm_current(i_ss, i_sd, 0.0, v_t)) == 0.0
@@ -98,7 +101,7 @@ def test_msm_limits():
 def test_zero_pressure_and_polarity(params, mode):
     T = 300.0
     i0 = tx.saturation_current(params, T)
-    unstrained = i0 * jnp.tanh(params.bias / (2 * tx.thermal_voltage(T)))   # I_sS = I_sD = I₀
+    unstrained = i0 * jnp.tanh(params.bias / (2 * tx.thermal_voltage(T)))  # I_sS = I_sD = I₀
     assert float(tx.taxel_current(params, 0.0, T, mode)) == pytest.approx(float(unstrained), rel=1e-13)
     dlnI = {s: float(jnp.log(tx.taxel_current(params, 1e3, T, mode, polarity=s) / unstrained)) for s in (1, -1)}
     assert dlnI[1] > 0 > dlnI[-1]
@@ -113,7 +116,7 @@ def test_gauge_factor(params, W, gf):
     """GF = |d ln I / d ε| = 1.55 W / (2 ε_s V_T): 95 / 380 / 1520 (physics.md §4 table), by autodiff."""
     p = params._replace(width_piezo=W)
     dlnI_dp = jax.grad(lambda pr: jnp.log(tx.taxel_current(p, pr, 300.0)))(1e3)
-    GF = float(dlnI_dp) * float(tx.axial_modulus(p)) * p.load_fraction    # dε/dp = −1/(E_c φ)
+    GF = float(dlnI_dp) * float(tx.axial_modulus(p)) * p.load_fraction  # dε/dp = −1/(E_c φ)
     assert GF == pytest.approx(gf, rel=0.01)
     assert float(tx.gauge_factor(p, 300.0)) == pytest.approx(GF, rel=1e-9)
 
@@ -131,7 +134,7 @@ def test_temperature_coefficient(params, T):
     g = jax.grad(lambda t: jnp.log(tx.taxel_current(params, 500.0, t)))(T)
     expected = 2 / T + params.barrier / (float(tx.thermal_voltage(T)) * T)
     assert float(g) == pytest.approx(expected, rel=1e-6)
-    assert 0.05 < float(g) < 0.11   # 6–11 %/K
+    assert 0.05 < float(g) < 0.11  # 6–11 %/K
 
 
 def test_empirical_mode_exact(params):
@@ -146,8 +149,9 @@ def test_empirical_mode_exact(params):
 def test_jit_with_static_mode(params):
     f = jax.jit(tx.taxel_current, static_argnames="mode")
     for mode in tx.MODES:
-        assert float(f(params, 1e3, 310.0, mode)) == pytest.approx(float(tx.taxel_current(params, 1e3, 310.0, mode)),
-                                                                   rel=1e-13)
+        assert float(f(params, 1e3, 310.0, mode)) == pytest.approx(
+            float(tx.taxel_current(params, 1e3, 310.0, mode)), rel=1e-13
+        )
 
 
 @pytest.mark.parametrize("mode", tx.MODES)
@@ -156,11 +160,10 @@ def test_gradients(params, mode):
     p = params._replace(load_fraction=1e-3)
     i_ref = float(tx.saturation_current(p, 300.0))
 
-    def f(p_kpa, T):   # pressure in kPa, current in units of I₀(300 K)
+    def f(p_kpa, T):  # pressure in kPa, current in units of I₀(300 K)
         return tx.taxel_current(p, 1e3 * p_kpa, T, mode) / i_ref
 
-    check_grads(f, (jnp.array([0.5, 3.0, 10.0]), jnp.array([295.0, 300.0, 320.0])), order=1,
-                atol=1e-7, rtol=1e-5)
+    check_grads(f, (jnp.array([0.5, 3.0, 10.0]), jnp.array([295.0, 300.0, 320.0])), order=1, atol=1e-7, rtol=1e-5)
 
 
 def test_first_order_lag_step():

@@ -66,7 +66,7 @@ _euler_batch = jax.jit(lambda R: euler_from_matrix(jnp.moveaxis(R, 0, -1)).T)
 def _rotations(angles) -> np.ndarray:
     """(S, 3) Euler angles (ξ, ψ, ζ) in radians → (S, 3, 3) rotation matrices of eq. 2."""
     angles = np.asarray(angles, dtype=np.float64)
-    return np.asarray(_rotation_batch(jnp.asarray(pad_pow2(angles, fill=0.0))))[:len(angles)]
+    return np.asarray(_rotation_batch(jnp.asarray(pad_pow2(angles, fill=0.0))))[: len(angles)]
 
 
 def _canonical_rotation(axes: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -74,8 +74,8 @@ def _canonical_rotation(axes: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np
     order = np.argsort(-axes, axis=1, kind="stable")
     axes = np.take_along_axis(axes, order, axis=1)
     R = np.take_along_axis(R, order[:, None, :], axis=2)
-    cols = R[:, :, :2]                                           # (S, 3, 2)
-    big = np.argmax(np.abs(cols), axis=1)                        # (S, 2) row of the largest |entry|
+    cols = R[:, :, :2]  # (S, 3, 2)
+    big = np.argmax(np.abs(cols), axis=1)  # (S, 2) row of the largest |entry|
     sign = np.sign(np.take_along_axis(cols, big[:, None, :], axis=1))
     cols = cols * np.where(sign == 0, 1.0, sign)
     third = np.cross(cols[:, :, 0], cols[:, :, 1])
@@ -86,7 +86,7 @@ def _canonical_rows(flat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(S, 10) parameter vectors → canonical (S, 10) vectors and their (S, 3, 3) rotation matrices."""
     axes, R = _canonical_rotation(flat[:, 3:6], _rotations(flat[:, 6:9]))
     # pad to a power of two so that the compiled Euler extraction is reused across batch sizes
-    angles = np.asarray(_euler_batch(jnp.asarray(pad_pow2(R, fill=np.eye(3)))))[:len(R)]
+    angles = np.asarray(_euler_batch(jnp.asarray(pad_pow2(R, fill=np.eye(3)))))[: len(R)]
     return np.concatenate([flat[:, 0:3], axes, angles, flat[:, 9:10]], axis=1), R
 
 
@@ -142,6 +142,7 @@ def canonicalize(shape: NEllipsoid) -> NEllipsoid:
 
 
 # ---------------------------------------------------------------------------------------- parameter distance
+
 
 def proper_signed_permutations() -> tuple[np.ndarray, np.ndarray]:
     """The 24 signed permutation matrices with determinant +1.
@@ -214,6 +215,7 @@ def param_distance(s1: NEllipsoid, s2: NEllipsoid) -> dict[str, float]:
 
 
 # ---------------------------------------------------------------------------------------- Chamfer distance
+
 
 def chamfer(points_a, points_b) -> float:
     """Symmetric Chamfer distance between two point sets, metres.
@@ -439,22 +441,23 @@ def chamfer_surfaces(s1, s2, count: int = 4000, seed=0) -> tuple[float, float]:
 
 # ---------------------------------------------------------------------------------------- winding numbers
 
+
 class _FaceTree(NamedTuple):
     """A bounding-sphere hierarchy over triangles with the moments of Barill et al.'s far-field expansion."""
 
-    tri: np.ndarray      # (F, 3, 3) triangle vertices in tree order, metres (centred)
-    start: np.ndarray    # (K,) first triangle of each node
-    stop: np.ndarray     # (K,) one past its last triangle
-    left: np.ndarray     # (K,) left child, −1 at leaves
-    right: np.ndarray    # (K,) right child, −1 at leaves
-    centre: np.ndarray   # (K, 3) area-weighted centroid p̃
-    radius: np.ndarray   # (K,) max distance from p̃ to the node's vertices
-    N: np.ndarray        # (K, 3) Σ vector areas
-    A1: np.ndarray       # (K, 3, 3) Σ_t n_i ∫_t (x − p̃)_j dA
-    trA1: np.ndarray     # (K,)
-    A2: np.ndarray       # (K, 3, 9) Σ_t n_i ∫_t (x − p̃)_j (x − p̃)_k dA, (j, k) flattened
-    u: np.ndarray        # (K, 3) u_k = Σ_i A2[i, i, k]
-    v: np.ndarray        # (K, 3) v_i = Σ_j A2[i, j, j]
+    tri: np.ndarray  # (F, 3, 3) triangle vertices in tree order, metres (centred)
+    start: np.ndarray  # (K,) first triangle of each node
+    stop: np.ndarray  # (K,) one past its last triangle
+    left: np.ndarray  # (K,) left child, −1 at leaves
+    right: np.ndarray  # (K,) right child, −1 at leaves
+    centre: np.ndarray  # (K, 3) area-weighted centroid p̃
+    radius: np.ndarray  # (K,) max distance from p̃ to the node's vertices
+    N: np.ndarray  # (K, 3) Σ vector areas
+    A1: np.ndarray  # (K, 3, 3) Σ_t n_i ∫_t (x − p̃)_j dA
+    trA1: np.ndarray  # (K,)
+    A2: np.ndarray  # (K, 3, 9) Σ_t n_i ∫_t (x − p̃)_j (x − p̃)_k dA, (j, k) flattened
+    u: np.ndarray  # (K, 3) u_k = Σ_i A2[i, i, k]
+    v: np.ndarray  # (K, 3) v_i = Σ_j A2[i, j, j]
 
 
 def _build_tree(tri: np.ndarray, leaf_size: int) -> _FaceTree:
@@ -487,17 +490,23 @@ def _build_tree(tri: np.ndarray, leaf_size: int) -> _FaceTree:
     start, stop = np.array(start), np.array(stop)
 
     # per-triangle moments (world coordinates), summed over node ranges by prefix sums
-    vec_area = 0.5 * np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])      # (F, 3) = A n
+    vec_area = 0.5 * np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])  # (F, 3) = A n
     area = np.linalg.norm(vec_area, axis=1)
     cen = tri.mean(axis=1)
     s = tri.sum(axis=1)
     # ∫_T x dA = A c and ∫_T x xᵀ dA = (A / 12) (Σ_m v_m v_mᵀ + s sᵀ), s = Σ_m v_m (exact on a flat triangle)
     xx = (np.einsum("fmj,fmk->fjk", tri, tri) + s[:, :, None] * s[:, None, :]) / 12.0  # ∫ x xᵀ dA / A
-    per_face = np.concatenate([
-        area[:, None], area[:, None] * cen, vec_area, cen,
-        np.einsum("fi,fj->fij", vec_area, cen).reshape(-1, 9),
-        np.einsum("fi,fjk->fijk", vec_area, xx).reshape(-1, 27),
-    ], axis=1)
+    per_face = np.concatenate(
+        [
+            area[:, None],
+            area[:, None] * cen,
+            vec_area,
+            cen,
+            np.einsum("fi,fj->fij", vec_area, cen).reshape(-1, 9),
+            np.einsum("fi,fjk->fijk", vec_area, xx).reshape(-1, 27),
+        ],
+        axis=1,
+    )
     csum = np.concatenate([np.zeros((1, per_face.shape[1])), np.cumsum(per_face, axis=0)])
     tot = csum[stop] - csum[start]
     a_sum, ac_sum, N = tot[:, 0], tot[:, 1:4], tot[:, 4:7]
@@ -506,14 +515,31 @@ def _build_tree(tri: np.ndarray, leaf_size: int) -> _FaceTree:
     S2 = tot[:, 19:46].reshape(-1, 3, 3, 3)
     # p̃: area-weighted centroid (the plain centroid mean for degenerate, zero-area nodes)
     p = np.where(a_sum[:, None] > 0, ac_sum / np.where(a_sum > 0, a_sum, 1.0)[:, None], mean_cen)
-    radius = np.array([np.max(np.linalg.norm(tri[i:j] - p[k], axis=2))
-                       for k, (i, j) in enumerate(zip(start, stop, strict=True))])
+    radius = np.array(
+        [np.max(np.linalg.norm(tri[i:j] - p[k], axis=2)) for k, (i, j) in enumerate(zip(start, stop, strict=True))]
+    )
     A1 = S1 - N[:, :, None] * p[:, None, :]
-    A2 = (S2 - S1[:, :, :, None] * p[:, None, None, :] - S1[:, :, None, :] * p[:, None, :, None]
-          + N[:, :, None, None] * p[:, None, :, None] * p[:, None, None, :])
-    return _FaceTree(tri, start, stop, np.array(left), np.array(right), p, radius, N, A1,
-                     np.trace(A1, axis1=1, axis2=2), A2.reshape(-1, 3, 9),
-                     np.einsum("kiij->kj", A2), np.einsum("kijj->ki", A2))
+    A2 = (
+        S2
+        - S1[:, :, :, None] * p[:, None, None, :]
+        - S1[:, :, None, :] * p[:, None, :, None]
+        + N[:, :, None, None] * p[:, None, :, None] * p[:, None, None, :]
+    )
+    return _FaceTree(
+        tri,
+        start,
+        stop,
+        np.array(left),
+        np.array(right),
+        p,
+        radius,
+        N,
+        A1,
+        np.trace(A1, axis1=1, axis2=2),
+        A2.reshape(-1, 3, 9),
+        np.einsum("kiij->kj", A2),
+        np.einsum("kijj->ki", A2),
+    )
 
 
 def _solid_angles(a, b, c) -> np.ndarray:
@@ -525,8 +551,12 @@ def _solid_angles(a, b, c) -> np.ndarray:
     """
     la, lb, lc = (np.sqrt(np.einsum("...i,...i->...", x, x)) for x in (a, b, c))
     det = np.einsum("...i,...i->...", a, np.cross(b, c))
-    den = (la * lb * lc + np.einsum("...i,...i->...", a, b) * lc + np.einsum("...i,...i->...", a, c) * lb
-           + np.einsum("...i,...i->...", b, c) * la)
+    den = (
+        la * lb * lc
+        + np.einsum("...i,...i->...", a, b) * lc
+        + np.einsum("...i,...i->...", a, c) * lb
+        + np.einsum("...i,...i->...", b, c) * la
+    )
     return 2.0 * np.arctan2(det, den)
 
 
@@ -535,8 +565,8 @@ def _winding_exact(tri: np.ndarray, q: np.ndarray, max_pairs: int = 1 << 21) -> 
     out = np.empty(len(q))
     step = max(1, max_pairs // max(len(tri), 1))
     for i in range(0, len(q), step):
-        d = tri[None, :, :, :] - q[i:i + step, None, None, :]
-        out[i:i + step] = _solid_angles(d[:, :, 0], d[:, :, 1], d[:, :, 2]).sum(axis=1)
+        d = tri[None, :, :, :] - q[i : i + step, None, None, :]
+        out[i : i + step] = _solid_angles(d[:, :, 0], d[:, :, 1], d[:, :, 2]).sum(axis=1)
     return out / (4.0 * math.pi)
 
 
@@ -546,7 +576,7 @@ def _far_field(tree: _FaceTree, r: np.ndarray, k: np.ndarray) -> np.ndarray:
     Ω = ∫ g(x − q)·n dA with g(r) = r / |r|³, expanded about x = p̃: g·N + J : A1 + ½ H ⋮ A2.
     """
     d2 = np.einsum("pi,pi->p", r, r)
-    inv3 = d2 ** -1.5
+    inv3 = d2**-1.5
     inv5 = inv3 / d2
     inv7 = inv5 / d2
     t0 = np.einsum("pi,pi->p", r, tree.N[k]) * inv3
@@ -586,8 +616,9 @@ def _winding_tree(tree: _FaceTree, q: np.ndarray, beta: float) -> np.ndarray:
     return total / (4.0 * math.pi)
 
 
-def winding_number(vertices, faces, points, *, beta: float | None = 2.0, leaf_size: int = 16,
-                   chunk: int = 4096) -> np.ndarray:
+def winding_number(
+    vertices, faces, points, *, beta: float | None = 2.0, leaf_size: int = 16, chunk: int = 4096
+) -> np.ndarray:
     """Generalised winding numbers of points with respect to a triangle mesh (Jacobson et al. 2013).
 
     w(q) = Σ_t Ω_t(q) / 4π, the solid angles Ω_t of the triangles seen from q by the Van Oosterom–Strackee
@@ -625,8 +656,9 @@ def winding_number(vertices, faces, points, *, beta: float | None = 2.0, leaf_si
     if beta <= 1.0:
         raise ValueError(f"beta must exceed 1 for the far-field expansion to converge, got {beta}")
     tree = _build_tree(tri, int(leaf_size))
-    return np.concatenate([_winding_tree(tree, q[i:i + chunk], beta) for i in range(0, len(q), chunk)]
-                          or [np.empty(0)])
+    return np.concatenate(
+        [_winding_tree(tree, q[i : i + chunk], beta) for i in range(0, len(q), chunk)] or [np.empty(0)]
+    )
 
 
 def mesh_inside(vertices, faces, points, *, beta: float | None = 2.0, leaf_size: int = 16) -> np.ndarray:
@@ -658,6 +690,7 @@ def mesh_inside(vertices, faces, points, *, beta: float | None = 2.0, leaf_size:
 
 
 # ---------------------------------------------------------------------------------------- IoU
+
 
 def _solid(obj):
     """(lower corner (3,), upper corner (3,), indicator of the solid on (N, 3) points) of a shape or mesh."""
@@ -718,6 +751,7 @@ def iou_mesh(vertices, faces, other, count: int = 200_000, seed=0) -> tuple[floa
 
 # ---------------------------------------------------------------------------------------- everything
 
+
 def compare_shapes(a, b, *, res: int = 48, count: int = 200_000, seed=0, chamfer_count: int = 4000) -> dict:
     """Compare an estimate ``a`` with the truth ``b``, each an NEllipsoid or a mesh (vertices, faces).
 
@@ -741,6 +775,7 @@ def compare_shapes(a, b, *, res: int = 48, count: int = 200_000, seed=0, chamfer
         :func:`~bayestouch.geometry.integrals.surface_integrals` on the meshes; ``iou`` and ``iou_se``;
         ``chamfer`` (m); and ``param_distance`` (a dict, :func:`param_distance`) when both are NEllipsoids.
     """
+
     def as_mesh(obj):
         return nellipsoid_mesh(obj, res) if isinstance(obj, NEllipsoid) else obj
 

@@ -68,8 +68,9 @@ def identity_lattice(lower, upper, dims) -> np.ndarray:
     """The paper's P₀: uniformly spaced control points of the box; ``(l·m·k, 3)`` metres."""
     l, m, k = _check_dims(dims)
     lower, upper = np.asarray(lower, float), np.asarray(upper, float)
-    g = np.stack(np.meshgrid(np.linspace(0, 1, l), np.linspace(0, 1, m), np.linspace(0, 1, k),
-                             indexing="ij"), axis=-1).reshape(-1, 3)
+    g = np.stack(
+        np.meshgrid(np.linspace(0, 1, l), np.linspace(0, 1, m), np.linspace(0, 1, k), indexing="ij"), axis=-1
+    ).reshape(-1, 3)
     return lower + g * (upper - lower)
 
 
@@ -129,8 +130,20 @@ class FFDFit(NamedTuple):
     converged: bool
 
 
-def fit_two_step(model_points, faces, data, lower, upper, dims, *, max_iter: int = 200,
-                 tol: float = 1e-3, ridge: float = 1e-4, patience: int = 5, anchor: str = "initial") -> FFDFit:
+def fit_two_step(
+    model_points,
+    faces,
+    data,
+    lower,
+    upper,
+    dims,
+    *,
+    max_iter: int = 200,
+    tol: float = 1e-3,
+    ridge: float = 1e-4,
+    patience: int = 5,
+    anchor: str = "initial",
+) -> FFDFit:
     """The paper's iterative two-step FFD refinement (eq. 9–10).
 
     Step 1: project the current model X_n on the data: for every data point the closest point of the

@@ -174,8 +174,9 @@ def _closest_on_triangles(p, a, b, c):
     return out
 
 
-def closest_points(vertices, faces, points, k: int = 12, *, exact: bool = False) -> tuple[np.ndarray, np.ndarray,
-                                                                                           np.ndarray]:
+def closest_points(
+    vertices, faces, points, k: int = 12, *, exact: bool = False
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Closest points on a triangle mesh to query points.
 
     Candidates are the ``k`` triangles whose centroids are nearest (exact for meshes whose triangles

@@ -217,11 +217,13 @@ def second_moment(s: NEllipsoid):
     divergence theorem, since ∂_k(y_i y_j y_k) = 5 y_i y_j.
     """
     a = s.axes
-    m = jnp.stack([
-        8.0 * a[0] ** 3 * a[1] * a[2] * _dirichlet(jnp.array([3.0, 1.0, 1.0]), s.n),
-        8.0 * a[0] * a[1] ** 3 * a[2] * _dirichlet(jnp.array([1.0, 3.0, 1.0]), s.n),
-        8.0 * a[0] * a[1] * a[2] ** 3 * _dirichlet(jnp.array([1.0, 1.0, 3.0]), s.n),
-    ])
+    m = jnp.stack(
+        [
+            8.0 * a[0] ** 3 * a[1] * a[2] * _dirichlet(jnp.array([3.0, 1.0, 1.0]), s.n),
+            8.0 * a[0] * a[1] ** 3 * a[2] * _dirichlet(jnp.array([1.0, 3.0, 1.0]), s.n),
+            8.0 * a[0] * a[1] * a[2] ** 3 * _dirichlet(jnp.array([1.0, 1.0, 3.0]), s.n),
+        ]
+    )
     R = s.rotation
     return (R * m) @ R.T + volume(s) * jnp.outer(s.centre, s.centre)
 
@@ -250,4 +252,4 @@ def evaluate(fn, s: NEllipsoid, points, min_size: int = 256) -> np.ndarray:
         ``fn``'s output for the N points.
     """
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    return np.asarray(_evaluate(fn, to_vector(s), jnp.asarray(pad_pow2(p, min_size=min_size))))[:len(p)]
+    return np.asarray(_evaluate(fn, to_vector(s), jnp.asarray(pad_pow2(p, min_size=min_size))))[: len(p)]

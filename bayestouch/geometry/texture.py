@@ -189,8 +189,18 @@ def _stiffness(grads, areas, faces, coef, nv) -> sp.csr_matrix:
     return sp.csr_matrix((local.ravel(), (rows, cols)), shape=(nv, nv))
 
 
-def solve_indicator(vertices, faces, weights, seeds, p: float = 1.0, q: float = 2.0, *, max_iter: int = 50,
-                    rtol: float = 1e-6, floor: float = 1e-9) -> tuple[np.ndarray, int]:
+def solve_indicator(
+    vertices,
+    faces,
+    weights,
+    seeds,
+    p: float = 1.0,
+    q: float = 2.0,
+    *,
+    max_iter: int = 50,
+    rtol: float = 1e-6,
+    floor: float = 1e-9,
+) -> tuple[np.ndarray, int]:
     """Minimise J(I) over the free vertices with the seeds fixed.
 
     q = 2 is one sparse linear solve; q ≠ 2 uses iteratively reweighted least squares with the
@@ -225,8 +235,7 @@ def solve_indicator(vertices, faces, weights, seeds, p: float = 1.0, q: float = 
     g, area = np.asarray(g), np.asarray(area)
     wp = np.asarray(weights, float) ** p
     free = ~fixed
-    edge = float(np.mean(np.linalg.norm(np.asarray(vertices)[faces[:, 1]] - np.asarray(vertices)[faces[:, 0]],
-                                        axis=1)))
+    edge = float(np.mean(np.linalg.norm(np.asarray(vertices)[faces[:, 1]] - np.asarray(vertices)[faces[:, 0]], axis=1)))
     delta2 = (floor / edge) ** 2
     coef = wp.copy()
     it = 0
@@ -246,8 +255,9 @@ def solve_indicator(vertices, faces, weights, seeds, p: float = 1.0, q: float = 
     return I, it
 
 
-def texture_indicator(vertices, faces, data, residuals, p: float = 1.0, q: float = 2.0, *,
-                      tol: float, k: int = 8) -> TextureIndicator:
+def texture_indicator(
+    vertices, faces, data, residuals, p: float = 1.0, q: float = 2.0, *, tol: float, k: int = 8
+) -> TextureIndicator:
     """J(I) of eq. 3 for a model surface and probed data.
 
     Parameters

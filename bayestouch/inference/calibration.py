@@ -331,7 +331,15 @@ class _Lockstep:
 
 
 def posterior_draws(
-    logp, theta_start, *, seed: int, walkers: int, steps: int, n_draws: int, progress: bool = False, moves=None,
+    logp,
+    theta_start,
+    *,
+    seed: int,
+    walkers: int,
+    steps: int,
+    n_draws: int,
+    progress: bool = False,
+    moves=None,
     adapt: bool = False,
 ) -> tuple[np.ndarray, dict]:
     """Roughly independent posterior draws (n_draws, 11) of θ by emcee, started in a ball around ``theta_start``.
@@ -357,8 +365,18 @@ def posterior_draws(
     start = np.clip(
         theta_start + scale * rng.normal(size=(walkers, lo.size)), lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo)
     )
-    ch = sample(logp, start, None, walkers=walkers, ndim=lo.size, seed=seed, steps=steps, progress=progress,
-                moves=moves, adapt=adapt)
+    ch = sample(
+        logp,
+        start,
+        None,
+        walkers=walkers,
+        ndim=lo.size,
+        seed=seed,
+        steps=steps,
+        progress=progress,
+        moves=moves,
+        adapt=adapt,
+    )
     kept = ch.kept
     pool = kept[:: max(1, int(np.ceil(ch.tau_max)))].reshape(-1, lo.size)
     short = len(pool) < n_draws
@@ -574,10 +592,16 @@ def main(argv=None) -> int:
     ap.add_argument("--walkers", type=int, default=32)
     ap.add_argument("--steps", type=int, default=800)
     ap.add_argument("--draws", type=int, default=99)
-    ap.add_argument("--area-term", action="store_true",
-                    help="add -M log A(theta) to contact.log_likelihood (a check of the check; module docstring)")
-    ap.add_argument("--no-area-term", action="store_true", help="contact.log_likelihood as the package uses it "
-                    "(the default; kept for old command lines)")
+    ap.add_argument(
+        "--area-term",
+        action="store_true",
+        help="add -M log A(theta) to contact.log_likelihood (a check of the check; module docstring)",
+    )
+    ap.add_argument(
+        "--no-area-term",
+        action="store_true",
+        help="contact.log_likelihood as the package uses it (the default; kept for old command lines)",
+    )
     ap.add_argument("--likelihood-power", type=float, default=1.0)
     ap.add_argument(
         "--moves",

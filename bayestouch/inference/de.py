@@ -62,8 +62,17 @@ def _search(init, r1, r2, f, u_cross, jrand, u_new, lower, upper, pts, wts):
     return jnp.take_along_axis(pop, i[:, None, None], axis=1)[:, 0], jnp.take_along_axis(cost, i[:, None], axis=1)[:, 0]
 
 
-def de_search(points, lower, upper, seed: int, *, starts: int = 3, popsize: int = 120, generations: int = 250,
-              max_points: int = 256) -> tuple[np.ndarray, np.ndarray]:
+def de_search(
+    points,
+    lower,
+    upper,
+    seed: int,
+    *,
+    starts: int = 3,
+    popsize: int = 120,
+    generations: int = 250,
+    max_points: int = 256,
+) -> tuple[np.ndarray, np.ndarray]:
     """Independent differential-evolution searches for the n-ellipsoid closest to ``points`` in the radial sense.
 
     Parameters
@@ -102,7 +111,17 @@ def de_search(points, lower, upper, seed: int, *, starts: int = 3, popsize: int 
     d, g, s, p = lower.size, int(generations), int(starts), int(popsize)
     r1 = rng.integers(0, p, (g, s, p))
     r2 = (r1 + rng.integers(1, p, (g, s, p))) % p  # a second member, never the first
-    best, cost = _search(rng.uniform(size=(s, p, d)), r1, r2, rng.uniform(*F_RANGE, (g, s)),
-                         rng.uniform(size=(g, s, p, d)), rng.integers(0, d, (g, s, p)), rng.uniform(size=(g, s, p, d)),
-                         jnp.asarray(lower), jnp.asarray(upper), jnp.asarray(padded), jnp.asarray(wts))
+    best, cost = _search(
+        rng.uniform(size=(s, p, d)),
+        r1,
+        r2,
+        rng.uniform(*F_RANGE, (g, s)),
+        rng.uniform(size=(g, s, p, d)),
+        rng.integers(0, d, (g, s, p)),
+        rng.uniform(size=(g, s, p, d)),
+        jnp.asarray(lower),
+        jnp.asarray(upper),
+        jnp.asarray(padded),
+        jnp.asarray(wts),
+    )
     return np.asarray(best), np.asarray(cost)

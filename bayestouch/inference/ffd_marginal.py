@@ -40,8 +40,17 @@ from bayestouch.geometry import nellipsoid as ne
 from bayestouch.inference import contact as cm
 from bayestouch.params import MODELS, Spec, build
 
-__all__ = ["design_matrix", "marginal_log_likelihood", "conditional_lattice", "make_ffd_log_prob",
-           "deformed_points", "DEFAULT_TAU", "DEFAULT_MARGIN", "load_ffd_priors"]
+__all__ = [
+    "design_matrix",
+    "marginal_log_likelihood",
+    "conditional_lattice",
+    "make_ffd_log_prob",
+    "deformed_points",
+    "DEFAULT_TAU",
+    "DEFAULT_MARGIN",
+    "load_ffd_priors",
+]
+
 
 def load_ffd_priors(path=None) -> dict[str, float]:
     """Read ``[ffd_priors]`` of ``models/priors.toml`` (or ``path``): tau, metres."""

@@ -96,8 +96,9 @@ def load_texture_priors(path=None) -> TexturePriors:
     p = MODELS / "priors.toml" if path is None else path
     tp = build(TexturePriors, p, "texture_priors", TEXTURE_PRIOR_SPECS)
     if not (tp.wavelength_min < tp.wavelength_max and tp.roughness_min < tp.roughness_max):
-        raise BadInput(f"{p} [texture_priors]: expected wavelength_min < wavelength_max and "
-                       "roughness_min < roughness_max (metres)")
+        raise BadInput(
+            f"{p} [texture_priors]: expected wavelength_min < wavelength_max and roughness_min < roughness_max (metres)"
+        )
     return tp
 
 
@@ -280,12 +281,19 @@ def refine_peak(weights, xy, wavelength: float, orientation: float, norm=None):
     def neg(z):
         k = _TWO_PI * np.exp(-z[0]) * np.array([np.cos(z[1]), np.sin(z[1])])
         den = 1.0 if norm is None else float(np.asarray(norm(np.array([k[0]]), np.array([k[1]])))[0])
-        return -np.abs(np.sum(w * np.exp(-1j * (p @ k)))) ** 2 / max(den, 1e-300)
+        return -(np.abs(np.sum(w * np.exp(-1j * (p @ k)))) ** 2) / max(den, 1e-300)
 
     z0 = np.array([np.log(wavelength), orientation])
-    res = minimize(neg, z0, method="Nelder-Mead", options={"xatol": 1e-6, "fatol": 1e-9 * abs(neg(z0)),
-                                                           "initial_simplex": z0 + np.array([[0, 0], [0.01, 0],
-                                                                                              [0, 0.01]])})
+    res = minimize(
+        neg,
+        z0,
+        method="Nelder-Mead",
+        options={
+            "xatol": 1e-6,
+            "fatol": 1e-9 * abs(neg(z0)),
+            "initial_simplex": z0 + np.array([[0, 0], [0.01, 0], [0, 0.01]]),
+        },
+    )
     return float(np.exp(res.x[0])), float(res.x[1] % np.pi), float(-res.fun)
 
 
@@ -313,8 +321,9 @@ def texture_natural(flat: np.ndarray) -> np.ndarray:
     o = flat[:, 14]
     turns = np.floor(o / np.pi)
     u = np.where(turns % 2 == 0, u, -u)
-    return np.column_stack([np.hypot(u, v), np.exp(flat[:, 13]), o - turns * np.pi, np.arctan2(v, u),
-                            np.exp(flat[:, 15])])
+    return np.column_stack(
+        [np.hypot(u, v), np.exp(flat[:, 13]), o - turns * np.pi, np.arctan2(v, u), np.exp(flat[:, 15])]
+    )
 
 
 def scene_uv(shape, amplitude: float, wavelength: float, orientation: float, ref) -> tuple[float, float]:

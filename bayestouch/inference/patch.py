@@ -98,8 +98,12 @@ SUMMARY_NAMES = ("u0", "v0", "a", "b", "angle", "n", "depth")
 
 #: prior ranges (see the module docstring; ``[patch_priors]`` of ``models/priors.toml``): a, b ≥ A_MIN m,
 #: n ∈ [N_MIN, N_MAX], δ0 ≥ DEPTH_MIN m
-PATCH_PRIOR_SPECS = {"a_min": Spec("m", 1e-6, 1e-2), "n_min": Spec("1", 0.5, 10.0), "n_max": Spec("1", 1.0, 100.0),
-                     "depth_min": Spec("m", 1e-9, 1e-3)}
+PATCH_PRIOR_SPECS = {
+    "a_min": Spec("m", 1e-6, 1e-2),
+    "n_min": Spec("1", 0.5, 10.0),
+    "n_max": Spec("1", 1.0, 100.0),
+    "depth_min": Spec("m", 1e-9, 1e-3),
+}
 
 
 def load_patch_priors(path=None) -> dict[str, float]:

@@ -151,8 +151,11 @@ __all__ = [
     "PRUNE_MARGIN",
 ]
 
-RAW_PRIOR_SPECS = {"noise_scale_min": Spec("1", 1e-3, 1.0), "noise_scale_max": Spec("1", 1.0, 1e8),
-                   "log_noise_scale_sd": Spec("1", 1e-2, 100.0)}
+RAW_PRIOR_SPECS = {
+    "noise_scale_min": Spec("1", 1e-3, 1.0),
+    "noise_scale_max": Spec("1", 1.0, 1e8),
+    "log_noise_scale_sd": Spec("1", 1e-2, 100.0),
+}
 
 
 def load_raw_priors(path=None) -> dict[str, float]:
@@ -578,8 +581,9 @@ def raw_bounds(data: RawData, priors: cm.PriorParams) -> cm.Bounds:
     return cm.Bounds(jnp.asarray(lo), jnp.asarray(hi))
 
 
-def raw_log_prob_batch(thetas, data: RawData, finger, bounds: cm.Bounds, nu: float = STUDENT_NU,
-                       texture: RawTexture | None = None):
+def raw_log_prob_batch(
+    thetas, data: RawData, finger, bounds: cm.Bounds, nu: float = STUDENT_NU, texture: RawTexture | None = None
+):
     """Log-posterior (W,) (unnormalised) of walkers ``thetas (W, D)``: −inf outside the prior box, never NaN;
     pure JAX. The signed distances of all walkers come from one batched kernel; the skin, taxel and lag models
     are mapped over walkers."""
@@ -594,14 +598,21 @@ def raw_log_prob_batch(thetas, data: RawData, finger, bounds: cm.Bounds, nu: flo
     return jnp.where(jnp.isnan(out), -jnp.inf, out)
 
 
-def raw_log_prob(theta, data: RawData, finger, bounds: cm.Bounds, nu: float = STUDENT_NU,
-                 texture: RawTexture | None = None):
+def raw_log_prob(
+    theta, data: RawData, finger, bounds: cm.Bounds, nu: float = STUDENT_NU, texture: RawTexture | None = None
+):
     """Log-posterior (unnormalised) of one θ (11,) or (16,) with ``texture``; see :func:`raw_log_prob_batch`."""
     return raw_log_prob_batch(jnp.asarray(theta)[None], data, finger, bounds, nu, texture)[0]
 
 
-def make_raw_log_prob(data: RawData, finger, priors: cm.PriorParams | None = None, nu: float = STUDENT_NU,
-                      texture: RawTexture | None = None, bounds: cm.Bounds | None = None):
+def make_raw_log_prob(
+    data: RawData,
+    finger,
+    priors: cm.PriorParams | None = None,
+    nu: float = STUDENT_NU,
+    texture: RawTexture | None = None,
+    bounds: cm.Bounds | None = None,
+):
     """A jitted, walker-vectorised log-posterior for ``emcee(vectorize=True)``.
 
     Returns
@@ -679,8 +690,17 @@ def _height_jvp(th, hh, data: RawData, finger, texture: RawTexture | None = None
     return jax.jvp(lambda h: _log_current(sdf - h, data, finger), (jnp.zeros_like(sdf),), (hh,))[1]
 
 
-def search_texture(theta0, data: RawData, finger, tp: gr.TexturePriors, nu: float = STUDENT_NU, count: int = 5,
-                   rings: int = 24, directions: int = 32, planes=(0, 1, 2)):
+def search_texture(
+    theta0,
+    data: RawData,
+    finger,
+    tp: gr.TexturePriors,
+    nu: float = STUDENT_NU,
+    count: int = 5,
+    rings: int = 24,
+    directions: int = 32,
+    planes=(0, 1, 2),
+):
     """Grating candidates from the residuals of the bare-shape estimate ``theta0`` (11,), by the generalised
     likelihood-ratio statistic of a grating of wave vector k in the sampled frame's x–y plane, linearised at
     θ₀: |C(k)|²/A(k) with C(k) = Σ_p c_p e^{−i k·y_p}, where c = Jᵀψ is the robust (Student-t) score ψ of the
@@ -732,19 +752,22 @@ def search_texture(theta0, data: RawData, finger, tp: gr.TexturePriors, nu: floa
         ph = jnp.einsum("fjd,kd->kfj", xy_j, kb)
         out = jax.vmap(lambda hh: _height_jvp(th, hh, data, finger))(jnp.concatenate([jnp.cos(ph), jnp.sin(ph)]))
         e = jnp.sum(out * out * wgt, axis=(1, 2))
-        return e[: kb.shape[0]] + e[kb.shape[0]:]
+        return e[: kb.shape[0]] + e[kb.shape[0] :]
 
     found = []
     for plane in planes:
         P = _PLANES[plane]
         xy = (foot @ P)[:, :2] - (yref @ P)[:2]  # coordinates in the frame R P (plane_theta's)
         xy_j = jnp.asarray(xy.reshape(np.shape(data.taxel_position)[:2] + (2,)))
-        A = np.concatenate([np.asarray(energy(xy_j, kp[i: i + nb])) for i in range(0, len(kp), nb)])[: len(kv)]
+        A = np.concatenate([np.asarray(energy(xy_j, kp[i : i + nb])) for i in range(0, len(kp), nb)])[: len(kv)]
         A = A.reshape(rings, directions)
         # periodic in angle with period π (A(k) = A(−k)): pad one column each side
-        interp = RegularGridInterpolator((logk, np.concatenate([[ang[-1] - np.pi], ang, [np.pi]])),
-                                         np.log(np.concatenate([A[:, -1:], A, A[:, :1]], axis=1)),
-                                         bounds_error=False, fill_value=None)
+        interp = RegularGridInterpolator(
+            (logk, np.concatenate([[ang[-1] - np.pi], ang, [np.pi]])),
+            np.log(np.concatenate([A[:, -1:], A, A[:, :1]], axis=1)),
+            bounds_error=False,
+            fill_value=None,
+        )
 
         def norm(kx, ky, interp=interp):
             kk = np.clip(np.hypot(kx, ky), np.exp(logk[0]), np.exp(logk[-1]))
@@ -814,8 +837,14 @@ def _lbfgs(fn, th, lo, hi, scale, maxiter: int = 3000, rounds: int = 3, rescale:
             return v, g
 
         zb = list(zip((lo - t1) / sc, (hi - t1) / sc, strict=True))
-        res = minimize(obj, np.zeros(t1.size), jac=True, method="L-BFGS-B", bounds=zb,
-                       options={"maxiter": maxiter, "ftol": 1e-15, "gtol": 1e-6})
+        res = minimize(
+            obj,
+            np.zeros(t1.size),
+            jac=True,
+            method="L-BFGS-B",
+            bounds=zb,
+            options={"maxiter": maxiter, "ftol": 1e-15, "gtol": 1e-6},
+        )
         if not res.fun < best:
             break
         th, gain = np.clip(t1 + res.x * sc, lo, hi), best - float(res.fun)
@@ -827,8 +856,9 @@ def _lbfgs(fn, th, lo, hi, scale, maxiter: int = 3000, rounds: int = 3, rescale:
 
 #: variable scales of the raw optimiser: 10 µm, 1e-4 (log axes), 1 mrad, 1e-4 (log n), 0.1 (log k), then
 #: 1 µm (u, v), 1e-4 (log λ), 1e-4 rad (o), 0.1 (log σ_r)
-_OPT_SCALE = np.concatenate([np.full(3, 1e-5), np.full(3, 1e-4), np.full(3, 1e-3), [1e-4], [1e-1],
-                             [1e-6, 1e-6, 1e-4, 1e-4, 1e-1]])
+_OPT_SCALE = np.concatenate(
+    [np.full(3, 1e-5), np.full(3, 1e-4), np.full(3, 1e-3), [1e-4], [1e-1], [1e-6, 1e-6, 1e-4, 1e-4, 1e-1]]
+)
 
 
 class TextureStart(NamedTuple):
@@ -922,8 +952,17 @@ def laplace_ball(moments, lo, hi, walkers: int, rng: np.random.Generator) -> np.
     return np.clip(p, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
 
 
-def initial_raw_texture(theta0, data: RawData, finger, priors: cm.PriorParams, tp: gr.TexturePriors,
-                        nu: float = STUDENT_NU, count: int = 5, seed: int = 0, polish: int = 6):
+def initial_raw_texture(
+    theta0,
+    data: RawData,
+    finger,
+    priors: cm.PriorParams,
+    tp: gr.TexturePriors,
+    nu: float = STUDENT_NU,
+    count: int = 5,
+    seed: int = 0,
+    polish: int = 6,
+):
     """Textured start from the bare-shape estimate ``theta0`` (11,).
 
     1. The bare shape is polished on ``data`` (L-BFGS-B, :func:`_lbfgs`) and put in the canonical frame
@@ -948,8 +987,9 @@ def initial_raw_texture(theta0, data: RawData, finger, priors: cm.PriorParams, t
     # shape misfit for the search to mistake for a grating, and its log-posterior is the baseline of the gain
     bare_b = raw_bounds(data, priors)
     bare_fn = jax.jit(jax.value_and_grad(lambda t: -raw_log_prob(t, data, finger, bare_b, nu)))
-    theta0, f_bare = _lbfgs(bare_fn, canonical_theta(theta0), np.asarray(bare_b.lower), np.asarray(bare_b.upper),
-                            _OPT_SCALE[:11])
+    theta0, f_bare = _lbfgs(
+        bare_fn, canonical_theta(theta0), np.asarray(bare_b.lower), np.asarray(bare_b.upper), _OPT_SCALE[:11]
+    )
     theta0 = canonical_theta(theta0)
     ref = texture_reference(data)
     frames = [plane_theta(theta0, p) for p in range(len(_PLANES))]
@@ -971,8 +1011,9 @@ def initial_raw_texture(theta0, data: RawData, finger, priors: cm.PriorParams, t
         def neg(lk):
             return -float(value(jnp.asarray(th).at[10].set(lk), b, tex))
 
-        res = minimize_scalar(neg, bounds=(float(b.lower[10]), float(b.upper[10])), method="bounded",
-                              options={"xatol": 1e-3})
+        res = minimize_scalar(
+            neg, bounds=(float(b.lower[10]), float(b.upper[10])), method="bounded", options={"xatol": 1e-3}
+        )
         return -float(res.fun), float(res.x)
 
     ranked = []
@@ -1049,8 +1090,14 @@ class Adjustment(NamedTuple):
         return self.mean + (np.asarray(flat) - self.mean) @ self.C.T
 
 
-def curvature_adjustment(flat, data: RawData, finger, nu: float = STUDENT_NU, texture: RawTexture | None = None,
-                         block_s: float = ADJUST_BLOCK_S):
+def curvature_adjustment(
+    flat,
+    data: RawData,
+    finger,
+    nu: float = STUDENT_NU,
+    texture: RawTexture | None = None,
+    block_s: float = ADJUST_BLOCK_S,
+):
     """The sandwich (Godambe) correction of the posterior of an independence likelihood, as the curvature adjustment
     of Ribatet, Cooley & Davison (2012, Statistica Sinica 22, 813–845).
 
@@ -1072,15 +1119,17 @@ def curvature_adjustment(flat, data: RawData, finger, nu: float = STUDENT_NU, te
     D = flat.shape[1]
     mean = flat.mean(axis=0)
     S = np.cov(flat.T)
-    G = np.asarray(jax.jit(jax.jacfwd(lambda t: jnp.sum(raw_pointwise(t, data, finger, nu, texture), axis=1)))(
-        jnp.asarray(mean)))  # (F, D): the score of each frame
+    G = np.asarray(
+        jax.jit(jax.jacfwd(lambda t: jnp.sum(raw_pointwise(t, data, finger, nu, texture), axis=1)))(jnp.asarray(mean))
+    )  # (F, D): the score of each frame
     starts = np.flatnonzero(np.asarray(data.start))
     ends = np.append(starts[1:], len(G))
     L = max(1, int(round(block_s / float(data.dt))))
     while L > 1 and sum(-(-(e - s) // L) for s, e in zip(starts, ends, strict=True)) < 3 * D:
         L -= 1
-    blocks = np.array([G[i: min(i + L, e)].sum(axis=0) for s, e in zip(starts, ends, strict=True)
-                       for i in range(s, e, L)])
+    blocks = np.array(
+        [G[i : min(i + L, e)].sum(axis=0) for s, e in zip(starts, ends, strict=True) for i in range(s, e, L)]
+    )
     blocks -= blocks.mean(axis=0)
     J = blocks.T @ blocks * len(blocks) / max(len(blocks) - 1, 1)
     try:
@@ -1089,14 +1138,23 @@ def curvature_adjustment(flat, data: RawData, finger, nu: float = STUDENT_NU, te
     except np.linalg.LinAlgError:
         return None
     Sa = S @ J @ S
-    info = {"method": "curvature adjustment to the sandwich covariance (Ribatet, Cooley & Davison 2012)",
-            "block_s": L * float(data.dt), "blocks": int(len(blocks)),
-            "sd_ratio": [float(r) for r in np.sqrt(np.diag(Sa) / np.diag(S))]}
+    info = {
+        "method": "curvature adjustment to the sandwich covariance (Ribatet, Cooley & Davison 2012)",
+        "block_s": L * float(data.dt),
+        "blocks": int(len(blocks)),
+        "sd_ratio": [float(r) for r in np.sqrt(np.diag(Sa) / np.diag(S))],
+    }
     return Adjustment(mean, C, info)
 
 
-def raw_model(data: RawData, finger, nu: float = STUDENT_NU, texture: RawTexture | None = None,
-              info: dict | None = None, adjust: Adjustment | None = None):
+def raw_model(
+    data: RawData,
+    finger,
+    nu: float = STUDENT_NU,
+    texture: RawTexture | None = None,
+    info: dict | None = None,
+    adjust: Adjustment | None = None,
+):
     """The raw-current level as a :class:`~bayestouch.inference.run.PosteriorModel`: pointwise log-likelihood per
     selected frame (summed over its taxels: per reading would make posterior.nc ~200 MB for 10 strokes); the
     observed data are the corrected ln I (F, M), and the posterior predictive replicates them (float32, for
@@ -1133,16 +1191,19 @@ def raw_model(data: RawData, finger, nu: float = STUDENT_NU, texture: RawTexture
         "Gaussian readings best), per taxel-frame reading; pointwise log-likelihood per frame (summed over its taxels)",
         "noise_model": "ln I corrected by fixed-pattern gains and reference-row common drift; sd² = white(shot+"
         "amplifier+ADC)/I² + stationary 1/f + local random walk + reference-mean variance; "
-        f"times k (sampled, prior log k ~ N(0, {LOG_K_PRIOR_SD:g}))" + ("" if texture is None else
-                                                      "; plus roughness² × its Monte-Carlo response variance"),
+        f"times k (sampled, prior log k ~ N(0, {LOG_K_PRIOR_SD:g}))"
+        + ("" if texture is None else "; plus roughness² × its Monte-Carlo response variance"),
         "frames_used": int(F),
         "frame_interval_s": float(data.dt),
         "taxels_used": int(M),
         "readings": int(F * M),
-        "texture": "not sampled (bare n-ellipsoid)" if texture is None else (
+        "texture": "not sampled (bare n-ellipsoid)"
+        if texture is None
+        else (
             "sampled: grating u sin(2 pi s / wavelength) + v cos(2 pi s / wavelength), s = (foot - reference) . "
             "(cos orientation, sin orientation, 0) in the sampled principal frame; amplitude = hypot(u, v), phase = "
-            "atan2(v, u) at the reference point; roughness RMS as a variance term"),
+            "atan2(v, u) at the reference point; roughness RMS as a variance term"
+        ),
         "parameters_sampled": list(names),
     }
     if texture is not None:
@@ -1175,13 +1236,22 @@ def misfit_warnings(summary: dict, textured: bool = False) -> list[str]:
     k = float(summary["parameters"]["noise_scale"]["mean"])
     if k <= MISFIT_K:
         return []
-    why = "the lag is approximated on coarse frames (try a smaller stride)" if textured else (
-        "the texture is not modelled (try texture='on'); the lag is approximated on coarse frames")
+    why = (
+        "the lag is approximated on coarse frames (try a smaller stride)"
+        if textured
+        else ("the texture is not modelled (try texture='on'); the lag is approximated on coarse frames")
+    )
     adjusted = isinstance(summary.get("model", {}).get("adjustment"), dict)
-    tail = ("the sandwich adjustment widens the intervals for correlated residuals, but a systematic misfit can "
-            "still bias them" if adjusted else "the intervals assume the model is right and are likely too narrow")
-    return [f"noise_scale k = {k:.1f} > {MISFIT_K:g}: the residuals are {k:.0f}x the modelled read-out noise, so the "
-            f"forward model misses part of the signal ({why}); {tail}"]
+    tail = (
+        "the sandwich adjustment widens the intervals for correlated residuals, but a systematic misfit can "
+        "still bias them"
+        if adjusted
+        else "the intervals assume the model is right and are likely too narrow"
+    )
+    return [
+        f"noise_scale k = {k:.1f} > {MISFIT_K:g}: the residuals are {k:.0f}x the modelled read-out noise, so the "
+        f"forward model misses part of the signal ({why}); {tail}"
+    ]
 
 
 def _raw_warnings(summary: dict, textured: bool = False) -> list[str]:
@@ -1190,9 +1260,11 @@ def _raw_warnings(summary: dict, textured: bool = False) -> list[str]:
     out = misfit_warnings(summary, textured)
     pr = summary.get("model", {}).get("pruning")
     if isinstance(pr, dict) and not pr.get("exact", True):
-        out.append(f"a posterior draw came {pr['min_clearance_m']:.2g} m from a taxel left out as clear of the "
-                   f"surface (margin {pr['margin_m']:g} m): the sampled likelihood may be inexact; rerun with "
-                   "run_raw_fit(..., prune=False)")
+        out.append(
+            f"a posterior draw came {pr['min_clearance_m']:.2g} m from a taxel left out as clear of the "
+            f"surface (margin {pr['margin_m']:g} m): the sampled likelihood may be inexact; rerun with "
+            "run_raw_fit(..., prune=False)"
+        )
     return out
 
 
@@ -1305,19 +1377,34 @@ def run_raw_fit(
     # the bare shape: DE on the commanded contact points, then L-BFGS-B on the raw posterior at the coarse stride
     bare_stride = BARE_STRIDE if stride is None or texture != "off" else int(stride)
     bare_data, finger = load_raw_data(ds, models=models, stride=bare_stride, radius=radius, strokes=strokes)
-    th0 = initial_raw_theta(bare_data, finger, _contact_points(ds, bare_data.frames), seed, priors,
-                            raw_bounds(bare_data, priors), starts=starts)
+    th0 = initial_raw_theta(
+        bare_data,
+        finger,
+        _contact_points(ds, bare_data.frames),
+        seed,
+        priors,
+        raw_bounds(bare_data, priors),
+        starts=starts,
+    )
     data, tex, info = bare_data, None, {}
     if texture != "off":
-        data, _ = load_raw_data(ds, models=models, stride=stride or TEXTURE_STRIDE, radius=radius, strokes=strokes,
-                                finger=finger)
+        data, _ = load_raw_data(
+            ds, models=models, stride=stride or TEXTURE_STRIDE, radius=radius, strokes=strokes, finger=finger
+        )
         tp = gr.load_texture_priors()
         ts = initial_raw_texture(th0, data, finger, priors, tp, seed=seed)
         planes = ("x-y", "x-z", "y-z")
-        info = {"texture_search": {"candidates": [{"plane": planes[p], "wavelength_m": lam, "orientation_rad": o,
-                                                   "statistic": st} for p, lam, o, st in ts.candidates],
-                                   "grating_gain_nats": ts.gain, "detect_nats": DETECT_NATS,
-                                   "requested": texture}}
+        info = {
+            "texture_search": {
+                "candidates": [
+                    {"plane": planes[p], "wavelength_m": lam, "orientation_rad": o, "statistic": st}
+                    for p, lam, o, st in ts.candidates
+                ],
+                "grating_gain_nats": ts.gain,
+                "detect_nats": DETECT_NATS,
+                "requested": texture,
+            }
+        }
         if texture == "on" or ts.gain > DETECT_NATS:
             tex, th_start, bounds, nlp = ts.texture, ts.theta, ts.bounds, ts.neg_log_post
         elif stride is None:

@@ -28,8 +28,17 @@ from bayestouch._jax import jax, jnp
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.inference import contact as cm
 
-__all__ = ["PosteriorModel", "write_posterior", "initial_theta", "run_contact_fit", "contact_model",
-           "NATURAL_NAMES", "interval", "uncertainty_spread", "vmf_sample"]
+__all__ = [
+    "PosteriorModel",
+    "write_posterior",
+    "initial_theta",
+    "run_contact_fit",
+    "contact_model",
+    "NATURAL_NAMES",
+    "interval",
+    "uncertainty_spread",
+    "vmf_sample",
+]
 
 #: summary names (natural units) of the 11 sampled contact-level parameters
 NATURAL_NAMES = ("x_G", "y_G", "z_G", "a", "b", "c", "xi", "psi", "zeta", "n", "sigma")
@@ -83,8 +92,12 @@ class PosteriorModel(NamedTuple):
 def interval(x) -> dict:
     """Mean, sd and the central 90 % interval (q05, q95) of draws ``x`` (N,)."""
     x = np.asarray(x, float)
-    return {"mean": float(x.mean()), "sd": float(x.std(ddof=1)) if x.size > 1 else 0.0,
-            "q05": float(np.quantile(x, 0.05)), "q95": float(np.quantile(x, 0.95))}
+    return {
+        "mean": float(x.mean()),
+        "sd": float(x.std(ddof=1)) if x.size > 1 else 0.0,
+        "q05": float(np.quantile(x, 0.05)),
+        "q95": float(np.quantile(x, 0.95)),
+    }
 
 
 def _thin_rows(n_steps: int, per_walker: int) -> np.ndarray:
@@ -105,8 +118,11 @@ def uncertainty_spread(mean_vertices, mean_normals, shape_vectors) -> np.ndarray
         Posterior draws as n-ellipsoid vectors.
     """
     del mean_normals  # the first-order distance is already along the normal to first order
-    d = np.asarray(_first_order_distances(jnp.asarray(np.asarray(shape_vectors, dtype=float)),
-                                          jnp.asarray(mean_vertices, dtype=float)))
+    d = np.asarray(
+        _first_order_distances(
+            jnp.asarray(np.asarray(shape_vectors, dtype=float)), jnp.asarray(mean_vertices, dtype=float)
+        )
+    )
     return d.std(axis=0, ddof=1)
 
 
@@ -189,13 +205,16 @@ def write_posterior(out: Path, chain, model: PosteriorModel, *, seed: int, t0: f
     kept = chain.kept  # (S, W, D)
     S, W, D = kept.shape
     nat = model.natural(kept.reshape(-1, D)).reshape(S, W, -1)
-    post = xr.Dataset({name: (("chain", "draw"), np.swapaxes(nat[..., i], 0, 1))
-                       for i, name in enumerate(model.names)},
-                      coords={"chain": np.arange(W), "draw": np.arange(S)})
+    post = xr.Dataset(
+        {name: (("chain", "draw"), np.swapaxes(nat[..., i], 0, 1)) for i, name in enumerate(model.names)},
+        coords={"chain": np.arange(W), "draw": np.arange(S)},
+    )
     ess = az.ess(post, method="bulk")
     rhat = az.rhat(post)
-    params = {name: {**interval(nat[..., i]), "r_hat": float(rhat[name]), "ess_bulk": float(ess[name])}
-              for i, name in enumerate(model.names)}
+    params = {
+        name: {**interval(nat[..., i]), "r_hat": float(rhat[name]), "ess_bulk": float(ess[name])}
+        for i, name in enumerate(model.names)
+    }
     rng = np.random.default_rng(seed)
     groups = {"posterior": post}
     rows = _thin_rows(S, max(1, PREDICTIVE_DRAWS // W))
@@ -204,18 +223,26 @@ def write_posterior(out: Path, chain, model: PosteriorModel, *, seed: int, t0: f
     coords = {"chain": np.arange(W), "draw": rows}
     if model.pointwise_log_lik is not None:
         ll = np.asarray(model.pointwise_log_lik(flat_sub))
-        groups["log_likelihood"] = xr.Dataset({"obs": (("chain", "draw", "obs_id"), ll.reshape(W, len(rows), -1))},
-                                              coords=coords)
+        groups["log_likelihood"] = xr.Dataset(
+            {"obs": (("chain", "draw", "obs_id"), ll.reshape(W, len(rows), -1))}, coords=coords
+        )
     if model.predictive is not None:
         prows = rows if model.predictive_draws is None else _thin_rows(S, max(1, model.predictive_draws // W))
         rep = model.predictive(np.swapaxes(kept[prows], 0, 1).reshape(-1, D), rng)
         groups["posterior_predictive"] = xr.Dataset(
-            {k: (("chain", "draw", *[f"{k}_dim_{j}" for j in range(v.ndim - 1)]),
-                 v.reshape(W, len(prows), *v.shape[1:])) for k, v in rep.items()},
-            coords={"chain": np.arange(W), "draw": prows})
+            {
+                k: (
+                    ("chain", "draw", *[f"{k}_dim_{j}" for j in range(v.ndim - 1)]),
+                    v.reshape(W, len(prows), *v.shape[1:]),
+                )
+                for k, v in rep.items()
+            },
+            coords={"chain": np.arange(W), "draw": prows},
+        )
     if model.observed:
         groups["observed_data"] = xr.Dataset(
-            {k: ([f"{k}_dim_{j}" for j in range(np.ndim(v))], np.asarray(v)) for k, v in model.observed.items()})
+            {k: ([f"{k}_dim_{j}" for j in range(np.ndim(v))], np.asarray(v)) for k, v in model.observed.items()}
+        )
     idata = az.InferenceData(**groups)
 
     flat = nat.reshape(-1, nat.shape[-1])
@@ -247,10 +274,14 @@ def write_posterior(out: Path, chain, model: PosteriorModel, *, seed: int, t0: f
         "derived": {
             "volume_m3": interval(exact_vols),
             "area_m2": interval(areas),
-            "inertia_principal_m5": {k: [interval(inertia[:, i])[k] for i in range(3)]
-                                     for k in ("mean", "sd", "q05", "q95")},
-            "surface_spread_m": {"mean": float(spread.mean()), "max": float(spread.max()),
-                                 "q95": float(np.quantile(spread, 0.95))},
+            "inertia_principal_m5": {
+                k: [interval(inertia[:, i])[k] for i in range(3)] for k in ("mean", "sd", "q05", "q95")
+            },
+            "surface_spread_m": {
+                "mean": float(spread.mean()),
+                "max": float(spread.max()),
+                "q95": float(np.quantile(spread, 0.95)),
+            },
         },
         "diagnostics": {**diag, "seconds": time.perf_counter() - t0},
         "model": {**model.info, "seed": seed},
@@ -264,8 +295,9 @@ def write_posterior(out: Path, chain, model: PosteriorModel, *, seed: int, t0: f
 
 
 # module level, data as arguments: one compiled program per number of points, shared by every initial fit
-_neg_log_post_and_grad = jax.jit(jax.value_and_grad(lambda t, pts, bounds, nu: -cm.log_prob(t, pts, bounds, nu)),
-                                 static_argnums=3)
+_neg_log_post_and_grad = jax.jit(
+    jax.value_and_grad(lambda t, pts, bounds, nu: -cm.log_prob(t, pts, bounds, nu)), static_argnums=3
+)
 
 
 def initial_theta(points, seed: int, priors: cm.PriorParams, starts: int = 3) -> np.ndarray:
@@ -311,11 +343,15 @@ def initial_theta(points, seed: int, priors: cm.PriorParams, starts: int = 3) ->
             continue  # the same optimum as a start already polished (dense data: every search finds it)
         polished.append(c2)
         sigma = float(np.clip(np.sqrt(c2), priors.sigma_min * 2, priors.sigma_max / 2))
-        t0 = np.clip(np.concatenate([v[:3], np.log(v[3:6]), v[6:9], [np.log(v[9])], [np.log(sigma)]]),
-                     lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
+        t0 = np.clip(
+            np.concatenate([v[:3], np.log(v[3:6]), v[6:9], [np.log(v[9])], [np.log(sigma)]]),
+            lo + 1e-9 * (hi - lo),
+            hi - 1e-9 * (hi - lo),
+        )
         v0 = fg(t0)[0]
-        res = minimize(fg, t0, jac=True, method="L-BFGS-B", bounds=list(zip(lo, hi, strict=True)),
-                       options={"maxiter": 500})
+        res = minimize(
+            fg, t0, jac=True, method="L-BFGS-B", bounds=list(zip(lo, hi, strict=True)), options={"maxiter": 500}
+        )
         t, val = (res.x, res.fun) if np.isfinite(res.fun) and res.fun <= v0 else (t0, v0)
         if val < best_val:
             best, best_val = t, val
@@ -329,8 +365,9 @@ def _walkers(theta0, bounds, n, rng, sampled: tuple = cm.PARAM_NAMES) -> np.ndar
     extra = sampled[11:]
     theta0 = np.concatenate([theta0[:11], [_EXTRA_START[k] for k in extra]])
     # a small ball: the DE moves expand the ensemble to the posterior's width within the burn-in
-    scale = np.concatenate([np.full(3, 1e-4), np.full(3, 1e-3), np.full(3, 1e-3), [1e-3], [1e-2],
-                            [_EXTRA_SCALE[k] for k in extra]])
+    scale = np.concatenate(
+        [np.full(3, 1e-4), np.full(3, 1e-3), np.full(3, 1e-3), [1e-3], [1e-2], [_EXTRA_SCALE[k] for k in extra]]
+    )
     p = np.clip(theta0, lo, hi) + scale * rng.normal(size=(n, theta0.size))
     return np.clip(p, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
 
@@ -384,8 +421,9 @@ def contact_model(points, priors: cm.PriorParams, nu: float, *, normals=None, no
             e = np.sqrt(var) * rng.standard_normal(shape)
         else:
             w = thetas[:, sampled.index("w_outlier")][:, None]
-            e = np.where(rng.random(shape) < w, rng.uniform(-half_diag, half_diag, shape),
-                         sigma * rng.standard_normal(shape))
+            e = np.where(
+                rng.random(shape) < w, rng.uniform(-half_diag, half_diag, shape), sigma * rng.standard_normal(shape)
+            )
         rep = {"points": foot + e[..., None] * nrm}
         if normals is not None:  # measured normals: vMF about the draw's normal at its replicated foot point
             rep["normals"] = vmf_sample(nrm, np.exp(thetas[:, sampled.index("log_kappa")])[:, None], rng)
@@ -394,9 +432,11 @@ def contact_model(points, priors: cm.PriorParams, nu: float, *, normals=None, no
     def ll(thetas):
         return cm.pointwise_log_likelihood(thetas, points, nu, normals=normals, noise=noise)
 
-    likelihood = {"student": "Gaussian" if np.isinf(nu) else f"Student-t, nu = {nu:g}",
-                  "multiplicative": "Gaussian with the paper's multiplicative (1 + r) perturbation",
-                  "mixture": "Gaussian + uniform outlier mixture"}[noise]
+    likelihood = {
+        "student": "Gaussian" if np.isinf(nu) else f"Student-t, nu = {nu:g}",
+        "multiplicative": "Gaussian with the paper's multiplicative (1 + r) perturbation",
+        "mixture": "Gaussian + uniform outlier mixture",
+    }[noise]
     if normals is not None:
         likelihood += "; normals: von Mises-Fisher"
     observed = {"points": np.asarray(points)}
@@ -404,9 +444,21 @@ def contact_model(points, priors: cm.PriorParams, nu: float, *, normals=None, no
         nn = np.asarray(normals, float)
         observed["normals"] = nn / np.linalg.norm(nn, axis=1, keepdims=True)
     return PosteriorModel(
-        names, lambda flat: _natural(flat, sampled), lambda nat: nat[:, :10], ll, predictive, observed,
-        {"level": "contact", "likelihood": likelihood, "noise": noise, "normals_used": normals is not None,
-         "n_points": int(m), "parameters_sampled": list(sampled)})
+        names,
+        lambda flat: _natural(flat, sampled),
+        lambda nat: nat[:, :10],
+        ll,
+        predictive,
+        observed,
+        {
+            "level": "contact",
+            "likelihood": likelihood,
+            "noise": noise,
+            "normals_used": normals is not None,
+            "n_points": int(m),
+            "parameters_sampled": list(sampled),
+        },
+    )
 
 
 def _theta_of_natural(nat) -> np.ndarray:
@@ -450,16 +502,43 @@ def ffd_contact_model(points, dims, tau: float) -> PosteriorModel:
         return np.asarray(fm.deformed_points(th, dP, ne.to_local(s, jnp.asarray(verts)), dims))
 
     return PosteriorModel(
-        NATURAL_NAMES, _natural, lambda nat: nat[:, :10], ll, predictive, {"points": np.asarray(points)},
-        {"level": "contact", "likelihood": "Gaussian, FFD lattice marginalised", "ffd_size": "x".join(map(str, dims)),
-         "ffd_tau_m": tau, "n_points": int(m), "parameters_sampled": list(cm.PARAM_NAMES)}, refine)
+        NATURAL_NAMES,
+        _natural,
+        lambda nat: nat[:, :10],
+        ll,
+        predictive,
+        {"points": np.asarray(points)},
+        {
+            "level": "contact",
+            "likelihood": "Gaussian, FFD lattice marginalised",
+            "ffd_size": "x".join(map(str, dims)),
+            "ffd_tau_m": tau,
+            "n_points": int(m),
+            "parameters_sampled": list(cm.PARAM_NAMES),
+        },
+        refine,
+    )
 
 
-def run_contact_fit(points, out: Path, *, seed: int = 0, walkers: int = 32, steps: int = 20000,
-                    resume: bool = False, budget_s: float | None = None, progress: bool = True,
-                    normals=None, noise: str = "student", nu: float | None = None,
-                    ffd: tuple[int, int, int] | None = None, ffd_tau: float | None = None,
-                    stop_when_converged: bool = True, start=None, precision: str = "auto") -> dict:
+def run_contact_fit(
+    points,
+    out: Path,
+    *,
+    seed: int = 0,
+    walkers: int = 32,
+    steps: int = 20000,
+    resume: bool = False,
+    budget_s: float | None = None,
+    progress: bool = True,
+    normals=None,
+    noise: str = "student",
+    nu: float | None = None,
+    ffd: tuple[int, int, int] | None = None,
+    ffd_tau: float | None = None,
+    stop_when_converged: bool = True,
+    start=None,
+    precision: str = "auto",
+) -> dict:
     """Sample the contact-level posterior of ``points (M, 3)`` m and write the run folder ``out``.
 
     Parameters
@@ -518,17 +597,21 @@ def run_contact_fit(points, out: Path, *, seed: int = 0, walkers: int = 32, step
             raise BadInput(f"precision: expected 'auto', 'float64' or 'mixed', got {precision!r}")
         if precision == "auto":
             precision = "mixed" if noise == "student" and normals is None else "float64"
-        logp, bounds = cm.make_log_prob(points, priors, nu if noise == "student" else None, normals=normals,
-                                        noise=noise, precision=precision)
+        logp, bounds = cm.make_log_prob(
+            points, priors, nu if noise == "student" else None, normals=normals, noise=noise, precision=precision
+        )
         sampled = cm.param_names(normals is not None, noise)
-        model = contact_model(points, priors, float(priors.student_nu if nu is None else nu), normals=normals,
-                              noise=noise)
+        model = contact_model(
+            points, priors, float(priors.student_nu if nu is None else nu), normals=normals, noise=noise
+        )
     else:
         from bayestouch.inference import ffd_marginal as fm
 
         if normals is not None or noise != "student" or (nu is not None and not np.isinf(nu)):
-            raise BadInput("--ffd: the lattice is marginalised under Gaussian noise; use it without --noise and "
-                           "--nu, and with --ignore-normals for a file with normals")
+            raise BadInput(
+                "--ffd: the lattice is marginalised under Gaussian noise; use it without --noise and "
+                "--nu, and with --ignore-normals for a file with normals"
+            )
         tau = fm.DEFAULT_TAU if ffd_tau is None else float(ffd_tau)
         if precision == "mixed":
             raise BadInput("precision: 'mixed' is not available with --ffd; use 'auto' or 'float64'")
@@ -548,8 +631,21 @@ def run_contact_fit(points, out: Path, *, seed: int = 0, walkers: int = 32, step
         theta0 = initial_theta(points, seed, priors)
         return _walkers(theta0, bounds, walkers, np.random.default_rng(seed), sampled)
 
-    ch = sample(logp, initial, out / "chain.h5", walkers=walkers, ndim=len(sampled), seed=seed, steps=steps,
-                resume=resume, budget_s=budget_s, progress=progress, t0=t0, stop_when_converged=stop_when_converged,
-                adapt=True, monitor=model.natural)
+    ch = sample(
+        logp,
+        initial,
+        out / "chain.h5",
+        walkers=walkers,
+        ndim=len(sampled),
+        seed=seed,
+        steps=steps,
+        resume=resume,
+        budget_s=budget_s,
+        progress=progress,
+        t0=t0,
+        stop_when_converged=stop_when_converged,
+        adapt=True,
+        monitor=model.natural,
+    )
     model = model._replace(info={**model.info, "precision": precision})
     return write_posterior(out, ch, model, seed=seed, t0=t0)

@@ -19,8 +19,21 @@ import numpy as np
 
 from bayestouch.errors import BadInput
 
-__all__ = ["Chain", "sample", "integrated_time", "default_moves", "adaptive_moves", "IndependenceT", "adaptation_steps",
-           "convergence", "prune_stuck_walkers", "R_HAT_MAX", "ESS_MIN", "TAU_FACTOR", "ADAPT_FIRST"]
+__all__ = [
+    "Chain",
+    "sample",
+    "integrated_time",
+    "default_moves",
+    "adaptive_moves",
+    "IndependenceT",
+    "adaptation_steps",
+    "convergence",
+    "prune_stuck_walkers",
+    "R_HAT_MAX",
+    "ESS_MIN",
+    "TAU_FACTOR",
+    "ADAPT_FIRST",
+]
 
 #: convergence thresholds (Vehtari et al. 2021 for R-hat and bulk ESS; emcee's docs for N > 50 τ)
 R_HAT_MAX = 1.01
@@ -212,8 +225,15 @@ def _buffered_hdf_backend(path: Path, flush_s: float):
         def save_step(self, state, accepted):
             if not self._rows:  # emcee's own check reads the file three times: once per batch is enough
                 self._check(state, accepted)
-            self._rows.append((np.array(state.coords), np.array(state.log_prob), np.array(accepted),
-                               None if state.blobs is None else np.array(state.blobs), state.random_state))
+            self._rows.append(
+                (
+                    np.array(state.coords),
+                    np.array(state.log_prob),
+                    np.array(accepted),
+                    None if state.blobs is None else np.array(state.blobs),
+                    state.random_state,
+                )
+            )
             if time.monotonic() - self._last >= flush_s:
                 self.flush()
 
@@ -237,8 +257,9 @@ def _buffered_hdf_backend(path: Path, flush_s: float):
     return Buffered(str(path))
 
 
-def prune_stuck_walkers(ensemble, log_prob, rng: np.random.Generator, *, tail: float = 1e-4,
-                        jitter: float = 1e-2) -> tuple[np.ndarray, int]:
+def prune_stuck_walkers(
+    ensemble, log_prob, rng: np.random.Generator, *, tail: float = 1e-4, jitter: float = 1e-2
+) -> tuple[np.ndarray, int]:
     """Replace walkers stuck far below the best of a warm-start ensemble.
 
     An ensemble carried over from another run (an exploration's short updates) can hold walkers left in a local
@@ -337,8 +358,12 @@ def _looks_converged(chain: np.ndarray, tau, old_tau, burn: int, length: int, mo
     last check (the estimate the length rule relies on), and on the draws after burn-in every R-hat < 1.01 and every
     bulk ESS > 400 (ArviZ, walkers as chains) — the summary's own criterion, on the summary's quantities when
     ``monitor`` maps draws (N, D) to them (N, Q)."""
-    if not (np.all(np.isfinite(tau)) and np.all(np.isfinite(old_tau)) and length > TAU_FACTOR * np.max(tau)
-            and abs(np.max(old_tau) - np.max(tau)) < 0.05 * np.max(tau)):
+    if not (
+        np.all(np.isfinite(tau))
+        and np.all(np.isfinite(old_tau))
+        and length > TAU_FACTOR * np.max(tau)
+        and abs(np.max(old_tau) - np.max(tau)) < 0.05 * np.max(tau)
+    ):
         return False
     import arviz as az
     import xarray as xr
@@ -347,14 +372,32 @@ def _looks_converged(chain: np.ndarray, tau, old_tau, burn: int, length: int, mo
     if monitor is not None:
         kept = np.asarray(monitor(kept.reshape(-1, kept.shape[2]))).reshape(kept.shape[0], kept.shape[1], -1)
     ds = xr.Dataset({"theta": (("chain", "draw", "dim"), np.swapaxes(kept, 0, 1))})
-    return bool(float(az.rhat(ds)["theta"].max()) < R_HAT_MAX and float(az.ess(ds, method="bulk")["theta"].min())
-                > ESS_MIN)
+    return bool(
+        float(az.rhat(ds)["theta"].max()) < R_HAT_MAX and float(az.ess(ds, method="bulk")["theta"].min()) > ESS_MIN
+    )
 
 
-def sample(logp, start, chain_path, *, walkers: int, ndim: int, seed: int, steps: int, resume: bool = False,
-           budget_s: float | None = None, progress: bool = True, moves=None, t0: float | None = None,
-           stop_when_converged: bool = False, check_every: int | None = None, flush_s: float = 1.0,
-           adapt: bool = False, proposal=None, monitor=None) -> Chain:
+def sample(
+    logp,
+    start,
+    chain_path,
+    *,
+    walkers: int,
+    ndim: int,
+    seed: int,
+    steps: int,
+    resume: bool = False,
+    budget_s: float | None = None,
+    progress: bool = True,
+    moves=None,
+    t0: float | None = None,
+    stop_when_converged: bool = False,
+    check_every: int | None = None,
+    flush_s: float = 1.0,
+    adapt: bool = False,
+    proposal=None,
+    monitor=None,
+) -> Chain:
     """Run (or continue) an emcee ensemble with an HDF5 checkpoint.
 
     Parameters
@@ -422,12 +465,16 @@ def sample(logp, start, chain_path, *, walkers: int, ndim: int, seed: int, steps
         try:
             done = backend.iteration
         except (OSError, KeyError) as e:  # a file that is not an emcee chain, or one damaged mid-write
-            raise BadInput(f"--resume: {chain_path} cannot be read as an emcee chain ({type(e).__name__}); "
-                           "remove it to start afresh") from None
+            raise BadInput(
+                f"--resume: {chain_path} cannot be read as an emcee chain ({type(e).__name__}); "
+                "remove it to start afresh"
+            ) from None
     if resume and chain_path.exists() and done > 0:
         if tuple(backend.shape) != (walkers, ndim):
-            raise BadInput(f"--resume: {chain_path} has {backend.shape[0]} walkers × {backend.shape[1]} parameters, "
-                           f"not {walkers} × {ndim}")
+            raise BadInput(
+                f"--resume: {chain_path} has {backend.shape[0]} walkers × {backend.shape[1]} parameters, "
+                f"not {walkers} × {ndim}"
+            )
         start = None
     else:
         start = np.asarray(start() if callable(start) else start, dtype=float)
@@ -494,8 +541,12 @@ def sample(logp, start, chain_path, *, walkers: int, ndim: int, seed: int, steps
     adapt_at = set(adaptation_steps(steps)) if indep is not None else set()
     if todo > 0:
         try:
-            for i, _ in enumerate(sampler.sample(start if start is not None else backend.get_last_sample(),
-                                                 iterations=todo, progress=progress), start=1):
+            for i, _ in enumerate(
+                sampler.sample(
+                    start if start is not None else backend.get_last_sample(), iterations=todo, progress=progress
+                ),
+                start=1,
+            ):
                 if budget_s is not None and time.perf_counter() - t0 > budget_s:
                     stopped = True
                     break
@@ -517,8 +568,17 @@ def sample(logp, start, chain_path, *, walkers: int, ndim: int, seed: int, steps
     tau, burn, length = _tau_and_burn(chain, adapt, skip_to)
     tau_max = float(np.nanmax(tau)) if np.isfinite(tau).any() else float("nan")
     acc = float(np.mean(sampler.acceptance_fraction)) if todo > 0 and sampler.iteration > 0 else None
-    return Chain(chain[burn:], lp[burn:], int(n_done), burn, tau_max, acc, stopped, time.perf_counter() - t0,
-                 length if length != n_done else None)
+    return Chain(
+        chain[burn:],
+        lp[burn:],
+        int(n_done),
+        burn,
+        tau_max,
+        acc,
+        stopped,
+        time.perf_counter() - t0,
+        length if length != n_done else None,
+    )
 
 
 def convergence(r_hat, ess_bulk, chain: Chain) -> dict:
@@ -527,9 +587,21 @@ def convergence(r_hat, ess_bulk, chain: Chain) -> dict:
     max_rhat = float(np.max(r_hat))
     min_ess = float(np.min(ess_bulk))
     length = chain.steps if chain.tau_steps is None else chain.tau_steps
-    converged = bool(max_rhat < R_HAT_MAX and min_ess > ESS_MIN and np.isfinite(chain.tau_max)
-                     and length > TAU_FACTOR * chain.tau_max)
-    return {"converged": converged, "max_r_hat": max_rhat, "min_ess_bulk": min_ess,
-            "n_samples": int(chain.kept.shape[0] * chain.kept.shape[1]), "steps": chain.steps,
-            "burn_in": chain.burn, "walkers": int(chain.kept.shape[1]), "autocorr_time_max": chain.tau_max,
-            "acceptance": chain.acceptance, "stopped_by_budget": chain.stopped_by_budget}
+    converged = bool(
+        max_rhat < R_HAT_MAX
+        and min_ess > ESS_MIN
+        and np.isfinite(chain.tau_max)
+        and length > TAU_FACTOR * chain.tau_max
+    )
+    return {
+        "converged": converged,
+        "max_r_hat": max_rhat,
+        "min_ess_bulk": min_ess,
+        "n_samples": int(chain.kept.shape[0] * chain.kept.shape[1]),
+        "steps": chain.steps,
+        "burn_in": chain.burn,
+        "walkers": int(chain.kept.shape[1]),
+        "autocorr_time_max": chain.tau_max,
+        "acceptance": chain.acceptance,
+        "stopped_by_budget": chain.stopped_by_budget,
+    }

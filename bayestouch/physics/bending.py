@@ -110,8 +110,10 @@ def load_rod(path=None) -> RodParams:
     path = MODELS / "finger.toml" if path is None else path
     rod = build(RodParams, path, "rod", ROD_SPECS)
     if not rod.wire_radius < rod.radius:
-        raise BadInput(f"{path} [rod] wire_radius: {rod.wire_radius:g} m must be less than radius "
-                       f"{rod.radius:g} m (the wires sit inside the rod)")
+        raise BadInput(
+            f"{path} [rod] wire_radius: {rod.wire_radius:g} m must be less than radius "
+            f"{rod.radius:g} m (the wires sit inside the rod)"
+        )
     return rod
 
 

@@ -127,8 +127,10 @@ def load_noise(path=MODELS / "noise.toml") -> NoiseParams:
     """Read ``[noise]`` of a parameter file into :class:`NoiseParams` (one-line ``BadInput`` on errors)."""
     p = build(NoiseParams, path, "noise", NOISE_SPECS)
     if not p.flicker_f_min < p.flicker_f_max:
-        raise BadInput(f"{path} [noise] flicker_f_max: must exceed flicker_f_min ({p.flicker_f_min:g} Hz), "
-                       f"got {p.flicker_f_max:g} Hz")
+        raise BadInput(
+            f"{path} [noise] flicker_f_max: must exceed flicker_f_min ({p.flicker_f_min:g} Hz), "
+            f"got {p.flicker_f_max:g} Hz"
+        )
     return p
 
 

@@ -113,6 +113,7 @@ def superellipse_area_eq18(a, b, n):
 
 # ---------------------------------------------------------------- fitting
 
+
 def _boundary_points(p, xs, ys, threshold):
     """Sub-taxel points of the level set p = threshold: linear interpolation along every grid edge
     whose two ends lie on opposite sides of the threshold. Returns (K, 2) points (x, y)."""
@@ -185,14 +186,17 @@ def fit_patch(pressure, xs, ys, threshold) -> Patch:
     xs = np.asarray(xs, dtype=float)
     ys = np.asarray(ys, dtype=float)
     if p.ndim != 2 or xs.shape != (p.shape[1],) or ys.shape != (p.shape[0],):
-        raise BadInput(f"fit_patch: pressure must be (H, W) with xs (W,) and ys (H,); got {p.shape}, "
-                       f"{xs.shape}, {ys.shape}")
+        raise BadInput(
+            f"fit_patch: pressure must be (H, W) with xs (W,) and ys (H,); got {p.shape}, {xs.shape}, {ys.shape}"
+        )
     if not (np.all(np.isfinite(p)) and np.all(np.diff(xs) > 0) and np.all(np.diff(ys) > 0)):
         raise BadInput("fit_patch: pressure must be finite and xs, ys strictly increasing")
     inside = p > threshold
     if inside.sum() < 3:
-        raise BadInput(f"fit_patch: {int(inside.sum())} taxel(s) above threshold {threshold:g} Pa; "
-                       "need a patch of at least 3 taxels (lower the threshold)")
+        raise BadInput(
+            f"fit_patch: {int(inside.sum())} taxel(s) above threshold {threshold:g} Pa; "
+            "need a patch of at least 3 taxels (lower the threshold)"
+        )
     pts = _boundary_points(p, xs, ys, threshold)
     if len(pts) < 6:
         raise BadInput(f"fit_patch: only {len(pts)} boundary points at threshold {threshold:g} Pa; need ≥ 6")

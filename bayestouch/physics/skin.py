@@ -131,6 +131,7 @@ def load_skin(path=None) -> SkinParams:
 
 # ---------------------------------------------------------------- indentation
 
+
 def penetration(sdf_values, s):
     """Smooth penetration depth δ = s·softplus(−φ/s) (physics.md §6 step 2).
 
@@ -155,6 +156,7 @@ def penetration(sdf_values, s):
 
 
 # ---------------------------------------------------------------- closed forms
+
 
 def bonded_layer_modulus(E, nu):
     """Uniaxial-strain (P-wave) modulus M = E(1−ν)/((1+ν)(1−2ν)) of a thin layer bonded to a rigid base.
@@ -232,6 +234,7 @@ def winkler_sphere(delta0, R, params: SkinParams):
 
 
 # ---------------------------------------------------------------- pressure map
+
 
 def foam_stress(params: SkinParams, eps):
     """Compressive stress of the confined foam layer at strain ε = δ/h.
@@ -345,6 +348,7 @@ def cosserat_stiffening(params: SkinParams, a, c=1.0):
 
 # ---------------------------------------------------------------- normal force and damping
 
+
 def hunt_crossley(K, m, lam, delta, delta_dot):
     """Hunt–Crossley (1975) contact force F = Kδ^m + λ δ^m δ̇, clipped at F ≥ 0 (no adhesion).
 
@@ -401,6 +405,7 @@ def damped_contact_force(F_elastic, damping, delta_dot):
 
 
 # ---------------------------------------------------------------- tangential force
+
 
 def tangential_stiffness_ratio(nu):
     """k_t/k_n = G/M = (1−2ν)/(2(1−ν)) of a thin bonded layer (physics.md §3 [D]).

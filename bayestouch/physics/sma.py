@@ -206,12 +206,12 @@ def load_wire(path=None) -> WireParams:
     p = build(WireParams, path, "wire", WIRE_SPECS)
     for lo, hi in (("M_f", "M_s"), ("A_s", "A_f"), ("sigma_s_cr", "sigma_f_cr")):
         if not getattr(p, lo) < getattr(p, hi):
-            raise BadInput(f"{path} [wire] {lo}, {hi}: need {lo} < {hi}, got {getattr(p, lo):g} and "
-                           f"{getattr(p, hi):g}")
+            raise BadInput(f"{path} [wire] {lo}, {hi}: need {lo} < {hi}, got {getattr(p, lo):g} and {getattr(p, hi):g}")
     return p
 
 
 # ---------------------------------------------------------------- geometry and thermal model
+
 
 def wire_area(p: WireParams):
     """Cross-section A_w = π d²/4 in m²."""
@@ -265,8 +265,11 @@ def thermal_rhs(p: WireParams, temperature, current, xi, xi_rate=0.0):
     array, K/s
     """
     vol = wire_area(p) * p.length
-    heat = (current**2 * resistance(p, xi) - p.convection * surface_area(p) * (temperature - p.ambient)
-            + p.density * vol * p.latent_heat * xi_rate)
+    heat = (
+        current**2 * resistance(p, xi)
+        - p.convection * surface_area(p) * (temperature - p.ambient)
+        + p.density * vol * p.latent_heat * xi_rate
+    )
     return heat / (p.density * p.specific_heat * vol)
 
 
@@ -291,6 +294,7 @@ def steady_state_current(p: WireParams, temperature, xi=0.0):
 
 
 # ---------------------------------------------------------------- Brinson 1993, smooth form
+
 
 def _ramp(x):
     """Clip to [0, 1]; composed with cos(π·) the ramps below are C¹ at both ends."""
@@ -445,8 +449,9 @@ def brinson_update(p: WireParams, state: BrinsonState, temperature, stress, rate
     lat_h, lat_c = _latches(xi, g, h)
     a_c = jnp.maximum(-t, 0.0)
     a_h = jnp.maximum(t, 0.0)
-    return BrinsonState(xi, state.latch_h + a_c * (lat_h - state.latch_h),
-                        state.latch_c + a_h * (lat_c - state.latch_c))
+    return BrinsonState(
+        xi, state.latch_h + a_c * (lat_h - state.latch_h), state.latch_c + a_h * (lat_c - state.latch_c)
+    )
 
 
 class WireTrace(NamedTuple):
@@ -515,14 +520,14 @@ def _simulate(p, currents, stress, dt, T0, xi0, substeps, rate_scale):
         return carry, (carry[0], carry[1].xi)
 
     # one flat scan over all substeps (zero-order hold), outputs taken at the end of each sample
-    _, (T, xi) = jax.lax.scan(step, (T0, st0), (jnp.repeat(currents, substeps, axis=0),
-                                                 jnp.repeat(stress, substeps, axis=0)))
-    T, xi = T[substeps - 1::substeps], xi[substeps - 1::substeps]
+    _, (T, xi) = jax.lax.scan(
+        step, (T0, st0), (jnp.repeat(currents, substeps, axis=0), jnp.repeat(stress, substeps, axis=0))
+    )
+    T, xi = T[substeps - 1 :: substeps], xi[substeps - 1 :: substeps]
     return WireTrace(*_outputs(p, T, xi, stress), stress)
 
 
-def simulate_wire(p: WireParams, currents, dt, T0=None, xi0=1.0, stress=0.0, substeps=10,
-                  rate_scale=0.1) -> WireTrace:
+def simulate_wire(p: WireParams, currents, dt, T0=None, xi0=1.0, stress=0.0, substeps=10, rate_scale=0.1) -> WireTrace:
     """Drive a wire (or W wires) with a current history: thermal ODE + smooth Brinson kinetics.
 
     The current is held for ``dt`` per sample (zero-order hold). Each sample is integrated in ``substeps``
@@ -602,6 +607,7 @@ def transformation(p: WireParams, temperatures, dt, stress=0.0, xi0=1.0, rate_sc
 
 
 # ---------------------------------------------------------------- quasi-static stress law for bending
+
 
 def quasi_static_fraction(p: WireParams, stress, temperature):
     """Martensite fraction on the major heating branch from a fully martensitic wire, ξ = g(T, σ)
@@ -684,6 +690,7 @@ def quasi_static_stress(p: WireParams, strain, temperature, xi=None, n_bisect=64
 
 # ---------------------------------------------------------------- Bouc–Wen
 
+
 class BoucWenParams(NamedTuple):
     """Bouc–Wen hysteresis constants (Wen 1976; Ismail et al. 2009; physics.md §1).
 
@@ -758,6 +765,7 @@ def bouc_wen(bw: BoucWenParams, x, z0=0.0, eps=1e-9, substeps=4):
 
 
 # ---------------------------------------------------------------- safety
+
 
 class SafetyStatus(NamedTuple):
     """Result of :func:`check_safety` (boolean arrays of the broadcast input shape)."""

@@ -207,8 +207,10 @@ def load_taxels(path=MODELS / "taxels.toml") -> TaxelParams:
     _as_int(p.cols, "cols", str(path))
     ref = _as_int(p.reference_rows, "reference_rows", str(path))
     if ref >= rows:
-        raise BadInput(f"{path} [taxels] reference_rows: {ref} leaves no loaded rows (rows = {rows}); "
-                       f"expected 0 ≤ reference_rows < rows")
+        raise BadInput(
+            f"{path} [taxels] reference_rows: {ref} leaves no loaded rows (rows = {rows}); "
+            f"expected 0 ≤ reference_rows < rows"
+        )
     if abs(p.polarity) != 1.0:
         raise BadInput(f"{path} [taxels] polarity: must be 1 or -1, got {p.polarity:g}")
     return p
@@ -346,8 +348,11 @@ def gauge_factor(params: TaxelParams, temperature):
 
     ≈ 380 at W = 1 nm and 300 K (physics.md §4).
     """
-    return piezo_coefficient(params) * params.width_piezo / (
-        2.0 * params.permittivity * EPS_0 * thermal_voltage(temperature))
+    return (
+        piezo_coefficient(params)
+        * params.width_piezo
+        / (2.0 * params.permittivity * EPS_0 * thermal_voltage(temperature))
+    )
 
 
 def taxel_current(params: TaxelParams, pressure, temperature, mode: str = "physics", polarity=None):

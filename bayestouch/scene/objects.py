@@ -20,8 +20,17 @@ from bayestouch.params import read_toml
 from bayestouch.scene.surface import Defects, Surface, Texture, defect_height, ffd_displacement
 from bayestouch.scene.surface import height as _surface_height
 
-__all__ = ["Defect", "TextureSpec", "FFDSpec", "SceneObject", "build_surface", "defect_arrays", "load_object",
-           "object_from_dict", "DEFECT_KINDS"]
+__all__ = [
+    "Defect",
+    "TextureSpec",
+    "FFDSpec",
+    "SceneObject",
+    "build_surface",
+    "defect_arrays",
+    "load_object",
+    "object_from_dict",
+    "DEFECT_KINDS",
+]
 
 DEFECT_KINDS = ("bump", "shallow", "crack")
 
@@ -145,7 +154,7 @@ def _ffd_world_jit(surf: Surface, y):
 
 def _padded(fn, surf: Surface, y: np.ndarray) -> np.ndarray:
     """Call a jitted ``fn(surf, points)`` on points padded to a power of two (few compiled sizes)."""
-    return np.asarray(fn(surf, jnp.asarray(pad_pow2(y, min_size=256))))[:len(y)]
+    return np.asarray(fn(surf, jnp.asarray(pad_pow2(y, min_size=256))))[: len(y)]
 
 
 def build_surface(obj: SceneObject) -> Surface:
@@ -160,15 +169,20 @@ def build_surface(obj: SceneObject) -> Surface:
         disp = jnp.zeros((1, 1, 1, 3))  # no lattice
     t = obj.texture
     if t is None:
-        tex = Texture(jnp.array(0.0), jnp.array(1.0), jnp.array(0.0), jnp.array(0.0), jnp.zeros((0, 3)),
-                      jnp.zeros(0))
+        tex = Texture(jnp.array(0.0), jnp.array(1.0), jnp.array(0.0), jnp.array(0.0), jnp.zeros((0, 3)), jnp.zeros(0))
     else:
         rng = np.random.default_rng(t.seed)
         k = rng.normal(size=(t.modes, 3))
         k /= np.linalg.norm(k, axis=1, keepdims=True)
         k *= (2 * np.pi / t.wavelength) * rng.uniform(0.5, 2.0, size=(t.modes, 1))
-        tex = Texture(jnp.array(t.amplitude), jnp.array(t.wavelength), jnp.array(t.orientation),
-                      jnp.array(t.roughness), jnp.asarray(k), jnp.asarray(rng.uniform(0, 2 * np.pi, t.modes)))
+        tex = Texture(
+            jnp.array(t.amplitude),
+            jnp.array(t.wavelength),
+            jnp.array(t.orientation),
+            jnp.array(t.roughness),
+            jnp.asarray(k),
+            jnp.asarray(rng.uniform(0, 2 * np.pi, t.modes)),
+        )
     return Surface(s, jnp.asarray(-half), jnp.asarray(half), disp, tex, defect_arrays(obj.defects))
 
 
@@ -228,11 +242,14 @@ def object_from_dict(doc: dict, where: str = "object", source: Path | None = Non
     texture = None
     if "texture" in doc:
         t, w = doc["texture"], f"{where} [texture]"
-        texture = TextureSpec(_num(t, "amplitude_m", w, positive=False, default=0.0), _num(t, "wavelength_m", w),
-                              _num(t, "orientation_rad", w, positive=False, default=0.0),
-                              _num(t, "roughness_m", w, positive=False, default=0.0),
-                              int(_num(t, "seed", w, positive=False, default=0)),
-                              int(_num(t, "modes", w, positive=False, default=16)))
+        texture = TextureSpec(
+            _num(t, "amplitude_m", w, positive=False, default=0.0),
+            _num(t, "wavelength_m", w),
+            _num(t, "orientation_rad", w, positive=False, default=0.0),
+            _num(t, "roughness_m", w, positive=False, default=0.0),
+            int(_num(t, "seed", w, positive=False, default=0)),
+            int(_num(t, "modes", w, positive=False, default=16)),
+        )
         if max(texture.amplitude, texture.roughness) > 0.2 * min(axes):
             raise BadInput(f"{w}: amplitude_m/roughness_m must stay below a fifth of the smallest axis (metres)")
     ffd = None
@@ -244,8 +261,15 @@ def object_from_dict(doc: dict, where: str = "object", source: Path | None = Non
         amp = _num(f, "amplitude_m", w, positive=False, default=0.0)
         rng = np.random.default_rng(int(_num(f, "seed", w, positive=False, default=0)))
         ffd = FFDSpec(tuple(dims), amp * rng.standard_normal((*dims, 3)), _num(f, "margin", w, default=0.15))
-    return SceneObject(str(meta.get("name", source.stem if source else "object")), s, tuple(defects),
-                       str(meta.get("description", "")), source, texture, ffd)
+    return SceneObject(
+        str(meta.get("name", source.stem if source else "object")),
+        s,
+        tuple(defects),
+        str(meta.get("description", "")),
+        source,
+        texture,
+        ffd,
+    )
 
 
 def load_object(path) -> SceneObject:

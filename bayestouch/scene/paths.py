@@ -56,12 +56,19 @@ def ray_hits(shape: ne.NEllipsoid, origin, dirs) -> np.ndarray:
     """Points (N, 3), metres, where rays from ``origin`` (inside the shape) along ``dirs (N, 3)`` leave it."""
     dirs = np.asarray(dirs, dtype=np.float64).reshape(-1, 3)
     pad = pad_pow2(dirs, min_size=256)  # a few compiled sizes, not one per path length
-    t = np.asarray(_ray_t(ne.to_vector(shape), jnp.asarray(origin, dtype=jnp.float64), jnp.asarray(pad)))[:len(dirs)]
+    t = np.asarray(_ray_t(ne.to_vector(shape), jnp.asarray(origin, dtype=jnp.float64), jnp.asarray(pad)))[: len(dirs)]
     return np.asarray(origin, dtype=np.float64) + t[:, None] * dirs
 
 
-def section_path(obj: SceneObject, normal, offset: float = 0.0, start: float = 0.0,
-                 arc: float = 2 * np.pi, speed: float = 0.01, rate: float = 20.0) -> Path:
+def section_path(
+    obj: SceneObject,
+    normal,
+    offset: float = 0.0,
+    start: float = 0.0,
+    arc: float = 2 * np.pi,
+    speed: float = 0.01,
+    rate: float = 20.0,
+) -> Path:
     """The finger path along the section of ``obj`` by a plane.
 
     Parameters
@@ -102,8 +109,16 @@ def section_path(obj: SceneObject, normal, offset: float = 0.0, start: float = 0
     return Path(obj.displace(base), t, normals)
 
 
-def random_paths(obj: SceneObject, count: int, seed=None, *, arc: float = 2 * np.pi, speed: float = 0.01,
-                 rate: float = 20.0, max_offset: float = 0.3) -> list[Path]:
+def random_paths(
+    obj: SceneObject,
+    count: int,
+    seed=None,
+    *,
+    arc: float = 2 * np.pi,
+    speed: float = 0.01,
+    rate: float = 20.0,
+    max_offset: float = 0.3,
+) -> list[Path]:
     """``count`` section paths with random plane orientations and offsets (a fraction of the smallest
     semi-axis), as the paper's "arbitrary paths"."""
     rng = as_rng(seed)

@@ -60,8 +60,17 @@ def stroke_from_path(points, normals, time, depth: float) -> Stroke:
     return Stroke(pts, nrm, _tangents(pts), np.asarray(time, float), float(depth))
 
 
-def random_strokes(obj: SceneObject, count: int, seed=None, *, duration: float = 2.0, speed: float = 0.01,
-                   rate: float = 50.0, depth: float = 3e-4, max_offset: float = 0.3) -> list[Stroke]:
+def random_strokes(
+    obj: SceneObject,
+    count: int,
+    seed=None,
+    *,
+    duration: float = 2.0,
+    speed: float = 0.01,
+    rate: float = 50.0,
+    depth: float = 3e-4,
+    max_offset: float = 0.3,
+) -> list[Stroke]:
     """``count`` strokes along random plane sections of ``obj``.
 
     Parameters

@@ -131,6 +131,7 @@ def signed_distance(surf: Surface, x, ffd_steps: int = 6):
     if min(surf.displacement.shape[:3]) < 2:  # no lattice (static shape): nothing to invert
         y = xl
     else:
+
         def step(y, _):
             return xl - ffd_displacement(surf, y), None
 
