@@ -169,7 +169,7 @@ def run_demo(
     from tqdm.auto import tqdm
 
     from bayestouch.inference.run import run_contact_fit
-    from bayestouch.io import save_contact_points, write_json
+    from bayestouch.io.files import save_contact_points, write_json
     from bayestouch.planning.loop import ExploreSettings, explore, truth_of
     from bayestouch.scene.objects import load_object
 
@@ -228,7 +228,7 @@ def run_demo(
     page = _report(out, obj, truth, res, summary, patch_summary, patch_post, recording, gains)
     check = None
     if check_browser:
-        from bayestouch.report_page import check_in_browser, find_browser
+        from bayestouch.report.page import check_in_browser, find_browser
 
         if find_browser():
             check = check_in_browser(page)
@@ -259,9 +259,9 @@ def run_demo(
 
 def _taxels(obj, res, out: Path, seed: int, sizes: DemoSizes, progress: bool):
     from bayestouch.inference.patch import patch_posterior
-    from bayestouch.io import write_json
-    from bayestouch.recording import build_dataset, read_recording, write_recording
-    from bayestouch.virtual import load_finger, record_strokes
+    from bayestouch.io.files import write_json
+    from bayestouch.io.recording import build_dataset, read_recording, write_recording
+    from bayestouch.physics.virtual import load_finger, record_strokes
 
     vf = load_finger(seed=seed)
     strokes = replay_strokes(obj, res.strokes)
@@ -316,8 +316,8 @@ def _taxels(obj, res, out: Path, seed: int, sizes: DemoSizes, progress: bool):
 def _report(out: Path, obj, truth, res, summary: dict, patch_summary: dict, patch_post, recording, gains) -> Path:
     import arviz as az
 
-    from bayestouch import report as rp
-    from bayestouch.report_page import Figure, Table, write_report
+    from bayestouch.report import figures as rp
+    from bayestouch.report.page import Figure, Table, write_report
 
     um = _read_ply(out / "uncertainty_mesh.ply")
     rp.plot_shape(out, obj.shape, (um[0], um[1]), um[2], res.points, _posterior_shapes(out / "posterior.nc", 30))
@@ -502,7 +502,7 @@ def _posterior_shapes(path: Path, count: int) -> list:
     """``count`` posterior draws of ``posterior.nc`` as n-ellipsoids (evenly spread over the chain)."""
     import xarray as xr
 
-    from bayestouch._jax import jnp
+    from bayestouch.backend import jnp
     from bayestouch.geometry import nellipsoid as ne
 
     post = xr.open_dataset(path, group="posterior")

@@ -14,7 +14,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.optimize import differential_evolution, minimize
 
-from bayestouch._jax import jax, jnp
+from bayestouch.backend import jax, jnp
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.ffd import fit_two_step
 from bayestouch.geometry.integrals import relative_errors, surface_integrals
@@ -354,8 +354,8 @@ PAPER_TABLE1 = {
 
 def depth_for_load(surf, finger, contact, normal, tangent, load: float, *, max_depth: float = 1.5e-3) -> float:
     """Pressing depth (m) at which the pad's elastic normal force equals ``load`` (N), by bisection
-    (:func:`bayestouch.forward.depths_for_force` on one frame; compiled once)."""
-    from bayestouch.forward import contact_frame, depths_for_force, elastic_force
+    (:func:`bayestouch.physics.forward.depths_for_force` on one frame; compiled once)."""
+    from bayestouch.physics.forward import contact_frame, depths_for_force, elastic_force
 
     arrs = (jnp.asarray(contact)[None], jnp.asarray(normal)[None], jnp.asarray(tangent)[None], jnp.asarray(0.0))
     d = float(depths_for_force(surf, finger, arrs, load, max_depth)[0])
@@ -394,7 +394,7 @@ def reproduce_table1(
     """
     from tqdm.auto import tqdm
 
-    from bayestouch.forward import contact_frame
+    from bayestouch.physics.forward import contact_frame
     from bayestouch.physics.patch import fit_patch
 
     finger = vf.finger

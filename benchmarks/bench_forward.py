@@ -7,11 +7,11 @@ from pathlib import Path
 
 import numpy as np
 
-from bayestouch import forward as fw
-from bayestouch._jax import jax, jnp
+from bayestouch.backend import jax, jnp
+from bayestouch.physics import forward as fw
+from bayestouch.physics.virtual import load_finger
 from bayestouch.scene.objects import load_object
 from bayestouch.scene.strokes import random_strokes
-from bayestouch.virtual import load_finger
 from benchmarks.harness import best_of
 
 EGG = Path(__file__).resolve().parent.parent / "models" / "objects" / "egg.toml"

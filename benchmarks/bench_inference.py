@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bayestouch._jax import jax, jnp
+from bayestouch.backend import jax, jnp
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.mesh import sample_surface
 from bayestouch.inference import contact as cm

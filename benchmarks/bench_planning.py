@@ -40,7 +40,7 @@ HERE = Path(__file__).resolve().parent
 
 
 def bench_decision() -> list[dict]:
-    from bayestouch._jax import jnp
+    from bayestouch.backend import jnp
     from bayestouch.geometry import nellipsoid as ne
     from bayestouch.planning.candidates import make_candidates
     from bayestouch.planning.policies import choose
@@ -98,7 +98,7 @@ def gap_interval(rows, metric: str = "chamfer", stroke: int = 5, boots: int = 20
 
 
 def bench_experiment() -> list[dict]:
-    from bayestouch.io import write_csv_rows
+    from bayestouch.io.files import write_csv_rows
     from bayestouch.planning.experiment import COLUMNS, gap_closed, run_experiment
 
     trials = int(os.environ.get("BAYESTOUCH_PLANNING_TRIALS", "3"))

@@ -22,10 +22,10 @@ EGG = MODELS / "objects" / "egg.toml"
 
 def _recording(mode: str = "empirical", strokes: int = 10, seed: int = 3):
     """The standard scenario, as ``bayestouch simulate --object egg.toml --strokes 10 --seed 3 --mode MODE``."""
-    from bayestouch.recording import build_dataset
+    from bayestouch.io.recording import build_dataset
+    from bayestouch.physics.virtual import load_finger, record_strokes
     from bayestouch.scene.objects import load_object
     from bayestouch.scene.strokes import random_strokes
-    from bayestouch.virtual import load_finger, record_strokes
 
     obj = load_object(EGG)
     vf = load_finger(MODELS, seed=seed)

@@ -9,8 +9,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+from bayestouch.inference.sbc import simulate_points
 
-from bayestouch.inference.calibration import simulate_points
 from bayestouch.inference.contact import make_log_prob
 
 # a tilted, unequal-axes n-ellipsoid (centre m, log axes, Euler angles rad, log n, log σ) and 1000 points
@@ -150,7 +150,7 @@ def bench_time_to_converged():
     case from the second run on), and a fresh process without that cache (a first run ever: ~100 programs
     compiled)."""
     from bayestouch.inference.run import run_contact_fit
-    from bayestouch.io import save_contact_points
+    from bayestouch.io.files import save_contact_points
 
     pts = _points()
     rows = []

@@ -91,7 +91,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from bayestouch._jax import jnp
+from bayestouch.backend import jnp
 from bayestouch.errors import BadInput
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.compare import chamfer_shapes
@@ -607,7 +607,7 @@ def bench_sparse(
     seed : int
         Seed of the data sets (and of the fits).
     csv_path : Path or None
-        Where to write the per-set table of every cap (:func:`bayestouch.io.write_csv_rows`); None: not written.
+        Where to write the per-set table of every cap (:func:`bayestouch.io.files.write_csv_rows`); None: not written.
     cap_deg : float or sequence of float, optional
         Caps of the strokes, degrees (default ``$BAYESTOUCH_SPARSE_CAP``, comma-separated, or :data:`BENCH_CAPS`:
         the calibrated cap and the hard default).
@@ -622,7 +622,7 @@ def bench_sparse(
     BadInput
         When a cap is outside (0, 180] degrees.
     """
-    from bayestouch.io import write_csv_rows
+    from bayestouch.io.files import write_csv_rows
 
     caps = _caps(cap_deg)
     sets = int(os.environ.get("BAYESTOUCH_SPARSE_SETS", 10)) if sets is None else int(sets)

@@ -17,7 +17,7 @@ import sys
 import time
 from pathlib import Path
 
-from bayestouch.io import write_text
+from bayestouch.io.files import write_text
 
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results"

@@ -42,7 +42,7 @@ def recording(name: str, out: Path) -> Path:
 
 def contact_set(name: str, out: Path) -> Path:
     """Noisy contact points with the true outward normals, for ``bayestouch fit`` (x,y,z,nx,ny,nz)."""
-    from bayestouch.io import save_contact_points
+    from bayestouch.io.files import save_contact_points
     from bayestouch.scene.objects import load_object
     from bayestouch.scene.paths import random_paths
 
@@ -57,7 +57,7 @@ def contact_set(name: str, out: Path) -> Path:
 
 def plate_paths(out: Path) -> Path:
     """The damaged graphite plate's 25 finger paths (half-sections, 1 cm/s, 20 samples/s), numbered from 1."""
-    from bayestouch.io import write_csv_rows
+    from bayestouch.io.files import write_csv_rows
     from bayestouch.scene.objects import load_object
     from bayestouch.scene.paths import random_paths
 

@@ -5,7 +5,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
-from bayestouch._jax import jnp  # noqa: E402
+from bayestouch.backend import jnp  # noqa: E402
 from bayestouch.geometry import nellipsoid as ne  # noqa: E402
 
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy.stats import binom
 
-from bayestouch.inference import calibration as cal
+from bayestouch.inference import sbc as cal
 
 N_SETS, N_DRAWS = 30, 39  # 39 draws: the 2nd to 38th order statistics are an exact 90 % interval (k = 2)
 

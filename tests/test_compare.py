@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from bayestouch._jax import jnp
+from bayestouch.backend import jnp
 from bayestouch.geometry import compare as cmp
 from bayestouch.geometry import mesh
 from bayestouch.geometry import nellipsoid as ne

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 
-from bayestouch._jax import jax, jnp
+from bayestouch.backend import jax, jnp
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.mesh import sample_surface
 from bayestouch.inference import contact as cm

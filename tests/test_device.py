@@ -221,7 +221,7 @@ def test_plan_check_values():
 
 
 def _parser():
-    from bayestouch.hardware.cli import add_device_parser
+    from bayestouch.cli.device import add_device_parser
 
     p = argparse.ArgumentParser()
     add_device_parser(p.add_subparsers(dest="command"))
@@ -229,8 +229,9 @@ def _parser():
 
 
 def test_cli_run_writes_the_simulate_schema(device, tmp_path):
-    from bayestouch.hardware.cli import run_device
-    from bayestouch.recording import read_recording
+    from bayestouch.cli.device import run_device
+
+    from bayestouch.io.recording import read_recording
 
     sim, dev = device()
     dev.close()
@@ -289,7 +290,7 @@ def test_cli_run_writes_the_simulate_schema(device, tmp_path):
 
 
 def test_cli_bad_input(tmp_path):
-    from bayestouch.hardware.cli import run_device
+    from bayestouch.cli.device import run_device
 
     bad = tmp_path / "bad.json"
     bad.write_text("{not json")
@@ -331,7 +332,7 @@ def test_cli_simulate_process_prints_its_pty_and_exits_cleanly(tmp_path):
         [
             sys.executable,
             "-m",
-            "bayestouch.hardware.cli",
+            "bayestouch.cli.device",
             "device",
             "simulate",
             "--print-port",
@@ -368,9 +369,9 @@ def test_virtual_finger_streams_the_forward_model(tmp_path):
     from bayestouch.hardware.safety import plan_from_stroke
     from bayestouch.hardware.simulator import ForwardModel
     from bayestouch.params import MODELS
+    from bayestouch.physics.virtual import record_strokes
     from bayestouch.scene.objects import load_object
     from bayestouch.scene.strokes import random_strokes
-    from bayestouch.virtual import record_strokes
 
     obj = load_object(MODELS / "objects" / "egg.toml")
     model = ForwardModel(obj, seed=2)

@@ -35,7 +35,7 @@ def _ball(centre=(0.0, 0.0, 0.0)):
 
 
 def _sphere(centre, r):
-    from bayestouch._jax import jnp
+    from bayestouch.backend import jnp
     from bayestouch.geometry import nellipsoid as ne
 
     return ne.NEllipsoid(jnp.asarray(centre, float), jnp.full(3, r), jnp.zeros(3), jnp.asarray(2.0))
@@ -144,10 +144,11 @@ def test_unsafe_strokes_are_refused_before_anything_is_sent(finger, tmp_path):
 
 @pytest.mark.slow
 def test_explore_port_drives_the_finger_and_writes_the_recording(finger, tmp_path, monkeypatch, capsys):
-    from bayestouch.io import load_contact_points
+    from bayestouch.cli.explore import main
+
+    from bayestouch.io.files import load_contact_points
+    from bayestouch.io.recording import UNITS, read_recording
     from bayestouch.planning import loop
-    from bayestouch.planning.cli import main
-    from bayestouch.recording import UNITS, read_recording
 
     # 3 scout arcs and 1 planned stroke of 16 samples: 48 and 64 points, one compiled size of the log-density
     small = {"init_steps": 80, "scout": 3, "init_starts": 1, "walkers": 24, "points": T}
@@ -192,7 +193,7 @@ def test_explore_port_drives_the_finger_and_writes_the_recording(finger, tmp_pat
 
 
 def test_explore_port_bad_inputs_are_one_line(tmp_path, capsys):
-    from bayestouch.planning.cli import main
+    from bayestouch.cli.explore import main
 
     port = tmp_path / "port"
     port.write_text("")

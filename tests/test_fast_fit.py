@@ -3,7 +3,7 @@
 
 import numpy as np
 
-from bayestouch._jax import jnp
+from bayestouch.backend import jnp
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.integrals import surface_integrals, surface_integrals_batch
 from bayestouch.geometry.mesh import sample_surface

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from bayestouch._jax import jnp
+from bayestouch.backend import jnp
 from bayestouch.geometry import ffd, mesh
 from bayestouch.geometry import nellipsoid as ne
 

@@ -5,7 +5,7 @@ import pytest
 from scipy.optimize import minimize_scalar
 from scipy.stats import multivariate_normal
 
-from bayestouch._jax import jnp
+from bayestouch.backend import jnp
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.mesh import sample_surface
 from bayestouch.inference import contact as cm

@@ -7,14 +7,14 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
-from bayestouch import forward as fw
-from bayestouch._jax import jax, jnp
+from bayestouch.backend import jax, jnp
 from bayestouch.cli import main
-from bayestouch.finger import drive
+from bayestouch.io.recording import UNITS, read_recording
+from bayestouch.physics import forward as fw
 from bayestouch.physics import taxel as tx
-from bayestouch.recording import UNITS, read_recording
+from bayestouch.physics.finger import drive
+from bayestouch.physics.virtual import load_finger
 from bayestouch.scene.objects import load_object
-from bayestouch.virtual import load_finger
 
 ROOT = Path(__file__).parent.parent
 VF = load_finger(seed=0)

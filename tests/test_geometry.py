@@ -8,7 +8,7 @@ from jax.test_util import check_grads
 from scipy import stats
 from scipy.special import ellipeinc, ellipkinc
 
-from bayestouch._jax import jax, jnp
+from bayestouch.backend import jax, jnp
 from bayestouch.geometry import mesh
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.integrals import relative_errors, surface_integrals

@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from bayestouch._jax import jnp
+from bayestouch.backend import jnp
 from bayestouch.errors import BadInput
 from bayestouch.inference import grating as gr
 from bayestouch.params import MODELS

@@ -1,4 +1,4 @@
-"""bayestouch.io: exact CSV round trips, one-line errors for bad contact files, atomic writers."""
+"""bayestouch.io.files: exact CSV round trips, one-line errors for bad contact files, atomic writers."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ import os
 import numpy as np
 import pytest
 
-from bayestouch import io as bio
 from bayestouch.errors import BadInput
-from bayestouch.io import (
+from bayestouch.io import files as bio
+from bayestouch.io.files import (
     ContactPoints,
     load_contact_points,
     read_csv_rows,

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from bayestouch._jax import jax, jnp
+from bayestouch.backend import jax, jnp
 from bayestouch.errors import BadInput
 from bayestouch.params import MODELS
 from bayestouch.physics import noise as nz

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bayestouch._jax import jnp
+from bayestouch.backend import jnp
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.integrals import surface_integrals
 from bayestouch.geometry.mesh import sample_surface
@@ -98,9 +98,9 @@ def test_sphere_object_is_recovered_by_pipeline():
 
 
 def test_table1_patch_grows_with_load():
-    from bayestouch.forward import contact_frame
     from bayestouch.paper import depth_for_load, reproduce_table1
-    from bayestouch.virtual import load_finger
+    from bayestouch.physics.forward import contact_frame
+    from bayestouch.physics.virtual import load_finger
 
     plate = load_object(ROOT / "models" / "objects" / "graphite_plate.toml")
     vf = load_finger()
@@ -115,6 +115,6 @@ def test_table1_patch_grows_with_load():
     c, n, t = jnp.array([0.0, 0.0, 0.005]), jnp.array([0.0, 0.0, 1.0]), jnp.array([1.0, 0.0, 0.0])
     d = depth_for_load(replace(plate, defects=()).surface(), f, c, n, t, 0.07)
     _, _, p = contact_frame(replace(plate, defects=()).surface(), f, c, n, t, d)
-    from bayestouch.forward import elastic_force
+    from bayestouch.physics.forward import elastic_force
 
     assert float(elastic_force(f, jnp.where(f.reference, 0.0, p))) == pytest.approx(0.07, rel=1e-6)

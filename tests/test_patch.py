@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
-from bayestouch._jax import jnp
+from bayestouch.backend import jnp
 from bayestouch.errors import BadInput
 from bayestouch.physics import patch as P
 from bayestouch.physics import skin as S

@@ -6,15 +6,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bayestouch import forward as fw
-from bayestouch._jax import jax, jnp
+from bayestouch.backend import jax, jnp
 from bayestouch.errors import BadInput
 from bayestouch.inference import patch as pp
+from bayestouch.physics import forward as fw
 from bayestouch.physics import noise as nz
 from bayestouch.physics import skin as sk
 from bayestouch.physics.patch import superellipse_area
+from bayestouch.physics.virtual import load_finger
 from bayestouch.scene.objects import load_object
-from bayestouch.virtual import load_finger
 
 ROOT = Path(__file__).parent.parent
 F = load_finger(seed=0).finger

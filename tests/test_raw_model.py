@@ -4,7 +4,7 @@ log-density, truth against wrong shapes, recovery of a simulated truth, and the 
 import numpy as np
 import pytest
 
-from bayestouch._jax import jnp
+from bayestouch.backend import jnp
 from bayestouch.errors import BadInput
 from bayestouch.inference import raw
 from bayestouch.params import MODELS
@@ -17,10 +17,10 @@ def _record(mode: str, strokes: int = 6, seed: int = 7, rate: float = 15.0):
     recording's clean currents are the full bare-shape model."""
     import dataclasses
 
-    from bayestouch.recording import build_dataset
+    from bayestouch.io.recording import build_dataset
+    from bayestouch.physics.virtual import load_finger, record_strokes
     from bayestouch.scene.objects import load_object
     from bayestouch.scene.strokes import random_strokes
-    from bayestouch.virtual import load_finger, record_strokes
 
     obj = dataclasses.replace(load_object(EGG), texture=None)
     vf = load_finger(MODELS, seed=seed)

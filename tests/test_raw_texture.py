@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from bayestouch._jax import jnp
+from bayestouch.backend import jnp
 from bayestouch.inference import contact as cm
 from bayestouch.inference import grating as gr
 from bayestouch.inference import raw
@@ -17,10 +17,10 @@ EGG = MODELS / "objects" / "egg.toml"
 
 
 def _record(textured: bool, strokes: int = 4, seed: int = 5):
-    from bayestouch.recording import build_dataset
+    from bayestouch.io.recording import build_dataset
+    from bayestouch.physics.virtual import load_finger, record_strokes
     from bayestouch.scene.objects import load_object
     from bayestouch.scene.strokes import random_strokes
-    from bayestouch.virtual import load_finger, record_strokes
 
     obj = load_object(EGG)
     if not textured:

@@ -9,7 +9,7 @@ import os
 import numpy as np
 import pytest
 
-from bayestouch.report_page import Figure, Table, check_in_browser, find_browser, write_report
+from bayestouch.report.page import Figure, Table, check_in_browser, find_browser, write_report
 
 # CI installs Debian's chromium (.ci/run) and sets BAYESTOUCH_REQUIRE_BROWSER=1: there a missing browser fails
 NEED_BROWSER = os.environ.get("BAYESTOUCH_REQUIRE_BROWSER") == "1"
@@ -75,7 +75,7 @@ def test_demo_end_to_end_quick(tmp_path):
     """``bayestouch demo --quick``: the run folder has every file the issue lists, the summary has the contract's
     keys, the recording reads back, and (with a browser) every image of report.html renders."""
     from bayestouch.cli import main
-    from bayestouch.recording import read_recording
+    from bayestouch.io.recording import read_recording
 
     out = tmp_path / "demo"
     assert main(["demo", "--quick", "--quiet", "--out", str(out), "--seed", "1"]) == 0

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
-from bayestouch._jax import jax, jnp
+from bayestouch.backend import jax, jnp
 from bayestouch.errors import BadInput
 from bayestouch.params import MODELS
 from bayestouch.physics import skin as S

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from bayestouch._jax import jnp
+from bayestouch.backend import jnp
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.integrals import surface_integrals
 from benchmarks import bench_sparse as bs
@@ -174,7 +174,7 @@ def _map_fit(points, theta0, nu):
     """Maximum of the contact-level log-posterior with Student-t ν (inf: Gaussian) by L-BFGS-B from θ0."""
     from scipy.optimize import minimize
 
-    from bayestouch._jax import jax
+    from bayestouch.backend import jax
     from bayestouch.inference import contact as cm
 
     _, bounds = cm.make_log_prob(points, nu=nu)

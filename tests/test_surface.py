@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
-from bayestouch._jax import jax, jnp
+from bayestouch.backend import jax, jnp
 from bayestouch.errors import BadInput
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.scene.objects import FFDSpec, SceneObject, load_object, object_from_dict

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from bayestouch._jax import jax, jnp
+from bayestouch.backend import jax, jnp
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.mesh import nellipsoid_mesh
 from bayestouch.geometry.texture import (

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from bayestouch.errors import BadInput
+from bayestouch.physics.virtual import load_finger
 from bayestouch.planning import texture_id as ti
-from bayestouch.virtual import load_finger
 
 
 @pytest.fixture(scope="module")

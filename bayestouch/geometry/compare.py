@@ -27,7 +27,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from bayestouch._jax import jax, jnp, pad_pow2
+from bayestouch.backend import jax, jnp, pad_pow2
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.integrals import relative_errors, surface_integrals
 from bayestouch.geometry.mesh import as_rng, nellipsoid_mesh, sample_mesh, sample_surface

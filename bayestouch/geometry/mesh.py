@@ -11,7 +11,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from bayestouch._jax import jnp
+from bayestouch.backend import jnp
 from bayestouch.geometry.nellipsoid import NEllipsoid, project_to_surface, surface_point, unit_nsphere
 
 __all__ = [

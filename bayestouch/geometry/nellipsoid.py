@@ -12,7 +12,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from bayestouch._jax import jax, jnp, pad_pow2
+from bayestouch.backend import jax, jnp, pad_pow2
 from bayestouch.geometry.rotation import rotation_matrix
 
 __all__ = [

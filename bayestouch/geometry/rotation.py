@@ -5,7 +5,7 @@ Angles are in radians and stored in the paper's order ``(xi, psi, zeta)`` (d7, d
 
 from __future__ import annotations
 
-from bayestouch._jax import jnp
+from bayestouch.backend import jnp
 
 __all__ = ["rot_x", "rot_z", "rotation_matrix", "euler_from_matrix"]
 

@@ -33,7 +33,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.spatial import cKDTree
 
-from bayestouch._jax import jnp
+from bayestouch.backend import jnp
 
 __all__ = [
     "TextureIndicator",

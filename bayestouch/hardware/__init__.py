@@ -6,7 +6,7 @@ Submodules are imported lazily (``bayestouch.hardware.FingerDevice`` imports pys
 - :mod:`~bayestouch.hardware.safety` — limits and stroke-plan checks;
 - :mod:`~bayestouch.hardware.device` — :class:`FingerDevice`, the client;
 - :mod:`~bayestouch.hardware.simulator` — :class:`VirtualDevice`, the virtual finger;
-- :mod:`~bayestouch.hardware.cli` — ``bayestouch device simulate`` and ``bayestouch device run``.
+- :mod:`~bayestouch.cli.device` — ``bayestouch device simulate`` and ``bayestouch device run``.
 """
 
 from __future__ import annotations

@@ -169,7 +169,7 @@ def _frames_to_arrays(frames: list[pr.Frame]) -> tuple[dict, np.ndarray]:
 
 
 def strokes_to_frames(strokes: list[StrokeData]) -> dict[str, np.ndarray]:
-    """Concatenate strokes into the per-frame arrays of :func:`bayestouch.virtual.record_strokes` (the same
+    """Concatenate strokes into the per-frame arrays of :func:`bayestouch.physics.virtual.record_strokes` (the same
     keys, less the simulation-only ``taxel_current_clean``, ``pressure`` and ``friction_force``)."""
     cols: dict[str, list] = {}
     t0 = 0.0
@@ -192,8 +192,8 @@ def strokes_to_frames(strokes: list[StrokeData]) -> dict[str, np.ndarray]:
 
 
 def build_recording(strokes: list[StrokeData], info: pr.HelloReply, attrs: dict | None = None):
-    """The ``xarray.Dataset`` of :mod:`bayestouch.recording` (the schema of ``bayestouch simulate``)."""
-    from bayestouch.recording import build_dataset
+    """The ``xarray.Dataset`` of :mod:`bayestouch.io.recording` (the schema of ``bayestouch simulate``)."""
+    from bayestouch.io.recording import build_dataset
 
     uv = np.asarray(info.taxel_uv, float)
     a = {"device_firmware": info.firmware, "protocol_version": info.protocol, **(attrs or {})}
@@ -682,7 +682,7 @@ class FingerDevice:
         self, strokes, *, hold_currents=(0.15, 0.05, 0.05), progress: bool = False
     ) -> dict[str, np.ndarray]:
         """Run ``strokes`` (:class:`~bayestouch.scene.strokes.Stroke`) on the device; the per-frame arrays of
-        :func:`bayestouch.virtual.record_strokes` (so the exploration loop can drive the device instead)."""
+        :func:`bayestouch.physics.virtual.record_strokes` (so the exploration loop can drive the device instead)."""
         return strokes_to_frames(self.run_strokes([plan_from_stroke(s, hold_currents) for s in strokes], progress))
 
     def run_strokes(self, plans, progress: bool = False) -> list[StrokeData]:

@@ -3,7 +3,7 @@
 :class:`VirtualDevice` opens a pty (``os.openpty``; the slave is put in raw mode with ``tty.setraw`` and kept
 open so clients may come and go), serves the protocol of :mod:`bayestouch.hardware.protocol` from a thread,
 computes each stroke's frames with a frame model (:class:`ForwardModel`: the physics of
-:func:`bayestouch.virtual.record_strokes`; :class:`SyntheticModel`: a fast stand-in for tests and benchmarks)
+:func:`bayestouch.physics.virtual.record_strokes`; :class:`SyntheticModel`: a fast stand-in for tests and benchmarks)
 and streams them in real time (``speed = 1``), faster (``speed > 1``) or as fast as the line allows
 (``speed = 0``).
 
@@ -126,7 +126,7 @@ class SyntheticModel:
 
 
 class ForwardModel:
-    """The physics forward model (:func:`bayestouch.virtual.record_strokes`) over a scene object.
+    """The physics forward model (:func:`bayestouch.physics.virtual.record_strokes`) over a scene object.
 
     Parameters
     ----------
@@ -143,7 +143,7 @@ class ForwardModel:
 
     def __init__(self, obj, models: Path | None = None, seed: int = 0, mode: str | None = None):
         from bayestouch.params import MODELS
-        from bayestouch.virtual import load_finger
+        from bayestouch.physics.virtual import load_finger
 
         self.obj, self.seed, self.mode, self.pose_sd = obj, int(seed), mode, 3e-4
         self.vf = load_finger(Path(models or MODELS), seed=seed)
@@ -154,8 +154,8 @@ class ForwardModel:
         self._lock = threading.Lock()
 
     def __call__(self, plan: StrokePlan, index: int) -> dict[str, np.ndarray]:
+        from bayestouch.physics.virtual import record_strokes
         from bayestouch.scene.strokes import stroke_from_path
-        from bayestouch.virtual import record_strokes
 
         st = stroke_from_path(plan.contact, plan.normal, plan.time, plan.depth)
         with self._lock:  # one compilation at a time
@@ -215,7 +215,7 @@ class GuardedModel:
     def probe(self, plan: StrokePlan, travel: float, threshold: float, index: int) -> dict[str, np.ndarray]:
         """A guarded stroke (``plan.contact`` holds the approach starts): :data:`FRAME_KEYS` arrays plus
         ``probe (T,)``, ``travel (T,)`` m and ``position (T, 3)`` m (see the class docstring)."""
-        from bayestouch._jax import jnp
+        from bayestouch.backend import jnp
         from bayestouch.geometry import nellipsoid as ne
         from bayestouch.hardware.device import winkler_depth
         from bayestouch.planning.signal import CONTACT, INSIDE, MISS, true_ray_distances

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bayestouch._jax import jax, jnp
+from bayestouch.backend import jax, jnp
 from bayestouch.geometry import nellipsoid as ne
 
 __all__ = ["radial_cost", "de_search"]

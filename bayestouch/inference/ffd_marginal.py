@@ -35,7 +35,7 @@ from math import comb
 
 import numpy as np
 
-from bayestouch._jax import jax, jnp
+from bayestouch.backend import jax, jnp
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.inference import contact as cm
 from bayestouch.params import MODELS, Spec, build

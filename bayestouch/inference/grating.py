@@ -43,7 +43,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from bayestouch._jax import jax, jnp
+from bayestouch.backend import jax, jnp
 from bayestouch.params import MODELS, Spec, build
 
 __all__ = [

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bayestouch._jax import jax, jnp
+from bayestouch.backend import jax, jnp
 from bayestouch.inference import contact as cm
 
 __all__ = ["to_unconstrained", "from_unconstrained", "make_potential", "nuts_contact"]

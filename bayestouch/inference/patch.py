@@ -19,7 +19,7 @@ at the patch centre). The data fix the force, nearly ∝ V, far better than δ0,
    {L < 1} is the contact domain D_c of eq. 16, so (a, b, n) are the patch of Table 1 and its area is
    eq. 18 (:func:`~bayestouch.physics.patch.superellipse_area`).
 2. Pressure. The local foam law and the finger's own blur, exactly as the forward model does it
-   (:func:`bayestouch.forward.contact_frame`): p = K σ_foam(δ/h) at the taxels (K = ``Finger.kernel``),
+   (:func:`bayestouch.physics.forward.contact_frame`): p = K σ_foam(δ/h) at the taxels (K = ``Finger.kernel``),
    zero on the unloaded reference rows.
 3. Currents. Δ_j(θ) = ln I(p_j, T) − ln I(0, T) from :func:`~bayestouch.physics.taxel.taxel_current`
    (``"empirical"``: s S_p p_j exactly; ``"physics"``: the piezotronic chain, evaluated at ``temperature``).
@@ -61,7 +61,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from bayestouch._jax import jax, jnp
+from bayestouch.backend import jax, jnp
 from bayestouch.errors import BadInput
 from bayestouch.inference.contact import Bounds
 from bayestouch.params import MODELS, Spec, build
@@ -299,7 +299,7 @@ def make_patch_model(
     currents : (N,) or (K, N) float, A
         One frame or K consecutive frames of the whole array (reference rows included) of a static contact.
     finger : Finger
-        :class:`bayestouch.forward.Finger` (grid, reference rows, kernel, skin, taxels, noise, gains).
+        :class:`bayestouch.physics.forward.Finger` (grid, reference rows, kernel, skin, taxels, noise, gains).
     dt : float, s
         Frame interval (for the 1/f variance of the window mean).
     temperature : float, K
@@ -454,7 +454,8 @@ def patch_log_prob(theta, model: PatchModel, mode: str = "empirical"):
 
 def patch_force(theta, model: PatchModel):
     """Normal force (N) of the patch θ: Σ_j p_j · cell_area over the loaded taxels, as
-    :func:`bayestouch.forward.elastic_force` computes it (evaluated as σ_foam · (Kᵀ loaded), no matrix product)."""
+    :func:`bayestouch.physics.forward.elastic_force` computes it (evaluated as σ_foam · (Kᵀ loaded), no matrix
+    product)."""
     local = _local_stress(theta, model)
     return model.cell_area * (local @ (model.kernel.T @ model.loaded))
 

@@ -17,7 +17,7 @@ What is known at inference time, and how it is used
 * Pad pose: the finger is position-controlled, so every taxel's world position in every frame is known and
   independent of θ. It is rebuilt from the recording's ``contact_point`` (commanded pad-centre contact),
   ``contact_normal``, ``pressing_depth`` and the tangent of successive contact points within a stroke, with
-  :func:`bayestouch.forward.pad_points` (pad centre = contact + (R − depth)·n). ``contact_point`` is used
+  :func:`bayestouch.physics.forward.pad_points` (pad centre = contact + (R − depth)·n). ``contact_point`` is used
   only for this, never as a shape datum (except to seed the initial optimiser, see :func:`initial_raw_theta`).
 * Device: the fixed-pattern gains G_j are those of a calibrated device; for a simulated recording the finger is
   rebuilt with ``load_finger(seed=int(ds.attrs['seed']))``. The skin temperature per frame is recorded and enters
@@ -100,7 +100,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from bayestouch._jax import jax, jnp
+from bayestouch.backend import jax, jnp
 from bayestouch.errors import BadInput
 from bayestouch.inference import contact as cm
 from bayestouch.inference import grating as gr
@@ -262,7 +262,7 @@ def load_raw_data(
     Parameters
     ----------
     ds_or_path : xarray.Dataset or path
-        A recording (:mod:`bayestouch.recording`).
+        A recording (:mod:`bayestouch.io.recording`).
     models : path
         Parameter folder of the finger (``finger.toml``, ``skin.toml``, ``taxels.toml``, ``noise.toml``).
     stride : int
@@ -281,7 +281,7 @@ def load_raw_data(
     -------
     (RawData, Finger)
     """
-    from bayestouch import forward as fw
+    from bayestouch.physics import forward as fw
     from bayestouch.physics import noise as nz
     from bayestouch.physics import taxel as tx
 
@@ -289,7 +289,7 @@ def load_raw_data(
         p = Path(ds_or_path)
         if not p.is_file():
             raise BadInput(f"recording {p}: no such file; expected a .nc recording from bayestouch simulate")
-        from bayestouch.recording import read_recording
+        from bayestouch.io.recording import read_recording
 
         try:
             ds = read_recording(p)
@@ -322,7 +322,7 @@ def load_raw_data(
     if mode not in tx.MODES:
         raise BadInput(f"{where}: attribute 'mode' is {mode!r}, expected one of {tx.MODES}")
     if finger is None:
-        from bayestouch.virtual import load_finger
+        from bayestouch.physics.virtual import load_finger
 
         try:
             seed = int(ds.attrs.get("seed", 0))
@@ -1360,7 +1360,7 @@ def run_raw_fit(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     if isinstance(recording, str | Path):
-        from bayestouch.recording import read_recording
+        from bayestouch.io.recording import read_recording
 
         p = Path(recording)
         if not p.is_file():

@@ -24,7 +24,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from bayestouch._jax import jax, jnp
+from bayestouch.backend import jax, jnp
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.inference import contact as cm
 
@@ -199,7 +199,7 @@ def write_posterior(out: Path, chain, model: PosteriorModel, *, seed: int, t0: f
     from bayestouch.geometry.integrals import surface_integrals_batch
     from bayestouch.geometry.mesh import to_trimesh
     from bayestouch.inference.sampler import convergence
-    from bayestouch.io import write_json
+    from bayestouch.io.files import write_json
 
     out = Path(out)
     kept = chain.kept  # (S, W, D)

@@ -36,7 +36,7 @@ from __future__ import annotations
 from functools import partial
 from typing import NamedTuple
 
-from bayestouch._jax import jax, jnp
+from bayestouch.backend import jax, jnp
 from bayestouch.errors import BadInput
 from bayestouch.params import MODELS, Spec, build
 from bayestouch.physics.sma import WireParams, quasi_static_strain, quasi_static_stress

@@ -35,7 +35,7 @@ from __future__ import annotations
 from functools import partial
 from typing import NamedTuple
 
-from bayestouch._jax import jax, jnp
+from bayestouch.backend import jax, jnp
 from bayestouch.errors import BadInput
 from bayestouch.params import MODELS, Spec, build
 from bayestouch.physics.taxel import K_B, Q_E, thermal_voltage

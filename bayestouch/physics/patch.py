@@ -19,7 +19,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.optimize import least_squares
 
-from bayestouch._jax import jnp
+from bayestouch.backend import jnp
 from bayestouch.errors import BadInput
 
 __all__ = ["Patch", "superellipse", "superellipse_area", "superellipse_area_eq18", "fit_patch"]

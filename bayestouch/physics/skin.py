@@ -23,7 +23,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-from bayestouch._jax import jax, jnp
+from bayestouch.backend import jax, jnp
 from bayestouch.params import MODELS, Spec, build
 
 __all__ = [

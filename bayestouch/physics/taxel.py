@@ -44,7 +44,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from bayestouch._jax import jax, jnp
+from bayestouch.backend import jax, jnp
 from bayestouch.errors import BadInput
 from bayestouch.params import MODELS, Spec, build, read_toml
 

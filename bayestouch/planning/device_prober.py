@@ -158,13 +158,13 @@ class DeviceProber:
             )
         )
         if self.recording_path is not None:
-            from bayestouch.recording import write_recording
+            from bayestouch.io.recording import write_recording
 
             write_recording(self.dataset(), self.recording_path)
         return pts, free
 
     def dataset(self):
-        """All strokes so far as the ``xarray.Dataset`` of :mod:`bayestouch.recording` (the schema of
+        """All strokes so far as the ``xarray.Dataset`` of :mod:`bayestouch.io.recording` (the schema of
         ``bayestouch simulate``; ``contact_point`` holds the estimated contact points)."""
         attrs = {
             "source": "bayestouch explore on a finger (guarded strokes)",

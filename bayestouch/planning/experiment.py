@@ -5,7 +5,7 @@ every planner of one trial and object starts from the same scout and initial fit
 (``spawn``: JAX does not survive ``fork`` after initialisation; 2 workers by default), in this process
 (``workers=1``), or on a Dask cluster (``scheduler="tcp://HOST:PORT"``, ``dask[distributed]`` installed). The
 parent collects finished trials and rewrites ``results.csv`` atomically after each
-(:func:`bayestouch.io.write_csv_rows`), so a killed worker or run loses no finished trial; ``resume=True`` keeps
+(:func:`bayestouch.io.files.write_csv_rows`), so a killed worker or run loses no finished trial; ``resume=True`` keeps
 the trials already complete in an existing ``results.csv`` and runs only the others.
 
 ``results.csv`` columns: :data:`COLUMNS` (one row per stroke, stroke 0 the scout); ``error_vs_strokes.png``:
@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from bayestouch.errors import BadInput
+from bayestouch.params import MODELS
 from bayestouch.planning.loop import ExploreSettings
 from bayestouch.planning.policies import check_policy
 
@@ -43,7 +44,7 @@ COLUMNS = (
 )
 #: default objects (models/objects/<name>.toml)
 OBJECTS = ("egg", "sphere", "box", "cylinder")
-_MODELS = Path(__file__).resolve().parent.parent.parent / "models" / "objects"
+_MODELS = MODELS / "objects"
 
 
 def resolve_object(name: str) -> Path:
@@ -142,7 +143,7 @@ def run_experiment(
     dict
         ``{"ran": trials run now, "skipped": trials kept from before, "rows": all rows, "path": results.csv}``.
     """
-    from bayestouch.io import read_csv_rows, write_csv_rows
+    from bayestouch.io.files import read_csv_rows, write_csv_rows
 
     planners = list(planners)
     if not planners:

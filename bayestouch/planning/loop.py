@@ -47,7 +47,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from bayestouch._jax import jax, jnp, pad_pow2
+from bayestouch.backend import jax, jnp, pad_pow2
 from bayestouch.errors import BadInput
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.inference import contact as cm

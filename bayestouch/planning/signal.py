@@ -27,7 +27,7 @@ from functools import partial
 
 import numpy as np
 
-from bayestouch._jax import jax, jnp
+from bayestouch.backend import jax, jnp
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.scene.surface import signed_distance
 

@@ -12,7 +12,7 @@ Set-up
 * Strokes (:class:`StrokeSpec`, :func:`plate_stroke`): straight, position-controlled lines over the plate's flat
   top face, ``length`` long at ``speed``, pressed ``depth`` into the nominal (untextured) surface. The commanded
   path knows nothing about the texture.
-* Truth (:func:`record_stroke`): the full forward model (:func:`bayestouch.forward.simulate`, all noise sources,
+* Truth (:func:`record_stroke`): the full forward model (:func:`bayestouch.physics.forward.simulate`, all noise sources,
   the device's fixed-pattern gains) on the textured object, with two nuisances the identifier does not know:
   the stroke start phase — the finger touches down ``shift`` metres along the stroke from where it was sent,
   shift ~ U(−``shift_range``, ``shift_range``) per stroke, continuous — and a skin-temperature offset
@@ -88,8 +88,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from bayestouch._argtypes import seed as seed_arg
-from bayestouch._jax import jax, jnp
+from bayestouch.backend import jax, jnp
+from bayestouch.cli.args import seed as seed_arg
 from bayestouch.errors import BadInput
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.params import MODELS, read_toml
@@ -376,7 +376,7 @@ _DRIVE_CACHE: dict = {}
 
 
 def _skin_temperature(vf, n: int, dt: float) -> np.ndarray:
-    from bayestouch.finger import drive
+    from bayestouch.physics.finger import drive
 
     key = (id(vf.wire), n, dt)
     if key not in _DRIVE_CACHE:
@@ -394,7 +394,7 @@ def record_stroke(obj: SceneObject, spec: StrokeSpec, vf, rng: np.random.Generat
     spec : StrokeSpec
         The commanded stroke.
     vf : VirtualFinger
-        :func:`bayestouch.virtual.load_finger`; with ``settings.noise`` False its gains are taken as 1.
+        :func:`bayestouch.physics.virtual.load_finger`; with ``settings.noise`` False its gains are taken as 1.
     rng : numpy Generator
         Draws the shift, the temperature offset and the noise key.
 
@@ -407,9 +407,9 @@ def record_stroke(obj: SceneObject, spec: StrokeSpec, vf, rng: np.random.Generat
     shift : float, metres
         The truth's start-phase error.
     """
-    from bayestouch import forward as fw
     from bayestouch.inference.raw import load_raw_data
-    from bayestouch.recording import build_dataset
+    from bayestouch.io.recording import build_dataset
+    from bayestouch.physics import forward as fw
 
     finger = _finger(vf, settings)
     shift = float(rng.uniform(-settings.shift_range, settings.shift_range))
@@ -459,8 +459,8 @@ def _finger(vf, settings: IdSettings):
 
 def _simulated(finger, settings: IdSettings):
     """The device the truth is simulated with: with the noise off, every noise source is zeroed and the ADC made
-    32-bit (quantisation ≤ 5e-16 A), so the same compiled :func:`~bayestouch.forward.simulate` serves both cases;
-    the identifier keeps the real noise model for its reading sd."""
+    32-bit (quantisation ≤ 5e-16 A), so the same compiled :func:`~bayestouch.physics.forward.simulate` serves both
+    cases; the identifier keeps the real noise model for its reading sd."""
     if settings.noise:
         return finger
     nz = finger.noise._replace(
@@ -864,8 +864,8 @@ def run_experiment(
     ``out/results.csv``, ``out/summary.json``, ``out/accuracy_vs_strokes.png``. Returns the summary."""
     from tqdm.auto import tqdm
 
-    from bayestouch.io import write_csv_rows, write_text
-    from bayestouch.virtual import load_finger
+    from bayestouch.io.files import write_csv_rows, write_text
+    from bayestouch.physics.virtual import load_finger
 
     if trials < 1 or max_strokes < 1:
         raise BadInput(f"--trials and --max-strokes must be ≥ 1, got {trials} and {max_strokes}")

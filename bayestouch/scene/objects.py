@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bayestouch._jax import jax, jnp, pad_pow2
+from bayestouch.backend import jax, jnp, pad_pow2
 from bayestouch.errors import BadInput
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.mesh import nellipsoid_mesh

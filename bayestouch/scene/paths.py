@@ -10,7 +10,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from bayestouch._jax import jax, jnp, pad_pow2
+from bayestouch.backend import jax, jnp, pad_pow2
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.mesh import as_rng
 from bayestouch.scene.objects import SceneObject

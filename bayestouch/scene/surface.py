@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-from bayestouch._jax import jax, jnp
+from bayestouch.backend import jax, jnp
 from bayestouch.geometry import nellipsoid as ne
 
 __all__ = ["Texture", "Defects", "Surface", "height", "defect_height", "signed_distance", "ffd_displacement"]

@@ -20,11 +20,12 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import numpy as np  # noqa: E402
 
-from bayestouch._argtypes import seed as seed_arg  # noqa: E402
+from bayestouch.cli.args import seed as seed_arg  # noqa: E402
+from bayestouch.params import MODELS  # noqa: E402
 
 __all__ = ["main", "build_parser"]
 
-DEFAULT_OBJECTS = Path(__file__).resolve().parent.parent / "models" / "objects"
+DEFAULT_OBJECTS = MODELS / "objects"
 
 
 def _positive_int(text: str) -> int:
@@ -225,8 +226,8 @@ def build_parser() -> argparse.ArgumentParser:
     dp.add_argument("--quick", action="store_true", help="small sizes (scout + 1 stroke, short chains): a smoke run")
     dp.add_argument("--quiet", action="store_true", help="no progress bars")
 
-    from bayestouch.hardware.cli import add_device_parser
-    from bayestouch.planning.cli import add_planning_parsers
+    from bayestouch.cli.explore import add_planning_parsers
+    from bayestouch.cli.device import add_device_parser
 
     add_device_parser(sub)
     add_planning_parsers(sub)
@@ -247,7 +248,7 @@ def _check_out(path: Path) -> Path:
 
 def _cmd_reproduce_paper(args) -> int:
     from bayestouch.paper import TABLE2_SIZES
-    from bayestouch.report_tables import write_table2
+    from bayestouch.report.tables import write_table2
     from bayestouch.scene.objects import load_object
 
     if not args.rate > 0:
@@ -270,13 +271,13 @@ def _cmd_reproduce_paper(args) -> int:
         progress=not args.quiet,
     )
     md = write_table2(rows, out)
-    from bayestouch.report import plot_table2
+    from bayestouch.report.figures import plot_table2
 
     fig = plot_table2(rows, out)
     print(md)
     from bayestouch.paper import reproduce_table1
-    from bayestouch.report_tables import write_table1
-    from bayestouch.virtual import load_finger
+    from bayestouch.physics.virtual import load_finger
+    from bayestouch.report.tables import write_table1
 
     rows1 = reproduce_table1(
         obj,
@@ -323,10 +324,10 @@ def _cmd_simulate(args) -> int:
     if args.force is not None and not (0 < args.force <= 2.0):
         raise BadInput(f"--force must be in (0, 2] newtons, got {args.force}")
     from bayestouch import __version__
-    from bayestouch.recording import build_dataset, write_recording
+    from bayestouch.io.recording import build_dataset, write_recording
+    from bayestouch.physics.virtual import load_finger, record_strokes
     from bayestouch.scene.objects import load_object
     from bayestouch.scene.strokes import random_strokes
-    from bayestouch.virtual import load_finger, record_strokes
 
     obj = load_object(args.object)
     vf = load_finger(args.models, seed=args.seed)
@@ -402,7 +403,7 @@ def _cmd_fit(args) -> int:
         )
     else:
         from bayestouch.inference.run import run_contact_fit
-        from bayestouch.io import load_contact_points
+        from bayestouch.io.files import load_contact_points
 
         if args.texture != "auto" or args.stride is not None:
             raise BadInput("--texture and --stride apply to a recording (.nc), not to contact points (.csv)")
@@ -443,13 +444,13 @@ def _cmd_fit(args) -> int:
 
 
 def _cmd_explore(args) -> int:
-    from bayestouch.planning.cli import run_explore
+    from bayestouch.cli.explore import run_explore
 
     return run_explore(args)
 
 
 def _cmd_experiment(args) -> int:
-    from bayestouch.planning.cli import run_experiment
+    from bayestouch.cli.explore import run_experiment
 
     return run_experiment(args)
 
@@ -461,7 +462,7 @@ def _cmd_texture_id(args) -> int:
 
 
 def _cmd_device(args) -> int:
-    from bayestouch.hardware.cli import run_device
+    from bayestouch.cli.device import run_device
 
     return run_device(args)
 
@@ -485,7 +486,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return 2
-    from bayestouch._jax import enable_compilation_cache
+    from bayestouch.backend import enable_compilation_cache
     from bayestouch.errors import BadInput
 
     enable_compilation_cache()

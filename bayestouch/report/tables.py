@@ -6,7 +6,7 @@ import csv
 import math
 from pathlib import Path
 
-from bayestouch.io import write_text
+from bayestouch.io.files import write_text
 
 __all__ = ["write_table2", "write_table1", "TABLE2_COLUMNS", "TABLE1_COLUMNS"]
 

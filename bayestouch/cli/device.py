@@ -1,7 +1,7 @@
 """``bayestouch device simulate`` (the virtual finger on a pty) and ``bayestouch device run`` (strokes on a
 device, written as a recording with the schema of ``bayestouch simulate``).
 
-Also runnable on its own: ``python -m bayestouch.hardware.cli device run --port ... --out rec.nc``.
+Also runnable on its own: ``python -m bayestouch.cli.device device run --port ... --out rec.nc``.
 """
 
 from __future__ import annotations
@@ -16,11 +16,12 @@ from pathlib import Path
 
 import numpy as np
 
-from bayestouch._argtypes import seed as seed_arg
+from bayestouch.cli.args import seed as seed_arg
+from bayestouch.params import MODELS
 
 __all__ = ["add_device_parser", "run_device", "load_stroke_file", "main"]
 
-_MODELS = Path(__file__).resolve().parent.parent.parent / "models"
+_MODELS = MODELS
 
 
 def _prob(text: str) -> float:
@@ -306,7 +307,7 @@ def _run(args) -> int:
             raise type(e)(f"stroke {i}: {e}") from None
     from bayestouch import __version__
     from bayestouch.hardware.device import DeviceError, FingerDevice, build_recording
-    from bayestouch.recording import write_recording
+    from bayestouch.io.recording import write_recording
 
     journal = args.journal or args.out.with_name(args.out.name + ".journal")
     if journal.exists() and args.journal is None:
@@ -363,7 +364,7 @@ def run_device(args) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Stand-alone entry point (``python -m bayestouch.hardware.cli device ...``)."""
+    """Stand-alone entry point (``python -m bayestouch.cli.device device ...``)."""
     p = argparse.ArgumentParser(prog="bayestouch")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     add_device_parser(sub)

@@ -234,7 +234,7 @@ def plot_taxel_frames(out, recording, *, gains=None, max_strokes: int = 6, name:
     Parameters
     ----------
     recording : xarray.Dataset
-        A recording of :mod:`bayestouch.recording`.
+        A recording of :mod:`bayestouch.io.recording`.
     gains : (N,) float, optional
         The device's fixed-pattern gains (its calibration, ``Finger.gains``); divided out when given. Δ ln I is
         taken relative to the median of the unloaded reference rows (``taxel_reference``) of the same frame, so skin

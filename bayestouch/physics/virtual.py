@@ -1,7 +1,7 @@
 """The virtual experiment: strokes of the simulated finger over an object, recorded (NumPy edge).
 
 Loads the finger's parameter files, draws strokes, drives the wires, runs the forward model for every
-stroke and returns the per-frame arrays of :mod:`bayestouch.recording`.
+stroke and returns the per-frame arrays of :mod:`bayestouch.io.recording`.
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from bayestouch._jax import jax
+from bayestouch.backend import jax
 from bayestouch.errors import BadInput
 from bayestouch.params import MODELS
 
@@ -30,8 +30,8 @@ class VirtualFinger(NamedTuple):
 def load_finger(models: Path = MODELS, seed: int = 0) -> VirtualFinger:
     """Read ``finger.toml``, ``skin.toml``, ``taxels.toml``, ``noise.toml`` from ``models``; ``seed`` draws the
     device's fixed pattern."""
-    from bayestouch.forward import make_finger
     from bayestouch.physics import bending, noise, skin, sma, taxel
+    from bayestouch.physics.forward import make_finger
 
     rod = bending.load_rod(models / "finger.toml")
     wire = sma.load_wire(models / "finger.toml")
@@ -64,8 +64,8 @@ def record_strokes(
     """
     from tqdm.auto import tqdm
 
-    from bayestouch import forward as fw
-    from bayestouch.finger import drive
+    from bayestouch.physics import forward as fw
+    from bayestouch.physics.finger import drive
 
     mode = mode or vf.mode
     if mode not in ("physics", "empirical"):

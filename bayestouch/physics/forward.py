@@ -14,7 +14,7 @@ Chain, per frame (pure JAX; ``jit``-able, ``vmap``-able over surfaces, different
 
 The finger's orientation follows the surface normal, as the wires are driven to keep the pad flat on the
 surface (the hold currents and the resulting wire and skin temperatures come from
-:func:`bayestouch.finger.drive`), and the stroke's pressing depth is imposed (position control).
+:func:`bayestouch.physics.finger.drive`), and the stroke's pressing depth is imposed (position control).
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from bayestouch._jax import jax, jnp
+from bayestouch.backend import jax, jnp
 from bayestouch.physics import noise as nz
 from bayestouch.physics import skin as sk
 from bayestouch.physics import taxel as tx

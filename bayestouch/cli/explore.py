@@ -1,6 +1,6 @@
-"""``bayestouch explore`` and ``bayestouch experiment`` (also ``python -m bayestouch.planning.cli``).
+"""``bayestouch explore`` and ``bayestouch experiment`` (also ``python -m bayestouch.cli.explore``).
 
-Wire into ``bayestouch/cli.py``: call :func:`add_planning_parsers` ``(sub)`` in ``build_parser`` and map
+Wire into ``bayestouch/cli/main.py``: call :func:`add_planning_parsers` ``(sub)`` in ``build_parser`` and map
 ``"explore"`` → :func:`run_explore`, ``"experiment"`` → :func:`run_experiment` in ``COMMANDS``.
 """
 
@@ -11,7 +11,7 @@ import math
 import sys
 from pathlib import Path
 
-from bayestouch._argtypes import seed as seed_arg
+from bayestouch.cli.args import seed as seed_arg
 from bayestouch.errors import BadInput
 
 __all__ = ["add_planning_parsers", "run_explore", "run_experiment", "main"]
@@ -111,7 +111,7 @@ def run_explore(args) -> int:
     the strokes run on a finger (:class:`bayestouch.planning.device_prober.DeviceProber`) and ``recording.nc``
     (the schema of ``bayestouch simulate``, rewritten after every stroke) and ``device.journal`` (every packet
     received) are written too; without ``--object`` there is no truth and the errors are unknown (NaN)."""
-    from bayestouch.io import save_contact_points, write_json
+    from bayestouch.io.files import save_contact_points, write_json
     from bayestouch.planning.experiment import resolve_object
     from bayestouch.planning.loop import ExploreSettings, explore
     from bayestouch.planning.policies import check_policy
@@ -240,7 +240,7 @@ def _plot_explore(res, obj, path: Path) -> None:
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from bayestouch._jax import jnp
+    from bayestouch.backend import jnp
     from bayestouch.geometry import nellipsoid as ne
     from bayestouch.geometry.mesh import nellipsoid_mesh
     from bayestouch.planning.loop import point_estimate
@@ -308,7 +308,7 @@ def run_experiment(args) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Stand-alone entry point (the same error handling as ``bayestouch``: BadInput → one line, exit 2)."""
-    p = argparse.ArgumentParser(prog="python -m bayestouch.planning.cli")
+    p = argparse.ArgumentParser(prog="python -m bayestouch.cli.explore")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     add_planning_parsers(sub)
     args = p.parse_args(argv)

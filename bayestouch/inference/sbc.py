@@ -46,7 +46,7 @@ each chain in memory (a checkpoint buys nothing for hundreds of short SBC chains
 integrated autocorrelation time τ to roughly independent draws (rank statistics from autocorrelated draws are
 not uniform; Talts et al. 2018, sec. 5.1).
 
-``python -m bayestouch.inference.calibration --datasets 100 --out DIR`` writes ``DIR/sbc.json`` and
+``python -m bayestouch.inference.sbc --datasets 100 --out DIR`` writes ``DIR/sbc.json`` and
 ``DIR/sbc_ranks.png``.
 """
 
@@ -60,8 +60,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from bayestouch._argtypes import seed as seed_arg
-from bayestouch._jax import jax, jnp
+from bayestouch.backend import jax, jnp
+from bayestouch.cli.args import seed as seed_arg
 from bayestouch.errors import BadInput
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.mesh import cube_sphere, sample_surface
@@ -581,10 +581,10 @@ def _plot(result: SBCResult, path: Path) -> None:
 
 
 def main(argv=None) -> int:
-    """``python -m bayestouch.inference.calibration --datasets N --out DIR``."""
-    from bayestouch.io import write_json
+    """``python -m bayestouch.inference.sbc --datasets N --out DIR``."""
+    from bayestouch.io.files import write_json
 
-    ap = argparse.ArgumentParser(prog="python -m bayestouch.inference.calibration", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m bayestouch.inference.sbc", description=__doc__.split("\n")[0])
     ap.add_argument("--datasets", type=int, default=100)
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--seed", type=seed_arg, default=0)

@@ -1,0 +1,7 @@
+"""``python -m bayestouch.cli``: the ``bayestouch`` command."""
+
+import sys
+
+from bayestouch.cli.main import main
+
+sys.exit(main())
