@@ -31,7 +31,7 @@ def _min_ess(chain) -> float:
 
 def bench_emcee_vs_nuts():
     from bayestouch.inference.nuts import nuts_contact
-    from bayestouch.inference.run import _walkers
+    from bayestouch.inference.run import start_ball
     from bayestouch.inference.sampler import sample
 
     pts = _points()
@@ -41,7 +41,7 @@ def bench_emcee_vs_nuts():
     with tempfile.TemporaryDirectory() as tmp:
         ch = sample(
             logp,
-            _walkers(THETA, bounds, walkers, np.random.default_rng(0)),
+            start_ball(THETA, bounds, walkers, np.random.default_rng(0)),
             Path(tmp) / "c.h5",
             walkers=walkers,
             ndim=11,
@@ -54,7 +54,7 @@ def bench_emcee_vs_nuts():
     with tempfile.TemporaryDirectory() as tmp:
         ad = sample(
             logp,
-            _walkers(THETA, bounds, walkers, np.random.default_rng(0)),
+            start_ball(THETA, bounds, walkers, np.random.default_rng(0)),
             Path(tmp) / "a.h5",
             walkers=walkers,
             ndim=11,

@@ -408,7 +408,7 @@ def fit_bayestouch(points, seed: int = 0, *, steps: int = 2000, walkers: int = 3
 
             def start():
                 theta0 = rn.initial_theta(points, seed, priors)
-                return rn._walkers(theta0, bounds, walkers, np.random.default_rng(seed))
+                return rn.start_ball(theta0, bounds, walkers, np.random.default_rng(seed))
 
             ch = sample(
                 logp,
@@ -421,7 +421,7 @@ def fit_bayestouch(points, seed: int = 0, *, steps: int = 2000, walkers: int = 3
                 progress=False,
                 adapt=True,  # as run_contact_fit samples
             )
-            draws = rn._natural(ch.kept.reshape(-1, ch.kept.shape[-1]))[:, :10]
+            draws = rn.natural_draws(ch.kept.reshape(-1, ch.kept.shape[-1]))[:, :10]
             tau = ch.tau_max
     seconds = time.perf_counter() - t0
     mean = ne.from_vector(jnp.asarray(draws.mean(axis=0)))

@@ -230,7 +230,6 @@ def _parser():
 
 def test_cli_run_writes_the_simulate_schema(device, tmp_path):
     from bayestouch.cli.device import run_device
-
     from bayestouch.io.recording import read_recording
 
     sim, dev = device()

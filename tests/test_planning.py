@@ -356,9 +356,8 @@ def test_shape_errors_chamfer_has_no_sampling_floor():
 def test_cost_aware_eig_prefers_information_per_second():
     """Two candidates: A gains 2 nats in 4 s, B 1.5 nats in 1 s. Per stroke A wins; per second B does (0.5 < 1.5
     nats/s). Checked through the CLI's settings too."""
-    from bayestouch.cli.explore import _settings
-
     from bayestouch.cli import build_parser
+    from bayestouch.cli.explore import _settings
 
     rng = np.random.default_rng(0)
     # signals (N, C, T) with per-candidate covariance giving the two EIGs: one reading each, var = (e^{2g} − 1) σ²

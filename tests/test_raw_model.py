@@ -7,7 +7,9 @@ import pytest
 from bayestouch.backend import jnp
 from bayestouch.errors import BadInput
 from bayestouch.inference import raw
+from bayestouch.inference.densities import t_scale_factor
 from bayestouch.params import MODELS
+from bayestouch.physics import taxel as tx
 
 EGG = MODELS / "objects" / "egg.toml"
 
@@ -65,13 +67,13 @@ def test_lag_weights_exact_for_linear_input():
     start = np.zeros(len(fine), bool)
     start[0] = True
     coarse = np.asarray(
-        raw._coarse_lag(jnp.asarray(x[::s])[:, None], jnp.asarray(start), jnp.asarray(raw.lag_weights(dt, tau, s)))
+        tx.coarse_lag(jnp.asarray(x[::s])[:, None], jnp.asarray(start), jnp.asarray(tx.coarse_lag_weights(dt, tau, s)))
     )[:, 0]
     np.testing.assert_allclose(coarse, fine, rtol=1e-12)
     # negative control: the zero-order-hold weights (w1 = 0) are wrong on a ramp
-    w = raw.lag_weights(dt, tau, s)
+    w = tx.coarse_lag_weights(dt, tau, s)
     w[2] = 0.0
-    zoh = np.asarray(raw._coarse_lag(jnp.asarray(x[::s])[:, None], jnp.asarray(start), jnp.asarray(w)))[:, 0]
+    zoh = np.asarray(tx.coarse_lag(jnp.asarray(x[::s])[:, None], jnp.asarray(start), jnp.asarray(w)))[:, 0]
     assert np.abs(zoh - fine).max() > 1e-2
 
 
@@ -258,10 +260,10 @@ def test_t_scale_factor_is_the_t_fit_to_gaussian_readings():
 
     from scipy.optimize import minimize_scalar
 
-    from bayestouch.inference.raw import _student_t
+    from bayestouch.inference.densities import student_t_logpdf
 
-    assert raw.t_scale_factor(float("inf")) == 1.0
-    c = [raw.t_scale_factor(nu) for nu in (2.0, 4.0, 30.0, 1e6)]
+    assert t_scale_factor(float("inf")) == 1.0
+    c = [t_scale_factor(nu) for nu in (2.0, 4.0, 30.0, 1e6)]
     assert all(np.diff(c) > 0) and abs(c[-1] - 1.0) < 1e-5, c
     n = 200_000
     z = np.random.default_rng(7).normal(size=n)
@@ -270,11 +272,11 @@ def test_t_scale_factor_is_the_t_fit_to_gaussian_readings():
     def mle(nll):
         return np.exp(minimize_scalar(nll, bounds=(-2.0, 2.0), method="bounded", options={"xatol": 1e-10}).x)
 
-    s_hat = mle(lambda ls: -float(jnp.sum(_student_t(jnp.asarray(z), np.exp(ls), nu))))
+    s_hat = mle(lambda ls: -float(jnp.sum(student_t_logpdf(jnp.asarray(z), np.exp(ls), nu))))
     # MC sd of the scale MLE: c / sqrt(n · I), I = 2ν/(ν + 3) the t's Fisher information of log scale, ×(1.3) for
     # the misspecified (Gaussian) data's sandwich; 4 sd of that
     tol = 4 * 1.3 * c[1] / np.sqrt(n * 2 * nu / (nu + 3))
-    assert abs(s_hat - raw.t_scale_factor(nu)) < tol, (s_hat, raw.t_scale_factor(nu), tol)
+    assert abs(s_hat - t_scale_factor(nu)) < tol, (s_hat, t_scale_factor(nu), tol)
     assert abs(s_hat - 1.0) > 10 * tol  # negative control: the bare t scale is not the sd
     # through the likelihood: readings of sd 1.5·s give k ≈ 1.5
     s = 2e-4

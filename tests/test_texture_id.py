@@ -71,7 +71,7 @@ def test_noise_free_truth_is_the_maximum(lib, vf):
     """Noise, temperature offset and shift off: the true texture's predicted ln I equals the data (to rounding),
     so its log-likelihood at zero shift is the Student-t maximum (F·M readings at log t(0; 1) after whitening), and
     every other texture and shift is lower."""
-    from bayestouch.inference.raw import _student_t
+    from bayestouch.inference.densities import student_t_logpdf
 
     small = lib.subset(5)
     surfs = small.surfaces()
@@ -84,7 +84,7 @@ def test_noise_free_truth_is_the_maximum(lib, vf):
         data, tangent, shift = ti.record_stroke(small.object(k), spec, vf, rng, st)
         assert shift == 0.0
         ll = ti.texture_log_likelihood(surfs, data, ti._finger(vf, st), grid, tangent)
-        best = float(np.asarray(_student_t(0.0, 1.0, 4.0))) * np.size(data.log_current)  # whitened, unit scale
+        best = float(np.asarray(student_t_logpdf(0.0, 1.0, 4.0))) * np.size(data.log_current)  # whitened, unit scale
         assert ll[k, g0] == pytest.approx(best, abs=1e-4)
         assert np.unravel_index(np.argmax(ll), ll.shape) == (k, g0)
         others = np.delete(ll, k, axis=0)

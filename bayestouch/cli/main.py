@@ -226,14 +226,16 @@ def build_parser() -> argparse.ArgumentParser:
     dp.add_argument("--quick", action="store_true", help="small sizes (scout + 1 stroke, short chains): a smoke run")
     dp.add_argument("--quiet", action="store_true", help="no progress bars")
 
-    from bayestouch.cli.explore import add_planning_parsers
     from bayestouch.cli.device import add_device_parser
+    from bayestouch.cli.explore import add_planning_parsers
 
     add_device_parser(sub)
     add_planning_parsers(sub)
-    from bayestouch.planning.texture_id import add_texture_parser
+    from bayestouch.cli.sbc import add_sbc_parser
+    from bayestouch.cli.texture_id import add_texture_parser
 
     add_texture_parser(sub)
+    add_sbc_parser(sub)
     return p
 
 
@@ -456,9 +458,15 @@ def _cmd_experiment(args) -> int:
 
 
 def _cmd_texture_id(args) -> int:
-    from bayestouch.planning.texture_id import run_cli
+    from bayestouch.cli.texture_id import run_texture_id
 
-    return run_cli(args)
+    return run_texture_id(args)
+
+
+def _cmd_sbc(args) -> int:
+    from bayestouch.cli.sbc import run_sbc
+
+    return run_sbc(args)
 
 
 def _cmd_device(args) -> int:
@@ -476,6 +484,7 @@ COMMANDS = {
     "explore": _cmd_explore,
     "experiment": _cmd_experiment,
     "texture-id": _cmd_texture_id,
+    "sbc": _cmd_sbc,
 }
 
 

@@ -81,6 +81,8 @@ __all__ = [
     "log_prob_batch",
     "make_log_prob",
     "pointwise_log_likelihood",
+    "principal_frame",
+    "PrincipalFrame",
 ]
 
 #: the 11 parameters of the default layout (no normals, Student-t or Gaussian noise)
@@ -224,8 +226,8 @@ def _prepare(points, normals=None, noise: str = "student", origin=None) -> _Data
     return _Data(hom, nrm, lever2, log_u)
 
 
-class _Frame(NamedTuple):
-    """Per-walker, per-point quantities of the scaled principal frame (:func:`_principal`)."""
+class PrincipalFrame(NamedTuple):
+    """Per-walker, per-point quantities of the scaled principal frame (:func:`principal_frame`)."""
 
     d: jax.Array  # (W, M) m, first-order distance
     q: jax.Array  # (W, 3, M) 1, scaled principal coordinates (x − c) R / a
@@ -235,9 +237,9 @@ class _Frame(NamedTuple):
     a: jax.Array  # (W, 3) m, semi-axes
 
 
-def _principal(th, hom) -> _Frame:
+def principal_frame(th, hom) -> PrincipalFrame:
     """The batched n-ellipsoid kernel: first-order distances of the homogeneous points ``hom (4, M)`` to the
-    surfaces of walkers ``th (W, ≥ 10)`` and the intermediate values other terms reuse (:class:`_Frame`)."""
+    surfaces of walkers ``th (W, ≥ 10)`` and the intermediate values other terms reuse (:class:`PrincipalFrame`)."""
     a = jnp.exp(th[:, 3:6])
     n = jnp.exp(th[:, 9])[:, None]
     R = jax.vmap(rotation_matrix)(th[:, 6:9])  # (W, 3, 3), columns = principal directions
@@ -254,13 +256,13 @@ def _principal(th, hom) -> _Frame:
     amax = jnp.max(a, axis=1)[:, None]
     # (G − 1)/|∇G| with |∇G| = (G/S)√ss floored at 1/max(a): written with one division
     d = (1.0 - gi) * S / jnp.maximum(jnp.sqrt(ss), S * gi / amax)
-    return _Frame(d, q, v, ss, R, a)
+    return PrincipalFrame(d, q, v, ss, R, a)
 
 
 def _geometry(th, hom, want_normals: bool):
     """Residuals (W, M) m of the homogeneous points ``hom (4, M)`` for walkers ``th (W, D)``, and the model's
     outward unit normals in the world frame (W, 3, M) when ``want_normals``."""
-    f = _principal(th, hom)
+    f = principal_frame(th, hom)
     if not want_normals:
         return f.d, None
     g = jnp.einsum("wkj,wjm->wkm", f.R, jnp.sign(f.q) * f.v)

@@ -136,7 +136,7 @@ class RawTexture(NamedTuple):
 
 def distance_batch(th, hom, ref=None):
     """Signed distance (W, P) m of points to the surfaces of walkers ``th (W, D)``: the n-ellipsoid's first-order
-    distance (the contact level's batched kernel, :func:`bayestouch.inference.contact._principal`, float64), minus
+    distance (the contact level's batched kernel, :func:`bayestouch.inference.contact.principal_frame`, float64), minus
     the grating height at the foot point when ``ref`` is given (``th`` then holds the texture parameters at 11–14).
 
     Parameters
@@ -160,9 +160,9 @@ def distance_batch(th, hom, ref=None):
     (x − x_ref)·d_w = (c − x_ref)·d_w + a₁q₁ cos o + a₂q₂ sin o and n̂·d_w = (sign q₁ v₁ cos o + sign q₂ v₂ sin o)/√ss.
     Equal to the world-frame form to rounding, in about half the time (no per-point rotation or normalisation).
     """
-    from bayestouch.inference.contact import _TINY, _principal
+    from bayestouch.inference.contact import principal_frame
 
-    f = _principal(th, hom)
+    f = principal_frame(th, hom)
     if ref is None:
         return f.d
     o = th[:, 14]
@@ -170,7 +170,7 @@ def distance_batch(th, hom, ref=None):
     d_world = f.R[:, :, 0] * co + f.R[:, :, 1] * so  # (W, 3)
     base = jnp.sum((th[:, 0:3] - jnp.asarray(ref)[None]) * d_world, axis=1)[:, None]
     q, v = f.q, f.v
-    n_dot = (jnp.sign(q[:, 0]) * v[:, 0] * co + jnp.sign(q[:, 1]) * v[:, 1] * so) / jnp.sqrt(f.ss + _TINY)
+    n_dot = (jnp.sign(q[:, 0]) * v[:, 0] * co + jnp.sign(q[:, 1]) * v[:, 1] * so) / jnp.sqrt(f.ss + 1e-300)
     s = base + f.a[:, 0:1] * co * q[:, 0] + f.a[:, 1:2] * so * q[:, 1] - f.d * n_dot
     ph = s * (_TWO_PI * jnp.exp(-th[:, 13]))[:, None]
     return f.d - (th[:, 11][:, None] * jnp.sin(ph) + th[:, 12][:, None] * jnp.cos(ph))

@@ -232,7 +232,7 @@ def _depth(theta):
 # ---------------------------------------------------------------- noise of a window mean
 
 
-def window_flicker_variance(noise: nz.NoiseParams, k: int, dt: float, n_flicker: int = 9) -> float:
+def window_flicker_variance(noise: nz.NoiseParams, k: int, dt: float, n_flicker: int = nz.N_FLICKER) -> float:
     """Variance of the mean of ``k`` consecutive samples of the OU-sum 1/f log-fluctuation (dimensionless).
 
     The 1/f noise of :func:`bayestouch.physics.noise.add_noise` is a sum of ``n_flicker`` independent OU
@@ -254,13 +254,12 @@ def window_flicker_variance(noise: nz.NoiseParams, k: int, dt: float, n_flicker:
     -------
     float
     """
-    ln_r = math.log(float(noise.flicker_f_max) / float(noise.flicker_f_min)) / (n_flicker - 1)
-    fc = float(noise.flicker_f_min) * np.exp(ln_r * np.arange(n_flicker))
-    v = float(noise.flicker) * ln_r
-    a = np.exp(-2.0 * np.pi * fc * dt)[:, None]
-    lag = np.arange(1, k)[None, :]
-    s = k + 2.0 * np.sum((k - lag) * a**lag, axis=1)
-    return float(np.sum(v * s / k**2))
+    if k < 1:
+        raise ValueError(f"k must be ≥ 1, got {k}")
+    lags = np.arange(k)
+    cov = nz.flicker_autocovariance(noise, lags * dt, n_flicker)  # C(l·dt), l = 0 … k−1
+    # mean of k samples: (1/k²) Σ_ij C(|i − j| dt) = (1/k²) (k C(0) + 2 Σ_{l≥1} (k − l) C(l dt))
+    return float((k * cov[0] + 2.0 * np.sum((k - lags[1:]) * cov[1:])) / k**2)
 
 
 def _log_window(currents, ref_mask):
@@ -290,7 +289,7 @@ def make_patch_model(
     baseline=None,
     sigma=None,
     elapsed_s: float = 0.0,
-    n_flicker: int = 9,
+    n_flicker: int = nz.N_FLICKER,
 ) -> PatchModel:
     """Turn a window of measured currents into the :class:`PatchModel` of the module docstring (NumPy edge).
 

@@ -94,7 +94,7 @@ posterior absorbs the misfit in k ≈ 9.6 (misspecification made visible, as int
 from __future__ import annotations
 
 import time
-from functools import lru_cache, partial
+from functools import partial
 from pathlib import Path
 from typing import NamedTuple
 
@@ -104,8 +104,12 @@ from bayestouch.backend import jax, jnp
 from bayestouch.errors import BadInput
 from bayestouch.inference import contact as cm
 from bayestouch.inference import grating as gr
+from bayestouch.inference.densities import student_t_logpdf, t_scale_factor
 from bayestouch.inference.grating import RawTexture
 from bayestouch.params import MODELS, Spec, build
+from bayestouch.physics import forward as fw
+from bayestouch.physics import noise as nz
+from bayestouch.physics import taxel as tx
 
 __all__ = [
     "RawData",
@@ -178,9 +182,6 @@ RAW_PREDICTIVE_DRAWS = 32
 #: (``[raw_priors]`` of ``models/priors.toml``)
 LOG_K_RANGE = (float(np.log(_RAW_PRIORS["noise_scale_min"])), float(np.log(_RAW_PRIORS["noise_scale_max"])))
 LOG_K_PRIOR_SD = float(_RAW_PRIORS["log_noise_scale_sd"])
-_N_FLICKER = 9
-#: pressure cap, Pa: far beyond the skin's densification (tens of kPa), it only keeps absurd shapes finite
-P_MAX = 1e6
 
 
 class RawData(NamedTuple):
@@ -238,15 +239,6 @@ def _need(ds, name, ndim, where):
     return v
 
 
-def lag_weights(dt_fine: float, tau: float, stride: int) -> np.ndarray:
-    """(βˢ, 1 − βˢ, w₁) of the exact coarse-step lag for piecewise-linear input (module docstring, point 2)."""
-    a = -np.expm1(-dt_fine / tau)
-    b = 1.0 - a
-    j = np.arange(stride)
-    w1 = a / stride * np.sum(j * b ** (stride - 1 - j))
-    return np.array([b**stride, 1.0 - b**stride, w1])
-
-
 def load_raw_data(
     ds_or_path,
     *,
@@ -281,10 +273,6 @@ def load_raw_data(
     -------
     (RawData, Finger)
     """
-    from bayestouch.physics import forward as fw
-    from bayestouch.physics import noise as nz
-    from bayestouch.physics import taxel as tx
-
     if isinstance(ds_or_path, str | Path):
         p = Path(ds_or_path)
         if not p.is_file():
@@ -390,12 +378,7 @@ def load_raw_data(
         sel = np.flatnonzero(si == k)
         lagged[sel] = np.asarray(tx.first_order_lag(unloaded_all[sel, None], dt_fine, float(finger.taxels.lag)))[:, 0]
     unloaded = lagged[frames]
-    flick = (
-        _N_FLICKER
-        * float(finger.noise.flicker)
-        * np.log(float(finger.noise.flicker_f_max) / float(finger.noise.flicker_f_min))
-        / (_N_FLICKER - 1)
-    )
+    flick = float(nz.flicker_autocovariance(finger.noise, 0.0))
     white = (np.asarray(nz.noise_std(finger.noise, jnp.asarray(meas))) / meas) ** 2
     # median over the reference taxels: one read-out glitch on a reference taxel must not shift every taxel
     c_hat = np.median(lnI[:, ref] - np.log(unloaded)[:, None], axis=1)
@@ -404,7 +387,7 @@ def load_raw_data(
     t_in = t[frames] - np.array([t_first[k] for k in si[frames]])
     var = white[:, taxels] + flick + float(finger.noise.drift_local) ** 2 * t_in[:, None] + s_ref[:, None]
     kernel = np.asarray(finger.kernel)[np.ix_(taxels, pen)]
-    lw = lag_weights(dt_fine, float(finger.taxels.lag), int(stride))
+    lw = tx.coarse_lag_weights(dt_fine, float(finger.taxels.lag), int(stride))
     data = RawData(
         x,
         temp[frames],
@@ -419,22 +402,6 @@ def load_raw_data(
         mode,
     )
     return data, finger
-
-
-def _coarse_lag(x, start, w):
-    """Lag (F, M) of inputs ``x`` on the coarse frames (piecewise-linear input), restarting where ``start``.
-
-    A sequential scan: a parallel prefix over the affine maps (``jax.lax.associative_scan``) or a blocked
-    lower-triangular product were 3–4× slower on CPU for 1000 frames."""
-
-    def step(carry, xs):
-        y, xp = carry
-        xk, s = xs
-        yk = jnp.where(s, xk, w[0] * y + w[1] * xp + w[2] * (xk - xp))
-        return (yk, xk), yk
-
-    _, ys = jax.lax.scan(step, (x[0], x[0]), (x, start))
-    return ys
 
 
 def _hom(data: RawData):
@@ -503,47 +470,15 @@ def _jit_distance(th, hom, ref):
 
 def _log_current(sdf, data: RawData, finger):
     """ln I (F, M) of the selected taxels from the signed distances ``sdf (F, J)`` m of the penetrating ones."""
-    from bayestouch.physics import skin as sk
-    from bayestouch.physics import taxel as tx
-
-    delta = sk.penetration(sdf, finger.skin.s)
-    p = jnp.minimum(sk.pressure_at_taxels(finger.skin, delta, jnp.asarray(data.kernel)), P_MAX)
-    cur = tx.taxel_current(finger.taxels, p, jnp.asarray(data.temperature)[:, None], mode=data.mode)
-    return jnp.log(_coarse_lag(cur, jnp.asarray(data.start), jnp.asarray(data.lag_weights)))
+    return fw.log_current_from_distance(
+        finger, sdf, jnp.asarray(data.kernel), data.temperature, data.start, data.lag_weights, data.mode
+    )
 
 
 def predict_log_current(theta, data: RawData, finger, texture: RawTexture | None = None):
     """Predicted ln I (F, M) of the selected taxels for θ (11,) (16, with the texture parameters, when ``texture``
     is given; log k and log σ_r are ignored); pure JAX."""
     return _log_current(_sdf_batch(jnp.asarray(theta)[None], data, texture)[0], data, finger)
-
-
-def _student_t(r, scale, nu):
-    from jax.scipy.special import gammaln
-
-    c = gammaln((nu + 1) / 2) - gammaln(nu / 2) - 0.5 * jnp.log(nu * jnp.pi)
-    return c - jnp.log(scale) - 0.5 * (nu + 1) * jnp.log1p((r / scale) ** 2 / nu)
-
-
-@lru_cache(maxsize=8)
-def t_scale_factor(nu: float) -> float:
-    """c_ν (dimensionless): the scale, in units of σ, of the Student-t(ν) that fits N(0, σ²) readings best (it
-    maximises E[ln t_ν], i.e. E[(ν + 1)u²/(ν + u²)] = 1 for u = z/c_ν, z ~ N(0, 1)); 0.831 for ν = 4, → 1 as ν → ∞.
-
-    The raw likelihood's t scale is c_ν times the modelled sd, so that for Gaussian residuals the noise multiplier
-    k estimates their sd over the modelled one (≈ 1 when the model fits) and the roughness σ_r its RMS, instead of
-    both coming out c_ν too small; the heavy tails still take the ADC glitches."""
-    from scipy.optimize import brentq
-
-    x, w = np.polynomial.hermite_e.hermegauss(160)
-    w = w / w.sum()
-    nu = float(nu)
-
-    def excess(c):
-        u2 = (x / c) ** 2
-        return float(np.sum(w * (nu + 1.0) * u2 / (nu + u2))) - 1.0
-
-    return 1.0 if np.isinf(nu) else float(brentq(excess, 0.05, 1.5, xtol=1e-14))
 
 
 def _scale(theta, data: RawData, texture: RawTexture | None, nu: float = STUDENT_NU):
@@ -558,7 +493,7 @@ def _scale(theta, data: RawData, texture: RawTexture | None, nu: float = STUDENT
 def _pointwise(theta, pred, data: RawData, nu, texture):
     r = jnp.asarray(data.log_current) - pred
     r = jnp.where(jnp.isfinite(r), r, 1e6)  # overflowed predictions of absurd shapes: finite, hugely unlikely
-    return _student_t(r, _scale(theta, data, texture, nu), nu)
+    return student_t_logpdf(r, _scale(theta, data, texture, nu), nu)
 
 
 def raw_pointwise(theta, data: RawData, finger, nu: float = STUDENT_NU, texture: RawTexture | None = None):
@@ -1062,7 +997,7 @@ def _natural(flat: np.ndarray) -> np.ndarray:
     """θ draws (S, 11) or (S, 16) → canonicalised natural parameters: centre, a ≥ b ≥ c, angles, n, k (the contact
     level's transform: the 11th column, log k here, is exponentiated like log σ there), then the texture's
     amplitude, wavelength, orientation, phase and roughness (:func:`bayestouch.inference.grating.texture_natural`)."""
-    from bayestouch.inference.run import _natural as contact_natural
+    from bayestouch.inference.run import natural_draws as contact_natural
 
     nat = contact_natural(flat[:, :11])
     return nat if flat.shape[1] == 11 else np.column_stack([nat, gr.texture_natural(flat)])

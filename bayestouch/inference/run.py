@@ -38,6 +38,8 @@ __all__ = [
     "interval",
     "uncertainty_spread",
     "vmf_sample",
+    "natural_draws",
+    "start_ball",
 ]
 
 #: summary names (natural units) of the 11 sampled contact-level parameters
@@ -358,7 +360,7 @@ def initial_theta(points, seed: int, priors: cm.PriorParams, starts: int = 3) ->
     return best
 
 
-def _walkers(theta0, bounds, n, rng, sampled: tuple = cm.PARAM_NAMES) -> np.ndarray:
+def start_ball(theta0, bounds, n, rng, sampled: tuple = cm.PARAM_NAMES) -> np.ndarray:
     """A small ball of ``n`` walkers around ``theta0`` (optional parameters started at :data:`_EXTRA_START`),
     inside the prior box."""
     lo, hi = np.asarray(bounds.lower), np.asarray(bounds.upper)
@@ -376,7 +378,7 @@ def _walkers(theta0, bounds, n, rng, sampled: tuple = cm.PARAM_NAMES) -> np.ndar
 _EXTRA_NATURAL = {"log_kappa": ("kappa", np.exp), "log_eps": ("epsilon", np.exp), "w_outlier": ("w_outlier", None)}
 
 
-def _natural(flat: np.ndarray, sampled: tuple = cm.PARAM_NAMES) -> np.ndarray:
+def natural_draws(flat: np.ndarray, sampled: tuple = cm.PARAM_NAMES) -> np.ndarray:
     """θ draws (S, D) with parameter names ``sampled`` → canonicalised natural parameters (S, D): centre,
     a ≥ b ≥ c, angles, n, σ, then the optional parameters (κ, ε, w) in natural units."""
     from bayestouch.geometry.compare import canonicalize_batch
@@ -445,7 +447,7 @@ def contact_model(points, priors: cm.PriorParams, nu: float, *, normals=None, no
         observed["normals"] = nn / np.linalg.norm(nn, axis=1, keepdims=True)
     return PosteriorModel(
         names,
-        lambda flat: _natural(flat, sampled),
+        lambda flat: natural_draws(flat, sampled),
         lambda nat: nat[:, :10],
         ll,
         predictive,
@@ -503,7 +505,7 @@ def ffd_contact_model(points, dims, tau: float) -> PosteriorModel:
 
     return PosteriorModel(
         NATURAL_NAMES,
-        _natural,
+        natural_draws,
         lambda nat: nat[:, :10],
         ll,
         predictive,
@@ -629,7 +631,7 @@ def run_contact_fit(
             ens, _ = prune_stuck_walkers(ens, logp(ens), np.random.default_rng(seed))
             return np.clip(ens, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
         theta0 = initial_theta(points, seed, priors)
-        return _walkers(theta0, bounds, walkers, np.random.default_rng(seed), sampled)
+        return start_ball(theta0, bounds, walkers, np.random.default_rng(seed), sampled)
 
     ch = sample(
         logp,

@@ -46,13 +46,12 @@ each chain in memory (a checkpoint buys nothing for hundreds of short SBC chains
 integrated autocorrelation time τ to roughly independent draws (rank statistics from autocorrelated draws are
 not uniform; Talts et al. 2018, sec. 5.1).
 
-``python -m bayestouch.inference.sbc --datasets 100 --out DIR`` writes ``DIR/sbc.json`` and
+``bayestouch sbc --datasets 100 --out DIR`` writes ``DIR/sbc.json`` and
 ``DIR/sbc_ranks.png``.
 """
 
 from __future__ import annotations
 
-import argparse
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -61,7 +60,6 @@ from typing import NamedTuple
 import numpy as np
 
 from bayestouch.backend import jax, jnp
-from bayestouch.cli.args import seed as seed_arg
 from bayestouch.errors import BadInput
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.mesh import cube_sphere, sample_surface
@@ -71,6 +69,8 @@ __all__ = [
     "GEN_PRIOR",
     "QUANTITIES",
     "SBCResult",
+    "de_moves",
+    "plot_ranks",
     "prior_box",
     "draw_prior",
     "simulate_points",
@@ -81,7 +81,6 @@ __all__ = [
     "coverage_of",
     "uniformity_pvalues",
     "sbc",
-    "main",
 ]
 
 #: generating (= inference) prior, uniform in θ on these ranges (see the module docstring)
@@ -552,13 +551,13 @@ def sbc(
     )
 
 
-def _de_moves():
+def de_moves():
     import emcee
 
     return [(emcee.moves.DEMove(), 1.0)]
 
 
-def _plot(result: SBCResult, path: Path) -> None:
+def plot_ranks(result: SBCResult, path: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -578,62 +577,3 @@ def _plot(result: SBCResult, path: Path) -> None:
     fig.suptitle(f"SBC ranks, {N} data sets, {L} draws (grey: 99 % band per bin)")
     fig.savefig(path, dpi=100)
     plt.close(fig)
-
-
-def main(argv=None) -> int:
-    """``python -m bayestouch.inference.sbc --datasets N --out DIR``."""
-    from bayestouch.io.files import write_json
-
-    ap = argparse.ArgumentParser(prog="python -m bayestouch.inference.sbc", description=__doc__.split("\n")[0])
-    ap.add_argument("--datasets", type=int, default=100)
-    ap.add_argument("--out", type=Path, required=True)
-    ap.add_argument("--seed", type=seed_arg, default=0)
-    ap.add_argument("--points", type=int, default=100)
-    ap.add_argument("--walkers", type=int, default=32)
-    ap.add_argument("--steps", type=int, default=800)
-    ap.add_argument("--draws", type=int, default=99)
-    ap.add_argument(
-        "--area-term",
-        action="store_true",
-        help="add -M log A(theta) to contact.log_likelihood (a check of the check; module docstring)",
-    )
-    ap.add_argument(
-        "--no-area-term",
-        action="store_true",
-        help="contact.log_likelihood as the package uses it (the default; kept for old command lines)",
-    )
-    ap.add_argument("--likelihood-power", type=float, default=1.0)
-    ap.add_argument(
-        "--moves",
-        choices=("default", "de", "adaptive"),
-        default="adaptive",
-        help="emcee moves: the adaptive sampler of bayestouch fit (default), the engine's default_moves, or "
-        "differential evolution only",
-    )
-    a = ap.parse_args(argv)
-    res = sbc(
-        a.datasets,
-        seed=a.seed,
-        n_points=a.points,
-        walkers=a.walkers,
-        steps=a.steps,
-        n_draws=a.draws,
-        progress=True,
-        area_term=a.area_term and not a.no_area_term,
-        likelihood_power=a.likelihood_power,
-        moves=_de_moves if a.moves == "de" else None,
-        adapt=a.moves == "adaptive",
-    )
-    a.out.mkdir(parents=True, exist_ok=True)
-    write_json(a.out / "sbc.json", res.to_dict())
-    _plot(res, a.out / "sbc_ranks.png")
-    print(
-        f"coverage ({res.level:.0%}, expected {res.coverage_expected:.3f}): "
-        + ", ".join(f"{k} {v:.2f}" for k, v in zip(res.names, res.coverage, strict=True))
-    )
-    print("chi-square p: " + ", ".join(f"{k} {v:.3g}" for k, v in zip(res.names, res.chi2_p, strict=True)))
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

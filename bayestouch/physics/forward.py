@@ -41,6 +41,9 @@ __all__ = [
     "stroke_arrays",
     "depths_for_force",
     "elastic_force",
+    "pressure_from_distance",
+    "log_current_from_distance",
+    "P_MAX",
 ]
 
 
@@ -163,12 +166,68 @@ def pad_points(finger: Finger, contact, normal, tangent, depth):
     return centre + R * (-jnp.cos(th)[..., None] * n + jnp.sin(th)[..., None] * side)
 
 
+#: pressure cap, Pa, of the likelihoods' chain: far beyond the skin's densification (tens of kPa), it only keeps
+#: absurd shapes finite
+P_MAX = 1e6
+
+
+def pressure_from_distance(skin: sk.SkinParams, sdf, kernel, p_max=None):
+    """Contact (eq. 14–15) and skin: signed distances → penetration δ = s·softplus(−φ/s) → blurred pressure.
+
+    Parameters
+    ----------
+    skin : SkinParams
+    sdf : (..., J) float, metres
+        Signed distances of the J taxels that may touch the object.
+    kernel : (M, J) float
+        Pressure blur from those J taxels onto the M modelled ones.
+    p_max : float, Pa, optional
+        Cap on the pressure (:data:`P_MAX` in the likelihoods; none in the simulator).
+
+    Returns
+    -------
+    (penetration (..., J) m, pressure (..., M) Pa)
+    """
+    delta = sk.penetration(sdf, skin.s)
+    p = sk.pressure_at_taxels(skin, delta, kernel)
+    return delta, (p if p_max is None else jnp.minimum(p, p_max))
+
+
+def log_current_from_distance(finger: Finger, sdf, kernel, temperature, start, lag_weights, mode: str):
+    """The forward chain of the likelihoods: signed distance → penetration → pressure (≤ :data:`P_MAX`) → taxel
+    current → response lag on coarse frames → ln I (dimensionless, I in A).
+
+    Parameters
+    ----------
+    finger : Finger
+    sdf : (F, J) float, metres
+        Signed distances of the penetrating taxels on F frames.
+    kernel : (M, J) float
+        Pressure blur onto the M modelled taxels.
+    temperature : (F,) float, kelvin
+        Skin temperature.
+    start : (F,) bool
+        First frame of a stroke (the lag restarts at steady state).
+    lag_weights : (3,) float
+        :func:`~bayestouch.physics.taxel.coarse_lag_weights`.
+    mode : {"physics", "empirical"}
+        Taxel response (static).
+
+    Returns
+    -------
+    (F, M) float
+    """
+    _, p = pressure_from_distance(finger.skin, sdf, kernel, P_MAX)
+    cur = tx.taxel_current(finger.taxels, p, jnp.asarray(temperature)[:, None], mode=mode)
+    return jnp.log(tx.coarse_lag(cur, jnp.asarray(start), jnp.asarray(lag_weights)))
+
+
 def contact_frame(surf: Surface, finger: Finger, contact, normal, tangent, depth):
     """One frame of contact: (taxel positions (H, W, 3) m, penetration (H, W) m, pressure (H, W) Pa)."""
     x = pad_points(finger, contact, normal, tangent, depth)
-    delta = sk.penetration(signed_distance(surf, x), finger.skin.s)
-    p = sk.pressure_at_taxels(finger.skin, delta.reshape(-1), finger.kernel).reshape(delta.shape)
-    return x, delta, p
+    sdf = signed_distance(surf, x)
+    delta, p = pressure_from_distance(finger.skin, sdf.reshape(-1), finger.kernel)
+    return x, delta.reshape(sdf.shape), p.reshape(sdf.shape)
 
 
 def clean_currents(surf: Surface, finger: Finger, stroke_arrays, skin_temperature, dt: float, mode: str):

@@ -35,6 +35,8 @@ from __future__ import annotations
 from functools import partial
 from typing import NamedTuple
 
+import numpy as np
+
 from bayestouch.backend import jax, jnp
 from bayestouch.errors import BadInput
 from bayestouch.params import MODELS, Spec, build
@@ -49,6 +51,9 @@ __all__ = [
     "noise_std",
     "fixed_pattern",
     "flicker_psd",
+    "flicker_components",
+    "flicker_autocovariance",
+    "N_FLICKER",
     "add_noise",
     "common_drift",
     "drift_compensate",
@@ -214,20 +219,49 @@ def fixed_pattern(key, params: NoiseParams, n_taxels: int, temperature=None):
     return jnp.exp(-dphi / thermal_voltage(T))
 
 
-def _flicker_components(params: NoiseParams, n_components: int):
+#: OU components of the 1/f synthesis (:func:`add_noise`'s default ``n_flicker``), and of every model of it
+N_FLICKER = 9
+
+
+def flicker_components(params: NoiseParams, n_components: int = N_FLICKER):
+    """Corner frequencies f_c (n_components,) Hz, log-spaced over [f_min, f_max], and the variance
+    v = K_f ln r (dimensionless, r = (f_max/f_min)^(1/(n−1))) of each OU component of the 1/f log-fluctuation."""
     k = jnp.arange(n_components)
     ln_r = jnp.log(params.flicker_f_max / params.flicker_f_min) / (n_components - 1)
     fc = params.flicker_f_min * jnp.exp(ln_r * k)
     return fc, params.flicker * ln_r
 
 
-def flicker_psd(params: NoiseParams, f, n_components: int = 9):
+def flicker_autocovariance(params: NoiseParams, lag, n_components: int = N_FLICKER) -> np.ndarray:
+    """Autocovariance Σ_c v exp(−2π f_c |lag|) of the 1/f log-fluctuation (NumPy edge; dimensionless).
+
+    The one home of the 1/f read-out variance: at lag 0 it is the stationary variance n·K_f ln r that every
+    likelihood adds to a reading's variance; at the lags between frames it is the frame-to-frame correlation.
+
+    Parameters
+    ----------
+    params : NoiseParams
+    lag : float or array (...), seconds
+    n_components : int
+        Components of the synthesis (≥ 2).
+
+    Returns
+    -------
+    array (...)
+    """
+    fc, v = flicker_components(params, n_components)
+    fc, v = np.asarray(fc, float), float(v)
+    lag = np.abs(np.asarray(lag, float))
+    return v * np.sum(np.exp(-2.0 * np.pi * fc * lag[..., None]), axis=-1)
+
+
+def flicker_psd(params: NoiseParams, f, n_components: int = N_FLICKER):
     """One-sided PSD (1/Hz) of the OU-sum 1/f model at frequencies ``f (...)`` Hz; ≈ K_f / f in band.
 
     ``n_components`` (static, ≥ 2) OU processes with corner frequencies log-spaced over [f_min, f_max],
     each of variance K_f ln r, r = (f_max/f_min)^(1/(n−1)).
     """
-    fc, var = _flicker_components(params, n_components)
+    fc, var = flicker_components(params, n_components)
     tau = 1.0 / (2.0 * jnp.pi * fc)
     f = jnp.asarray(f)[..., None]
     return jnp.sum(4.0 * var * tau / (1.0 + (2.0 * jnp.pi * f * tau) ** 2), axis=-1)
@@ -239,7 +273,7 @@ def _flicker(z, params: NoiseParams, dt, n_components: int):
     Row 0 draws the stationary initial state, rows 1… are the innovations, so every sample has the
     stationary variance n_components · K_f ln r.
     """
-    fc, var = _flicker_components(params, n_components)
+    fc, var = flicker_components(params, n_components)
     sd = jnp.sqrt(var)
     a = jnp.exp(-2.0 * jnp.pi * fc * dt)[:, None]
     b = (sd * jnp.sqrt(-jnp.expm1(-4.0 * jnp.pi * fc * dt)))[:, None]
@@ -260,7 +294,7 @@ def _walk(z, rate, dt):
 
 
 @partial(jax.jit, static_argnames=("n_flicker", "adc"))
-def add_noise(key, params: NoiseParams, current, dt, gains=None, *, n_flicker: int = 9, adc: bool = True):
+def add_noise(key, params: NoiseParams, current, dt, gains=None, *, n_flicker: int = N_FLICKER, adc: bool = True):
     """Measured taxel currents: fixed pattern, 1/f, drift, white noise, offset, outliers and the ADC.
 
     Jitted (``n_flicker`` and ``adc`` static). Random draws: one normal array (T, n_flicker + 4, N) and

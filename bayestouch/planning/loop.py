@@ -317,12 +317,12 @@ def _concat(batches: list[Strokes]) -> Strokes:
 
 def _draws(chain_kept, count: int, rng: np.random.Generator) -> np.ndarray:
     """Thinned, canonicalised draws (count, 11) in natural units from the last half of the kept chain."""
-    from bayestouch.inference.run import _natural
+    from bayestouch.inference.run import natural_draws
 
     kept = chain_kept[len(chain_kept) // 2 :]
     flat = kept.reshape(-1, kept.shape[-1])
     idx = np.sort(rng.choice(len(flat), size=count, replace=len(flat) < count))
-    return _natural(flat[idx])
+    return natural_draws(flat[idx])
 
 
 def _subseed(*key: int) -> int:
@@ -401,7 +401,7 @@ def explore(
     -------
     ExploreResult
     """
-    from bayestouch.inference.run import _walkers, initial_theta
+    from bayestouch.inference.run import initial_theta, start_ball
 
     check_policy(policy)
     if not isinstance(budget, int | np.integer) or budget < 1:
@@ -473,7 +473,7 @@ def explore(
     logp, bounds = cm.make_log_prob(pts, priors)
     logp = _with_free(logp, bounds, free)
     theta0 = initial_theta(pts, seed, priors, starts=s.init_starts)
-    start = _walkers(theta0, bounds, s.walkers, rng_common)
+    start = start_ball(theta0, bounds, s.walkers, rng_common)
     ch = _sample(logp, start, s.walkers, _subseed(seed, 0, 0), s.init_steps)
     strokes = [scout if refused == 0 else _concat(arcs)]
 

@@ -71,16 +71,14 @@ I ≥ −Σ_i p_i log Σ_j p_j exp(−D_B(i, j)), D_B = ‖μ_i − μ_j‖² / 
 Gaussians, residuals scaled by the modelled noise sd), with μ_k the noise-free prediction of texture k at zero
 shift. Only the textures holding 99.9 % of the posterior mass are predicted.
 
-Experiment (:func:`run_experiment`, ``python -m bayestouch.planning.texture_id``): every texture of the first
+Experiment (:func:`run_experiment`, ``bayestouch texture-id``): every texture of the first
 ``textures`` library entries is the truth in ``trials`` trials (seed (seed, texture, trial)); writes
 ``results.csv`` (:data:`COLUMNS`, one row per stroke), ``summary.json`` and ``accuracy_vs_strokes.png``.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
-import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -89,13 +87,15 @@ from typing import NamedTuple
 import numpy as np
 
 from bayestouch.backend import jax, jnp
-from bayestouch.cli.args import seed as seed_arg
 from bayestouch.errors import BadInput
 from bayestouch.geometry import nellipsoid as ne
+from bayestouch.inference.densities import student_t_logpdf
 from bayestouch.params import MODELS, read_toml
+from bayestouch.physics import forward as fw
+from bayestouch.physics import noise as nz
 from bayestouch.scene.objects import SceneObject, TextureSpec, build_surface
 from bayestouch.scene.strokes import Stroke, stroke_from_path
-from bayestouch.scene.surface import Surface, Texture
+from bayestouch.scene.surface import Surface, Texture, signed_distance
 
 __all__ = [
     "LIBRARY",
@@ -118,9 +118,6 @@ __all__ = [
     "run_experiment",
     "summarise",
     "plot_accuracy",
-    "add_texture_parser",
-    "run_cli",
-    "main",
 ]
 
 #: the shipped texture library
@@ -409,7 +406,6 @@ def record_stroke(obj: SceneObject, spec: StrokeSpec, vf, rng: np.random.Generat
     """
     from bayestouch.inference.raw import load_raw_data
     from bayestouch.io.recording import build_dataset
-    from bayestouch.physics import forward as fw
 
     finger = _finger(vf, settings)
     shift = float(rng.uniform(-settings.shift_range, settings.shift_range))
@@ -463,7 +459,7 @@ def _simulated(finger, settings: IdSettings):
     cases; the identifier keeps the real noise model for its reading sd."""
     if settings.noise:
         return finger
-    nz = finger.noise._replace(
+    quiet = finger.noise._replace(
         bandwidth=0.0,
         flicker=0.0,
         drift_common=0.0,
@@ -472,7 +468,7 @@ def _simulated(finger, settings: IdSettings):
         outlier_probability=0.0,
         adc_bits=32.0,
     )
-    return finger._replace(noise=nz)
+    return finger._replace(noise=quiet)
 
 
 # ------------------------------------------------------------------------------------------- likelihood
@@ -492,15 +488,9 @@ def frame_whitener(data, finger) -> np.ndarray:
     One R serves all taxels (the white part varies little between them); exact for Gaussian noise of that
     covariance.
     """
-    from bayestouch.inference.raw import _N_FLICKER
-    from bayestouch.physics.noise import _flicker_components
-
-    fc, v = _flicker_components(finger.noise, _N_FLICKER)
-    fc, v = np.asarray(fc), float(v)
     F = len(data.temperature)
     t = np.arange(F) * float(data.dt)
-    lag = np.abs(t[:, None] - t[None, :])
-    flick = v * np.sum(np.exp(-2.0 * np.pi * fc[:, None, None] * lag[None]), axis=0)
+    flick = nz.flicker_autocovariance(finger.noise, t[:, None] - t[None, :])
     d2 = float(finger.noise.drift_local) ** 2
     walk = d2 * np.minimum(t[:, None], t[None, :])
     total = np.median(np.asarray(data.noise_sd) ** 2, axis=1)
@@ -514,28 +504,18 @@ def frame_whitener(data, finger) -> np.ndarray:
 def _predict(surf: Surface, x, data_arrays, finger, mode: str):
     """ln I (F, M) predicted for surface ``surf`` at taxel positions ``x (F, J, 3)`` (raw.predict_log_current's
     chain with the textured signed distance)."""
-    from bayestouch.inference.raw import P_MAX, _coarse_lag
-    from bayestouch.physics import skin as sk
-    from bayestouch.physics import taxel as tx
-    from bayestouch.scene.surface import signed_distance
-
     temp, start, kernel, lw = data_arrays
-    delta = sk.penetration(signed_distance(surf, x), finger.skin.s)
-    p = jnp.minimum(sk.pressure_at_taxels(finger.skin, delta, kernel), P_MAX)
-    cur = tx.taxel_current(finger.taxels, p, temp[:, None], mode=mode)
-    return jnp.log(_coarse_lag(cur, start, lw))
+    return fw.log_current_from_distance(finger, signed_distance(surf, x), kernel, temp, start, lw, mode)
 
 
 def _ll_grid(surfs: Surface, x, arrays, y, sd, whiten, shifts, tangent, finger, mode, nu):
-    from bayestouch.inference.raw import _student_t
-
     def one_texture(tex):
         surf = surfs._replace(texture=tex)
 
         def one_shift(o):
             pred = _predict(surf, x + o * tangent, arrays, finger, mode)
             z = jnp.where(jnp.isfinite(pred), (y - pred) / sd, 1e6)
-            return jnp.sum(_student_t(whiten @ z, 1.0, nu))
+            return jnp.sum(student_t_logpdf(whiten @ z, 1.0, nu))
 
         return jax.vmap(one_shift)(shifts)
 
@@ -905,61 +885,3 @@ def run_experiment(
     write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
     plot_accuracy(summary, out / "accuracy_vs_strokes.png")
     return summary
-
-
-def _add_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
-    p.add_argument("--textures", type=int, default=20, help="use the first N library textures (default 20)")
-    p.add_argument("--trials", type=int, default=3, help="trials per texture (default 3)")
-    p.add_argument("--max-strokes", type=int, default=10, help="strokes before a forced decision (default 10)")
-    p.add_argument("--seed", type=seed_arg, default=0)
-    p.add_argument("--out", required=True, help="output folder")
-    p.add_argument("--policy", default="random", choices=("random", "eig"))
-    p.add_argument("--threshold", type=float, default=0.95, help="decide when max posterior >= this")
-    p.add_argument("--mode", default="empirical", choices=("empirical", "physics"), help="taxel response mode")
-    p.add_argument("--library", default=str(LIBRARY), help="texture library TOML (default models/textures.toml)")
-    p.add_argument("--full", action="store_true", help="keep stroking after a decision (up to --max-strokes)")
-    p.add_argument("--no-progress", action="store_true")
-    return p
-
-
-def add_texture_parser(sub) -> argparse.ArgumentParser:
-    """Register ``bayestouch texture-id`` on the ``bayestouch`` command's subparsers."""
-    return _add_arguments(
-        sub.add_parser("texture-id", help="texture identification experiment: accuracy against strokes (issue 5)")
-    )
-
-
-def run_cli(args) -> int:
-    """Run the experiment from parsed arguments; :class:`BadInput` propagates (the caller prints one line)."""
-    s = run_experiment(
-        args.out,
-        textures=args.textures,
-        trials=args.trials,
-        max_strokes=args.max_strokes,
-        seed=args.seed,
-        settings=IdSettings(threshold=args.threshold, mode=args.mode),
-        policy=args.policy,
-        library=args.library,
-        stop_at_decision=not args.full,
-        progress=not args.no_progress,
-    )
-    keys = ("trials", "accuracy_at_decision", "accuracy_95ci", "median_strokes_to_decision", "decided_fraction")
-    print(json.dumps({k: s[k] for k in keys}))
-    return 0
-
-
-def main(argv=None) -> int:
-    """``python -m bayestouch.planning.texture_id``; exit 0 on success, 2 on bad input (one line on stderr)."""
-    p = argparse.ArgumentParser(
-        prog="python -m bayestouch.planning.texture_id", description="Texture identification experiment (issue 5)."
-    )
-    args = _add_arguments(p).parse_args(argv)
-    try:
-        return run_cli(args)
-    except BadInput as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -90,7 +90,7 @@ def test_nuts_agrees_with_emcee(tmp_path):
 
     from bayestouch.inference.contact import make_log_prob
     from bayestouch.inference.nuts import nuts_contact
-    from bayestouch.inference.run import _walkers
+    from bayestouch.inference.run import start_ball
     from bayestouch.inference.sampler import sample
 
     rng = np.random.default_rng(3)
@@ -101,7 +101,7 @@ def test_nuts_agrees_with_emcee(tmp_path):
     logp, bounds = make_log_prob(pts)
     ch = sample(
         logp,
-        _walkers(theta0, bounds, 32, rng),
+        start_ball(theta0, bounds, 32, rng),
         None,
         walkers=32,
         ndim=11,

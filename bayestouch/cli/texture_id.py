@@ -1,0 +1,56 @@
+"""``bayestouch texture-id``: the texture identification experiment (accuracy against strokes)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from bayestouch.cli.args import seed as seed_arg
+
+__all__ = ["add_texture_parser", "run_texture_id"]
+
+
+def add_texture_parser(sub) -> argparse.ArgumentParser:
+    """Register ``bayestouch texture-id`` on the ``bayestouch`` command's subparsers."""
+    from bayestouch.planning.texture_id import LIBRARY
+
+    p = sub.add_parser(
+        "texture-id",
+        help="texture identification experiment: accuracy against strokes",
+        description="Identify which texture of a library the finger strokes: every texture is the truth in "
+        "--trials trials; writes results.csv (one row per stroke), summary.json and accuracy_vs_strokes.png.",
+    )
+    p.add_argument("--textures", type=int, default=20, help="use the first N library textures (default 20)")
+    p.add_argument("--trials", type=int, default=3, help="trials per texture (default 3)")
+    p.add_argument("--max-strokes", type=int, default=10, help="strokes before a forced decision (default 10)")
+    p.add_argument("--seed", type=seed_arg, default=0, help="seed of the trials (default 0)")
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--policy", default="random", choices=("random", "eig"), help="stroke choice (default random)")
+    p.add_argument("--threshold", type=float, default=0.95, help="decide when max posterior >= this")
+    p.add_argument("--mode", default="empirical", choices=("empirical", "physics"), help="taxel response mode")
+    p.add_argument("--library", default=str(LIBRARY), help="texture library TOML (default models/textures.toml)")
+    p.add_argument("--full", action="store_true", help="keep stroking after a decision (up to --max-strokes)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    return p
+
+
+def run_texture_id(args) -> int:
+    """Run the experiment from parsed arguments; :class:`~bayestouch.errors.BadInput` propagates (the caller prints
+    one line)."""
+    from bayestouch.planning.texture_id import IdSettings, run_experiment
+
+    s = run_experiment(
+        args.out,
+        textures=args.textures,
+        trials=args.trials,
+        max_strokes=args.max_strokes,
+        seed=args.seed,
+        settings=IdSettings(threshold=args.threshold, mode=args.mode),
+        policy=args.policy,
+        library=args.library,
+        stop_at_decision=not args.full,
+        progress=not args.no_progress,
+    )
+    keys = ("trials", "accuracy_at_decision", "accuracy_95ci", "median_strokes_to_decision", "decided_fraction")
+    print(json.dumps({k: s[k] for k in keys}))
+    return 0
