@@ -331,7 +331,7 @@ def test_cli_simulate_process_prints_its_pty_and_exits_cleanly(tmp_path):
         [
             sys.executable,
             "-m",
-            "bayestouch.cli.device",
+            "bayestouch.cli",
             "device",
             "simulate",
             "--print-port",

@@ -183,7 +183,7 @@ def test_bad_inputs_raise_one_line_bad_input(tmp_path, capsys):
         with pytest.raises(BadInput) as e:
             call()
         assert "\n" not in str(e.value) and str(e.value).startswith(field)
-    from bayestouch.cli.explore import main
+    from bayestouch.cli import main
 
     assert main(["experiment", "--planners", "eig,nope", "--budget", "1", "--out", str(tmp_path / "x")]) == 2
     err = capsys.readouterr().err.strip()

@@ -1,10 +1,14 @@
-"""Argument types shared by the command lines (argparse ``type=``): a bad value is a one-line usage error, exit 2."""
+"""Argument types shared by the commands (argparse ``type=``; a bad value is a one-line usage error, exit 2) and
+the output-folder check."""
 
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
-__all__ = ["seed"]
+from bayestouch.errors import BadInput
+
+__all__ = ["seed", "positive_int", "size_list", "one_size", "eps_list", "check_out"]
 
 
 def seed(text: str) -> int:
@@ -16,3 +20,51 @@ def seed(text: str) -> int:
     if not 0 <= v < 2**32:
         raise argparse.ArgumentTypeError(f"expected an integer seed in [0, 2**32), got {v}")
     return v
+
+
+def positive_int(text: str) -> int:
+    """A count: an integer ≥ 1."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {v}")
+    return v
+
+
+def size_list(text: str) -> list[str]:
+    """FFD lattice sizes like ``7x7x7,6x6x3`` (each ≥ 2), lower-cased."""
+    sizes = [s.strip().lower() for s in text.split(",") if s.strip()]
+    for s in sizes:
+        parts = s.split("x")
+        if len(parts) != 3 or not all(p.isdigit() and int(p) >= 2 for p in parts):
+            raise argparse.ArgumentTypeError(f"FFD sizes must look like 6x6x3 (each ≥ 2), got {s!r}")
+    return sizes
+
+
+def one_size(text: str) -> tuple[int, int, int]:
+    """One FFD lattice size like ``3x3x3``."""
+    sizes = size_list(text)
+    if len(sizes) != 1:
+        raise argparse.ArgumentTypeError(f"expected one lattice size like 3x3x3, got {text!r}")
+    return tuple(int(p) for p in sizes[0].split("x"))
+
+
+def eps_list(text: str) -> list[float]:
+    """Comma-separated perturbation levels in [0, 0.5)."""
+    try:
+        eps = [float(s) for s in text.split(",") if s.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"epsilons must be comma-separated numbers, got {text!r}") from None
+    if any(not 0 <= e < 0.5 for e in eps):
+        raise argparse.ArgumentTypeError(f"epsilons must lie in [0, 0.5), got {eps}")
+    return eps
+
+
+def check_out(path: Path) -> Path:
+    """The output folder ``--out``, created; a path that exists and is not a folder is bad input."""
+    if path.exists() and not path.is_dir():
+        raise BadInput(f"--out {path} exists and is not a folder")
+    path.mkdir(parents=True, exist_ok=True)
+    return path

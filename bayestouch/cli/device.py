@@ -1,7 +1,6 @@
 """``bayestouch device simulate`` (the virtual finger on a pty) and ``bayestouch device run`` (strokes on a
 device, written as a recording with the schema of ``bayestouch simulate``).
 
-Also runnable on its own: ``python -m bayestouch.cli.device device run --port ... --out rec.nc``.
 """
 
 from __future__ import annotations
@@ -17,9 +16,10 @@ from pathlib import Path
 import numpy as np
 
 from bayestouch.cli.args import seed as seed_arg
+from bayestouch.errors import BadInput
 from bayestouch.params import MODELS
 
-__all__ = ["add_device_parser", "run_device", "load_stroke_file", "main"]
+__all__ = ["add_device_parser", "run_device", "load_stroke_file"]
 
 _MODELS = MODELS
 
@@ -142,7 +142,6 @@ def add_device_parser(subparsers) -> argparse.ArgumentParser:
 
 def load_stroke_file(path: Path, hold_currents) -> list:
     """Stroke plans from a JSON file (see ``device run --help``); raises BadInput naming the problem."""
-    from bayestouch.errors import BadInput
     from bayestouch.hardware.safety import StrokePlan
 
     try:
@@ -176,8 +175,6 @@ def load_stroke_file(path: Path, hold_currents) -> list:
 
 
 def _currents(text: str):
-    from bayestouch.errors import BadInput
-
     try:
         cur = [float(x) for x in text.split(",")]
     except ValueError:
@@ -188,7 +185,6 @@ def _currents(text: str):
 
 
 def _simulate(args) -> int:
-    from bayestouch.errors import BadInput
     from bayestouch.hardware.safety import load_limits
     from bayestouch.hardware.simulator import Faults, ForwardModel, GuardedModel, SyntheticModel, VirtualDevice
 
@@ -261,8 +257,6 @@ def _warm_up(model, args) -> None:
 
 
 def _run(args) -> int:
-    from bayestouch.errors import BadInput
-
     if args.out.suffix != ".nc":
         raise BadInput(f"--out {args.out}: expected a netCDF file name ending in .nc")
     if args.out.is_dir():
@@ -354,32 +348,8 @@ def _run(args) -> int:
 
 def run_device(args) -> int:
     """Run ``device simulate`` or ``device run`` from parsed arguments; returns the exit code."""
-    from bayestouch.errors import BadInput
-
     if getattr(args, "device_command", None) == "simulate":
         return _simulate(args)
     if getattr(args, "device_command", None) == "run":
         return _run(args)
     raise BadInput("device: expected a subcommand, simulate or run (see bayestouch device --help)")
-
-
-def main(argv: list[str] | None = None) -> int:
-    """Stand-alone entry point (``python -m bayestouch.cli.device device ...``)."""
-    p = argparse.ArgumentParser(prog="bayestouch")
-    sub = p.add_subparsers(dest="command", metavar="COMMAND")
-    add_device_parser(sub)
-    args = p.parse_args(argv)
-    if args.command != "device":
-        p.print_help()
-        return 2
-    from bayestouch.errors import BadInput
-
-    try:
-        return run_device(args)
-    except BadInput as e:
-        print(f"bayestouch device: error: {e}", file=sys.stderr)
-        return 2
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -1,8 +1,5 @@
-"""``bayestouch explore`` and ``bayestouch experiment`` (also ``python -m bayestouch.cli.explore``).
-
-Wire into ``bayestouch/cli/main.py``: call :func:`add_planning_parsers` ``(sub)`` in ``build_parser`` and map
-``"explore"`` → :func:`run_explore`, ``"experiment"`` → :func:`run_experiment` in ``COMMANDS``.
-"""
+"""``bayestouch explore`` (active exploration, simulated or on a finger) and ``bayestouch experiment`` (planners
+compared over objects and seeded trials)."""
 
 from __future__ import annotations
 
@@ -14,7 +11,7 @@ from pathlib import Path
 from bayestouch.cli.args import seed as seed_arg
 from bayestouch.errors import BadInput
 
-__all__ = ["add_planning_parsers", "run_explore", "run_experiment", "main"]
+__all__ = ["add_planning_parsers", "run_explore", "run_experiment"]
 
 
 def _common(p: argparse.ArgumentParser) -> None:
@@ -31,8 +28,8 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="output folder")
 
 
-def add_planning_parsers(subparsers) -> None:
-    """Add the ``explore`` and ``experiment`` subcommands to an argparse ``subparsers`` object."""
+def add_planning_parsers(subparsers) -> tuple[argparse.ArgumentParser, argparse.ArgumentParser]:
+    """Add the ``explore`` and ``experiment`` subcommands to an argparse ``subparsers`` object; returns both."""
     ep = subparsers.add_parser(
         "explore",
         help="active exploration of a simulated object or on a finger (plan, stroke, update)",
@@ -79,6 +76,7 @@ def add_planning_parsers(subparsers) -> None:
     xp.add_argument("--scheduler", default=None, help="Dask scheduler address tcp://HOST:PORT (optional)")
     xp.add_argument("--resume", action="store_true", help="keep complete trials of an existing results.csv")
     _common(xp)
+    return ep, xp
 
 
 def _settings(args) -> dict:
@@ -304,23 +302,3 @@ def run_experiment(args) -> int:
         )
     print(str(res["path"]))
     return 0
-
-
-def main(argv: list[str] | None = None) -> int:
-    """Stand-alone entry point (the same error handling as ``bayestouch``: BadInput → one line, exit 2)."""
-    p = argparse.ArgumentParser(prog="python -m bayestouch.cli.explore")
-    sub = p.add_subparsers(dest="command", metavar="COMMAND")
-    add_planning_parsers(sub)
-    args = p.parse_args(argv)
-    if args.command is None:
-        p.print_help()
-        return 2
-    try:
-        return {"explore": run_explore, "experiment": run_experiment}[args.command](args)
-    except BadInput as e:
-        print(f"bayestouch {args.command}: error: {e}", file=sys.stderr)
-        return 2
-
-
-if __name__ == "__main__":
-    sys.exit(main())
