@@ -1,4 +1,4 @@
-"""Expected information gain (EIG) of whole strokes from posterior draws.
+"""Expected information gain (EIG) of whole strokes: from posterior draws (shape) and over discrete hypotheses.
 
 Gaussian approximation (the planner's estimator). With the signal y = f(θ, stroke) + ε, ε ~ N(0, σ² I) of the
 T readings of a stroke, and the predicted signal f(θ, ·) over the posterior approximated as Gaussian with the
