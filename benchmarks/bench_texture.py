@@ -8,6 +8,9 @@ median of ≤ 5 strokes (Fishel & Loeb 2012: 95.4 % on 117 textures, median 5 mo
 (results.csv, summary.json, accuracy_vs_strokes.png) goes to ``benchmarks/results/texture_id/`` (or
 ``BAYESTOUCH_TEXTURE_OUT``).
 
+The discrete posterior is :mod:`bayestouch.inference.texture_posterior`; the science is in
+``docs/texture_identification.md``.
+
 Run: ``OMP_NUM_THREADS=1 python -m benchmarks bench_texture``.
 """
 
@@ -16,12 +19,12 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from bayestouch.planning.texture_id import run_experiment
+
 HERE = Path(__file__).resolve().parent
 
 
 def bench_identification() -> list[dict]:
-    from bayestouch.planning.texture_id import run_experiment
-
     trials = int(os.environ.get("BAYESTOUCH_TEXTURE_TRIALS", "5"))
     out = Path(os.environ.get("BAYESTOUCH_TEXTURE_OUT", HERE / "results" / "texture_id"))
     s = run_experiment(out, textures=20, trials=trials, max_strokes=10, seed=0, progress=False)

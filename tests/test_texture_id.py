@@ -7,9 +7,16 @@ import tomllib
 import numpy as np
 import pytest
 
+from bayestouch.cli import main as cli_main
 from bayestouch.errors import BadInput
+from bayestouch.inference import texture_posterior as tp
+from bayestouch.inference.densities import student_t_logpdf
+from bayestouch.physics.plate_strokes import known_finger
 from bayestouch.physics.virtual import load_finger
 from bayestouch.planning import texture_id as ti
+from bayestouch.planning.eig import eig_pairwise
+from bayestouch.planning.experiment import wilson_interval
+from bayestouch.scene import textures as tx
 
 
 @pytest.fixture(scope="module")
@@ -19,11 +26,11 @@ def vf():
 
 @pytest.fixture(scope="module")
 def lib():
-    return ti.load_library()
+    return tx.load_library()
 
 
 def _doc():
-    return tomllib.loads(ti.LIBRARY.read_text())
+    return tomllib.loads(tx.LIBRARY.read_text())
 
 
 def test_library_loads(lib):
@@ -54,16 +61,16 @@ def test_bad_library_names_the_field(edit, field):
     doc = _doc()
     edit(doc)
     with pytest.raises(BadInput, match=field.replace("[", r"\[").replace("]", r"\]")):
-        ti.library_from_dict(doc)
+        tx.library_from_dict(doc)
 
 
 def test_bad_toml_file(tmp_path):
     p = tmp_path / "t.toml"
     p.write_text("[library\nmodes = 16\n")
     with pytest.raises(BadInput, match="not valid TOML"):
-        ti.load_library(p)
+        tx.load_library(p)
     with pytest.raises(BadInput, match="does not exist"):
-        ti.load_library(tmp_path / "missing.toml")
+        tx.load_library(tmp_path / "missing.toml")
 
 
 @pytest.mark.slow
@@ -71,19 +78,17 @@ def test_noise_free_truth_is_the_maximum(lib, vf):
     """Noise, temperature offset and shift off: the true texture's predicted ln I equals the data (to rounding),
     so its log-likelihood at zero shift is the Student-t maximum (F·M readings at log t(0; 1) after whitening), and
     every other texture and shift is lower."""
-    from bayestouch.inference.densities import student_t_logpdf
-
     small = lib.subset(5)
     surfs = small.surfaces()
     st = ti.IdSettings(noise=False, temperature_sd=0.0, shift_range=0.0)
     grid = ti.IdSettings().shifts()  # the experiment's grid (one compiled size for the whole file)
     g0 = int(np.flatnonzero(grid == 0.0)[0])
     rng = np.random.default_rng(3)
-    spec = ti.random_stroke_spec(small.base, rng)
+    spec = tx.random_stroke_spec(small.base, rng)
     for k in (0, 4):
         data, tangent, shift = ti.record_stroke(small.object(k), spec, vf, rng, st)
         assert shift == 0.0
-        ll = ti.texture_log_likelihood(surfs, data, ti._finger(vf, st), grid, tangent)
+        ll = tp.texture_log_likelihood(surfs, data, known_finger(vf, st.noise), grid, tangent)
         best = float(np.asarray(student_t_logpdf(0.0, 1.0, 4.0))) * np.size(data.log_current)  # whitened, unit scale
         assert ll[k, g0] == pytest.approx(best, abs=1e-4)
         assert np.unravel_index(np.argmax(ll), ll.shape) == (k, g0)
@@ -100,14 +105,14 @@ def test_whitened_noise_is_independent_over_frames(lib, vf):
     small = lib.subset(5)
     st = ti.IdSettings(shift_range=0.0, temperature_sd=0.0)
     rng = np.random.default_rng(21)
-    spec = ti.random_stroke_spec(small.base, rng)
-    data, tangent, _ = ti.record_stroke(small.object(2), spec, vf, rng, st)
-    mu = ti._ll_means(small.surfaces(), data, vf.finger, tangent)[2].reshape(np.shape(data.log_current))
+    spec = tx.random_stroke_spec(small.base, rng)
+    data, _, _ = ti.record_stroke(small.object(2), spec, vf, rng, st)
+    mu = tp.texture_means(small.surfaces(), data, vf.finger)[2].reshape(np.shape(data.log_current))
     z = (np.asarray(data.log_current) - mu) / np.asarray(data.noise_sd)
     z = z[:, np.all(np.abs(z) < 6, axis=0)]
     F, M = z.shape
     assert M > 80
-    zw = ti.frame_whitener(data, vf.finger) @ z
+    zw = tp.frame_whitener(data, vf.finger) @ z
     assert 0.5 < F * zw.mean(axis=0).var() < 1.6
     assert 0.8 < zw.var() < 1.2
     assert F * z.mean(axis=0).var() > 5.0
@@ -129,18 +134,18 @@ def test_sub_noise_pair_stays_undecided(lib, vf):
         by["grating2_a30_o90"],
         by["rough15_l1.5"],
     ]
-    five = ti.library_from_dict(doc)
+    five = tx.library_from_dict(doc)
     surfs = five.surfaces()
     st = ti.IdSettings()
     rng = np.random.default_rng(11)
     log_post, D = np.full(5, -np.log(5)), 0.0
     for _ in range(3):
-        spec = ti.random_stroke_spec(five.base, rng)
+        spec = tx.random_stroke_spec(five.base, rng)
         data, tangent, _ = ti.record_stroke(five.object(0), spec, vf, rng, st)
-        mu = ti._ll_means(surfs, data, vf.finger, tangent)
+        mu = tp.texture_means(surfs, data, vf.finger)
         D += float(np.sum(((mu[0] - mu[1]) / np.asarray(data.noise_sd).ravel()) ** 2))
-        ll = ti.texture_log_likelihood(surfs, data, vf.finger, st.shifts(), tangent)
-        log_post = ti.update_posterior(log_post, ti.stroke_evidence(ll))
+        ll = tp.texture_log_likelihood(surfs, data, vf.finger, st.shifts(), tangent)
+        log_post = tp.update_posterior(log_post, tp.stroke_evidence(ll))
     post = np.exp(log_post)
     assert D < 0.05  # below the noise floor by construction
     bound = D / 2 + 4 * np.sqrt(D)
@@ -156,29 +161,42 @@ def test_sequential_update_equals_batch():
     ev = rng.normal(0.0, 50.0, size=(4, 7))
     seq = prior
     for e in ev:
-        seq = ti.update_posterior(seq, e)
+        seq = tp.update_posterior(seq, e)
         assert np.exp(seq).sum() == pytest.approx(1.0, abs=1e-12)
-    assert np.allclose(seq, ti.batch_posterior(prior, ev), atol=1e-9)
-    assert not np.allclose(seq, ti.batch_posterior(prior, ev[:3]), atol=1e-3)  # the last stroke mattered
+    assert np.allclose(seq, tp.batch_posterior(prior, ev), atol=1e-9)
+    assert not np.allclose(seq, tp.batch_posterior(prior, ev[:3]), atol=1e-3)  # the last stroke mattered
     # shifting one stroke's evidence by a constant (texture-independent likelihood factor) changes nothing
-    assert np.allclose(ti.batch_posterior(prior, ev + np.array([[3.0], [0], [0], [-7.0]])), seq, atol=1e-9)
+    assert np.allclose(tp.batch_posterior(prior, ev + np.array([[3.0], [0], [0], [-7.0]])), seq, atol=1e-9)
 
 
 def test_stroke_evidence_is_the_shift_average():
     ll = np.log(np.array([[1.0, 3.0], [2.0, 2.0]])) - 1000.0
-    assert np.allclose(ti.stroke_evidence(ll), np.log([2.0, 2.0]) - 1000.0)
+    assert np.allclose(tp.stroke_evidence(ll), np.log([2.0, 2.0]) - 1000.0)
 
 
 def test_eig_pairwise_limits():
     sd = np.ones(3)
     far = np.array([[0.0, 0, 0], [1e3, 0, 0]])
-    assert ti.eig_pairwise([0.5, 0.5], far, sd) == pytest.approx(np.log(2), abs=1e-9)  # fully separable: H(k)
-    assert ti.eig_pairwise([0.5, 0.5], np.zeros((2, 3)), sd) == pytest.approx(0.0, abs=1e-12)  # identical
-    assert ti.eig_pairwise([1.0, 0.0], far, sd) == pytest.approx(0.0, abs=1e-12)  # already certain
+    assert eig_pairwise([0.5, 0.5], far, sd) == pytest.approx(np.log(2), abs=1e-9)  # fully separable: H(k)
+    assert eig_pairwise([0.5, 0.5], np.zeros((2, 3)), sd) == pytest.approx(0.0, abs=1e-12)  # identical
+    assert eig_pairwise([1.0, 0.0], far, sd) == pytest.approx(0.0, abs=1e-12)  # already certain
     p = [0.2, 0.3, 0.5]
     near = np.array([[0.0, 0, 0], [0.5, 0, 0], [1.0, 0, 0]])
-    v = ti.eig_pairwise(p, near, sd)
+    v = eig_pairwise(p, near, sd)
     assert 0 < v < -np.sum(np.array(p) * np.log(p))
+
+
+def test_wilson_interval_closed_forms():
+    """0 of 10: (0, z²/(n + z²)) = (0, 0.2775); k ↔ n − k mirrors the interval; n = 0 has none."""
+    lo, hi = wilson_interval(0, 10)
+    assert lo == pytest.approx(0.0, abs=1e-12) and hi == pytest.approx(
+        1.959963984540054**2 / (10 + 1.959963984540054**2)
+    )
+    assert hi == pytest.approx(0.2775, abs=1e-4)
+    lo7, hi7 = wilson_interval(7, 20)
+    lo13, hi13 = wilson_interval(13, 20)
+    assert lo7 == pytest.approx(1 - hi13) and hi7 == pytest.approx(1 - lo13)
+    assert all(np.isnan(wilson_interval(0, 0)))
 
 
 @pytest.mark.slow
@@ -197,5 +215,5 @@ def test_small_experiment_identifies(tmp_path):
 
 
 def test_cli_bad_input(tmp_path, capsys):
-    assert ti.main(["--textures", "99", "--trials", "1", "--out", str(tmp_path)]) == 2
+    assert cli_main(["texture-id", "--textures", "99", "--trials", "1", "--out", str(tmp_path)]) == 2
     assert "--textures" in capsys.readouterr().err

@@ -12,7 +12,7 @@ __all__ = ["add_texture_parser", "run_texture_id"]
 
 def add_texture_parser(sub) -> argparse.ArgumentParser:
     """Register ``bayestouch texture-id`` on the ``bayestouch`` command's subparsers."""
-    from bayestouch.planning.texture_id import LIBRARY
+    from bayestouch.scene.textures import LIBRARY
 
     p = sub.add_parser(
         "texture-id",

@@ -10,21 +10,43 @@ the trials already complete in an existing ``results.csv`` and runs only the oth
 
 ``results.csv`` columns: :data:`COLUMNS` (one row per stroke, stroke 0 the scout); ``error_vs_strokes.png``:
 median and 25–75 % band of the Chamfer distance and the volume error against strokes, one line per planner.
+
+The machinery is shared with the texture identification experiment (:mod:`bayestouch.planning.texture_id`):
+:class:`ResultsFile` (rows rewritten after every trial), :func:`run_tasks` (here, pool or Dask, with an optional
+progress bar) and :func:`wilson_interval`.
 """
 
 from __future__ import annotations
 
+import multiprocessing as mp
 import sys
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
 import numpy as np
+from tqdm.auto import tqdm
 
 from bayestouch.errors import BadInput
+from bayestouch.io.files import read_csv_rows, write_csv_rows
 from bayestouch.params import MODELS
-from bayestouch.planning.loop import ExploreSettings
+from bayestouch.planning.loop import ExploreSettings, explore
 from bayestouch.planning.policies import check_policy
+from bayestouch.scene.objects import load_object
 
-__all__ = ["COLUMNS", "run_trial", "run_experiment", "resolve_object", "plot_results", "gap_closed", "OBJECTS"]
+__all__ = [
+    "COLUMNS",
+    "run_trial",
+    "run_experiment",
+    "resolve_object",
+    "plot_results",
+    "gap_closed",
+    "OBJECTS",
+    "ResultsFile",
+    "run_tasks",
+    "wilson_interval",
+]
 
 #: the columns of results.csv
 COLUMNS = (
@@ -63,9 +85,6 @@ def resolve_object(name: str) -> Path:
 
 def run_trial(task: dict) -> list[dict]:
     """Run one (object, planner, trial) and return its rows (a top-level function: picklable for pools)."""
-    from bayestouch.planning.loop import explore
-    from bayestouch.scene.objects import load_object
-
     obj = load_object(task["path"])
     settings = ExploreSettings(**task.get("settings", {}))
     res = explore(obj, task["planner"], task["budget"], seed=task["seed"], settings=settings)
@@ -87,6 +106,86 @@ def run_trial(task: dict) -> list[dict]:
         }
         for r in res.records
     ]
+
+
+class ResultsFile:
+    """An experiment's ``results.csv``: its rows in memory, the file rewritten atomically after every finished trial
+    (:func:`bayestouch.io.files.write_csv_rows`), so a killed run loses no finished trial.
+
+    Parameters
+    ----------
+    path : path
+        The CSV file.
+    columns : sequence of str
+        Its columns, in order.
+    rows : sequence of dict, optional
+        Rows kept from an earlier run.
+    order : callable, optional
+        Sort key of the rows (None: in order of arrival).
+    """
+
+    def __init__(self, path, columns: Sequence[str], rows=(), order: Callable | None = None):
+        self.path = Path(path)
+        self.columns = tuple(columns)
+        self.rows: list[dict] = list(rows)
+        self.order = order
+
+    def write(self) -> Path:
+        """Write every row now."""
+        return write_csv_rows(self.path, self.rows, self.columns)
+
+    def add(self, new_rows: Sequence[dict]) -> None:
+        """Append one finished trial's rows (re-sorted with ``order``) and rewrite the file."""
+        self.rows.extend(new_rows)
+        if self.order is not None:
+            self.rows.sort(key=self.order)
+        self.write()
+
+
+def run_tasks(
+    tasks: Sequence,
+    run: Callable,
+    finished: Callable,
+    *,
+    workers: int = 1,
+    scheduler: str | None = None,
+    progress: str | None = None,
+) -> None:
+    """Run ``run(task)`` for every task and hand each result to ``finished`` (in this process) as it arrives.
+
+    Parameters
+    ----------
+    tasks : sequence
+        One item per trial.
+    run : callable
+        task → result; a top-level (picklable) function when ``workers > 1`` or with ``scheduler``.
+    finished : callable
+        Called with each result, in order of completion (task order when run here).
+    workers : int
+        Processes of a ``spawn`` pool (1: run here, in order).
+    scheduler : str, optional
+        ``tcp://HOST:PORT`` of a Dask scheduler (needs ``dask[distributed]``).
+    progress : str, optional
+        Label of a progress bar over the tasks run here (None: no bar).
+    """
+    if scheduler is not None:
+        _run_dask(scheduler, tasks, run, finished)
+    elif workers == 1 or len(tasks) <= 1:
+        for t in tqdm(tasks, desc=progress, unit="trial", disable=progress is None):
+            finished(run(t))
+    else:
+        _run_pool(workers, tasks, run, finished)
+
+
+def wilson_interval(k: int, n: int, z: float = 1.959963984540054) -> tuple[float, float]:
+    """Wilson's score interval (lo, hi) of a proportion ``k`` of ``n`` (95 % for the default ``z``); NaNs for n = 0."""
+    if n == 0:
+        return float("nan"), float("nan")
+    p = k / n
+    den = 1 + z * z / n
+    c = (p + z * z / (2 * n)) / den
+    h = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
+    return float(c - h), float(c + h)
 
 
 def _key(row) -> tuple:
@@ -143,8 +242,6 @@ def run_experiment(
     dict
         ``{"ran": trials run now, "skipped": trials kept from before, "rows": all rows, "path": results.csv}``.
     """
-    from bayestouch.io.files import read_csv_rows, write_csv_rows
-
     planners = list(planners)
     if not planners:
         raise BadInput("planners: expected a comma-separated list like eig,random,oracle")
@@ -198,10 +295,15 @@ def run_experiment(
         else f"experiment: {len(tasks)} trial(s) to run"
     )
 
+    results = ResultsFile(
+        csv_path,
+        COLUMNS,
+        rows,
+        order=lambda r: (str(r["object"]), str(r["planner"]), int(r["trial"]), int(r["stroke"])),
+    )
+
     def finished(new_rows):
-        rows.extend(new_rows)
-        rows.sort(key=lambda r: (str(r["object"]), str(r["planner"]), int(r["trial"]), int(r["stroke"])))
-        write_csv_rows(csv_path, rows, COLUMNS)
+        results.add(new_rows)
         last = new_rows[-1]
         log(
             f"  {last['object']} {last['planner']} trial {last['trial']}: chamfer {float(last['chamfer']):.4f}, "
@@ -209,26 +311,17 @@ def run_experiment(
         )
 
     if not csv_path.is_file():
-        write_csv_rows(csv_path, rows, COLUMNS)
-    if scheduler is not None:
-        _run_dask(scheduler, tasks, finished)
-    elif workers == 1 or len(tasks) <= 1:
-        for t in tasks:
-            finished(run_trial(t))
-    else:
-        _run_pool(workers, tasks, finished)
+        results.write()
+    run_tasks(tasks, run_trial, finished, workers=workers, scheduler=scheduler)
+    rows = results.rows
     if plot and rows:
         plot_results(rows, out / "error_vs_strokes.png")
     return {"ran": len(tasks), "skipped": len(done), "rows": rows, "path": csv_path}
 
 
-def _run_pool(workers: int, tasks: list[dict], finished) -> None:
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-    from concurrent.futures.process import BrokenProcessPool
-
+def _run_pool(workers: int, tasks: Sequence, run: Callable, finished: Callable) -> None:
     with ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=mp.get_context("spawn")) as ex:
-        futures = [ex.submit(run_trial, t) for t in tasks]
+        futures = [ex.submit(run, t) for t in tasks]
         try:
             for f in as_completed(futures):
                 finished(f.result())
@@ -243,9 +336,10 @@ def _check_address(address) -> None:
         raise BadInput(f"--scheduler: expected an address like tcp://HOST:PORT, got {address!r}")
 
 
-def _run_dask(address: str, tasks: list[dict], finished) -> None:
+def _run_dask(address: str, tasks: Sequence, run: Callable, finished: Callable) -> None:
     try:
-        from dask.distributed import Client, as_completed
+        from dask.distributed import Client
+        from dask.distributed import as_completed as dask_completed
     except ImportError:
         raise BadInput(
             '--scheduler: needs dask\'s distributed scheduler; install it with pip install "dask[distributed]"'
@@ -255,8 +349,8 @@ def _run_dask(address: str, tasks: list[dict], finished) -> None:
     # the cluster, and once closed leave it there ("no Client active") for every later xarray/dask call
     with Client(address, set_as_default=False) as client:
         # pure=False: every task runs (a retried task after a worker died reruns the whole trial)
-        futures = [client.submit(run_trial, t, pure=False, retries=2) for t in tasks]
-        for f in as_completed(futures, loop=client.loop):  # not the default client's loop: there is none
+        futures = [client.submit(run, t, pure=False, retries=2) for t in tasks]
+        for f in dask_completed(futures, loop=client.loop):  # not the default client's loop: there is none
             finished(f.result())
 
 

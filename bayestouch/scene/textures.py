@@ -1,0 +1,254 @@
+"""The texture library: K physical texture samples on one known test object, and straight strokes over its face.
+
+The library (``models/textures.toml``, :func:`load_library`) gives each texture's grating amplitude and
+wavelength (metres), orientation (radians) and roughness (metres) on the graphite plate's shape without defects.
+A stroke (:class:`StrokeSpec`, :func:`plate_stroke`) is a straight, position-controlled line over the plate's flat
+top face (metres, m/s, Hz), commanded on the nominal (untextured) surface. Texture identification is described in
+``docs/texture_identification.md``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from bayestouch.backend import jnp
+from bayestouch.errors import BadInput
+from bayestouch.geometry import nellipsoid as ne
+from bayestouch.params import MODELS, read_toml
+from bayestouch.scene.objects import SceneObject, TextureSpec, build_surface, object_from_dict
+from bayestouch.scene.strokes import Stroke, stroke_from_path
+from bayestouch.scene.surface import Surface, Texture
+
+__all__ = [
+    "LIBRARY",
+    "TextureLibrary",
+    "load_library",
+    "library_from_dict",
+    "StrokeSpec",
+    "plate_stroke",
+    "random_stroke_spec",
+]
+
+#: the shipped texture library
+LIBRARY = MODELS / "textures.toml"
+_FLAT_FRACTION = 0.6  # strokes stay within this fraction of the semi-axes (flat part of the n = 10 plate)
+
+
+# ----------------------------------------------------------------------------------------------- library
+
+
+@dataclass(frozen=True)
+class TextureLibrary:
+    """K textures on one known test object.
+
+    Attributes
+    ----------
+    names : tuple of str
+        Unique texture names.
+    specs : tuple of TextureSpec
+        Metres and radians (:class:`bayestouch.scene.objects.TextureSpec`); all with the same ``modes``.
+    base : SceneObject
+        The test object without texture (its shape is known to the identifier).
+    source : Path or None
+    """
+
+    names: tuple[str, ...]
+    specs: tuple[TextureSpec, ...]
+    base: SceneObject
+    source: Path | None = None
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    def subset(self, count: int) -> TextureLibrary:
+        """The first ``count`` textures."""
+        if not 2 <= count <= len(self):
+            raise BadInput(f"--textures must be between 2 and {len(self)} (library size), got {count}")
+        return TextureLibrary(self.names[:count], self.specs[:count], self.base, self.source)
+
+    def object(self, k: int) -> SceneObject:
+        """The test object with texture ``k``."""
+        b = self.base
+        return SceneObject(self.names[k], b.shape, (), b.description, b.source, self.specs[k])
+
+    def surfaces(self) -> Surface:
+        """One :class:`Surface` whose ``texture`` fields carry a leading axis K (shape, FFD, defects shared)."""
+        surfs = [build_surface(self.object(k)) for k in range(len(self))]
+        tex = Texture(*(jnp.stack([getattr(s.texture, f) for s in surfs]) for f in Texture._fields))
+        return surfs[0]._replace(texture=tex)
+
+
+def _number(d: dict, key: str, where: str, lo: float, hi: float, default=None) -> float:
+    v = d.get(key, default)
+    if not isinstance(v, int | float) or isinstance(v, bool):
+        raise BadInput(f"{where}: '{key}' must be a number in [{lo:g}, {hi:g}] (SI units), got {v!r}")
+    if not lo <= v <= hi:
+        raise BadInput(f"{where}: '{key}' must be in [{lo:g}, {hi:g}] (SI units), got {v!r}")
+    return float(v)
+
+
+def library_from_dict(doc: dict, where: str = "texture library", source: Path | None = None) -> TextureLibrary:
+    """Build a :class:`TextureLibrary` from a parsed TOML document (see ``models/textures.toml``).
+
+    Parameters
+    ----------
+    doc : dict
+        ``[library]`` (``modes``), ``[object]`` with ``[object.shape]`` (metres, radians) and at least two
+        ``[[texture]]`` tables (``name``, ``amplitude_m``, ``wavelength_m``, ``orientation_rad``, ``roughness_m``,
+        ``seed``).
+    where : str
+        Names the document in error messages.
+    source : Path, optional
+        The file it came from.
+
+    Returns
+    -------
+    TextureLibrary
+
+    Raises
+    ------
+    BadInput
+        A bad field, naming the table, the entry and the field.
+    """
+    lib = doc.get("library", {})
+    if not isinstance(lib, dict):
+        raise BadInput(f"{where}: [library] must be a table with 'modes'")
+    modes = int(_number(lib, "modes", f"{where} [library]", 1, 256, default=16))
+    obj = doc.get("object")
+    if not isinstance(obj, dict) or not isinstance(obj.get("shape"), dict):
+        raise BadInput(f"{where}: missing table [object.shape] with centre_m, axes_m, angles_rad, n (metres)")
+    meta = {k: v for k, v in obj.items() if k != "shape"}
+    base = object_from_dict({"object": meta, "shape": obj["shape"]}, f"{where} [object]", source)
+    entries = doc.get("texture")
+    if not isinstance(entries, list) or len(entries) < 2:
+        raise BadInput(f"{where}: needs at least two [[texture]] tables, got {0 if entries is None else entries!r}")
+    names, specs = [], []
+    cmin = float(np.min(np.asarray(base.shape.axes)))
+    for i, t in enumerate(entries):
+        w = f"{where} [[texture]] #{i + 1}"
+        name = t.get("name")
+        if not isinstance(name, str) or not name or name in names:
+            raise BadInput(f"{w}: 'name' must be a unique non-empty string, got {name!r}")
+        w = f"{where} [[texture]] '{name}'"
+        amp = _number(t, "amplitude_m", w, 0.0, 5e-4, default=0.0)
+        lam = _number(t, "wavelength_m", w, 1e-5, 0.05)
+        ori = _number(t, "orientation_rad", w, -2 * np.pi, 2 * np.pi, default=0.0)
+        rough = _number(t, "roughness_m", w, 0.0, 5e-4, default=0.0)
+        seed = t.get("seed", 0)
+        if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
+            raise BadInput(f"{w}: 'seed' must be a non-negative integer, got {seed!r}")
+        if max(amp, rough) > 0.2 * cmin:
+            raise BadInput(f"{w}: 'amplitude_m'/'roughness_m' must stay below a fifth of the object's smallest axis")
+        names.append(name)
+        specs.append(TextureSpec(amp, lam, ori, rough, seed, modes))
+    return TextureLibrary(tuple(names), tuple(specs), base, source)
+
+
+def load_library(path=LIBRARY) -> TextureLibrary:
+    """Read a texture library TOML file (metres, radians); a bad file raises :class:`BadInput` naming the field."""
+    p = Path(path)
+    return library_from_dict(read_toml(p, "texture library", "models/textures.toml"), str(p), p)
+
+
+# ----------------------------------------------------------------------------------------------- strokes
+
+
+class StrokeSpec(NamedTuple):
+    """A straight stroke over the flat top face of the test object (principal frame).
+
+    start : (2,) float, metres
+        Commanded start (x, y) of the pad centre.
+    direction : float, radians
+        Direction of motion in the principal x–y plane.
+    speed : float, m/s
+    depth : float, metres
+        Pressing depth of the pad centre below the nominal surface.
+    length : float, metres
+    rate : float, Hz
+        Frame rate.
+    """
+
+    start: tuple[float, float]
+    direction: float
+    speed: float = 0.01
+    depth: float = 3e-4
+    length: float = 0.01
+    rate: float = 50.0
+
+
+def _top_face(shape: ne.NEllipsoid, xy: np.ndarray) -> np.ndarray:
+    """Principal-frame points (T, 3) of the upper face z = c (1 − |x/a|^n − |y/b|^n)^(1/n) above ``xy (T, 2)``."""
+    a, b, c = (float(v) for v in np.asarray(shape.axes))
+    n = float(shape.n)
+    rest = 1.0 - np.abs(xy[:, 0] / a) ** n - np.abs(xy[:, 1] / b) ** n
+    if np.any(rest <= 0):
+        raise BadInput("stroke: leaves the object's top face; expected a start within the flat central part")
+    return np.column_stack([xy, c * rest ** (1.0 / n)])
+
+
+def plate_stroke(obj: SceneObject, spec: StrokeSpec, shift: float = 0.0) -> Stroke:
+    """The :class:`Stroke` of ``spec`` on the untextured top face of ``obj``, displaced along its direction.
+
+    Parameters
+    ----------
+    obj : SceneObject
+        The test object (only its base shape is used).
+    spec : StrokeSpec
+    shift : float, metres
+        Displacement along the stroke (the start-phase error of the truth; 0 for the commanded stroke).
+
+    Returns
+    -------
+    Stroke
+        T = round(length / speed · rate) frames.
+    """
+    nf = int(round(spec.length / spec.speed * spec.rate))
+    if nf < 2:
+        raise BadInput(f"stroke: length/speed*rate gives {nf} frames; expected at least 2")
+    t = np.arange(nf) / spec.rate
+    d = np.array([np.cos(spec.direction), np.sin(spec.direction)])
+    xy = np.asarray(spec.start, float) + (shift + spec.speed * t)[:, None] * d
+    s = obj.shape
+    loc = _top_face(s, xy)
+    pts = np.asarray(ne.to_world(s, jnp.asarray(loc)))
+    nrm = ne.evaluate(ne.normals, s, pts)
+    return stroke_from_path(pts, nrm, t, spec.depth)
+
+
+def random_stroke_spec(
+    obj: SceneObject,
+    rng: np.random.Generator,
+    *,
+    speed: float = 0.01,
+    depth: float = 3e-4,
+    length: float = 0.01,
+    rate: float = 50.0,
+) -> StrokeSpec:
+    """A stroke of uniform direction whose whole path (± 1 mm) stays within the flat central part of the face.
+
+    Parameters
+    ----------
+    obj : SceneObject
+        The test object.
+    rng : numpy Generator
+        Draws the direction, then the start.
+    speed : float, m/s
+    depth : float, metres
+    length : float, metres
+    rate : float, Hz
+
+    Returns
+    -------
+    StrokeSpec
+    """
+    a, b, _ = (float(v) for v in np.asarray(obj.shape.axes))
+    phi = rng.uniform(0.0, 2 * np.pi)
+    d = np.array([np.cos(phi), np.sin(phi)])
+    half = np.array([_FLAT_FRACTION * a, _FLAT_FRACTION * b])
+    lo = np.maximum(-half, -half - d * length) + 1e-3
+    hi = np.minimum(half, half - d * length) - 1e-3
+    return StrokeSpec(tuple(rng.uniform(lo, hi)), float(phi), speed, depth, length, rate)
