@@ -80,7 +80,7 @@ def replay_strokes(
 
     Each planned stroke (:class:`bayestouch.planning.candidates.Strokes`, a path over the believed surface with its
     approach rays) becomes a :class:`bayestouch.scene.strokes.Stroke`: the path where its approach rays meet the
-    true surface (:func:`bayestouch.planning.signal.true_ray_distances`; the longest run of consecutive contacts),
+    true surface (:func:`bayestouch.scene.raycast.true_ray_distances`; the longest run of consecutive contacts),
     resampled at ``rate`` along its length at the stroke's speed, pressed ``depth`` below the surface along the base
     surface's normal.
 
@@ -103,7 +103,7 @@ def replay_strokes(
     list of Stroke
     """
     from bayestouch.geometry import nellipsoid as ne
-    from bayestouch.planning.signal import CONTACT, true_ray_distances
+    from bayestouch.scene.raycast import CONTACT, true_ray_distances
     from bayestouch.scene.strokes import stroke_from_path
 
     out = []

@@ -13,8 +13,9 @@ from bayestouch.planning.candidates import make_candidates
 from bayestouch.planning.experiment import COLUMNS, resolve_object, run_experiment
 from bayestouch.planning.loop import ExploreSettings, explore
 from bayestouch.planning.policies import check_policy, choose
-from bayestouch.planning.signal import CONTACT, INSIDE, MISS, predict_signals, true_ray_distances
+from bayestouch.planning.signal import predict_signals
 from bayestouch.scene.objects import object_from_dict
+from bayestouch.scene.raycast import CONTACT, INSIDE, MISS, true_ray_distances
 
 R_SPHERE = 0.02
 # small runs for the tests (the defaults are 64 candidates, 1000 draws, 300/600 steps, 2 starts, 4 scout arcs)

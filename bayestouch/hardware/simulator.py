@@ -35,6 +35,7 @@ import numpy as np
 
 from bayestouch.hardware import protocol as pr
 from bayestouch.hardware.safety import Limits, StrokePlan, UnsafePlan, check_plan
+from bayestouch.scene.raycast import CONTACT, INSIDE, MISS, true_ray_distances
 
 __all__ = ["Faults", "VirtualDevice", "SyntheticModel", "ForwardModel", "GuardedModel", "FRAME_KEYS"]
 
@@ -179,7 +180,7 @@ class GuardedModel:
     approach does).
 
     At waypoint j the pad starts at ``start_j`` and moves along ``u_j = −normal_j``. Where the ray
-    ``start_j + t u_j`` first meets the true object (:func:`bayestouch.planning.signal.true_ray_distances`:
+    ``start_j + t u_j`` first meets the true object (:func:`bayestouch.scene.raycast.true_ray_distances`:
     the scene object's signed distance, texture and defects included) at t_j ≤ ``travel``, the skin touches;
     the contact force crosses ``threshold`` once the pad centre is the Winkler indentation
     δ_th = :func:`~bayestouch.hardware.device.winkler_depth` ``(threshold)`` further in, at
@@ -218,7 +219,6 @@ class GuardedModel:
         from bayestouch.backend import jnp
         from bayestouch.geometry import nellipsoid as ne
         from bayestouch.hardware.device import winkler_depth
-        from bayestouch.planning.signal import CONTACT, INSIDE, MISS, true_ray_distances
 
         start = np.asarray(plan.contact, float)
         u = -np.asarray(plan.normal, float)

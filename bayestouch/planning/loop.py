@@ -5,7 +5,7 @@ Stroke 0 is a scout common to every planner: the object sits at a known place (i
 with an unknown shape, believed a sphere of :data:`SCOUT_RADIUS`; three arcs over that sphere from evenly spread
 directions give the first contact points, and the initial fit (:func:`bayestouch.inference.run.initial_theta`:
 DE + L-BFGS-B) starts the ensemble. Every later stroke is chosen by the policy among candidates generated over the
-current point estimate (below), measured on the true object (:func:`bayestouch.planning.signal.true_ray_distances`, plus
+current point estimate (below), measured on the true object (:func:`bayestouch.scene.raycast.true_ray_distances`, plus
 Gaussian contact noise along the ray), and the posterior is updated by a short emcee run warm-started from the
 previous ensemble's last state (clipped into the new prior box). The loop stops after ``budget`` planned strokes
 or once the volume's posterior sd falls below ``target_volume_sd``.
@@ -53,7 +53,7 @@ from bayestouch.geometry import nellipsoid as ne
 from bayestouch.inference import contact as cm
 from bayestouch.planning.candidates import Strokes, make_candidates, select
 from bayestouch.planning.policies import check_policy, choose
-from bayestouch.planning.signal import CONTACT, INSIDE, MISS, ray_distances, true_ray_distances
+from bayestouch.scene.raycast import CONTACT, INSIDE, MISS, true_ray_distances
 
 __all__ = [
     "ExploreSettings",
@@ -241,7 +241,7 @@ def _measure(obj, stroke: Strokes, noise_sd: float, rng: np.random.Generator) ->
 
 
 class RayProber:
-    """The default prober: a stroke measured on a simulated object by rays (:func:`~bayestouch.planning.signal.
+    """The default prober: a stroke measured on a simulated object by rays (:func:`~bayestouch.scene.raycast.
     true_ray_distances`, Gaussian noise of ``noise_sd`` metres along the ray).
 
     Parameters
@@ -271,7 +271,7 @@ def _free_log_lik(thetas, starts, dirs, t_max, inside, w_ray, w_in):
     def one(th):
         s = cm.shape_of(th)
         sigma = jnp.exp(th[10])
-        t = ray_distances(s, starts, dirs, 4.0 * t_max)
+        t = ne.ray_distances(s, starts, dirs, 4.0 * t_max)
         lm = jnp.sum(w_ray * norm.logcdf((t - t_max) / sigma))
         d = ne.first_order_distance(s, ne.to_local(s, inside))[0]
         return lm + jnp.sum(w_in * norm.logcdf(-d / sigma))

@@ -26,7 +26,8 @@ from bayestouch.errors import BadInput
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.planning import eig as eig_mod
 from bayestouch.planning.candidates import Strokes
-from bayestouch.planning.signal import predict_signals, true_ray_distances
+from bayestouch.planning.signal import predict_signals
+from bayestouch.scene.raycast import true_ray_distances
 
 __all__ = ["POLICIES", "Decision", "choose", "check_policy", "oracle_scores"]
 
