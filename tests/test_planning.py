@@ -250,13 +250,13 @@ def test_experiment_writes_results_and_resumes_without_redoing(tmp_path, monkeyp
 
 def test_a_miss_penalises_shapes_that_the_ray_would_have_touched():
     from bayestouch.inference import contact as cm
-    from bayestouch.planning.loop import Free, _with_free
+    from bayestouch.inference.freespace import Free, with_free
 
     # one ray along -z from (0, 0, 0.05), 3 cm long, that met nothing; one start found inside, at the origin
     free = Free(np.array([[0.0, 0.0, 0.05]]), np.array([[0.0, 0.0, -1.0]]), 0.03, np.zeros((1, 3)))
     pts = 0.02 * np.vstack([np.eye(3), -np.eye(3)])  # only sets the prior box (the centre within ±4 cm)
     base, bounds = cm.make_log_prob(pts, nu=np.inf)
-    f = _with_free(base, bounds, free)
+    f = with_free(base, bounds, free)
     sig = np.log(3e-4)
     small = [0.0, 0.0, 0.0, *np.log([0.019] * 3), 0.0, 0.0, 0.0, np.log(2.0), sig]  # top at z = 1.9 cm: no touch
     big = [0.0, 0.0, 0.0, *np.log([0.021] * 3), 0.0, 0.0, 0.0, np.log(2.0), sig]  # top at 2.1 cm: touched at 2.9 cm

@@ -15,7 +15,7 @@ approach direction). Its error is the pose estimate's (the virtual finger's ``po
 contact noise the planner assumes) plus the indentation model's (the forward model's force is up to 1.42× the
 Winkler force, so δ_th is overestimated by at most 1 − 1/√1.42 ≈ 16 %, ≈ 0.02 mm at 0.02 N). A sample whose
 approach met nothing within ``t_max`` is a miss, one already in contact at its start is "inside": both are the
-loop's :class:`~bayestouch.planning.loop.Free` observations, exactly as in simulation.
+loop's :class:`~bayestouch.inference.freespace.Free` observations, exactly as in simulation.
 
 The planned force becomes a pressing depth (:func:`~bayestouch.hardware.device.depth_for_force`: the depth at
 which the safety check's conservative force bound equals it), the samples are timed evenly over the stroke's
@@ -44,8 +44,8 @@ from bayestouch.hardware.device import (
     winkler_depth,
 )
 from bayestouch.hardware.safety import StrokePlan
+from bayestouch.inference.freespace import Free
 from bayestouch.planning.candidates import Strokes
-from bayestouch.planning.loop import Free
 
 __all__ = ["DeviceProber", "PROBE_THRESHOLD", "probe_points"]
 
@@ -56,7 +56,7 @@ HOLD_CURRENTS = (0.15, 0.05, 0.05)
 
 
 def probe_points(data: ProbeData, threshold_depth: float) -> tuple[np.ndarray, Free]:
-    """Contact points (K, 3) m and :class:`~bayestouch.planning.loop.Free` observations of one guarded stroke.
+    """Contact points (K, 3) m and :class:`~bayestouch.inference.freespace.Free` observations of one guarded stroke.
 
     Parameters
     ----------
@@ -129,7 +129,7 @@ class DeviceProber:
 
     def probe(self, stroke: Strokes, rng=None) -> tuple[np.ndarray, Free]:
         """Run ``stroke`` (a batch of one) on the finger: contact points (K, 3) m and
-        :class:`~bayestouch.planning.loop.Free` observations. ``rng`` is unused (the finger's noise is its own).
+        :class:`~bayestouch.inference.freespace.Free` observations. ``rng`` is unused (the finger's noise is its own).
 
         Raises
         ------
