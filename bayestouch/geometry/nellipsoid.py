@@ -11,6 +11,7 @@ from functools import partial
 from typing import NamedTuple
 
 import numpy as np
+from jax.scipy.special import gammaln
 
 from bayestouch.backend import jax, jnp, pad_pow2
 from bayestouch.geometry.rotation import rotation_matrix
@@ -273,8 +274,6 @@ def ray_distances(shape: NEllipsoid, starts, dirs, t_max: float, iters: int = 10
 
 def _dirichlet(alpha, n):
     # ∫ over the positive octant of the unit n-ball of Π x_i^(α_i − 1) dx  (Dirichlet's integral)
-    from jax.scipy.special import gammaln
-
     alpha = jnp.asarray(alpha, dtype=jnp.float64)
     return jnp.exp(jnp.sum(gammaln(alpha / n)) - gammaln(1.0 + jnp.sum(alpha) / n)) / n**3
 

@@ -33,9 +33,22 @@ from typing import NamedTuple
 
 import numpy as np
 
+from bayestouch.backend import jnp
+from bayestouch.geometry import nellipsoid as ne
 from bayestouch.hardware import protocol as pr
-from bayestouch.hardware.safety import Limits, StrokePlan, UnsafePlan, check_plan
+from bayestouch.hardware.device import winkler_depth
+from bayestouch.hardware.safety import (
+    Limits,
+    StrokePlan,
+    UnsafePlan,
+    check_plan,
+    predicted_force,
+    steady_wire_temperature,
+)
+from bayestouch.params import MODELS
+from bayestouch.physics.virtual import load_finger, record_strokes
 from bayestouch.scene.raycast import CONTACT, INSIDE, MISS, true_ray_distances
+from bayestouch.scene.strokes import stroke_from_path
 
 __all__ = ["Faults", "VirtualDevice", "SyntheticModel", "ForwardModel", "GuardedModel", "FRAME_KEYS"]
 
@@ -106,8 +119,6 @@ class SyntheticModel:
         self.taxel_uv, self.reference = _grid(self.rows, self.cols)
 
     def __call__(self, plan: StrokePlan, index: int) -> dict[str, np.ndarray]:
-        from bayestouch.hardware.safety import predicted_force, steady_wire_temperature
-
         T = len(plan.time)
         g = np.random.default_rng([self.seed, index])
         r2 = np.sum(self.taxel_uv**2, axis=1)
@@ -143,9 +154,6 @@ class ForwardModel:
     """
 
     def __init__(self, obj, models: Path | None = None, seed: int = 0, mode: str | None = None):
-        from bayestouch.params import MODELS
-        from bayestouch.physics.virtual import load_finger
-
         self.obj, self.seed, self.mode, self.pose_sd = obj, int(seed), mode, 3e-4
         self.vf = load_finger(Path(models or MODELS), seed=seed)
         grid = np.asarray(self.vf.finger.grid)
@@ -155,9 +163,6 @@ class ForwardModel:
         self._lock = threading.Lock()
 
     def __call__(self, plan: StrokePlan, index: int) -> dict[str, np.ndarray]:
-        from bayestouch.physics.virtual import record_strokes
-        from bayestouch.scene.strokes import stroke_from_path
-
         st = stroke_from_path(plan.contact, plan.normal, plan.time, plan.depth)
         with self._lock:  # one compilation at a time
             rec = record_strokes(
@@ -216,10 +221,6 @@ class GuardedModel:
     def probe(self, plan: StrokePlan, travel: float, threshold: float, index: int) -> dict[str, np.ndarray]:
         """A guarded stroke (``plan.contact`` holds the approach starts): :data:`FRAME_KEYS` arrays plus
         ``probe (T,)``, ``travel (T,)`` m and ``position (T, 3)`` m (see the class docstring)."""
-        from bayestouch.backend import jnp
-        from bayestouch.geometry import nellipsoid as ne
-        from bayestouch.hardware.device import winkler_depth
-
         start = np.asarray(plan.contact, float)
         u = -np.asarray(plan.normal, float)
         t, status = true_ray_distances(self.obj, start, u, float(travel))

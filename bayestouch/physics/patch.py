@@ -17,6 +17,7 @@ import math
 from typing import NamedTuple
 
 import numpy as np
+from jax.scipy.special import gammaln as lg
 from scipy.optimize import least_squares
 
 from bayestouch.backend import jnp
@@ -94,8 +95,6 @@ def superellipse_area(a, b, n):
     -------
     float or array, m²
     """
-    from jax.scipy.special import gammaln as lg
-
     n = jnp.asarray(n, dtype=jnp.float64)
     return 4.0 * a * b * jnp.exp(2.0 * lg(1.0 + 1.0 / n) - lg(1.0 + 2.0 / n))
 
@@ -105,8 +104,6 @@ def superellipse_area_eq18(a, b, n):
 
     Equal to :func:`superellipse_area` for every n > 0 (see there); kept to show the check.
     """
-    from jax.scipy.special import gammaln as lg
-
     n = jnp.asarray(n, dtype=jnp.float64)
     return 4.0 ** (1.0 - 1.0 / n) * a * b * jnp.sqrt(jnp.pi) * jnp.exp(lg(1.0 + 1.0 / n) - lg(0.5 + 1.0 / n))
 

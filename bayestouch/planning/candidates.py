@@ -23,6 +23,7 @@ from bayestouch.backend import jax, jnp
 from bayestouch.errors import BadInput
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.mesh import as_rng
+from bayestouch.hardware.safety import Limits
 
 __all__ = [
     "Strokes",
@@ -170,8 +171,6 @@ def make_candidates(
             f"{length_range}, {standoff}"
         )
     if limits is None:
-        from bayestouch.hardware.safety import Limits
-
         limits = Limits()
     rng = as_rng(seed)
     dirs = fibonacci_sphere(count) @ random_rotation(rng).T

@@ -43,8 +43,9 @@ from bayestouch.hardware.device import (
     depth_for_force,
     winkler_depth,
 )
-from bayestouch.hardware.safety import StrokePlan
+from bayestouch.hardware.safety import StrokePlan, UnsafePlan
 from bayestouch.inference.freespace import Free
+from bayestouch.io.recording import write_recording
 from bayestouch.planning.candidates import Strokes
 
 __all__ = ["DeviceProber", "PROBE_THRESHOLD", "probe_points"]
@@ -138,8 +139,6 @@ class DeviceProber:
         DeviceError
             The device failed; the strokes so far are kept (and in ``recording``).
         """
-        from bayestouch.hardware.safety import UnsafePlan
-
         plan = self.plan(stroke)
         try:
             data = self.device.run_probe(plan)
@@ -158,8 +157,6 @@ class DeviceProber:
             )
         )
         if self.recording_path is not None:
-            from bayestouch.io.recording import write_recording
-
             write_recording(self.dataset(), self.recording_path)
         return pts, free
 

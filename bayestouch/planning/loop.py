@@ -14,6 +14,7 @@ the relative volume error. Lengths in metres, volumes in m³. The loop's design 
 from __future__ import annotations
 
 import time
+import warnings
 from typing import NamedTuple
 
 import numpy as np
@@ -21,8 +22,13 @@ import numpy as np
 from bayestouch.backend import jax, jnp
 from bayestouch.errors import BadInput
 from bayestouch.geometry import nellipsoid as ne
+from bayestouch.geometry.compare import chamfer_surfaces
+from bayestouch.geometry.integrals import surface_integrals
+from bayestouch.hardware.safety import UnsafePlan
 from bayestouch.inference import contact as cm
 from bayestouch.inference.freespace import Free, with_free
+from bayestouch.inference.run import NATURAL_NAMES, initial_theta, interval, natural_draws, start_ball
+from bayestouch.inference.sampler import sample
 from bayestouch.planning.candidates import Strokes, make_candidates, select
 from bayestouch.planning.policies import check_policy, choose
 from bayestouch.scene.raycast import CONTACT, INSIDE, MISS, true_ray_distances
@@ -131,8 +137,6 @@ class Truth(NamedTuple):
 
 def truth_of(obj) -> Truth:
     """The :class:`Truth` of a scene object (mesh at resolution 64, volume by eq. 11)."""
-    from bayestouch.geometry.integrals import surface_integrals
-
     v, f = obj.mesh(64)
     return Truth((v, f), float(surface_integrals(v, f).volume), float(np.mean(np.asarray(obj.shape.axes))))
 
@@ -165,8 +169,6 @@ def shape_errors(shape_vectors, truth: Truth, seed: int = 0) -> dict:
         ``volume_error`` (|V̂/V − 1|), ``volume_mean``, ``volume_sd`` (m³, over the draws) and ``estimate``
         (10,) the point estimate's vector.
     """
-    from bayestouch.geometry.compare import chamfer_surfaces
-
     vecs = np.asarray(shape_vectors, float)
     vols = np.asarray(_vol(jnp.asarray(vecs)))
     k = int(np.argsort(vols)[len(vols) // 2])
@@ -222,8 +224,6 @@ def _concat(batches: list[Strokes]) -> Strokes:
 
 def _draws(chain_kept, count: int, rng: np.random.Generator) -> np.ndarray:
     """Thinned, canonicalised draws (count, 11) in natural units from the last half of the kept chain."""
-    from bayestouch.inference.run import natural_draws
-
     kept = chain_kept[len(chain_kept) // 2 :]
     flat = kept.reshape(-1, kept.shape[-1])
     idx = np.sort(rng.choice(len(flat), size=count, replace=len(flat) < count))
@@ -239,18 +239,12 @@ def _sample(logp, start, walkers: int, seed: int, steps: int):
     """A short in-memory emcee run (:func:`bayestouch.inference.sampler.sample`). emcee's autocorrelation estimate
     divides by zero (a RuntimeWarning) when a parameter's walker-mean does not move over a short chain; τ is not
     used here (the chain is short by design and reported as such), so that warning is silenced."""
-    import warnings
-
-    from bayestouch.inference.sampler import sample
-
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", "invalid value encountered", RuntimeWarning)
         return sample(logp, start, None, walkers=walkers, ndim=11, seed=seed, steps=steps, progress=False)
 
 
 def _summary(k: int, nat: np.ndarray, errors: dict, n_points: int, policy: str) -> dict:
-    from bayestouch.inference.run import NATURAL_NAMES, interval
-
     return {
         "stroke": k,
         "planner": policy,
@@ -306,8 +300,6 @@ def explore(
     -------
     ExploreResult
     """
-    from bayestouch.inference.run import initial_theta, start_ball
-
     check_policy(policy)
     if not isinstance(budget, int | np.integer) or budget < 1:
         raise BadInput(f"budget: expected an integer number of strokes ≥ 1, got {budget!r}")
@@ -329,8 +321,6 @@ def explore(
         truth = truth_of(obj)
     if prober is None:
         prober = RayProber(obj, s.noise_sd)
-    from bayestouch.hardware.safety import UnsafePlan
-
     priors = cm.load_priors()
     pol_id = 1 + ("eig", "random", "coverage", "oracle").index(policy)
     rng_common = np.random.default_rng([seed, 0])

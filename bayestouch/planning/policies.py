@@ -17,13 +17,16 @@
 
 from __future__ import annotations
 
+import time
 from typing import NamedTuple
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from bayestouch.backend import jax, jnp
 from bayestouch.errors import BadInput
 from bayestouch.geometry import nellipsoid as ne
+from bayestouch.geometry.mesh import sample_mesh
 from bayestouch.planning import eig as eig_mod
 from bayestouch.planning.candidates import Strokes
 from bayestouch.planning.signal import predict_signals
@@ -91,16 +94,12 @@ def choose(
     -------
     Decision
     """
-    import time
-
     check_policy(policy)
     t0 = time.perf_counter()
     C = len(strokes.length)
     if policy == "random":
         return Decision(int(rng.integers(C)), None, None, time.perf_counter() - t0)
     if policy == "coverage":
-        from scipy.spatial import cKDTree
-
         if touched is None or len(touched) == 0:
             return Decision(int(rng.integers(C)), None, None, time.perf_counter() - t0)
         d, _ = cKDTree(np.asarray(touched)).query(strokes.path.reshape(-1, 3))
@@ -135,8 +134,6 @@ def _rms_distances(vectors, pts):
 def _draw_errors(obj, shape_vectors, count: int = 256) -> np.ndarray:
     """RMS first-order distance (N,) m of ``count`` true-surface points (area-uniform, fixed seed) to each draw's
     surface."""
-    from bayestouch.geometry.mesh import sample_mesh
-
     v, f = obj.mesh(32)
     pts = jnp.asarray(sample_mesh(v, f, count, 0)[0])
     return np.asarray(_rms_distances(jnp.asarray(shape_vectors, dtype=jnp.float64), pts))

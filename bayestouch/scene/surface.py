@@ -17,6 +17,8 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+from jax.scipy.special import gammaln
+
 from bayestouch.backend import jax, jnp
 from bayestouch.geometry import nellipsoid as ne
 
@@ -84,8 +86,6 @@ class Surface(NamedTuple):
 
 def _bernstein(deg: int, s):
     i = jnp.arange(deg + 1)
-    from jax.scipy.special import gammaln
-
     logc = gammaln(deg + 1.0) - gammaln(i + 1.0) - gammaln(deg - i + 1.0)
     s = jnp.clip(s, 0.0, 1.0)[..., None]
     return jnp.exp(logc) * s**i * (1.0 - s) ** (deg - i)
