@@ -32,7 +32,8 @@ from bayestouch.errors import BadInput
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.inference.patch import patch_posterior
 from bayestouch.inference.run import run_contact_fit
-from bayestouch.io.files import save_contact_points, write_json
+from bayestouch.io.contacts import save_contact_points
+from bayestouch.io.files import write_json
 from bayestouch.io.recording import build_dataset, read_recording, write_recording
 from bayestouch.params import MODELS
 from bayestouch.physics.virtual import load_finger, record_strokes

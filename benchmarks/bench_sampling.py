@@ -150,7 +150,7 @@ def bench_time_to_converged():
     case from the second run on), and a fresh process without that cache (a first run ever: ~100 programs
     compiled)."""
     from bayestouch.inference.run import run_contact_fit
-    from bayestouch.io.files import save_contact_points
+    from bayestouch.io.contacts import save_contact_points
 
     pts = _points()
     rows = []
