@@ -1,20 +1,10 @@
 """``FingerDevice``: the pyserial client of the finger (real port, ``loop://``, ``socket://`` or a pty).
 
-Every command carries a sequence number and is retried (same bytes, so the device answers a duplicate
-without executing it twice) until its ACK/NAK arrives, at most ``retries`` times; a lost port is reopened
-(``reconnects`` times, with back-off) and the handshake repeated. Stroke frames are numbered: missing ones
-are requested again (RESEND) until the stroke is complete; a stroke the device lost (watchdog,
-disconnect) is redone with a new id. Everything received is appended to the ``journal`` file as it arrives
-(protocol packets, flushed one by one: :func:`read_journal`), so a run that dies keeps every frame it got.
-
-Safety: :func:`~bayestouch.hardware.safety.check_plan` runs before any byte of a stroke is written, with the
-tighter of the client's and the device's limits; heartbeats are sent every ``watchdog / 4`` seconds during a
-stroke; a heater still on after a stroke ended raises :class:`HeaterFault` (after the stroke is saved).
-
-Guarded strokes (protocol revision 1.1, :meth:`FingerDevice.run_probe`): the waypoints are approach starts
-outside the believed surface; at each the pad moves along −normal until the contact force crosses a threshold,
-and the device reports where that happened (:class:`~bayestouch.hardware.protocol.ProbeFrame`). This is how the
-exploration loop learns where the true surface is (:mod:`bayestouch.planning.device_prober`).
+Commands are retried until answered, a lost port is reopened, missing frames are requested again, and everything
+received is appended to a journal file as it arrives (:func:`read_journal`); every plan passes
+:func:`~bayestouch.hardware.safety.check_plan` before any byte is written. Completed strokes are
+:class:`StrokeData` / :class:`ProbeData` (per-frame arrays (T, ...), SI units). Retries, safety and guarded
+strokes: ``docs/hardware.md``.
 """
 
 from __future__ import annotations

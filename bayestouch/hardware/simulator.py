@@ -1,24 +1,11 @@
-"""The virtual finger: a device on a pseudo-terminal that answers the wire protocol with the forward model.
+"""The virtual finger: a device on a pseudo-terminal that answers the wire protocol with a frame model.
 
-:class:`VirtualDevice` opens a pty (``os.openpty``; the slave is put in raw mode with ``tty.setraw`` and kept
-open so clients may come and go), serves the protocol of :mod:`bayestouch.hardware.protocol` from a thread,
-computes each stroke's frames with a frame model (:class:`ForwardModel`: the physics of
-:func:`bayestouch.physics.virtual.record_strokes`; :class:`SyntheticModel`: a fast stand-in for tests and benchmarks)
-and streams them in real time (``speed = 1``), faster (``speed > 1``) or as fast as the line allows
-(``speed = 0``).
-
-Device-side safety: plans are checked with :func:`~bayestouch.hardware.safety.check_plan` (NAK ``unsafe
-plan``), a stroke whose frame force exceeds the plan's ``max_force`` is aborted, and without a valid packet
-for ``limits.watchdog`` seconds the stroke is aborted and the heaters switched off.
-
-Guarded strokes (protocol revision 1.1, :class:`~bayestouch.hardware.protocol.ProbeStroke`) need a frame model
-with a ``probe`` method (:class:`GuardedModel`): the commanded waypoints are then approach starts off a *believed*
-surface, and where the pad meets the object is found on the TRUE object the model holds, so that a wrong belief
-yields real information. Other models answer a guarded stroke with NAK 4.
-
-Fault injection (:class:`Faults`): dropped and corrupted bytes (both directions), stalls of the outgoing
-stream (delayed bytes), a disconnect after N frames (the pty is closed and a new one opened; ``link`` is
-re-pointed to it) and a stuck heater (the wires stay powered after a stroke ends).
+:class:`VirtualDevice` serves the protocol of :mod:`bayestouch.hardware.protocol` on a pty from a thread, checks
+each plan with :func:`~bayestouch.hardware.safety.check_plan`, and streams the frames of its frame model
+(:class:`ForwardModel`: the physics of :func:`bayestouch.physics.virtual.record_strokes`; :class:`SyntheticModel`:
+a fast stand-in for tests and benchmarks; :class:`GuardedModel`: guarded strokes on a true object) in real time or
+faster, with optional injected faults (:class:`Faults`). Frames are :data:`FRAME_KEYS` arrays (T, ...), SI units.
+Device-side safety, guarded strokes and the faults: ``docs/hardware.md``.
 """
 
 from __future__ import annotations

@@ -6,13 +6,12 @@
 ``random``
     A uniformly random candidate.
 ``coverage``
-    Even coverage: the candidate whose path lies farthest from everything touched so far (the largest mean, over
-    its path points, of the distance to the nearest touched point).
+    The candidate whose path lies farthest from everything touched so far.
 ``oracle``
-    Knows the truth (a reference for reports, not a planner): one-step lookahead, the candidate whose true reading
-    would leave the smallest expected surface error against the truth once the posterior draws are reweighted by
-    it (:func:`oracle_scores`). It is greedy and approximate (importance weights of a finite set of draws, one step
-    ahead), so it is an optimistic reference, not a proven bound.
+    Knows the truth (a reference for reports, not a planner): one-step lookahead (:func:`oracle_scores`).
+
+Candidates are :class:`~bayestouch.planning.candidates.Strokes`; posterior draws (N, 10) n-ellipsoid vectors
+(metres, radians). How coverage and the oracle score: ``docs/planning.md``.
 """
 
 from __future__ import annotations
