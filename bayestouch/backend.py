@@ -6,6 +6,9 @@ any array is created.
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
+
 import jax
 import numpy as np
 
@@ -30,9 +33,6 @@ def enable_compilation_cache() -> str | None:
     str or None
         The cache folder, or None when disabled or not writable.
     """
-    import os
-    from pathlib import Path
-
     env = os.environ.get("BAYESTOUCH_JAX_CACHE")
     if env is not None and env.strip() in ("", "0"):
         return None

@@ -20,10 +20,29 @@ import time
 from pathlib import Path
 from typing import NamedTuple
 
+import arviz as az
 import numpy as np
+import trimesh
+import xarray as xr
+from tqdm.auto import tqdm
 
+from bayestouch import __version__
+from bayestouch.backend import jnp
 from bayestouch.errors import BadInput
+from bayestouch.geometry import nellipsoid as ne
+from bayestouch.inference.patch import patch_posterior
+from bayestouch.inference.run import run_contact_fit
+from bayestouch.io.contacts import save_contact_points
+from bayestouch.io.files import write_json
+from bayestouch.io.recording import build_dataset, read_recording, write_recording
 from bayestouch.params import MODELS
+from bayestouch.physics.virtual import load_finger, record_strokes
+from bayestouch.planning.loop import ExploreSettings, explore, truth_of
+from bayestouch.report import figures as rp
+from bayestouch.report.page import Figure, Table, check_in_browser, find_browser, write_report
+from bayestouch.scene.objects import load_object
+from bayestouch.scene.raycast import CONTACT, true_ray_distances
+from bayestouch.scene.strokes import stroke_from_path
 
 __all__ = ["DemoSizes", "FULL", "QUICK", "run_demo", "replay_strokes"]
 
@@ -80,7 +99,7 @@ def replay_strokes(
 
     Each planned stroke (:class:`bayestouch.planning.candidates.Strokes`, a path over the believed surface with its
     approach rays) becomes a :class:`bayestouch.scene.strokes.Stroke`: the path where its approach rays meet the
-    true surface (:func:`bayestouch.planning.signal.true_ray_distances`; the longest run of consecutive contacts),
+    true surface (:func:`bayestouch.scene.raycast.true_ray_distances`; the longest run of consecutive contacts),
     resampled at ``rate`` along its length at the stroke's speed, pressed ``depth`` below the surface along the base
     surface's normal.
 
@@ -102,10 +121,6 @@ def replay_strokes(
     -------
     list of Stroke
     """
-    from bayestouch.geometry import nellipsoid as ne
-    from bayestouch.planning.signal import CONTACT, true_ray_distances
-    from bayestouch.scene.strokes import stroke_from_path
-
     out = []
     for batch in strokes:
         t, status = true_ray_distances(obj, batch.starts, batch.dirs, batch.t_max)
@@ -166,13 +181,6 @@ def run_demo(
         ``strokes`` (per-stroke rows), ``summary`` (the final posterior's summary.json), ``patch`` (the patch
         posterior's summary), ``report`` (path), ``browser`` (the check, or None), ``seconds``.
     """
-    from tqdm.auto import tqdm
-
-    from bayestouch.inference.run import run_contact_fit
-    from bayestouch.io.files import save_contact_points, write_json
-    from bayestouch.planning.loop import ExploreSettings, explore, truth_of
-    from bayestouch.scene.objects import load_object
-
     t_start = time.perf_counter()
     if not isinstance(seed, int) or seed < 0:
         raise BadInput(f"--seed: expected an integer ≥ 0, got {seed!r}")
@@ -228,8 +236,6 @@ def run_demo(
     page = _report(out, obj, truth, res, summary, patch_summary, patch_post, recording, gains)
     check = None
     if check_browser:
-        from bayestouch.report.page import check_in_browser, find_browser
-
         if find_browser():
             check = check_in_browser(page)
     seconds = time.perf_counter() - t_start
@@ -258,18 +264,11 @@ def run_demo(
 
 
 def _taxels(obj, res, out: Path, seed: int, sizes: DemoSizes, progress: bool):
-    from bayestouch.inference.patch import patch_posterior
-    from bayestouch.io.files import write_json
-    from bayestouch.io.recording import build_dataset, read_recording, write_recording
-    from bayestouch.physics.virtual import load_finger, record_strokes
-
     vf = load_finger(seed=seed)
     strokes = replay_strokes(obj, res.strokes)
     if not strokes:
         raise RuntimeError("demo: no planned stroke met the object along its path")
     frames = record_strokes(obj, strokes, vf, seed, mode=TAXEL_MODE, progress=progress)
-    from bayestouch import __version__
-
     grid = np.asarray(vf.finger.grid)
     ds = build_dataset(
         frames,
@@ -314,11 +313,6 @@ def _taxels(obj, res, out: Path, seed: int, sizes: DemoSizes, progress: bool):
 
 
 def _report(out: Path, obj, truth, res, summary: dict, patch_summary: dict, patch_post, recording, gains) -> Path:
-    import arviz as az
-
-    from bayestouch.report import figures as rp
-    from bayestouch.report.page import Figure, Table, write_report
-
     um = _read_ply(out / "uncertainty_mesh.ply")
     rp.plot_shape(out, obj.shape, (um[0], um[1]), um[2], res.points, _posterior_shapes(out / "posterior.nc", 30))
     rp.plot_errors(out, res.records, true_volume=truth.volume)
@@ -500,11 +494,6 @@ def _report(out: Path, obj, truth, res, summary: dict, patch_summary: dict, patc
 
 def _posterior_shapes(path: Path, count: int) -> list:
     """``count`` posterior draws of ``posterior.nc`` as n-ellipsoids (evenly spread over the chain)."""
-    import xarray as xr
-
-    from bayestouch.backend import jnp
-    from bayestouch.geometry import nellipsoid as ne
-
     post = xr.open_dataset(path, group="posterior")
     cols = np.column_stack([np.asarray(post[k].values).ravel() for k in ne.PARAM_NAMES])
     post.close()
@@ -521,8 +510,6 @@ def _true_natural(obj) -> dict:
 
 def _read_ply(path: Path):
     """Vertices (V, 3) m, faces (F, 3) and the per-vertex ``spread`` (V,) m of an uncertainty mesh."""
-    import trimesh
-
     m = trimesh.load(str(path), process=False)
     raw = m.metadata.get("_ply_raw", {}).get("vertex", {}).get("data")
     names = getattr(getattr(raw, "dtype", None), "names", None) or ()

@@ -9,10 +9,13 @@ in :data:`PAPER_TABLE2`.
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from typing import NamedTuple
 
 import numpy as np
+from scipy.interpolate import griddata
 from scipy.optimize import differential_evolution, minimize
+from tqdm.auto import tqdm
 
 from bayestouch.backend import jax, jnp
 from bayestouch.geometry import nellipsoid as ne
@@ -20,6 +23,8 @@ from bayestouch.geometry.ffd import fit_two_step
 from bayestouch.geometry.integrals import relative_errors, surface_integrals
 from bayestouch.geometry.mesh import as_rng, closest_points, nellipsoid_mesh
 from bayestouch.geometry.texture import texture_indicator
+from bayestouch.physics.forward import contact_frame, depths_for_force, elastic_force
+from bayestouch.physics.patch import fit_patch
 from bayestouch.scene.objects import SceneObject
 from bayestouch.scene.paths import random_paths
 
@@ -312,10 +317,6 @@ def reproduce_table2(
     defects, and each row gains ``defect_free_bp_minus_x_percent``: it separates what the pipeline
     cannot follow (cracks narrower than the lattice spacing) from what it fits.
     """
-    from dataclasses import replace
-
-    from tqdm.auto import tqdm
-
     runs = [("", obj)]
     if control and obj.defects:
         runs.append(("defect_free_", replace(obj, defects=())))
@@ -355,8 +356,6 @@ PAPER_TABLE1 = {
 def depth_for_load(surf, finger, contact, normal, tangent, load: float, *, max_depth: float = 1.5e-3) -> float:
     """Pressing depth (m) at which the pad's elastic normal force equals ``load`` (N), by bisection
     (:func:`bayestouch.physics.forward.depths_for_force` on one frame; compiled once)."""
-    from bayestouch.physics.forward import contact_frame, depths_for_force, elastic_force
-
     arrs = (jnp.asarray(contact)[None], jnp.asarray(normal)[None], jnp.asarray(tangent)[None], jnp.asarray(0.0))
     d = float(depths_for_force(surf, finger, arrs, load, max_depth)[0])
     _, _, p = contact_frame(surf, finger, arrs[0][0], arrs[1][0], arrs[2][0], max_depth)
@@ -392,11 +391,6 @@ def reproduce_table1(
         ``path, load_N, a_mm, b_mm, n`` (the contract's columns), then ``area_mm2``, ``depth_mm``,
         ``angle_rad``, ``peak_pressure_Pa`` and the paper's ``paper_a_mm, paper_b_mm, paper_n``.
     """
-    from tqdm.auto import tqdm
-
-    from bayestouch.physics.forward import contact_frame
-    from bayestouch.physics.patch import fit_patch
-
     finger = vf.finger
     surf = obj.surface()
     all_paths = random_paths(obj, n_paths, seed=seed, rate=rate, arc=np.pi)
@@ -423,8 +417,6 @@ def reproduce_table1(
             _, _, p = contact_frame(surf, finger, c, n, t, d)
             p = np.asarray(jnp.where(finger.reference, 0.0, p))
             if hexagonal:
-                from scipy.interpolate import griddata
-
                 X, Y = np.meshgrid(xs, ys)
                 p = griddata(pos, p.ravel(), (X, Y), method="linear", fill_value=0.0)
             patch = fit_patch(p, xs, ys, threshold)

@@ -42,7 +42,7 @@ def recording(name: str, out: Path) -> Path:
 
 def contact_set(name: str, out: Path) -> Path:
     """Noisy contact points with the true outward normals, for ``bayestouch fit`` (x,y,z,nx,ny,nz)."""
-    from bayestouch.io.files import save_contact_points
+    from bayestouch.io.contacts import save_contact_points
     from bayestouch.scene.objects import load_object
     from bayestouch.scene.paths import random_paths
 

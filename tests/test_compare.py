@@ -1,4 +1,5 @@
-"""Symmetry-aware shape comparison: canonical form, parameter distance, IoU, Chamfer, winding numbers."""
+"""Shape comparison (geometry.compare, .symmetry, .winding): canonical form, parameter distance, IoU, Chamfer,
+winding numbers."""
 
 import itertools
 import math
@@ -11,6 +12,8 @@ from bayestouch.backend import jnp
 from bayestouch.geometry import compare as cmp
 from bayestouch.geometry import mesh
 from bayestouch.geometry import nellipsoid as ne
+from bayestouch.geometry import symmetry as sym
+from bayestouch.geometry import winding as wn
 from bayestouch.geometry.integrals import surface_integrals
 from bayestouch.geometry.rotation import euler_from_matrix
 
@@ -61,7 +64,7 @@ def sphere(r, centre=(0.0, 0.0, 0.0)):
 
 def test_canonicalize_is_rule_on_a_hand_example():
     s = make((0.01, 0.02, 0.03), 3.0)  # R = I
-    c = cmp.canonicalize(s)
+    c = sym.canonicalize(s)
     np.testing.assert_allclose(c.axes, [0.03, 0.02, 0.01])
     # columns: ±e_z → +e_z, ±e_y → +e_y, third = e_z × e_y = −e_x
     np.testing.assert_allclose(c.rotation, [[0, 0, -1], [0, 1, 0], [1, 0, 0]], atol=1e-15)
@@ -73,10 +76,10 @@ def test_aliases_canonicalise_to_one_vector_and_one_surface(shape, rng):
     al = aliases(shape)
     raw = np.array([np.asarray(ne.to_vector(s)) for s in al])
     assert np.ptp(raw, axis=0).max() > 1.0  # the aliases really do differ in their parameters
-    ref = np.asarray(ne.to_vector(cmp.canonicalize(shape)))
+    ref = np.asarray(ne.to_vector(sym.canonicalize(shape)))
     for s in al:
         np.testing.assert_allclose(F(s, pts), f0, rtol=1e-9)  # the aliases are aliases
-        c = cmp.canonicalize(s)
+        c = sym.canonicalize(s)
         np.testing.assert_allclose(np.asarray(ne.to_vector(c)), ref, atol=1e-9)
         np.testing.assert_allclose(F(c, pts), f0, rtol=1e-9)
     assert np.all(np.diff(ref[3:6]) <= 0)  # a ≥ b ≥ c
@@ -89,8 +92,8 @@ def test_canonicalize_idempotent_proper_and_sign_rule(shape, rng):
             rng.uniform(1.5, 5.0),
             angles=(rng.uniform(0, math.pi), rng.uniform(-3, 3), rng.uniform(-3, 3)),
         )
-        c = cmp.canonicalize(s)
-        np.testing.assert_allclose(ne.to_vector(cmp.canonicalize(c)), ne.to_vector(c), atol=1e-9)
+        c = sym.canonicalize(s)
+        np.testing.assert_allclose(ne.to_vector(sym.canonicalize(c)), ne.to_vector(c), atol=1e-9)
         R = np.asarray(c.rotation)
         assert np.linalg.det(R) == pytest.approx(1.0)
         for j in (0, 1):
@@ -108,11 +111,11 @@ def test_canonicalize_batch_matches_rows(shape, rng):
             )
         )
     V = np.array(rows)
-    out = cmp.canonicalize_batch(V)
+    out = sym.canonicalize_batch(V)
     assert isinstance(out, np.ndarray) and out.shape == V.shape
     for v, o in zip(V, out, strict=True):
-        np.testing.assert_allclose(o, ne.to_vector(cmp.canonicalize(ne.from_vector(v))), atol=1e-12)
-    np.testing.assert_allclose(cmp.canonicalize_batch(V[:12].reshape(3, 4, 10)), out[:12].reshape(3, 4, 10))
+        np.testing.assert_allclose(o, ne.to_vector(sym.canonicalize(ne.from_vector(v))), atol=1e-12)
+    np.testing.assert_allclose(sym.canonicalize_batch(V[:12].reshape(3, 4, 10)), out[:12].reshape(3, 4, 10))
     np.testing.assert_allclose(out[:25], np.broadcast_to(out[0], (25, 10)), atol=1e-9)  # the aliases
 
 
@@ -121,12 +124,12 @@ def test_canonicalize_batch_matches_rows(shape, rng):
 
 def test_param_distance_of_aliases_is_zero(shape):
     for s in aliases(shape):
-        d = cmp.param_distance(shape, s)
+        d = sym.param_distance(shape, s)
         assert max(d.values()) < 1e-9, d
 
 
 def test_param_distance_components(shape):
-    d = cmp.param_distance(shape, shape._replace(centre=shape.centre + jnp.array([0.0, 1e-3, 0.0])))
+    d = sym.param_distance(shape, shape._replace(centre=shape.centre + jnp.array([0.0, 1e-3, 0.0])))
     assert d["centre"] == pytest.approx(1e-3, rel=1e-9)
     assert d["axes"] < 1e-12 and d["rotation"] < 1e-7 and d["n"] == 0.0
     # a world rotation by 0.1 rad about an arbitrary axis, given in an aliased parameterisation
@@ -135,10 +138,10 @@ def test_param_distance_components(shape):
     Q = np.eye(3) + math.sin(0.1) * K + (1 - math.cos(0.1)) * K @ K
     R = np.asarray(shape.rotation)
     turned = with_rotation(shape, np.asarray(shape.axes)[[1, 0, 2]], Q @ R[:, [1, 0, 2]] * [1, 1, -1])
-    d = cmp.param_distance(shape, turned)
+    d = sym.param_distance(shape, turned)
     assert d["rotation"] == pytest.approx(0.1, rel=1e-9)
     assert d["centre"] == 0.0 and d["axes"] < 1e-12
-    d = cmp.param_distance(shape, shape._replace(axes=shape.axes * 1.01, n=shape.n + 0.5))
+    d = sym.param_distance(shape, shape._replace(axes=shape.axes * 1.01, n=shape.n + 0.5))
     assert d["axes"] == pytest.approx(0.01 / 1.01, rel=1e-9) and d["n"] == pytest.approx(0.5)
 
 
@@ -150,10 +153,10 @@ def test_param_distance_equal_axes_permutation():
     t = with_rotation(s, s.axes, R @ quarter)
     pts = np.random.default_rng(3).normal(size=(256, 3)) * 0.02
     np.testing.assert_allclose(F(t, pts), F(s, pts), rtol=1e-9)
-    assert cmp.param_distance(s, t)["rotation"] < 1e-7
+    assert sym.param_distance(s, t)["rotation"] < 1e-7
     # with unequal axes the same turn is a real rotation of π/2
     u = make((0.03, 0.02, 0.01), 4.0, angles=(0.4, 0.3, -0.2))
-    assert cmp.param_distance(u, with_rotation(u, u.axes, R @ quarter))["rotation"] == pytest.approx(math.pi / 2)
+    assert sym.param_distance(u, with_rotation(u, u.axes, R @ quarter))["rotation"] == pytest.approx(math.pi / 2)
 
 
 # ---------------------------------------------------------------------------------------- IoU
@@ -217,24 +220,24 @@ def test_mesh_inside_sphere_away_from_the_surface(rng):
     p = p[np.abs(rad - r) > 0.02 * r] + [0.01, 0.0, -0.02]  # the inscribed mesh lies within 0.3 % of r
     truth = np.linalg.norm(p - [0.01, 0.0, -0.02], axis=1) < r
     assert 0.2 < truth.mean() < 0.8
-    np.testing.assert_array_equal(cmp.mesh_inside(v, f, p), truth)
-    np.testing.assert_array_equal(cmp.mesh_inside(v, f, p[:500], beta=None), truth[:500])
-    w = cmp.winding_number(v, f[:, ::-1], p)  # inward orientation: −1 inside
+    np.testing.assert_array_equal(wn.mesh_inside(v, f, p), truth)
+    np.testing.assert_array_equal(wn.mesh_inside(v, f, p[:500], beta=None), truth[:500])
+    w = wn.winding_number(v, f[:, ::-1], p)  # inward orientation: −1 inside
     np.testing.assert_allclose(w, -truth.astype(float), atol=0.02)
 
 
 def test_fast_winding_number_matches_exact(shape, rng):
     v, f = mesh.nellipsoid_mesh(shape, RES)
     p = np.asarray(shape.centre) + rng.normal(size=(800, 3)) * 0.02
-    exact = cmp.winding_number(v, f, p, beta=None)
+    exact = wn.winding_number(v, f, p, beta=None)
     np.testing.assert_allclose(exact, np.round(exact), atol=1e-9)  # closed mesh: integers
-    np.testing.assert_allclose(cmp.winding_number(v, f, p), exact, atol=0.02)
-    np.testing.assert_allclose(cmp.winding_number(v, f, p, beta=4.0), exact, atol=2e-3)
+    np.testing.assert_allclose(wn.winding_number(v, f, p), exact, atol=0.02)
+    np.testing.assert_allclose(wn.winding_number(v, f, p, beta=4.0), exact, atol=2e-3)
     # an open mesh (a hole of 200 triangles): fractional values, still matched
     fo = f[:-200]
-    exact = cmp.winding_number(v, fo, p, beta=None)
+    exact = wn.winding_number(v, fo, p, beta=None)
     assert np.abs(exact - np.round(exact)).max() > 0.1
-    np.testing.assert_allclose(cmp.winding_number(v, fo, p), exact, atol=0.02)
+    np.testing.assert_allclose(wn.winding_number(v, fo, p), exact, atol=0.02)
 
 
 def test_iou_of_inscribed_mesh_is_its_volume_fraction(shape):

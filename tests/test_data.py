@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bayestouch.io.files import load_contact_points, read_csv_rows
+from bayestouch.io.contacts import load_contact_points
+from bayestouch.io.files import read_csv_rows
 from bayestouch.io.recording import UNITS, read_recording
 
 ROOT = Path(__file__).parent.parent

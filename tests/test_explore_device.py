@@ -145,7 +145,7 @@ def test_unsafe_strokes_are_refused_before_anything_is_sent(finger, tmp_path):
 @pytest.mark.slow
 def test_explore_port_drives_the_finger_and_writes_the_recording(finger, tmp_path, monkeypatch, capsys):
     from bayestouch.cli import main
-    from bayestouch.io.files import load_contact_points
+    from bayestouch.io.contacts import load_contact_points
     from bayestouch.io.recording import UNITS, read_recording
     from bayestouch.planning import loop
 

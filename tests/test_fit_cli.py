@@ -9,7 +9,7 @@ from bayestouch.backend import jnp
 from bayestouch.cli import main
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.mesh import sample_surface
-from bayestouch.io.files import save_contact_points
+from bayestouch.io.contacts import save_contact_points
 
 TRUE = ne.NEllipsoid(
     jnp.array([0.004, -0.002, 0.001]), jnp.array([0.03, 0.022, 0.015]), jnp.array([0.4, 0.3, -0.5]), jnp.array(3.0)

@@ -1,4 +1,4 @@
-"""bayestouch.io.files: exact CSV round trips, one-line errors for bad contact files, atomic writers."""
+"""bayestouch.io.contacts and .files: exact CSV round trips, one-line errors for bad contact files, atomic writers."""
 
 from __future__ import annotations
 
@@ -11,14 +11,8 @@ import pytest
 
 from bayestouch.errors import BadInput
 from bayestouch.io import files as bio
-from bayestouch.io.files import (
-    ContactPoints,
-    load_contact_points,
-    read_csv_rows,
-    save_contact_points,
-    write_csv_rows,
-    write_json,
-)
+from bayestouch.io.contacts import ContactPoints, load_contact_points, save_contact_points
+from bayestouch.io.files import read_csv_rows, write_csv_rows, write_json
 
 
 def _random_contacts(n: int = 50):

@@ -13,8 +13,9 @@ from bayestouch.planning.candidates import make_candidates
 from bayestouch.planning.experiment import COLUMNS, resolve_object, run_experiment
 from bayestouch.planning.loop import ExploreSettings, explore
 from bayestouch.planning.policies import check_policy, choose
-from bayestouch.planning.signal import CONTACT, INSIDE, MISS, predict_signals, true_ray_distances
+from bayestouch.planning.signal import predict_signals
 from bayestouch.scene.objects import object_from_dict
+from bayestouch.scene.raycast import CONTACT, INSIDE, MISS, true_ray_distances
 
 R_SPHERE = 0.02
 # small runs for the tests (the defaults are 64 candidates, 1000 draws, 300/600 steps, 2 starts, 4 scout arcs)
@@ -249,13 +250,13 @@ def test_experiment_writes_results_and_resumes_without_redoing(tmp_path, monkeyp
 
 def test_a_miss_penalises_shapes_that_the_ray_would_have_touched():
     from bayestouch.inference import contact as cm
-    from bayestouch.planning.loop import Free, _with_free
+    from bayestouch.inference.freespace import Free, with_free
 
     # one ray along -z from (0, 0, 0.05), 3 cm long, that met nothing; one start found inside, at the origin
     free = Free(np.array([[0.0, 0.0, 0.05]]), np.array([[0.0, 0.0, -1.0]]), 0.03, np.zeros((1, 3)))
     pts = 0.02 * np.vstack([np.eye(3), -np.eye(3)])  # only sets the prior box (the centre within ±4 cm)
     base, bounds = cm.make_log_prob(pts, nu=np.inf)
-    f = _with_free(base, bounds, free)
+    f = with_free(base, bounds, free)
     sig = np.log(3e-4)
     small = [0.0, 0.0, 0.0, *np.log([0.019] * 3), 0.0, 0.0, 0.0, np.log(2.0), sig]  # top at z = 1.9 cm: no touch
     big = [0.0, 0.0, 0.0, *np.log([0.021] * 3), 0.0, 0.0, 0.0, np.log(2.0), sig]  # top at 2.1 cm: touched at 2.9 cm

@@ -200,7 +200,7 @@ def test_sparse_posterior_holds_the_truth_and_robust_likelihood_beats_gaussian_o
     wide, and its median draw can be several per cent off. The benchmark (benchmarks/bench_sparse.py) reports the
     medians over more sets, at this cap and at the calibrated 180° cap, beside sage-superquadric's.
     """
-    from bayestouch.geometry.compare import canonicalize_batch
+    from bayestouch.geometry.symmetry import canonicalize_batch
     from bayestouch.inference import contact as cm
 
     errs = []

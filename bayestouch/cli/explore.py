@@ -109,7 +109,8 @@ def run_explore(args) -> int:
     the strokes run on a finger (:class:`bayestouch.planning.device_prober.DeviceProber`) and ``recording.nc``
     (the schema of ``bayestouch simulate``, rewritten after every stroke) and ``device.journal`` (every packet
     received) are written too; without ``--object`` there is no truth and the errors are unknown (NaN)."""
-    from bayestouch.io.files import save_contact_points, write_json
+    from bayestouch.io.contacts import save_contact_points
+    from bayestouch.io.files import write_json
     from bayestouch.planning.experiment import resolve_object
     from bayestouch.planning.loop import ExploreSettings, explore
     from bayestouch.planning.policies import check_policy

@@ -128,7 +128,7 @@ def run(args) -> int:
         )
     else:
         from bayestouch.inference.run import run_contact_fit
-        from bayestouch.io.files import load_contact_points
+        from bayestouch.io.contacts import load_contact_points
 
         if args.texture != "auto" or args.stride is not None:
             raise BadInput("--texture and --stride apply to a recording (.nc), not to contact points (.csv)")

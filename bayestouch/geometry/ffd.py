@@ -14,6 +14,8 @@ from typing import NamedTuple
 import numpy as np
 from scipy.special import comb
 
+from bayestouch.geometry.mesh import closest_points
+
 __all__ = [
     "bernstein",
     "deformation_matrix",
@@ -181,8 +183,6 @@ def fit_two_step(
     -------
     FFDFit
     """
-    from bayestouch.geometry.mesh import closest_points
-
     X0 = np.asarray(model_points, float)
     data = np.asarray(data, float)
     faces = np.asarray(faces)

@@ -2,7 +2,7 @@
 closest points on a mesh, and conversion to trimesh.
 
 Meshes are plain arrays: ``vertices (V, 3) float, metres`` and ``faces (F, 3) int`` with outward
-(counter-clockwise seen from outside) orientation. NumPy at this edge; trimesh is imported lazily.
+(counter-clockwise seen from outside) orientation. NumPy at this edge.
 """
 
 from __future__ import annotations
@@ -10,6 +10,8 @@ from __future__ import annotations
 from functools import lru_cache
 
 import numpy as np
+import trimesh
+from scipy.spatial import cKDTree
 
 from bayestouch.backend import jnp
 from bayestouch.geometry.nellipsoid import NEllipsoid, project_to_surface, surface_point, unit_nsphere
@@ -201,8 +203,6 @@ def closest_points(
     distance : (N,) float, metres
     face_index : (N,) int
     """
-    from scipy.spatial import cKDTree
-
     v = np.asarray(vertices, dtype=float)
     p = np.asarray(points, dtype=float).reshape(-1, 3)
     tri = v[np.asarray(faces, dtype=np.int64)]
@@ -231,7 +231,5 @@ def closest_points(
 
 
 def to_trimesh(vertices, faces):
-    """A ``trimesh.Trimesh`` (imported lazily) from vertices in metres and faces."""
-    import trimesh
-
+    """A ``trimesh.Trimesh`` from vertices in metres and faces."""
     return trimesh.Trimesh(vertices=np.asarray(vertices), faces=np.asarray(faces), process=False)

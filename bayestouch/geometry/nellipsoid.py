@@ -11,6 +11,7 @@ from functools import partial
 from typing import NamedTuple
 
 import numpy as np
+from jax.scipy.special import gammaln
 
 from bayestouch.backend import jax, jnp, pad_pow2
 from bayestouch.geometry.rotation import rotation_matrix
@@ -28,6 +29,7 @@ __all__ = [
     "project_to_surface",
     "normals",
     "first_order_distance",
+    "ray_distances",
     "volume",
     "second_moment",
     "evaluate",
@@ -197,10 +199,81 @@ def first_order_distance(s: NEllipsoid, local):
     return (G - 1.0) / gnorm, grad, gnorm
 
 
+# G − 1 above which the last Newton iterate of :func:`ray_distances` counts as off the surface (a miss)
+_RAY_CONVERGED = 1e-4
+
+
+def ray_distances(shape: NEllipsoid, starts, dirs, t_max: float, iters: int = 10, t_init=0.0, dtype=jnp.float64):
+    """Distance along rays to the first crossing of the n-ellipsoid surface, metres (pure JAX).
+
+    Solves G(x0 + t d) = 1 with G = (Σ|y_i/a_i|^n)^(1/n) in the principal frame by Newton's method. For n ≥ 1, G
+    is a norm of the scaled local coordinates, so g(t) = G − 1 is convex along a line, and the tangent of g lies
+    below it: from any start, one Newton step lands at or before the first root, and from there the iterates
+    increase monotonically to it. A start inside (g < 0) thus steps back; a step below 0 is clipped to 0, and a
+    ray that starts inside the surface reads 0. A step with g' ≥ 0 while g > 0 means the ray passes beside the
+    surface (or the start is beyond its far side): a miss, as is a ray still outside (G − 1 > 1e-4) at the last
+    step (creeping towards the minimum of g beside the surface, or grazing it). Misses read ``t_max``; every
+    result lies in [0, t_max].
+
+    Parameters
+    ----------
+    shape : NEllipsoid
+    starts : (..., 3) float, metres
+        Ray start points x0.
+    dirs : (..., 3) float
+        Unit ray directions d.
+    t_max : float, metres
+        Ray length (how far the finger travels).
+    iters : int
+        Newton steps. Newton converges quadratically: from the believed surface (``t_init`` = the stand-off) and
+        shapes within a few mm of it, 5 steps reach ~1e-9 m; from t = 0, 10 steps reach ~1e-12 m for rays within
+        ~80° of the surface normal.
+    t_init : float or (...,) float, metres
+        Starting guess (0, or the stand-off of the believed surface).
+    dtype : jnp dtype
+        float32 halves the cost on CPU; its rounding (~6e-8 of G) moves t by ~1e-9 m for centimetre shapes,
+        far below contact noise.
+
+    Returns
+    -------
+    (...,) float, metres
+        In [0, t_max].
+    """
+    R = shape.rotation
+    q0 = (((jnp.asarray(starts) - shape.centre) @ R) / shape.axes).astype(dtype)
+    qd = ((jnp.asarray(dirs) @ R) / shape.axes).astype(dtype)
+    n = jnp.asarray(shape.n).astype(dtype)
+    tiny = jnp.finfo(dtype).tiny
+
+    def g_and_slope(t):
+        q = q0 + t[..., None] * qd
+        aq = jnp.abs(q) + tiny
+        p = jnp.exp(n * jnp.log(aq))  # |q_i|^n
+        S = jnp.sum(p, axis=-1) + tiny
+        G = jnp.exp(jnp.log(S) / n)
+        # dG/dt = (G/S) Σ |q_i|^(n−1) sign(q_i) qd_i, with |q|^(n−1) sign(q) = |q|^n / q
+        dG = G / S * jnp.sum(p / aq * jnp.sign(q) * qd, axis=-1)
+        return G - 1.0, dG
+
+    t_max = jnp.asarray(t_max, dtype)
+    t0 = jnp.broadcast_to(jnp.asarray(t_init, dtype), q0.shape[:-1])
+
+    def step(_, carry):
+        t, miss, _g = carry
+        g, dg = g_and_slope(t)
+        away = (dg >= 0.0) & (g > 0.0)
+        t_new = jnp.maximum(t - g / jnp.where(dg < 0.0, dg, -1.0), 0.0)
+        miss = miss | away | (t_new > t_max)
+        return jnp.where(miss, t, t_new), miss, g
+
+    t, miss, g_last = jax.lax.fori_loop(0, iters, step, (t0, jnp.zeros(t0.shape, bool), jnp.zeros_like(t0)))
+    # g at the last step's start: quadratic convergence makes the final t ~(1e-4)² closer still
+    miss = miss | (g_last > _RAY_CONVERGED)
+    return jnp.where(miss, t_max, jnp.clip(t, 0.0, t_max)).astype(jnp.float64)
+
+
 def _dirichlet(alpha, n):
     # ∫ over the positive octant of the unit n-ball of Π x_i^(α_i − 1) dx  (Dirichlet's integral)
-    from jax.scipy.special import gammaln
-
     alpha = jnp.asarray(alpha, dtype=jnp.float64)
     return jnp.exp(jnp.sum(gammaln(alpha / n)) - gammaln(1.0 + jnp.sum(alpha) / n)) / n**3
 

@@ -1,27 +1,9 @@
 """The texture indicator of eq. 3, J(I) = ∫_Γ w(X)^p |∇I(X)|^q dS, on a triangulated surface.
 
-Discretisation
---------------
-``I`` is piecewise linear on the mesh (one value per vertex), so ∇I is constant on each triangle T;
-``w`` is piecewise constant (one value per triangle). The integral is then exact for the discrete fields:
-
-    J(I) = Σ_T w_T^p |∇I_T|^q A_T.
-
-The partition indicator is constrained at the probed points P_i (eq. 3): I = 0 at points that belong to
-the surface (|residual| ≤ tol) and I = 1 at the others; each point fixes its nearest vertex, and when
-both kinds land on one vertex the off-surface label wins (a defect must not be hidden). Between seeds,
-I minimises J (eq. 8's "I is a solution"), which is the power-watershed / random-walker framework of
-Couprie et al. (2011) on the surface graph: for q = 2 a weighted Laplace (cotangent) linear system, for
-other q ≥ 1 iteratively reweighted least squares.
-
-The weight w is the local misfit between the model surface X and the data: the absolute residuals of
-the data points, interpolated onto the triangles by inverse-distance weighting of the k nearest data
-points and divided by the data scale (dimensionless). A better model has smaller w, hence a smaller J:
-the ratio J_fin / J₀ of Table 2 measures how much refinement reduced the misfit weighted across the
-partition boundary.
-
-The energy :func:`indicator_energy` is a pure JAX function (differentiable in vertices, w and I); the
-solve for I runs in SciPy at this edge.
+I is piecewise linear on the mesh (one value per vertex, (V,)), the misfit weight w piecewise constant (one value
+per triangle, (F,), dimensionless); vertices in metres. :func:`indicator_energy` is a pure JAX function
+(differentiable in vertices, w and I); the solve for I, constrained at the probed points, runs in SciPy at this
+edge. The discretisation and the solve: ``docs/geometry.md``.
 """
 
 from __future__ import annotations

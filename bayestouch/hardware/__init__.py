@@ -1,6 +1,7 @@
 """The hardware adapter: wire protocol, safety limits, the pyserial client and the virtual finger on a pty.
 
-Submodules are imported lazily (``bayestouch.hardware.FingerDevice`` imports pyserial only when used):
+Submodules are imported lazily (``import bayestouch.hardware`` loads none of them; ``bayestouch.hardware.FingerDevice``
+imports the client with pyserial and the physics it needs on first use):
 
 - :mod:`~bayestouch.hardware.protocol` — bytes ↔ messages, pure (spec: ``PROTOCOL.md``);
 - :mod:`~bayestouch.hardware.safety` — limits and stroke-plan checks;

@@ -1,20 +1,10 @@
 """``FingerDevice``: the pyserial client of the finger (real port, ``loop://``, ``socket://`` or a pty).
 
-Every command carries a sequence number and is retried (same bytes, so the device answers a duplicate
-without executing it twice) until its ACK/NAK arrives, at most ``retries`` times; a lost port is reopened
-(``reconnects`` times, with back-off) and the handshake repeated. Stroke frames are numbered: missing ones
-are requested again (RESEND) until the stroke is complete; a stroke the device lost (watchdog,
-disconnect) is redone with a new id. Everything received is appended to the ``journal`` file as it arrives
-(protocol packets, flushed one by one: :func:`read_journal`), so a run that dies keeps every frame it got.
-
-Safety: :func:`~bayestouch.hardware.safety.check_plan` runs before any byte of a stroke is written, with the
-tighter of the client's and the device's limits; heartbeats are sent every ``watchdog / 4`` seconds during a
-stroke; a heater still on after a stroke ended raises :class:`HeaterFault` (after the stroke is saved).
-
-Guarded strokes (protocol revision 1.1, :meth:`FingerDevice.run_probe`): the waypoints are approach starts
-outside the believed surface; at each the pad moves along −normal until the contact force crosses a threshold,
-and the device reports where that happened (:class:`~bayestouch.hardware.protocol.ProbeFrame`). This is how the
-exploration loop learns where the true surface is (:mod:`bayestouch.planning.device_prober`).
+Commands are retried until answered, a lost port is reopened, missing frames are requested again, and everything
+received is appended to a journal file as it arrives (:func:`read_journal`); every plan passes
+:func:`~bayestouch.hardware.safety.check_plan` before any byte is written. Completed strokes are
+:class:`StrokeData` / :class:`ProbeData` (per-frame arrays (T, ...), SI units). Retries, safety and guarded
+strokes: ``docs/hardware.md``.
 """
 
 from __future__ import annotations
@@ -24,9 +14,24 @@ from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
+import serial
+from tqdm.auto import tqdm
 
+from bayestouch.errors import BadInput
 from bayestouch.hardware import protocol as pr
-from bayestouch.hardware.safety import Limits, PlanCheck, StrokePlan, UnsafePlan, check_plan, plan_from_stroke
+from bayestouch.hardware.safety import (
+    FORCE_FACTOR,
+    Limits,
+    PlanCheck,
+    StrokePlan,
+    UnsafePlan,
+    check_plan,
+    plan_from_stroke,
+)
+from bayestouch.io.recording import build_dataset
+from bayestouch.params import MODELS
+from bayestouch.physics import bending
+from bayestouch.physics import skin as sk
 
 __all__ = [
     "FingerDevice",
@@ -118,13 +123,8 @@ class ProbeData(NamedTuple):
 
 
 def _skin_and_radius(skin=None, tip_radius=None):
-    from bayestouch.params import MODELS
-    from bayestouch.physics import skin as sk
-
     skin = skin if skin is not None else sk.load_skin(MODELS / "skin.toml")
     if tip_radius is None:
-        from bayestouch.physics import bending
-
         tip_radius = float(bending.load_rod(MODELS / "finger.toml").radius) + float(skin.h)
     return skin, float(tip_radius)
 
@@ -132,8 +132,6 @@ def _skin_and_radius(skin=None, tip_radius=None):
 def winkler_depth(force, skin=None, tip_radius: float | None = None) -> np.ndarray:
     """Indentation (m) of the fingertip in a flat surface at normal ``force`` (N): the inverse of the thin-layer
     Winkler model :func:`bayestouch.physics.skin.winkler_sphere`, F = π M R δ² / h, so δ = √(F h / (π M R))."""
-    from bayestouch.physics import skin as sk
-
     skin, R = _skin_and_radius(skin, tip_radius)
     M = float(sk.bonded_layer_modulus(skin.E, skin.nu))
     return np.sqrt(np.maximum(np.asarray(force, float), 0.0) * float(skin.h) / (np.pi * M * R))
@@ -144,8 +142,6 @@ def depth_for_force(force: float, skin=None, tip_radius: float | None = None) ->
     force estimate (:func:`~bayestouch.hardware.safety.predicted_force`: ``FORCE_FACTOR`` × Winkler) equals
     ``force``; the actual force is then at most the planned one (the forward model's force on the egg is 0.71 of
     that bound)."""
-    from bayestouch.hardware.safety import FORCE_FACTOR
-
     return float(winkler_depth(float(force) / FORCE_FACTOR, skin, tip_radius))
 
 
@@ -193,8 +189,6 @@ def strokes_to_frames(strokes: list[StrokeData]) -> dict[str, np.ndarray]:
 
 def build_recording(strokes: list[StrokeData], info: pr.HelloReply, attrs: dict | None = None):
     """The ``xarray.Dataset`` of :mod:`bayestouch.io.recording` (the schema of ``bayestouch simulate``)."""
-    from bayestouch.io.recording import build_dataset
-
     uv = np.asarray(info.taxel_uv, float)
     a = {"device_firmware": info.firmware, "protocol_version": info.protocol, **(attrs or {})}
     return build_dataset(
@@ -246,8 +240,6 @@ class FingerDevice:
         baudrate: int = 921600,
     ):
         if not url:
-            from bayestouch.errors import BadInput
-
             raise BadInput("--port: expected a serial port path or a pyserial URL like loop://, got nothing")
         self.url, self.timeout, self.retries = str(url), float(timeout), int(retries)
         self.connect_timeout, self.stroke_timeout = float(connect_timeout), float(stroke_timeout)
@@ -290,8 +282,6 @@ class FingerDevice:
         )
 
     def _open_port(self) -> None:
-        import serial
-
         try:
             self._ser = serial.serial_for_url(self.url, baudrate=self.baudrate, timeout=0.01, write_timeout=5.0)
         except (serial.SerialException, OSError, ValueError) as e:
@@ -331,8 +321,6 @@ class FingerDevice:
         self.close()
 
     def _reconnect(self) -> None:
-        import serial
-
         self.stats["reconnects"] += 1
         if self._ser is not None:
             try:
@@ -362,8 +350,6 @@ class FingerDevice:
     # ------------------------------------------------------------ bytes
 
     def _write(self, raw: bytes) -> None:
-        import serial
-
         if self._ser is None:
             raise _Disconnected("port closed")
         try:
@@ -385,8 +371,6 @@ class FingerDevice:
 
     def _pump(self, timeout: float) -> None:
         """Read for up to ``timeout`` seconds (less once something arrived); sort what arrives."""
-        import serial
-
         if self._ser is None:
             raise _Disconnected("port closed")
         end = time.monotonic() + timeout
@@ -689,8 +673,6 @@ class FingerDevice:
         """Check every plan first (nothing is sent if any is unsafe), then run them in order."""
         for p in plans:
             self.check(p)
-        from tqdm.auto import tqdm
-
         return [self.run_stroke(p) for p in tqdm(plans, desc="strokes", unit="stroke", disable=not progress)]
 
 

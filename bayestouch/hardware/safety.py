@@ -14,6 +14,9 @@ from typing import NamedTuple
 import numpy as np
 
 from bayestouch.errors import BadInput
+from bayestouch.params import MODELS
+from bayestouch.physics import bending, sma
+from bayestouch.physics import skin as sk
 
 __all__ = [
     "Limits",
@@ -100,9 +103,6 @@ class PlanCheck(NamedTuple):
 
 def load_limits(models: Path | None = None, *, max_force: float = 1.0, watchdog: float = 1.0) -> Limits:
     """Limits from ``models/finger.toml`` (wire current and temperature) plus the force and watchdog settings."""
-    from bayestouch.params import MODELS
-    from bayestouch.physics import sma
-
     wire = sma.load_wire(Path(models or MODELS) / "finger.toml")
     return Limits(float(wire.max_current), float(wire.max_temperature), float(max_force), float(watchdog))
 
@@ -121,8 +121,6 @@ def plan_from_stroke(stroke, hold_currents=(0.15, 0.05, 0.05)) -> StrokePlan:
 def steady_wire_temperature(hold_currents, wire=None) -> np.ndarray:
     """Steady-state temperature (K) of each wire at its hold current, austenite resistivity (the higher one,
     so an upper bound for any stroke length): :func:`bayestouch.physics.sma.steady_state_temperature`."""
-    from bayestouch.physics import sma
-
     wire = wire if wire is not None else sma.load_wire()
     return np.asarray(sma.steady_state_temperature(wire, np.asarray(hold_currents, float), 0.0))
 
@@ -136,13 +134,8 @@ def predicted_force(depth: float, skin=None, tip_radius: float | None = None) ->
     """Conservative estimate (N) of the pad's contact force at ``depth`` (m): :data:`FORCE_FACTOR` × the
     fingertip pressed into a flat surface (the largest contact of convex objects) by the thin-layer Winkler
     model, :func:`bayestouch.physics.skin.winkler_sphere`."""
-    from bayestouch.params import MODELS
-    from bayestouch.physics import skin as sk
-
     skin = skin if skin is not None else sk.load_skin(MODELS / "skin.toml")
     if tip_radius is None:
-        from bayestouch.physics import bending
-
         tip_radius = float(bending.load_rod(MODELS / "finger.toml").radius) + float(skin.h)
     return FORCE_FACTOR * float(sk.winkler_sphere(float(depth), float(tip_radius), skin)[0])
 

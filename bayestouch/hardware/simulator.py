@@ -1,24 +1,11 @@
-"""The virtual finger: a device on a pseudo-terminal that answers the wire protocol with the forward model.
+"""The virtual finger: a device on a pseudo-terminal that answers the wire protocol with a frame model.
 
-:class:`VirtualDevice` opens a pty (``os.openpty``; the slave is put in raw mode with ``tty.setraw`` and kept
-open so clients may come and go), serves the protocol of :mod:`bayestouch.hardware.protocol` from a thread,
-computes each stroke's frames with a frame model (:class:`ForwardModel`: the physics of
-:func:`bayestouch.physics.virtual.record_strokes`; :class:`SyntheticModel`: a fast stand-in for tests and benchmarks)
-and streams them in real time (``speed = 1``), faster (``speed > 1``) or as fast as the line allows
-(``speed = 0``).
-
-Device-side safety: plans are checked with :func:`~bayestouch.hardware.safety.check_plan` (NAK ``unsafe
-plan``), a stroke whose frame force exceeds the plan's ``max_force`` is aborted, and without a valid packet
-for ``limits.watchdog`` seconds the stroke is aborted and the heaters switched off.
-
-Guarded strokes (protocol revision 1.1, :class:`~bayestouch.hardware.protocol.ProbeStroke`) need a frame model
-with a ``probe`` method (:class:`GuardedModel`): the commanded waypoints are then approach starts off a *believed*
-surface, and where the pad meets the object is found on the TRUE object the model holds, so that a wrong belief
-yields real information. Other models answer a guarded stroke with NAK 4.
-
-Fault injection (:class:`Faults`): dropped and corrupted bytes (both directions), stalls of the outgoing
-stream (delayed bytes), a disconnect after N frames (the pty is closed and a new one opened; ``link`` is
-re-pointed to it) and a stuck heater (the wires stay powered after a stroke ends).
+:class:`VirtualDevice` serves the protocol of :mod:`bayestouch.hardware.protocol` on a pty from a thread, checks
+each plan with :func:`~bayestouch.hardware.safety.check_plan`, and streams the frames of its frame model
+(:class:`ForwardModel`: the physics of :func:`bayestouch.physics.virtual.record_strokes`; :class:`SyntheticModel`:
+a fast stand-in for tests and benchmarks; :class:`GuardedModel`: guarded strokes on a true object) in real time or
+faster, with optional injected faults (:class:`Faults`). Frames are :data:`FRAME_KEYS` arrays (T, ...), SI units.
+Device-side safety, guarded strokes and the faults: ``docs/hardware.md``.
 """
 
 from __future__ import annotations
@@ -33,8 +20,22 @@ from typing import NamedTuple
 
 import numpy as np
 
+from bayestouch.backend import jnp
+from bayestouch.geometry import nellipsoid as ne
 from bayestouch.hardware import protocol as pr
-from bayestouch.hardware.safety import Limits, StrokePlan, UnsafePlan, check_plan
+from bayestouch.hardware.device import winkler_depth
+from bayestouch.hardware.safety import (
+    Limits,
+    StrokePlan,
+    UnsafePlan,
+    check_plan,
+    predicted_force,
+    steady_wire_temperature,
+)
+from bayestouch.params import MODELS
+from bayestouch.physics.virtual import load_finger, record_strokes
+from bayestouch.scene.raycast import CONTACT, INSIDE, MISS, true_ray_distances
+from bayestouch.scene.strokes import stroke_from_path
 
 __all__ = ["Faults", "VirtualDevice", "SyntheticModel", "ForwardModel", "GuardedModel", "FRAME_KEYS"]
 
@@ -105,8 +106,6 @@ class SyntheticModel:
         self.taxel_uv, self.reference = _grid(self.rows, self.cols)
 
     def __call__(self, plan: StrokePlan, index: int) -> dict[str, np.ndarray]:
-        from bayestouch.hardware.safety import predicted_force, steady_wire_temperature
-
         T = len(plan.time)
         g = np.random.default_rng([self.seed, index])
         r2 = np.sum(self.taxel_uv**2, axis=1)
@@ -142,9 +141,6 @@ class ForwardModel:
     """
 
     def __init__(self, obj, models: Path | None = None, seed: int = 0, mode: str | None = None):
-        from bayestouch.params import MODELS
-        from bayestouch.physics.virtual import load_finger
-
         self.obj, self.seed, self.mode, self.pose_sd = obj, int(seed), mode, 3e-4
         self.vf = load_finger(Path(models or MODELS), seed=seed)
         grid = np.asarray(self.vf.finger.grid)
@@ -154,9 +150,6 @@ class ForwardModel:
         self._lock = threading.Lock()
 
     def __call__(self, plan: StrokePlan, index: int) -> dict[str, np.ndarray]:
-        from bayestouch.physics.virtual import record_strokes
-        from bayestouch.scene.strokes import stroke_from_path
-
         st = stroke_from_path(plan.contact, plan.normal, plan.time, plan.depth)
         with self._lock:  # one compilation at a time
             rec = record_strokes(
@@ -179,7 +172,7 @@ class GuardedModel:
     approach does).
 
     At waypoint j the pad starts at ``start_j`` and moves along ``u_j = −normal_j``. Where the ray
-    ``start_j + t u_j`` first meets the true object (:func:`bayestouch.planning.signal.true_ray_distances`:
+    ``start_j + t u_j`` first meets the true object (:func:`bayestouch.scene.raycast.true_ray_distances`:
     the scene object's signed distance, texture and defects included) at t_j ≤ ``travel``, the skin touches;
     the contact force crosses ``threshold`` once the pad centre is the Winkler indentation
     δ_th = :func:`~bayestouch.hardware.device.winkler_depth` ``(threshold)`` further in, at
@@ -215,11 +208,6 @@ class GuardedModel:
     def probe(self, plan: StrokePlan, travel: float, threshold: float, index: int) -> dict[str, np.ndarray]:
         """A guarded stroke (``plan.contact`` holds the approach starts): :data:`FRAME_KEYS` arrays plus
         ``probe (T,)``, ``travel (T,)`` m and ``position (T, 3)`` m (see the class docstring)."""
-        from bayestouch.backend import jnp
-        from bayestouch.geometry import nellipsoid as ne
-        from bayestouch.hardware.device import winkler_depth
-        from bayestouch.planning.signal import CONTACT, INSIDE, MISS, true_ray_distances
-
         start = np.asarray(plan.contact, float)
         u = -np.asarray(plan.normal, float)
         t, status = true_ray_distances(self.obj, start, u, float(travel))

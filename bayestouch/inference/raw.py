@@ -833,7 +833,7 @@ def canonical_theta(theta) -> np.ndarray:
     """θ (11,) with its n-ellipsoid in the canonical frame (a ≥ b ≥ c along x, y, z;
     :func:`bayestouch.geometry.compare.canonicalize`, ψ reduced into [0, π)): the same surface, so the same
     likelihood."""
-    from bayestouch.geometry.compare import canonicalize_batch
+    from bayestouch.geometry.symmetry import canonicalize_batch
 
     th = np.asarray(theta, float)[:11].copy()
     v = np.concatenate([th[:3], np.exp(th[3:6]), th[6:9], [np.exp(th[9])]])

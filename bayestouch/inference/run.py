@@ -381,7 +381,7 @@ _EXTRA_NATURAL = {"log_kappa": ("kappa", np.exp), "log_eps": ("epsilon", np.exp)
 def natural_draws(flat: np.ndarray, sampled: tuple = cm.PARAM_NAMES) -> np.ndarray:
     """θ draws (S, D) with parameter names ``sampled`` → canonicalised natural parameters (S, D): centre,
     a ≥ b ≥ c, angles, n, σ, then the optional parameters (κ, ε, w) in natural units."""
-    from bayestouch.geometry.compare import canonicalize_batch
+    from bayestouch.geometry.symmetry import canonicalize_batch
 
     v = np.column_stack([flat[:, :3], np.exp(flat[:, 3:6]), flat[:, 6:9], np.exp(flat[:, 9])])
     extra = [np.exp(flat[:, 10])]

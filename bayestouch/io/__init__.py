@@ -1,14 +1,8 @@
-"""Files: contact-point CSVs, atomic JSON/CSV/text writers (:mod:`.files`) and netCDF recordings (:mod:`.recording`)."""
+"""Files: contact-point CSVs (:mod:`.contacts`), atomic JSON/CSV/text writers (:mod:`.files`) and netCDF recordings
+(:mod:`.recording`)."""
 
-from bayestouch.io.files import (
-    ContactPoints,
-    load_contact_points,
-    read_csv_rows,
-    save_contact_points,
-    write_csv_rows,
-    write_json,
-    write_text,
-)
+from bayestouch.io.contacts import ContactPoints, load_contact_points, save_contact_points
+from bayestouch.io.files import read_csv_rows, write_csv_rows, write_json, write_text
 from bayestouch.io.recording import build_dataset, read_recording, write_recording
 
 __all__ = [

@@ -16,6 +16,7 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+import xarray as xr
 
 __all__ = ["UNITS", "build_dataset", "write_recording", "read_recording"]
 
@@ -62,8 +63,6 @@ DESCRIPTIONS = {
 
 def build_dataset(frames: dict[str, np.ndarray], taxel_u, taxel_v, reference, depths, attrs: dict):
     """An ``xarray.Dataset`` from per-frame arrays (keys of :data:`UNITS`, first axis = frame)."""
-    import xarray as xr
-
     dims = {
         "time": ("frame",),
         "stroke_index": ("frame",),
@@ -114,7 +113,5 @@ def write_recording(ds, path) -> Path:
 
 def read_recording(path):
     """Open a recording (``xarray.Dataset``, loaded into memory)."""
-    import xarray as xr
-
     with xr.open_dataset(path, engine="h5netcdf") as ds:
         return ds.load()

@@ -1,34 +1,9 @@
-"""Three-wire bending of the finger and its constant-curvature pose.
+"""Three-wire bending of the finger and its constant-curvature pose: wire stresses → curvature vector u (2,) in 1/m
+(closed form, or Newton with strain-dependent stresses) → tip position (3,) m and rotation (3, 3).
 
-The chain is physics.md §6 step 1, "ξ → u (Newton) → pose (p, R)". Constants come from ``[rod]`` of
-``models/finger.toml`` (sources there); the wires' constants from ``[wire]`` (:mod:`bayestouch.physics.sma`).
-
-Geometry (physics.md §2). Wire i = 1, 2, 3 sits at radius r and angle θ_i = θ₀ + 2π(i − 1)/3, with the
-unit direction n_i = (cos θ_i, sin θ_i). The rod bends with a constant curvature vector
-u = κ (cos φ, sin φ) (it bends *toward* φ). Its strain at a wire is (Camarillo et al. 2008)::
-
-    ε_i = ε_pre − r (u_x cos θ_i + u_y sin θ_i)
-
-and moment equilibrium with an effective stiffness EI_eff (physics.md §2 "Adjustment [A]": the solid Al
-rod, EI = 33.9 N m², cannot be bent noticeably, physics.md §0 finding 1) is::
-
-    EI u = r A_w Σ_i σ_i(ε_i, T_i) n_i
-
-With fixed wire forces this is the closed form κ = (r A_w/EI) √(Σσ_i² − σ₁σ₂ − σ₂σ₃ − σ₃σ₁),
-φ = atan2(Σσ_i sin θ_i, Σσ_i cos θ_i) (:func:`curvature_from_stresses`); with stresses that depend on the
-strain (:func:`bayestouch.physics.sma.quasi_static_stress`) it is solved by Newton
-(:func:`curvature_equilibrium`).
-
-Pose (Webster & Jones 2010, constant curvature; sinc form physics.md §2 [D]). With S = sinc(κL/2) and
-sinc(x) = sin(x)/x::
-
-    p = [u_x (L²/2) S², u_y (L²/2) S², L sinc(κL)],   R = R_z(φ) R_y(κL) R_z(−φ)
-
-R is written as the rotation by the vector ω = L (−u_y, u_x, 0) (Rodrigues' formula with sinc
-coefficients), which equals R_z(φ) R_y(κL) R_z(−φ) and needs no φ, so pose and gradients are finite at
-κ → 0; κ = √(|u|² + ε²) there (physics.md §2).
-
-Pure JAX functions of arrays and the :class:`RodParams` pytree; SI units (metres, radians, pascals).
+Pure JAX functions of arrays and the :class:`RodParams` pytree (``[rod]`` of ``models/finger.toml``; the wires'
+constants from :mod:`bayestouch.physics.sma`); SI units (metres, radians, pascals). Geometry, equilibrium and pose
+formulas: ``docs/physics_notes.md``.
 """
 
 from __future__ import annotations

@@ -1,20 +1,9 @@
-"""The forward model: object surface + stroke + finger → taxel currents (physics.md §6).
+"""The forward model: object surface + stroke + finger → taxel currents, frame by frame (pad geometry, contact,
+skin pressure and force, taxel currents with their lag, noise).
 
-Chain, per frame (pure JAX; ``jit``-able, ``vmap``-able over surfaces, differentiable in the surface):
-
-1. pad geometry: the fingertip is a sphere of radius ``tip_radius`` (rod radius + skin). At each stroke
-   sample its lowest point is pressed ``depth`` below the contact point along −normal; the taxels sit on
-   that sphere at geodesic pad coordinates (u, v), u along the direction of motion;
-2. contact (eq. 14–15): penetration δ_j = s·softplus(−φ(x_j)/s) from the object's signed distance φ;
-3. skin: pressure p = blur(σ_foam(δ/h)) (physics.md §3) with a Gaussian kernel between the taxels (hexagonal
-   pores or square grid), force Σ p·A_cell with Hunt–Crossley damping;
-4. taxels: p and the skin temperature → current (physics or empirical mode), unloaded reference rows
-   see no pressure; first-order response lag;
-5. noise (shot, amplifier, 1/f, drift, fixed pattern, outliers, ADC), seeded by a JAX key.
-
-The finger's orientation follows the surface normal, as the wires are driven to keep the pad flat on the
-surface (the hold currents and the resulting wire and skin temperatures come from
-:func:`bayestouch.physics.finger.drive`), and the stroke's pressing depth is imposed (position control).
+Pure JAX: ``jit``-able, ``vmap``-able over surfaces, differentiable in the surface. A stroke is T frames (contact
+points and normals (T, 3) m, a pressing depth in m); SI units throughout. The chain step by step:
+``docs/physics_notes.md``.
 """
 
 from __future__ import annotations

@@ -1,33 +1,10 @@
-"""Measurement noise of the taxel read-out and drift compensation (physics.md §5).
+"""Measurement noise of the taxel read-out and drift compensation: fixed-pattern gain, 1/f fluctuation (a sum of
+Ornstein–Uhlenbeck processes), common and per-taxel drift, shot and amplifier noise, offset, outliers and the ADC,
+on currents in amperes sampled every ``dt`` seconds.
 
-A taxel current I_j(t) (after the response lag) is measured as
-
-    I_meas = Q_ADC{ G_j · I_j(t) · exp(n_1/f,j(t) + d(t) + d_j(t)) + n_w + I_off + outliers }
-
-- ``G_j = exp(−δΦ_j / V_T)``, δΦ_j ~ N(0, σ_Φ²): fixed-pattern gain from barrier-height scatter
-  (σ_ln I₀ = σ_Φ / V_T, physics.md §5), see :func:`fixed_pattern`;
-- ``n_1/f``: 1/f fluctuation of ln I with one-sided PSD K_f / f (Hooge 1969), synthesised as a sum of
-  Ornstein–Uhlenbeck (OU) processes (see below and :func:`flicker_psd`);
-- ``d(t)``, ``d_j(t)``: random walks of ln I₀ (per √s), common to the array and per taxel;
-- ``n_w``: white Gaussian noise of the shot noise 2 q |I| B and the transimpedance amplifier's feedback
-  resistor 4 k T B / R_f (Johnson–Nyquist), see :func:`noise_std`;
-- ``I_off``: amplifier offset; outliers: with probability p_out a sample gets an extra N(0, s_out²) glitch;
-- ``Q_ADC``: a unipolar ADC of ``adc_bits`` bits on [0, full scale], LSB = FS / 2^bits, whose rounding
-  passes gradients straight through (:func:`quantise`).
-
-Thermal drift (≈ 8 %/K, physics.md §0) is not added here: it comes from the skin temperature in
-:func:`bayestouch.physics.taxel.taxel_current`. Common drift is removed with unloaded reference taxels by
-:func:`drift_compensate`.
-
-1/f as a sum of OU processes [D]. An OU process with corner frequency f_c and variance σ² has the
-one-sided PSD S(f) = 4 σ² τ / (1 + (2π f τ)²), τ = 1/(2π f_c). For corner frequencies spaced by a constant
-ratio r on a log scale, Σ_k S_k(f) ≈ (1/ln r) ∫ S(f; f_c) d ln f_c = σ² / (f ln r). Choosing σ² = K_f ln r
-per component therefore gives S(f) ≈ K_f / f for f_min ≪ f ≪ f_max (within a few per cent with two
-components per decade, see :func:`flicker_psd`). Each component is advanced with its exact discretisation
-x_{k+1} = a x_k + σ √(1 − a²) ξ, a = exp(−2π f_c dt), starting from its stationary distribution.
-
-All functions are pure JAX with an explicit PRNG key, except the loader; :func:`add_noise` (``n_flicker``,
-``adc`` static), :func:`common_drift` and :func:`drift_compensate` are jitted.
+All functions are pure JAX with an explicit PRNG key, except the loader; :func:`add_noise` (``n_flicker``, ``adc``
+static), :func:`common_drift` and :func:`drift_compensate` are jitted. The measurement model and the 1/f synthesis:
+``docs/physics_notes.md``.
 """
 
 from __future__ import annotations

@@ -1,14 +1,9 @@
-"""The contact patch as an *output*: the superellipse (Lamé curve) of the paper's eq. 16–18 fitted to a
-pressure map.
+"""The contact patch as an *output*: the superellipse (Lamé curve) of the paper's eq. 16–18, |x/a|^n + |y/b|^n = 1,
+fitted to a pressure map (Pa on a taxel grid with coordinates in metres) and summarised by (a, b, n, angle,
+centre) with :func:`fit_patch`, rather than prescribed (why: ``docs/physics_notes.md``).
 
-The paper prescribes the contact domain D_c as |x/a|^n + |y/b|^n = 1 (eq. 16) and lists (a, b, n) per
-load in its Table 1. Those patches (a, b = 4–9 mm at 0.04–0.09 N) are fingerpad-sized; this finger's
-hemispherical tip on a 2 mm foam skin gives a ≈ 1–3 mm (physics.md §0 finding 3). So the patch is not
-prescribed here: it is derived from geometry (the skin model's pressure map) and then summarised by
-(a, b, n, angle, centre) with :func:`fit_patch`.
-
-:func:`superellipse` and the area formulas are pure JAX; :func:`fit_patch` is NumPy/SciPy at the edge of
-the model (it thresholds, so it is not differentiable).
+:func:`superellipse` and the area formulas are pure JAX; :func:`fit_patch` is NumPy/SciPy at the edge of the model
+(it thresholds, so it is not differentiable).
 """
 
 from __future__ import annotations
@@ -17,6 +12,7 @@ import math
 from typing import NamedTuple
 
 import numpy as np
+from jax.scipy.special import gammaln as lg
 from scipy.optimize import least_squares
 
 from bayestouch.backend import jnp
@@ -94,8 +90,6 @@ def superellipse_area(a, b, n):
     -------
     float or array, m²
     """
-    from jax.scipy.special import gammaln as lg
-
     n = jnp.asarray(n, dtype=jnp.float64)
     return 4.0 * a * b * jnp.exp(2.0 * lg(1.0 + 1.0 / n) - lg(1.0 + 2.0 / n))
 
@@ -105,8 +99,6 @@ def superellipse_area_eq18(a, b, n):
 
     Equal to :func:`superellipse_area` for every n > 0 (see there); kept to show the check.
     """
-    from jax.scipy.special import gammaln as lg
-
     n = jnp.asarray(n, dtype=jnp.float64)
     return 4.0 ** (1.0 - 1.0 / n) * a * b * jnp.sqrt(jnp.pi) * jnp.exp(lg(1.0 + 1.0 / n) - lg(0.5 + 1.0 / n))
 

@@ -1,22 +1,9 @@
-"""The auxetic skin: indentation → pressure map → contact force, damping and friction.
+"""The auxetic skin: indentation → pressure map → contact force, damping and friction (the paper's contact test of
+eq. 14–15 made smooth, and its eq. 19–20), with Hertz, bonded-layer and Winkler closed forms as references.
 
-The chain is physics.md §6 steps 2–3:
-
-1. taxel penetration δ = s·softplus(−φ/s) from the object's signed distance φ (the paper's contact test by
-   minimum distance, eq. 14–15, made smooth);
-2. local thin-layer (Winkler) pressure p = σ_foam(δ/h), linear M·ε with an optional densification
-   stiffening (physics.md §3; Johnson 1985 ch. 5; Gibson & Ashby 1997);
-3. a force-conserving Gaussian blur of width w = √((h/2)² + ℓ_b²) standing in for the plate spreading of
-   a layer with a/h ≈ 1–2 and the Cosserat bending length ℓ_b (physics.md §3, Lakes 1995) [A];
-4. the normal force with Hunt–Crossley damping (Hunt & Crossley 1975; the paper's eq. 19 is its m = 1
-   linear form) and a smooth Coulomb cap on the paper's sticking friction of eq. 20.
-
-Closed forms used as references and in tests: Hertz (Johnson 1985 §4.2), the bonded-layer modulus
-M = E(1−ν)/((1+ν)(1−2ν)) (Johnson 1985 ch. 5) and a rigid sphere on a Winkler layer, F = πMRδ₀²/h,
-a = √(2Rδ₀) (physics.md §3 [D]).
-
-Every function is a pure JAX function of arrays and of a :class:`SkinParams` (a NamedTuple, hence a
-pytree that can be differentiated or batched). SI units throughout: metres, pascals, newtons, seconds.
+Every function is a pure JAX function of arrays and of a :class:`SkinParams` (a NamedTuple, hence a pytree that can
+be differentiated or batched). SI units throughout: metres, pascals, newtons, seconds. The chain and its sources:
+``docs/physics_notes.md``.
 """
 
 from __future__ import annotations

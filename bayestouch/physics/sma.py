@@ -1,52 +1,10 @@
-"""NiTi shape-memory wire: lumped thermal model, smooth Brinson (1993) kinetics, Bouc–Wen, safety limits.
+"""NiTi shape-memory wires: lumped thermal model (current → temperature), smooth Brinson (1993) kinetics
+(temperature and stress → martensite fraction), Bouc–Wen hysteresis, and the wires' current and temperature limits.
 
-The chain is physics.md §6 step 1, "current → T (ODE) → ξ (smooth Brinson)", for one wire or several
-wires at once (every function is elementwise in its array arguments). Constants come from ``[wire]`` of
-``models/finger.toml``; their sources are given there.
-
-Thermal model (physics.md §1, lumped [L form; D values]; Biot number 4e-4, so the wire is isothermal
-across its section, and the fin length √(kd/4h) ≈ 1.9 mm ≪ L, so it is isothermal along it)::
-
-    ρ c V dT/dt = I² R(ξ) − h A_s (T − T∞) + ρ V Δh dξ/dt,      R(ξ) = L [ξ ρ_M + (1 − ξ) ρ_A] / A_w
-
-with V = A_w L, A_w = πd²/4 and the lateral surface A_s = π d L, so the time constant is
-τ = ρcV/(hA_s) = ρ c d / (4 h) (≈ 1.0 s for the 100 µm Flexinol wire in still air, physics.md §1).
-ξ̇ < 0 on heating, so the latent term absorbs heat (the M → A transformation is endothermic).
-
-Constitutive model: Brinson 1993 (physics.md §1), with the total martensite fraction ξ, its detwinned
-(stress-induced) part ξ_s and the modulus E(ξ) = E_A + ξ(E_M − E_A); taking the stress-free, strain-free
-austenite at the ambient temperature T∞ as reference state, Brinson's stress law is::
-
-    σ = E(ξ) (ε − ε_L ξ_s) + Θ (T − T∞)
-
-- heating (M → A), ξ = (ξ₀/2){cos[π (T − A_s − σ/C_A)/(A_f − A_s)] + 1} for A_s + σ/C_A ≤ T ≤ A_f + σ/C_A;
-- cooling (A → M), ξ = ((1 − ξ₀)/2) cos[π (T − M_f − Δ)/(M_s − M_f)] + (1 + ξ₀)/2 with the start of the
-  transformation on Brinson's critical-stress line, Δ = max(σ − σ_s^cr, 0)/C_M (so it starts at M_s for
-  σ ≤ σ_s^cr and at M_s + (σ − σ_s^cr)/C_M above, where Brinson's T > M_s branch applies);
-- the detwinned share of the martensite follows Brinson's detwinning ramp,
-  ξ_s = ξ · ½{1 − cos[π (σ − σ_s^cr)/(σ_f^cr − σ_s^cr)]} (clipped to [0, 1]).
-
-Differentiable form (physics.md §1 "[D]: smoothstep ramps; branch state in lax.scan"):
-
-- the cosine ramps are evaluated on a clipped argument, so every branch is C¹ at its ends;
-- the branch state (ξ, ξ₀ of the heating branch, ξ₀ of the cooling branch) is carried through
-  ``lax.scan``; heating vs cooling is a smooth weight w = ½[1 + tanh(Ṫ/Ṫ_s)], and each branch's ξ₀ is
-  latched (frozen) while that branch runs and re-latched while the other one runs;
-- ξ₀ is latched so that the new branch starts *through the current point* (ξ₀ = ξ/g(T) on heating), the
-  rescaling of Chung et al. 2007 that removes Brinson's jump when a branch starts inside a window; a
-  heating step never raises ξ and a cooling step never lowers it.
-
-Simplifications, all marked [A] in the docstrings: compressive stress does not shift the transformation
-temperatures; detwinning is a reversible function of stress (the loading curve; Brinson's irreversible
-detwinning memory is not kept); the sign of Θ is Brinson's.
-
-Alternative hysteresis model: Bouc–Wen (Wen 1976; Ismail et al. 2009; physics.md §1), :func:`bouc_wen`.
-
-Safety: :func:`check_safety` and :func:`safe_current` enforce the wire's current and temperature limits
-(``max_current``, ``max_temperature``; DESIGN.md §7 "safety limits ... enforced on both sides").
-
-Every function is a pure JAX function of arrays and of a :class:`WireParams` NamedTuple (a pytree); SI
-units throughout: metres, kelvin, seconds, amperes, pascals, ohms.
+Every function is a pure JAX function of arrays (elementwise: one wire or several at once) and of a
+:class:`WireParams` NamedTuple (a pytree) read from ``[wire]`` of ``models/finger.toml``, where the constants'
+sources are given. SI units throughout: metres, kelvin, seconds, amperes, pascals, ohms. The equations, their
+differentiable form and the simplifications: ``docs/physics_notes.md``.
 """
 
 from __future__ import annotations

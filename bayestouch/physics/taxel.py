@@ -1,41 +1,11 @@
-"""Metal–ZnO–metal piezotronic taxels: pressure and skin temperature → taxel current.
+"""Metal–ZnO–metal piezotronic taxels: pressure (Pa) and skin temperature (K) → taxel current (A), in the
+``"physics"`` mode (the piezotronic chain) or the ``"empirical"`` mode (a calibrated log-sensitivity), with the
+taxels' layout on the skin (pad coordinates (u, v) in metres; the first ``reference_rows`` rows unloaded, for drift
+compensation) and their first-order response lag.
 
-Each taxel is a bundle of vertical ZnO nanowires between two metal contacts, i.e. two back-to-back
-Schottky diodes (M–S–M). Compressive pressure strains the nanowires; the piezo-polarisation charge at
-the two ends raises the barrier at one contact and lowers it at the other (the piezotronic effect), which
-changes the current at a fixed bias. The chain (physics.md §4, sources in ``models/taxels.toml``):
-
-1. nanowire strain       ε = −p / (E_c φ_load)                                        (physics.md §4 [D/A])
-2. polarisation          P₃ = (e₃₃ + 2 e₃₁ s₁₃/s₃₃) ε = (e₃₃ − 2 e₃₁ c₁₃/(c₁₁+c₁₂)) ε ≈ 1.55 ε C/m²  [D]
-3. barrier change        |ΔΦ| = |P₃| W / (2 ε_s ε₀), opposite in sign at the two contacts (Zhang, Liu & Wang 2011:
-                         ΔΦ = −q ρ W²/(2ε_s), q ρ W = P₃); at the drain ΔΦ_D = s P₃ W / (2 ε_s ε₀), source −ΔΦ_D
-4. saturation currents   I₀(T) = A_c A* T² exp(−Φ_B / V_T), V_T = k T / q  (thermionic emission, Sze & Ng 2007)
-                         I_sD = I₀ exp(−ΔΦ_D / V_T),  I_sS = I₀ exp(+ΔΦ_D / V_T)
-5. M–S–M current         I = 2 I_sS I_sD sinh(V/2V_T) / (I_sS e^{V/2V_T} + I_sD e^{−V/2V_T})
-                                                                        (physics.md §4 [D]; cf. Chiquito et al. 2012)
-
-Polarity. ``polarity`` s = ±1 is the c-axis orientation of the nanowires relative to the bias. It is
-defined here so that s = +1 *lowers* the barrier at the reverse-biased (drain) contact under compression,
-ΔΦ_D = s P₃ W / (2 ε_s ε₀) < 0 for P₃ < 0, so the current rises with pressure, as the conductance of the taxels of
-Wu, Wen & Wang (2013) does (≈ 2.1 µS/kPa, recalled, physics.md §4 [A]); s = −1 flips the sign of every
-pressure response. The drain is the contact that limits the current for V > 0 (I → I_sD for V ≫ V_T,
-I → −I_sS for V ≪ −V_T).
-
-Modes (a static choice, physics.md §0 finding 2 and §4). ``"physics"`` runs the chain above; at the
-default W = 1 nm and φ_load = 0.1 it gives Δ ln I ≈ 3e-5 at 1 kPa, orders of magnitude below published
-device sensitivities. ``"empirical"`` keeps the same unstrained M–S–M current and temperature dependence
-and replaces steps 1–3 by a calibrated log-sensitivity, Δ ln I = s S_p p.
-
-Layout. Taxels sit in the skin's hexagonal pores: rows ``pitch·√3/2`` apart, every other row shifted by
-half a pitch (``hexagonal = 1``), or on a square grid (``hexagonal = 0``, the crossbar matrix of Wu et al.
-2013), in skin-local coordinates (u, v) in metres, centred on the origin, row-major. The first
-``reference_rows`` rows are *reference* taxels: they have no load path (no top pillar/electrode
-transferring pressure, physics.md §4 "nanowires sitting freely carry no load"), so they see
-temperature and drift but no pressure and are used for drift compensation
-(:func:`bayestouch.physics.noise.drift_compensate`). The caller passes zero pressure to them.
-
-Everything here is a pure JAX function of arrays and the :class:`TaxelParams` pytree, except
-:func:`layout` and the loaders, which build static (NumPy/Python) data outside ``jit``.
+Everything here is a pure JAX function of arrays and the :class:`TaxelParams` pytree, except :func:`layout` and the
+loaders, which build static (NumPy/Python) data outside ``jit``. The chain, the polarity convention, the modes and
+the layout: ``docs/physics_notes.md``.
 """
 
 from __future__ import annotations

@@ -10,10 +10,15 @@ from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
+from tqdm.auto import tqdm
 
 from bayestouch.backend import jax
 from bayestouch.errors import BadInput
 from bayestouch.params import MODELS
+from bayestouch.physics import bending, noise, skin, sma, taxel
+from bayestouch.physics import forward as fw
+from bayestouch.physics.finger import drive
+from bayestouch.physics.forward import make_finger
 
 __all__ = ["VirtualFinger", "load_finger", "record_strokes"]
 
@@ -30,9 +35,6 @@ class VirtualFinger(NamedTuple):
 def load_finger(models: Path = MODELS, seed: int = 0) -> VirtualFinger:
     """Read ``finger.toml``, ``skin.toml``, ``taxels.toml``, ``noise.toml`` from ``models``; ``seed`` draws the
     device's fixed pattern."""
-    from bayestouch.physics import bending, noise, skin, sma, taxel
-    from bayestouch.physics.forward import make_finger
-
     rod = bending.load_rod(models / "finger.toml")
     wire = sma.load_wire(models / "finger.toml")
     sk = skin.load_skin(models / "skin.toml")
@@ -62,11 +64,6 @@ def record_strokes(
     With ``force`` (N) the strokes are force-controlled: each frame's depth is solved for that normal force
     (the strokes' own depths are ignored); otherwise they are pressed to their depth.
     """
-    from tqdm.auto import tqdm
-
-    from bayestouch.physics import forward as fw
-    from bayestouch.physics.finger import drive
-
     mode = mode or vf.mode
     if mode not in ("physics", "empirical"):
         raise BadInput(f"--mode must be physics or empirical, got {mode!r}")

@@ -1,15 +1,10 @@
-"""Candidate strokes over the believed surface.
+"""Candidate strokes over the believed surface: arcs over the believed n-ellipsoid from spread start directions,
+1–3 cm long at 1 cm/s, sampled at T points, pressing with a force inside the safety limits, each point with the ray
+the finger approaches along (the rays of :mod:`bayestouch.planning.signal`).
 
-A stroke is an arc over the believed n-ellipsoid (the loop passes its point estimate): it starts at the surface
-point in a start direction (Fibonacci lattice on the unit sphere, randomly rotated), travels along the surface in a
-random tangent direction for a length of 1–3 cm at 1 cm/s (the paper's stroke speed), sampled at T points, and
-presses with a force inside the safety limits (:class:`bayestouch.hardware.safety.Limits`). At each path point the
-finger approaches along the believed inward normal from a stand-off outside the surface: the rays of
-:mod:`bayestouch.planning.signal`. The pressing force does not enter the contact-level signal (it sets the
-indentation at the raw level); it is carried for the hardware adapter and for the cost.
-
-Reach: in simulation every start direction is reachable; ``max_polar`` restricts the start directions to a cap
-around +z (a finger above a table) when the finger's workspace says so.
+:class:`Strokes` holds C strokes: paths, ray starts and directions (C, T, 3) (metres; unit), ray length ``t_max``
+(m), lengths (m), forces (N) and durations (s), each (C,). How the arcs are drawn and the reach limit:
+``docs/planning.md``.
 """
 
 from __future__ import annotations
@@ -23,6 +18,7 @@ from bayestouch.backend import jax, jnp
 from bayestouch.errors import BadInput
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.mesh import as_rng
+from bayestouch.hardware.safety import Limits
 
 __all__ = [
     "Strokes",
@@ -170,8 +166,6 @@ def make_candidates(
             f"{length_range}, {standoff}"
         )
     if limits is None:
-        from bayestouch.hardware.safety import Limits
-
         limits = Limits()
     rng = as_rng(seed)
     dirs = fibonacci_sphere(count) @ random_rotation(rng).T

@@ -1,31 +1,10 @@
 """The exploration loop drives a finger: :class:`DeviceProber` runs planned strokes on a
-:class:`~bayestouch.hardware.device.FingerDevice` and turns what it reports into contact points.
-
-How a finger knows where it touched. A real finger does not report points on the true surface for free: it
-knows where its pad is only through its pose estimate (stage encoders and the bending model of the rod), and
-that it touched only through its contact force. So every planned stroke runs as a *guarded stroke* (protocol
-revision 1.1, ``bayestouch/hardware/PROTOCOL.md``): at each of the T path samples the pad starts at the planned
-ray start (``standoff`` outside the *believed* surface) and moves along the believed inward normal until the
-contact force crosses ``threshold`` (at most the ray length ``t_max``), then presses to the planned force and
-follows. The device reports, per sample, whether and where that happened: its pose estimate ``position`` of
-the pad centre at the threshold crossing. At that moment the pad has already indented the skin by
-δ_th = :func:`~bayestouch.hardware.device.winkler_depth` ``(threshold)`` (thin-layer Winkler model of the
-fingertip on a flat surface; 0.02 N gives ≈ 0.1 mm), so the surface point is ``position − δ_th u`` (u the
-approach direction). Its error is the pose estimate's (the virtual finger's ``pose_sd``, 0.3 mm by default, the
-contact noise the planner assumes) plus the indentation model's (the forward model's force is up to 1.42× the
-Winkler force, so δ_th is overestimated by at most 1 − 1/√1.42 ≈ 16 %, ≈ 0.02 mm at 0.02 N). A sample whose
-approach met nothing within ``t_max`` is a miss, one already in contact at its start is "inside": both are the
-loop's :class:`~bayestouch.planning.loop.Free` observations, exactly as in simulation.
-
-The planned force becomes a pressing depth (:func:`~bayestouch.hardware.device.depth_for_force`: the depth at
-which the safety check's conservative force bound equals it), the samples are timed evenly over the stroke's
-duration (its length at the planned speed), and the device client checks the plan (speed of the start path,
-currents, wire temperature, depth and force bound) against the tighter of its own and the device's limits before
-any byte is sent: a stroke that fails raises :class:`~bayestouch.hardware.safety.UnsafePlan` and the loop
-chooses another.
+:class:`~bayestouch.hardware.device.FingerDevice` as guarded strokes and turns what it reports into contact points
+(K, 3) in metres and :class:`~bayestouch.inference.freespace.Free` observations (misses and starts inside).
 
 Every stroke's frames are kept (:attr:`DeviceProber.strokes`, rewritten to ``recording`` after each stroke when
-given, with the schema of ``bayestouch simulate``); the device's journal keeps every packet as it arrives.
+given, with the schema of ``bayestouch simulate``). How a finger knows where it touched, and the errors of that
+estimate: ``docs/hardware.md``.
 """
 
 from __future__ import annotations
@@ -43,9 +22,10 @@ from bayestouch.hardware.device import (
     depth_for_force,
     winkler_depth,
 )
-from bayestouch.hardware.safety import StrokePlan
+from bayestouch.hardware.safety import StrokePlan, UnsafePlan
+from bayestouch.inference.freespace import Free
+from bayestouch.io.recording import write_recording
 from bayestouch.planning.candidates import Strokes
-from bayestouch.planning.loop import Free
 
 __all__ = ["DeviceProber", "PROBE_THRESHOLD", "probe_points"]
 
@@ -56,7 +36,7 @@ HOLD_CURRENTS = (0.15, 0.05, 0.05)
 
 
 def probe_points(data: ProbeData, threshold_depth: float) -> tuple[np.ndarray, Free]:
-    """Contact points (K, 3) m and :class:`~bayestouch.planning.loop.Free` observations of one guarded stroke.
+    """Contact points (K, 3) m and :class:`~bayestouch.inference.freespace.Free` observations of one guarded stroke.
 
     Parameters
     ----------
@@ -129,7 +109,7 @@ class DeviceProber:
 
     def probe(self, stroke: Strokes, rng=None) -> tuple[np.ndarray, Free]:
         """Run ``stroke`` (a batch of one) on the finger: contact points (K, 3) m and
-        :class:`~bayestouch.planning.loop.Free` observations. ``rng`` is unused (the finger's noise is its own).
+        :class:`~bayestouch.inference.freespace.Free` observations. ``rng`` is unused (the finger's noise is its own).
 
         Raises
         ------
@@ -138,8 +118,6 @@ class DeviceProber:
         DeviceError
             The device failed; the strokes so far are kept (and in ``recording``).
         """
-        from bayestouch.hardware.safety import UnsafePlan
-
         plan = self.plan(stroke)
         try:
             data = self.device.run_probe(plan)
@@ -158,8 +136,6 @@ class DeviceProber:
             )
         )
         if self.recording_path is not None:
-            from bayestouch.io.recording import write_recording
-
             write_recording(self.dataset(), self.recording_path)
         return pts, free
 

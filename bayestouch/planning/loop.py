@@ -1,59 +1,37 @@
 """The exploration loop: plan → run the stroke (simulator or finger) → update the posterior (warm-started emcee) →
 repeat.
 
-Stroke 0 is a scout common to every planner: the object sits at a known place (its nominal centre, the fixture)
-with an unknown shape, believed a sphere of :data:`SCOUT_RADIUS`; three arcs over that sphere from evenly spread
-directions give the first contact points, and the initial fit (:func:`bayestouch.inference.run.initial_theta`:
-DE + L-BFGS-B) starts the ensemble. Every later stroke is chosen by the policy among candidates generated over the
-current point estimate (below), measured on the true object (:func:`bayestouch.planning.signal.true_ray_distances`, plus
-Gaussian contact noise along the ray), and the posterior is updated by a short emcee run warm-started from the
-previous ensemble's last state (clipped into the new prior box). The loop stops after ``budget`` planned strokes
-or once the volume's posterior sd falls below ``target_volume_sd``.
-
-Probers. The loop does not touch anything itself: a *prober* runs one planned stroke and returns its contact points
-(K, 3) m and its :class:`Free` observations (``prober.probe(stroke, rng) -> (points, free)``, ``stroke`` a batch
-of one :class:`~bayestouch.planning.candidates.Strokes`). :class:`RayProber` (the default) measures rays on a
-simulated object; :class:`bayestouch.planning.device_prober.DeviceProber` runs the stroke on a finger. A prober
-refuses a stroke it must not run by raising :class:`~bayestouch.hardware.safety.UnsafePlan` before anything is
-sent; the loop then asks the policy again among the remaining candidates (and skips a refused scout arc). With a
-finger there is no truth: ``obj`` and ``truth`` may be None, the scout is centred at ``centre`` (the fixture
-position), and the records carry NaN errors.
-
-"No contact" is data too. The contact-level likelihood (:mod:`bayestouch.inference.contact`) has terms for contact
-points only; the loop adds, for every ray that met nothing over its length t_max, log Φ((t_θ − t_max)/σ) (the
-probability that a contact at the ray distance t_θ under θ, plus noise, would have read beyond t_max), and for every
-ray start found inside the object log Φ(−d_θ/σ) (:func:`_with_free`). Without them a planner that aims at "no
-contact" outcomes (the planner's signal counts them, :mod:`bayestouch.planning.signal`) would learn nothing from
-them, and a posterior that is wrong where nothing was touched could not be corrected by a miss.
-
-Errors against the truth (simulation): the point estimate is the draw whose volume is the median of the draws'
-volumes (a coherent surface; the mean of canonicalised parameters can average aliases into a surface no draw
-supports, see ``benchmarks/bench_sparse.py``); its symmetric Chamfer distance to the true surface (the mesh of
-:func:`truth_of`, texture included) divided by the true mean semi-axis, and the volume error |V̂/V − 1| against
-the true mesh's volume (eq. 11). The Chamfer distance is between the two SURFACES,
-½ (E_{x∼U(Ŝ)} d(x, S) + E_{y∼U(S)} d(y, Ŝ)) with U area-uniform and d the exact point-to-surface distance
-(:func:`bayestouch.geometry.compare.chamfer_surfaces`: Newton foot points on the estimate's n-ellipsoid,
-exact point-to-triangle distances on the true mesh), estimated from :data:`CHAMFER_COUNT` samples per surface:
-it has Monte-Carlo error only (≈ 1 % of its value) and no sampling floor. (The point-cloud Chamfer distance,
-:func:`~bayestouch.geometry.compare.chamfer_shapes`, used before, had a floor of ½ √(A / count) ≈ 0.02 of the mean
-semi-axis at 10 000 points, at which every planner sat after a few strokes.) A perfect estimate of the base
-n-ellipsoid still scores ≈ 0.001 on the egg: the distance to its 50 µm texture.
+Stroke 0 is a scout over a sphere of :data:`SCOUT_RADIUS` at the nominal centre; each later stroke is chosen by a
+policy among candidates over the current point estimate. A *prober* runs each stroke (``prober.probe(stroke, rng)
+-> (points (K, 3) m, free)``, ``free`` a :class:`~bayestouch.inference.freespace.Free`): :class:`RayProber` on a
+simulated object, :class:`bayestouch.planning.device_prober.DeviceProber` on a finger. Contact points and the
+free-space observations (:mod:`bayestouch.inference.freespace`) update the posterior. Errors against the truth:
+the Chamfer distance between the estimate's and the true surface over the true mean semi-axis (dimensionless) and
+the relative volume error. Lengths in metres, volumes in m³. The loop's design and its error measures:
+``docs/planning.md``.
 """
 
 from __future__ import annotations
 
 import time
+import warnings
 from typing import NamedTuple
 
 import numpy as np
 
-from bayestouch.backend import jax, jnp, pad_pow2
+from bayestouch.backend import jax, jnp
 from bayestouch.errors import BadInput
 from bayestouch.geometry import nellipsoid as ne
+from bayestouch.geometry.compare import chamfer_surfaces
+from bayestouch.geometry.integrals import surface_integrals
+from bayestouch.hardware.safety import UnsafePlan
 from bayestouch.inference import contact as cm
+from bayestouch.inference.freespace import Free, with_free
+from bayestouch.inference.run import NATURAL_NAMES, initial_theta, interval, natural_draws, start_ball
+from bayestouch.inference.sampler import sample
 from bayestouch.planning.candidates import Strokes, make_candidates, select
 from bayestouch.planning.policies import check_policy, choose
-from bayestouch.planning.signal import CONTACT, INSIDE, MISS, ray_distances, true_ray_distances
+from bayestouch.scene.raycast import CONTACT, INSIDE, MISS, true_ray_distances
 
 __all__ = [
     "ExploreSettings",
@@ -65,7 +43,6 @@ __all__ = [
     "shape_errors",
     "SCOUT_RADIUS",
     "CONTACT_NOISE",
-    "Free",
     "RayProber",
     "point_estimate",
 ]
@@ -160,8 +137,6 @@ class Truth(NamedTuple):
 
 def truth_of(obj) -> Truth:
     """The :class:`Truth` of a scene object (mesh at resolution 64, volume by eq. 11)."""
-    from bayestouch.geometry.integrals import surface_integrals
-
     v, f = obj.mesh(64)
     return Truth((v, f), float(surface_integrals(v, f).volume), float(np.mean(np.asarray(obj.shape.axes))))
 
@@ -194,8 +169,6 @@ def shape_errors(shape_vectors, truth: Truth, seed: int = 0) -> dict:
         ``volume_error`` (|V̂/V − 1|), ``volume_mean``, ``volume_sd`` (m³, over the draws) and ``estimate``
         (10,) the point estimate's vector.
     """
-    from bayestouch.geometry.compare import chamfer_surfaces
-
     vecs = np.asarray(shape_vectors, float)
     vols = np.asarray(_vol(jnp.asarray(vecs)))
     k = int(np.argsort(vols)[len(vols) // 2])
@@ -211,27 +184,9 @@ def shape_errors(shape_vectors, truth: Truth, seed: int = 0) -> dict:
     }
 
 
-class Free(NamedTuple):
-    """What strokes said without a contact point: rays that met nothing (``starts``, ``dirs`` (K, 3), each of length
-    ``t_max``) and ray starts found inside the object (``inside`` (J, 3), metres)."""
-
-    starts: np.ndarray
-    dirs: np.ndarray
-    t_max: float
-    inside: np.ndarray
-
-    def add(self, other: Free) -> Free:
-        return Free(
-            np.concatenate([self.starts, other.starts]),
-            np.concatenate([self.dirs, other.dirs]),
-            self.t_max,
-            np.concatenate([self.inside, other.inside]),
-        )
-
-
 def _measure(obj, stroke: Strokes, noise_sd: float, rng: np.random.Generator) -> tuple[np.ndarray, Free]:
     """Contact points (K, 3) m of one stroke on the true object (real contacts, noise along the ray), and its
-    :class:`Free` observations (misses and starts inside)."""
+    :class:`~bayestouch.inference.freespace.Free` observations (misses and starts inside)."""
     x0, d = stroke.starts[0], stroke.dirs[0]
     t, status = true_ray_distances(obj, x0, d, stroke.t_max)
     t = t + noise_sd * rng.standard_normal(t.shape)
@@ -241,7 +196,7 @@ def _measure(obj, stroke: Strokes, noise_sd: float, rng: np.random.Generator) ->
 
 
 class RayProber:
-    """The default prober: a stroke measured on a simulated object by rays (:func:`~bayestouch.planning.signal.
+    """The default prober: a stroke measured on a simulated object by rays (:func:`~bayestouch.scene.raycast.
     true_ray_distances`, Gaussian noise of ``noise_sd`` metres along the ray).
 
     Parameters
@@ -255,57 +210,9 @@ class RayProber:
         self.obj, self.noise_sd = obj, float(noise_sd)
 
     def probe(self, stroke: Strokes, rng: np.random.Generator) -> tuple[np.ndarray, Free]:
-        """Contact points (K, 3) m and :class:`Free` observations of ``stroke`` (a batch of one)."""
+        """Contact points (K, 3) m and :class:`~bayestouch.inference.freespace.Free` observations of ``stroke`` (a
+        batch of one)."""
         return _measure(self.obj, stroke, self.noise_sd, rng)
-
-
-@jax.jit
-def _free_log_lik(thetas, starts, dirs, t_max, inside, w_ray, w_in):
-    """Log-likelihood (W,) of the :class:`Free` observations for walkers ``thetas (W, 11)``: a ray that met nothing
-    over its length t_max has probability Φ((t_θ − t_max)/σ) (the contact, had there been one, would have read
-    t_θ + noise > t_max; t_θ is the ray distance under θ, rays traced to 4 t_max), and a start found inside has
-    probability Φ(−d_θ/σ) (d_θ its first-order signed distance, > 0 outside); σ the walker's contact noise.
-    ``w_ray``, ``w_in`` are 1 for real rows and 0 for padding."""
-    from jax.scipy.stats import norm
-
-    def one(th):
-        s = cm.shape_of(th)
-        sigma = jnp.exp(th[10])
-        t = ray_distances(s, starts, dirs, 4.0 * t_max)
-        lm = jnp.sum(w_ray * norm.logcdf((t - t_max) / sigma))
-        d = ne.first_order_distance(s, ne.to_local(s, inside))[0]
-        return lm + jnp.sum(w_in * norm.logcdf(-d / sigma))
-
-    return jax.vmap(one)(thetas)
-
-
-def _with_free(logp, bounds, free: Free):
-    """``logp`` plus the :class:`Free` observations' log-likelihood (arrays padded to powers of two: few compiled
-    sizes); −inf stays −inf, NaN becomes −inf."""
-    if len(free.starts) == 0 and len(free.inside) == 0:
-        return logp
-    k, j = len(free.starts), len(free.inside)
-    starts = pad_pow2(free.starts if k else np.zeros((1, 3)), min_size=8)
-    dirs = pad_pow2(free.dirs if k else np.array([[0.0, 0.0, 1.0]]), min_size=8)
-    inside = pad_pow2(free.inside if j else np.zeros((1, 3)), min_size=8)
-    w_ray = (np.arange(len(starts)) < k).astype(float)
-    w_in = (np.arange(len(inside)) < j).astype(float)
-    lo, hi = np.asarray(bounds.lower), np.asarray(bounds.upper)
-    args = [jnp.asarray(a) for a in (starts, dirs)] + [
-        jnp.float64(free.t_max),
-        jnp.asarray(inside),
-        jnp.asarray(w_ray),
-        jnp.asarray(w_in),
-    ]
-
-    def f(thetas):
-        th = np.asarray(thetas, dtype=np.float64)
-        base = logp(th)
-        extra = np.asarray(_free_log_lik(jnp.asarray(np.clip(th, lo, hi)), *args))
-        out = np.where(np.isfinite(base), base + extra, -np.inf)
-        return np.where(np.isnan(out), -np.inf, out)
-
-    return f
 
 
 def _concat(batches: list[Strokes]) -> Strokes:
@@ -317,8 +224,6 @@ def _concat(batches: list[Strokes]) -> Strokes:
 
 def _draws(chain_kept, count: int, rng: np.random.Generator) -> np.ndarray:
     """Thinned, canonicalised draws (count, 11) in natural units from the last half of the kept chain."""
-    from bayestouch.inference.run import natural_draws
-
     kept = chain_kept[len(chain_kept) // 2 :]
     flat = kept.reshape(-1, kept.shape[-1])
     idx = np.sort(rng.choice(len(flat), size=count, replace=len(flat) < count))
@@ -334,18 +239,12 @@ def _sample(logp, start, walkers: int, seed: int, steps: int):
     """A short in-memory emcee run (:func:`bayestouch.inference.sampler.sample`). emcee's autocorrelation estimate
     divides by zero (a RuntimeWarning) when a parameter's walker-mean does not move over a short chain; τ is not
     used here (the chain is short by design and reported as such), so that warning is silenced."""
-    import warnings
-
-    from bayestouch.inference.sampler import sample
-
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", "invalid value encountered", RuntimeWarning)
         return sample(logp, start, None, walkers=walkers, ndim=11, seed=seed, steps=steps, progress=False)
 
 
 def _summary(k: int, nat: np.ndarray, errors: dict, n_points: int, policy: str) -> dict:
-    from bayestouch.inference.run import NATURAL_NAMES, interval
-
     return {
         "stroke": k,
         "planner": policy,
@@ -401,8 +300,6 @@ def explore(
     -------
     ExploreResult
     """
-    from bayestouch.inference.run import initial_theta, start_ball
-
     check_policy(policy)
     if not isinstance(budget, int | np.integer) or budget < 1:
         raise BadInput(f"budget: expected an integer number of strokes ≥ 1, got {budget!r}")
@@ -424,8 +321,6 @@ def explore(
         truth = truth_of(obj)
     if prober is None:
         prober = RayProber(obj, s.noise_sd)
-    from bayestouch.hardware.safety import UnsafePlan
-
     priors = cm.load_priors()
     pol_id = 1 + ("eig", "random", "coverage", "oracle").index(policy)
     rng_common = np.random.default_rng([seed, 0])
@@ -471,7 +366,7 @@ def explore(
             f"{centre.tolist()} m and a few centimetres across?"
         )
     logp, bounds = cm.make_log_prob(pts, priors)
-    logp = _with_free(logp, bounds, free)
+    logp = with_free(logp, bounds, free)
     theta0 = initial_theta(pts, seed, priors, starts=s.init_starts)
     start = start_ball(theta0, bounds, s.walkers, rng_common)
     ch = _sample(logp, start, s.walkers, _subseed(seed, 0, 0), s.init_steps)
@@ -544,7 +439,7 @@ def explore(
             pts = np.concatenate([pts, new])
         # update, warm-started from the last ensemble
         logp, bounds = cm.make_log_prob(pts, priors)
-        logp = _with_free(logp, bounds, free)
+        logp = with_free(logp, bounds, free)
         lo, hi = np.asarray(bounds.lower), np.asarray(bounds.upper)
         start = np.clip(ch.kept[-1], lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
         ch = _sample(logp, start, s.walkers, _subseed(seed, pol_id, k), s.steps)

@@ -6,27 +6,30 @@
 ``random``
     A uniformly random candidate.
 ``coverage``
-    Even coverage: the candidate whose path lies farthest from everything touched so far (the largest mean, over
-    its path points, of the distance to the nearest touched point).
+    The candidate whose path lies farthest from everything touched so far.
 ``oracle``
-    Knows the truth (a reference for reports, not a planner): one-step lookahead, the candidate whose true reading
-    would leave the smallest expected surface error against the truth once the posterior draws are reweighted by
-    it (:func:`oracle_scores`). It is greedy and approximate (importance weights of a finite set of draws, one step
-    ahead), so it is an optimistic reference, not a proven bound.
+    Knows the truth (a reference for reports, not a planner): one-step lookahead (:func:`oracle_scores`).
+
+Candidates are :class:`~bayestouch.planning.candidates.Strokes`; posterior draws (N, 10) n-ellipsoid vectors
+(metres, radians). How coverage and the oracle score: ``docs/planning.md``.
 """
 
 from __future__ import annotations
 
+import time
 from typing import NamedTuple
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from bayestouch.backend import jax, jnp
 from bayestouch.errors import BadInput
 from bayestouch.geometry import nellipsoid as ne
+from bayestouch.geometry.mesh import sample_mesh
 from bayestouch.planning import eig as eig_mod
 from bayestouch.planning.candidates import Strokes
-from bayestouch.planning.signal import predict_signals, true_ray_distances
+from bayestouch.planning.signal import predict_signals
+from bayestouch.scene.raycast import true_ray_distances
 
 __all__ = ["POLICIES", "Decision", "choose", "check_policy", "oracle_scores"]
 
@@ -90,16 +93,12 @@ def choose(
     -------
     Decision
     """
-    import time
-
     check_policy(policy)
     t0 = time.perf_counter()
     C = len(strokes.length)
     if policy == "random":
         return Decision(int(rng.integers(C)), None, None, time.perf_counter() - t0)
     if policy == "coverage":
-        from scipy.spatial import cKDTree
-
         if touched is None or len(touched) == 0:
             return Decision(int(rng.integers(C)), None, None, time.perf_counter() - t0)
         d, _ = cKDTree(np.asarray(touched)).query(strokes.path.reshape(-1, 3))
@@ -134,8 +133,6 @@ def _rms_distances(vectors, pts):
 def _draw_errors(obj, shape_vectors, count: int = 256) -> np.ndarray:
     """RMS first-order distance (N,) m of ``count`` true-surface points (area-uniform, fixed seed) to each draw's
     surface."""
-    from bayestouch.geometry.mesh import sample_mesh
-
     v, f = obj.mesh(32)
     pts = jnp.asarray(sample_mesh(v, f, count, 0)[0])
     return np.asarray(_rms_distances(jnp.asarray(shape_vectors, dtype=jnp.float64), pts))

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
+from bayestouch.geometry import nellipsoid as ne
+
 __all__ = [
     "plot_table2",
     "plot_shape",
@@ -121,8 +123,6 @@ def plot_shape(out, truth, mean_mesh, spread, points, draws, *, name: str = "sha
     Path of the figure.
     """
     import matplotlib as mpl
-
-    from bayestouch.geometry import nellipsoid as ne
 
     plt = _pyplot()
     mv, mf = (np.asarray(a) for a in mean_mesh)
@@ -313,7 +313,7 @@ def plot_patch_posterior(out, post, *, draws: int = 40, name: str = "contact_pat
 def plot_trace(out, idata, var_names, *, max_chains: int = 32, name: str = "trace.png") -> Path:
     """Trace plot of ``var_names`` from the ``posterior`` group of ``idata`` (ArviZ ``InferenceData``): each
     walker's chain (right) and the pooled marginal (left), with R-hat in the title."""
-    import arviz as az
+    import arviz as az  # imports matplotlib.pyplot: loaded with matplotlib, on first plot
 
     plt = _pyplot()
     post = idata.posterior

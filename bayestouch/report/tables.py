@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import io
 import math
 from pathlib import Path
 
@@ -47,8 +48,6 @@ def _fmt(x, digits=3) -> str:
 
 def write_table2(rows: list[dict], out: Path) -> str:
     """Write ``table2.csv`` and ``table2.md`` into ``out``; returns the Markdown text."""
-    import io
-
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=TABLE2_COLUMNS, extrasaction="ignore", lineterminator="\n")
     w.writeheader()
@@ -121,8 +120,6 @@ TABLE1_COLUMNS = [
 
 def write_table1(rows: list[dict], out: Path) -> str:
     """Write ``table1.csv`` and ``table1.md`` (contact patches, ours beside the paper's); returns the Markdown."""
-    import io
-
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=TABLE1_COLUMNS, extrasaction="ignore", lineterminator="\n")
     w.writeheader()

@@ -1,21 +1,15 @@
 """The true surface of an object as a pure JAX pytree, and its signed distance (contact, eq. 14–15).
 
-surface = n-ellipsoid (eq. 4–6) ∘ FFD lattice (X = B P, eq. 8) + height field along the normal
-(texture grating + roughness + defects). The signed distance used for contact is
-
-    φ(x) = d(y) − h(y_foot),   y = FFD⁻¹(x in the object frame),
-
-positive outside, metres, where d is the first-order Euclidean distance to the n-ellipsoid (G − 1)/|∇G|
-and the height h is evaluated at the foot of the normal. Heights displace the surface along the base
-normal, as :meth:`SceneObject.displace` does. The FFD is inverted by a
-fixed number of fixed-point steps (exact for the identity lattice, converging for displacements small
-against the lattice spacing). Contact by minimum distance (eq. 14–15) then reads: a taxel at x touches
-when φ(x) ≤ 0, with penetration −φ(x).
+surface = n-ellipsoid (eq. 4–6) ∘ FFD lattice (X = B P, eq. 8) + height field along the normal (texture grating +
+roughness + defects). :func:`signed_distance` φ(x) of points (..., 3) in metres is positive outside, in metres; a
+taxel at x touches when φ(x) ≤ 0, with penetration −φ(x). How φ is built: ``docs/geometry.md``.
 """
 
 from __future__ import annotations
 
 from typing import NamedTuple
+
+from jax.scipy.special import gammaln
 
 from bayestouch.backend import jax, jnp
 from bayestouch.geometry import nellipsoid as ne
@@ -84,8 +78,6 @@ class Surface(NamedTuple):
 
 def _bernstein(deg: int, s):
     i = jnp.arange(deg + 1)
-    from jax.scipy.special import gammaln
-
     logc = gammaln(deg + 1.0) - gammaln(i + 1.0) - gammaln(deg - i + 1.0)
     s = jnp.clip(s, 0.0, 1.0)[..., None]
     return jnp.exp(logc) * s**i * (1.0 - s) ** (deg - i)
