@@ -1096,7 +1096,7 @@ def raw_model(
     :data:`RAW_PREDICTIVE_DRAWS` draws only: 7 MB on the standard scenario) with the Student-t reading noise.
     ``info`` is merged into the model description; ``adjust`` (:func:`curvature_adjustment`) maps the draws before
     every summary, the posterior group and the log-likelihood (``chain.h5`` keeps emcee's draws as sampled)."""
-    from bayestouch.inference.run import PosteriorModel
+    from bayestouch.inference.posterior import PosteriorModel
 
     pw = jax.jit(jax.vmap(lambda t: jnp.sum(raw_pointwise(t, data, finger, nu, texture), axis=1)))
 
@@ -1284,7 +1284,7 @@ def run_raw_fit(
     dict
         The summary written to ``summary.json``.
     """
-    from bayestouch.inference.run import write_posterior
+    from bayestouch.inference.posterior import write_posterior
     from bayestouch.inference.sampler import adaptive_moves, sample
 
     if texture not in ("auto", "on", "off"):

@@ -344,7 +344,8 @@ def _sample(logp, start, walkers: int, seed: int, steps: int):
 
 
 def _summary(k: int, nat: np.ndarray, errors: dict, n_points: int, policy: str) -> dict:
-    from bayestouch.inference.run import NATURAL_NAMES, interval
+    from bayestouch.inference.posterior import interval
+    from bayestouch.inference.run import NATURAL_NAMES
 
     return {
         "stroke": k,
