@@ -9,9 +9,9 @@ import time
 from pathlib import Path
 
 import numpy as np
-from bayestouch.inference.sbc import simulate_points
 
 from bayestouch.inference.contact import make_log_prob
+from bayestouch.inference.sbc import simulate_points
 
 # a tilted, unequal-axes n-ellipsoid (centre m, log axes, Euler angles rad, log n, log σ) and 1000 points
 THETA = np.array([0.0, 0.0, 0.0, np.log(0.03), np.log(0.022), np.log(0.015), 0.4, 0.3, -0.5, np.log(2.2), np.log(3e-4)])
