@@ -59,7 +59,7 @@ def test_de_search_padding_counts_zero():
 
 
 def test_batched_surface_integrals_equal_the_single_mesh_ones():
-    from bayestouch.inference.run import _draw_meshes
+    from bayestouch.inference.posterior import _draw_meshes
 
     rng = np.random.default_rng(0)
     vecs = np.column_stack(

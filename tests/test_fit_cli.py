@@ -263,7 +263,7 @@ def test_fit_with_normals_and_outlier_mixture(tmp_path):
 def test_vmf_sample_has_the_known_mean_cosine_and_no_preferred_azimuth():
     """E[cos] to the mean direction is coth κ − 1/κ (3-D von Mises–Fisher), the tangent part averages to zero;
     a sampler at the wrong κ (2κ) is caught by the same tolerance (negative control)."""
-    from bayestouch.inference.run import vmf_sample
+    from bayestouch.inference.posterior import vmf_sample
 
     rng = np.random.default_rng(4)
     n = 100_000

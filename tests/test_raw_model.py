@@ -286,6 +286,6 @@ def test_t_scale_factor_is_the_t_fit_to_gaussian_readings():
 
     def nll(lk):
         th[10] = lk
-        return -float(jnp.sum(raw._pointwise(jnp.asarray(th), pred, data, nu, None)))
+        return -float(jnp.sum(raw.likelihood.reading_log_lik(jnp.asarray(th), pred, data, nu, None)))
 
     assert abs(mle(nll) - 1.5) < 1.5 * tol, mle(nll)

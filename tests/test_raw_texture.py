@@ -45,7 +45,7 @@ def _start(ds):
     priors = cm.load_priors()
     d5, finger = raw.load_raw_data(ds, stride=raw.BARE_STRIDE)
     th0 = raw.initial_raw_theta(
-        d5, finger, raw._contact_points(ds, d5.frames), 0, priors, raw.raw_bounds(d5, priors), starts=2
+        d5, finger, raw.data.commanded_points(ds, d5.frames), 0, priors, raw.raw_bounds(d5, priors), starts=2
     )
     d2, _ = raw.load_raw_data(ds, stride=raw.TEXTURE_STRIDE, finger=finger)
     return th0, d2, finger, priors
@@ -136,7 +136,7 @@ def test_pruned_slots_change_nothing_near_the_start_and_are_checked(textured):
     far[3:6] += np.log1p(4e-4 / np.exp(th[3:6]))  # every semi-axis 0.4 mm longer
     assert abs(ll(far, pruned) - ll(far, data)) > 1.0
     check = raw.prune_clearance(far[None], pruned, tex)
-    assert not check["exact"] and check["min_clearance_m"] < raw.PRUNE_CHECK, check
+    assert not check["exact"] and check["min_clearance_m"] < raw.likelihood.PRUNE_CHECK, check
 
 
 @pytest.mark.slow
@@ -154,7 +154,8 @@ def test_textured_raw_fit_detects_and_recovers_the_grating(tmp_path, textured):
     assert s["model"]["parameters_sampled"] == list(raw.RAW_TEXTURE_PARAM_NAMES)
     assert s["model"]["texture_search"]["grating_gain_nats"] > raw.DETECT_NATS
     pr = s["model"]["pruning"]
-    assert pr["exact"] and pr["slots_kept"] < pr["slots_total"] and pr["min_clearance_m"] > raw.PRUNE_CHECK, pr
+    assert pr["exact"] and pr["slots_kept"] < pr["slots_total"], pr
+    assert pr["min_clearance_m"] > raw.likelihood.PRUNE_CHECK, pr
     t = obj.texture
     assert abs(p["wavelength"]["mean"] / t.wavelength - 1) < 0.01, p["wavelength"]
     assert abs(p["amplitude"]["mean"] / t.amplitude - 1) < 0.15, p["amplitude"]

@@ -1,1 +1,1 @@
-"""Bayesian inference: priors, likelihoods (contact level; raw-current level to come), samplers."""
+"""Bayesian inference: priors, likelihoods (contact, raw-current and patch levels), samplers, posterior outputs."""

@@ -1,56 +1,8 @@
-"""Contact-level model: probed contact points against the n-ellipsoid surface.
-
-Parameters θ: the 11 of the default layout, centre (3, m), log semi-axes (3, log m), Euler angles
-ξ ∈ [0, π], ψ ∈ [0, π), ζ ∈ [−π, π) (the symmetry-reduced ranges of :func:`bayestouch.paper.fit_nellipsoid_de`),
-log n, and log σ (m, the contact noise scale); the likelihood options below append parameters in the order
-of :func:`param_names`.
-
-Residuals: the residual of each point is its first-order Euclidean distance to the surface,
-r = (G − 1)/|∇G| with G = (Σ|y_i/a_i|^n)^(1/n) (exact to first order for any n, unlike the radial distance
-near flat faces; :func:`bayestouch.geometry.nellipsoid.first_order_distance`).
-
-Noise models (``noise=``):
-
-``"student"`` (default)
-    r/σ is Student-t with ``nu`` degrees of freedom (robust to outliers), or Gaussian when ``nu`` is infinite.
-``"multiplicative"``
-    The paper's perturbation (data values multiplied by 1 + r, r ~ U[−ε, ε] per coordinate, in the frame
-    centred on ``origin``; :func:`bayestouch.paper.perturb`) moves a point by δ_k = (x_k − o_k) r_k. Its
-    component along the model's unit normal m̂ has variance ε²/3 · Σ_k m̂_k² (x_k − o_k)² (a sum of three
-    independent uniforms, matched here by a Gaussian of the same variance; exact in mean and variance, and
-    within a few per cent in density by the central limit theorem). An additive contact noise σ remains, so
-    r_i ~ N(0, σ² + ε²/3 Σ_k m̂_ik² (x_ik − o_k)²). ε is sampled (``log_eps``), log-uniform.
-``"mixture"``
-    r ~ (1 − w) N(0, σ) + w U(−D, D), D the diagonal of the data's bounding box (no residual of a point inside
-    that box can exceed it by much); the outlier fraction w is sampled uniformly in [0, ``outlier_max``].
-
-Normals (``normals=``, the ``nx, ny, nz`` of a contact file): an extra factor per point, a von Mises–Fisher
-density on the unit sphere of the measured normal about the model's outward unit normal at the point
-(∇G normalised, evaluated at the contact point; first order in the residual like r itself),
-log f = log κ − log 2π − log(1 − e^(−2κ)) + κ (m·m̂ − 1). The concentration κ is sampled (``log_kappa``,
-log-uniform in [``kappa_min``, ``kappa_max``]) rather than fixed: how well a finger measures normals is
-not known in advance, and the posterior of κ reports it.
-
-Priors: uniform in the ranges of ``models/priors.toml`` (log-uniform for axes, n, σ, ε, κ; uniform for w).
-The log-probability is −inf outside the prior and never NaN; it is a pure JAX function of a batch of
-parameter vectors, written for speed on CPU: one small matrix product maps the homogeneous points into the
-scaled principal frame of every walker, and the per-point work (three powers |q|^n = exp(n log|q|), whose
-values also give ∇G through |q|^(n−1) = |q|^n/|q|; 1/G = S^(−1/n); the floored |∇G|; the likelihood term) is
-one fused elementwise-and-reduce loop over (walkers, points) that XLA compiles into a single kernel. Measured in
-``benchmarks/bench_inference.py`` against the straightforward ``jit(vmap(...))`` of :func:`residuals`.
-
-Precision (``make_log_prob(..., precision=)``): ``"float64"`` (default) everywhere. ``"mixed"`` (Student-t or
-Gaussian noise without normals only) maps the points into the scaled principal frame in float64, does the
-per-point transcendental work (the three powers, 1/G, the Student-t log1p) in float32 (8 AVX2 lanes instead of 4,
-cheaper exp/log) and accumulates the sum over points in float64. It is about 1.5–2x faster on CPU. It is not
-:func:`make_log_prob`'s default: float32 resolves G near 1 to ~1e-7, i.e. a residual to ~1e-7·a, so each point's
-log-likelihood carries an error ~1e-7·a/σ·ψ(r/σ) (ψ the Student-t influence function, ≤ ~1) and the sum an error
-~1e-7·(a/σ)·√M nats: about 3e-4 nats for M = 1000 and 2e-3 for a/σ = 100 and M = 10,000 (measured in
-``tests/test_contact_model.py`` and ``benchmarks/bench_inference.py``). For sampling that is harmless — a target
-perturbed by a factor e^ε, |ε| ≤ δ, is within total variation ½(e^(2δ) − 1) ≈ δ of the exact one, so no posterior
-probability moves by more than ~0.2 % even at 10,000 points — and :func:`bayestouch.inference.run.run_contact_fit`
-samples in mixed precision where it applies (``precision="auto"``). :func:`log_prob`, :func:`log_prob_batch` and
-:func:`pointwise_log_likelihood` (the differentiated and reported forms) are float64 always.
+"""Contact-level model: probed contact points (M, 3) m against the n-ellipsoid surface. θ (W, 11) or more per
+walker: centre m, log semi-axes log m, Euler angles rad, log n, log σ (m, the contact noise scale), then the
+options' parameters in the order of :func:`param_names`; residuals are first-order distances (m) to the surface.
+Priors, the batched log-probability (float64, or mixed precision) and the pointwise log-likelihood. The model, its
+noise models, normals and precision: ``docs/contact_model.md``.
 """
 
 from __future__ import annotations
@@ -58,6 +10,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+from scipy.special import gammaln
 
 from bayestouch.backend import jax, jnp
 from bayestouch.errors import BadInput
@@ -88,7 +41,7 @@ __all__ = [
 #: the 11 parameters of the default layout (no normals, Student-t or Gaussian noise)
 PARAM_NAMES = ("x_G", "y_G", "z_G", "log_a", "log_b", "log_c", "xi", "psi", "zeta", "log_n", "log_sigma")
 
-#: the noise models of the likelihood (see the module docstring)
+#: the noise models of the likelihood (``docs/contact_model.md``)
 NOISE_MODELS = ("student", "multiplicative", "mixture")
 
 PRIOR_SPECS = {
@@ -270,8 +223,6 @@ def _geometry(th, hom, want_normals: bool):
 
 
 def _student_const(nu: float) -> float:
-    from scipy.special import gammaln
-
     return float(gammaln((nu + 1) / 2) - gammaln(nu / 2) - 0.5 * np.log(nu * np.pi))
 
 
@@ -462,7 +413,7 @@ def make_log_prob(
         Centre of the multiplicative perturbation (default the data centroid).
     precision : {"float64", "mixed"}
         ``"mixed"``: float32 per-point transcendentals, float64 affine map and sum (``noise="student"`` without
-        normals only; about 1.5x faster, log-probability error ~1e-7·(a/σ)·√M nats, see the module docstring).
+        normals only; about 1.5x faster, log-probability error ~1e-7·(a/σ)·√M nats, see ``docs/contact_model.md``).
 
     Returns
     -------

@@ -1,40 +1,8 @@
-"""Texture of the raw-current level: a sinusoidal grating (amplitude, wavelength, orientation, phase) and a
-random roughness (RMS), on the n-ellipsoid, as the scene's texture height field
-(:func:`bayestouch.scene.surface.height`) defines them.
-
-Parameters (appended to the raw level's 11, see :mod:`bayestouch.inference.raw`)
-----------------------------------------------------------------------------------
-``tex_u, tex_v`` (m)
-    The grating's height at base-surface foot point y (principal frame) is
-    h = u sin(2π s/λ) + v cos(2π s/λ), with s = (y − y_ref)·d, d = (cos o, sin o, 0): amplitude √(u² + v²) and
-    phase atan2(v, u) at the reference point y_ref = Rᵀ(x_ref − c), where x_ref is a fixed world point near the
-    data (the mean taxel position). Referencing the phase to the data, not to the object's centre ~15 periods
-    away, removes most of the correlation between wavelength and phase; (u, v) instead of (amplitude, phase)
-    makes the parameters unconstrained and the amplitude → 0 limit regular. Prior u, v ~ N(0, A₀²)
-    (``texture_amplitude_scale`` in ``models/priors.toml``).
-``log_wavelength`` (log m)
-    Uniform in [log λ_min, log λ_max] (``texture_wavelength_min/max``).
-``orientation`` (rad)
-    The direction of d in the principal x–y plane of the *sampled* frame. o + π with (−u, v) is the same
-    surface; sampling uses a half-open box of width π centred on the search's estimate, and summaries reduce
-    o to [0, π) (flipping u with it).
-``log_roughness`` (log m)
-    RMS height of the random part, uniform in [log r_min, log r_max]. Its realisation is unknown, so it enters
-    the likelihood as variance: a reading's ln I gets σ_r² · v_tm, where v_tm (per unit RMS², 1/m²) is the
-    variance of its linearised response to random fields of the scene's roughness family (a sum of cosines
-    with isotropic directions and wavelengths λ·U(0.5, 2), :func:`bayestouch.scene.objects.build_surface`),
-    estimated once by Monte Carlo at the initial estimate (:func:`roughness_variance`). Readings are treated
-    as independent given θ, although the roughness correlates neighbouring taxels and frames (the posterior of
-    σ_r is then somewhat too narrow).
-
-Initialisation (:func:`bayestouch.inference.raw.search_texture`, :func:`~bayestouch.inference.raw.initial_raw_texture`)
--------------------------------------------------------------------------------------------------------------------
-The likelihood is sharply multimodal in (λ, o): the data span ~30 grating periods. The search linearises the
-predicted ln I in a height field at the bare-shape estimate θ₀, pulls the robust (Student-t) score of the
-residuals back onto the penetrating taxels' foot points with one vector–Jacobian product, and evaluates the
-likelihood-ratio statistic |Σ c_p e^{−i k·y_p}|²/A(k) of those weights at all wave vectors k of each principal
-plane at once (:func:`grating_peaks`: a gridded 2-D FFT, A(k) the predicted signal energy); the peaks are refined
-off the grid (:func:`refine_peak`), ranked by short L-BFGS-B runs on the full log-posterior, and the best polished.
+"""Texture of the raw-current level: a sinusoidal grating (amplitude, wavelength, orientation, phase) and a random
+roughness (RMS), on the n-ellipsoid, as the scene's texture height field (:func:`bayestouch.scene.surface.height`)
+defines them: the five parameters appended to the raw level's 11 (u, v m, log λ log m, orientation rad,
+log roughness log m), their prior, the textured signed distance (W, P) m, the grating's peak search in a plane and
+the roughness fields. The model and its search: ``docs/texture_model.md``.
 """
 
 from __future__ import annotations
@@ -42,8 +10,12 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+from scipy.optimize import minimize
 
 from bayestouch.backend import jax, jnp
+from bayestouch.errors import BadInput
+from bayestouch.geometry import nellipsoid as ne
+from bayestouch.inference.contact import principal_frame, shape_of
 from bayestouch.params import MODELS, Spec, build
 
 __all__ = [
@@ -51,6 +23,7 @@ __all__ = [
     "TEXTURE_NATURAL_NAMES",
     "RawTexture",
     "distance_batch",
+    "foot_points",
     "grating_peaks",
     "refine_peak",
     "roughness_fields",
@@ -91,8 +64,6 @@ class TexturePriors(NamedTuple):
 
 def load_texture_priors(path=None) -> TexturePriors:
     """Read ``[texture_priors]`` of ``models/priors.toml`` (or ``path``)."""
-    from bayestouch.errors import BadInput
-
     p = MODELS / "priors.toml" if path is None else path
     tp = build(TexturePriors, p, "texture_priors", TEXTURE_PRIOR_SPECS)
     if not (tp.wavelength_min < tp.wavelength_max and tp.roughness_min < tp.roughness_max):
@@ -118,7 +89,7 @@ def texture_log_prior(th, amplitude_scale: float):
 
 
 class RawTexture(NamedTuple):
-    """What the textured raw likelihood needs beyond :class:`~bayestouch.inference.raw.RawData`.
+    """What the textured raw likelihood needs beyond :class:`~bayestouch.inference.raw.data.RawData`.
 
     ref : (3,) float, metres
         World reference point of the grating's phase.
@@ -160,8 +131,6 @@ def distance_batch(th, hom, ref=None):
     (x − x_ref)·d_w = (c − x_ref)·d_w + a₁q₁ cos o + a₂q₂ sin o and n̂·d_w = (sign q₁ v₁ cos o + sign q₂ v₂ sin o)/√ss.
     Equal to the world-frame form to rounding, in about half the time (no per-point rotation or normalisation).
     """
-    from bayestouch.inference.contact import principal_frame
-
     f = principal_frame(th, hom)
     if ref is None:
         return f.d
@@ -178,9 +147,6 @@ def distance_batch(th, hom, ref=None):
 
 @jax.jit
 def _foot(theta, points):
-    from bayestouch.geometry import nellipsoid as ne
-    from bayestouch.inference.contact import shape_of
-
     s = shape_of(theta)
     y = ne.to_local(s, points)
     dist, grad, gnorm = ne.first_order_distance(s, y)
@@ -274,8 +240,6 @@ def refine_peak(weights, xy, wavelength: float, orientation: float, norm=None):
     """(wavelength m, orientation rad in [0, π), statistic) maximising |Σ_p c_p e^{−i k·y_p}|²/A(k) near a peak of
     :func:`grating_peaks`, by Nelder–Mead on (log λ, o) with the sum evaluated directly (off the FFT grid, whose
     cells are ~1 % apart in λ at 2 mm: enough to misplace a grating by half a period across the data)."""
-    from scipy.optimize import minimize
-
     w, p = _significant(weights, xy)
 
     def neg(z):

@@ -13,6 +13,7 @@ import numpy as np
 
 from bayestouch.backend import jax, jnp
 from bayestouch.inference import contact as cm
+from bayestouch.inference.run import NATURAL_NAMES, initial_theta
 
 __all__ = ["to_unconstrained", "from_unconstrained", "make_potential", "nuts_contact"]
 
@@ -96,8 +97,6 @@ def nuts_contact(
         each (num_chains, num_samples); ``diverging`` (num_chains, num_samples) bool.
     """
     from numpyro.infer import MCMC, NUTS
-
-    from bayestouch.inference.run import NATURAL_NAMES, initial_theta
 
     priors = priors or cm.load_priors()
     potential, bounds = make_potential(points, priors, nu)

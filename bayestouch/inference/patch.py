@@ -1,55 +1,7 @@
-"""Per-contact superellipse patch posterior: (a, b, n) of the paper's eq. 16–18 from one taxel frame or a window.
-
-DESIGN.md §3.5: the contact patch is an *output* of the skin model and has its own posterior from the taxel
-currents. :func:`bayestouch.physics.patch.fit_patch` summarises a (noise-free) pressure map by thresholding;
-this module infers the patch from the measured currents instead, with honest uncertainty.
-
-Model
------
-Parameters θ (7,): centre (u0, v0) on the pad (m, skin-local taxel coordinates), log semi-axes log a, log b
-(log m), orientation φ (rad, direction of the a-axis from the pad's u-axis), log n (eq. 16's exponent) and
-log V (log m³), the indentation volume V = ∫δ dA = δ0 A n/(n + 2) (A: eq. 18 area, δ0: the skin's penetration
-at the patch centre). The data fix the force, nearly ∝ V, far better than δ0, a, b or n; sampling V instead of
-δ0 puts that direction on an axis and halves emcee's autocorrelation time (≈ 60 → 30 steps, measured).
-
-1. Penetration profile. Inside the Lamé curve L = |x/a|^n + |y/b|^n < 1 (eq. 16, in the patch frame rotated
-   by φ about (u0, v0)) the skin is indented by δ(u, v) = δ0 (1 − L)₊. For a sphere of radius R pressed into
-   the flat skin this is exact at n = 2: the gap is δ0 − r²/2R = δ0 (1 − r²/a²) with a² = 2Rδ0 (the Winkler
-   contact of physics.md §3); n > 2 flattens the profile towards a punch, n < 2 sharpens it. The support
-   {L < 1} is the contact domain D_c of eq. 16, so (a, b, n) are the patch of Table 1 and its area is
-   eq. 18 (:func:`~bayestouch.physics.patch.superellipse_area`).
-2. Pressure. The local foam law and the finger's own blur, exactly as the forward model does it
-   (:func:`bayestouch.physics.forward.contact_frame`): p = K σ_foam(δ/h) at the taxels (K = ``Finger.kernel``),
-   zero on the unloaded reference rows.
-3. Currents. Δ_j(θ) = ln I(p_j, T) − ln I(0, T) from :func:`~bayestouch.physics.taxel.taxel_current`
-   (``"empirical"``: s S_p p_j exactly; ``"physics"``: the piezotronic chain, evaluated at ``temperature``).
-4. Data. The K frames of a window are drift compensated with the reference rows
-   (:func:`~bayestouch.physics.noise.drift_compensate`), their log-currents averaged (√K less white noise)
-   and the fixed-pattern gains divided out (``Finger.gains``, or an unloaded ``baseline`` window instead):
-   y_j = ⟨ln I_kj⟩_k − ln G_j. The model is y_j = c + Δ_j(θ) + ε_j, where the offset c = ln I(0, T) of the
-   unloaded taxel at the unknown skin temperature (≈ 8 %/K, DESIGN.md §3.2) is common to every taxel.
-5. Likelihood. ε_j ~ N(0, σ_j²) independent, with σ_j² the variance of the window mean of the noise model
-   (physics.md §5): white noise (shot + Johnson + ADC, :func:`~bayestouch.physics.noise.noise_std`, relative to
-   the taxel's mean current) divided by K, plus the exact variance of the K-sample mean of the OU-sum 1/f
-   process (:func:`window_flicker_variance`; the slow components do not average out), plus the per-taxel
-   drift random walk accumulated over ``elapsed_s`` since the gains (or baseline) were taken. The offset c
-   has a flat prior and is marginalised analytically: with w_j = 1/σ_j², r_j = y_j − Δ_j and r̄ = Σw r / Σw,
-   log L = −½ Σ w_j (r_j − r̄)² − ½ Σ ln(2πσ_j²) + ½ ln(2π / Σw).
-   Not modelled: the read-out's rare glitches (``outlier_probability``), which a Gaussian likelihood cannot
-   absorb; drop frames with outliers or use a longer window.
-6. Prior. Uniform in θ inside a box (so log-uniform in a, b, n, V): the centre anywhere over the loaded
-   taxels, a, b ∈ [0.2 mm, half the pad], n ∈ [1.2, 10] (the issue's range), and δ0 ∈ [1 µm, h],
-   φ ∈ [−π, π] (the likelihood has period π in φ and is symmetric under (a, b, φ) → (b, a, φ + π/2); the wide
-   box keeps every mode in its interior). Draws are canonicalised to a ≥ b, φ ∈ (−π/2, π/2] before they are
-   summarised.
-
-When the signal is far below the noise (``"physics"`` mode, physics.md §0 finding 2: Δ ln I ≈ 3e-5 at 1 kPa;
-or a frame with no contact) the posterior stays close to the prior, as it should.
-
-Sampling uses the project's emcee engine (:func:`bayestouch.inference.sampler.sample`, HDF5 checkpoint) when
-``chain_path`` is given, else the same seeded emcee set-up with emcee's in-memory backend (the HDF5 writes
-cost ~10 ms a step, more than this log-probability). The start is a Gauss–Newton fit of the same model from a
-moment guess of the signal.
+"""Per-contact superellipse patch posterior: (a, b, n) of the paper's eq. 16–18 from one taxel frame or a window of
+K frames of the whole array's currents (K, N) A. θ (7,): centre (u0, v0) m on the pad, log a, log b (log m),
+orientation rad, log n, log V (log m³, the indentation volume); the model's N taxel predictions are Δ ln I (N,).
+The model, its likelihood and prior, and how it is sampled: ``docs/patch_model.md``.
 """
 
 from __future__ import annotations
@@ -59,11 +11,15 @@ import time
 from functools import partial
 from typing import NamedTuple
 
+import arviz as az
 import numpy as np
+from scipy.optimize import least_squares
 
 from bayestouch.backend import jax, jnp
 from bayestouch.errors import BadInput
 from bayestouch.inference.contact import Bounds
+from bayestouch.inference.posterior import interval
+from bayestouch.inference.sampler import convergence, sample
 from bayestouch.params import MODELS, Spec, build
 from bayestouch.physics import noise as nz
 from bayestouch.physics import skin as sk
@@ -96,7 +52,7 @@ PARAM_NAMES = ("u0", "v0", "log_a", "log_b", "angle", "log_n", "log_volume")
 #: names of the summarised natural parameters (canonical a ≥ b)
 SUMMARY_NAMES = ("u0", "v0", "a", "b", "angle", "n", "depth")
 
-#: prior ranges (see the module docstring; ``[patch_priors]`` of ``models/priors.toml``): a, b ≥ A_MIN m,
+#: prior ranges (``docs/patch_model.md``; ``[patch_priors]`` of ``models/priors.toml``): a, b ≥ A_MIN m,
 #: n ∈ [N_MIN, N_MAX], δ0 ≥ DEPTH_MIN m
 PATCH_PRIOR_SPECS = {
     "a_min": Spec("m", 1e-6, 1e-2),
@@ -291,7 +247,7 @@ def make_patch_model(
     elapsed_s: float = 0.0,
     n_flicker: int = nz.N_FLICKER,
 ) -> PatchModel:
-    """Turn a window of measured currents into the :class:`PatchModel` of the module docstring (NumPy edge).
+    """Turn a window of measured currents into the :class:`PatchModel` of ``docs/patch_model.md`` (NumPy edge).
 
     Parameters
     ----------
@@ -515,8 +471,6 @@ def initial_patch_theta(model: PatchModel, mode: str = "empirical") -> tuple[np.
     signal's total force for an n = 2 paraboloid, F = M δ0 π a b / 2h) refined by ``scipy.optimize.least_squares``
     on the whitened residuals with the offset profiled out, from n₀ = 2 and 4.
     """
-    from scipy.optimize import least_squares
-
     lo, hi = np.asarray(model.lower), np.asarray(model.upper)
     pos = np.asarray(model.positions)
     loaded = np.asarray(model.loaded) > 0
@@ -576,15 +530,6 @@ def _canonical(flat: np.ndarray) -> np.ndarray:
     ang = ang + np.where(swap, np.pi / 2, 0.0)
     ang = np.pi / 2 - np.mod(np.pi / 2 - ang, np.pi)
     return np.column_stack([flat[:, 0], flat[:, 1], a, b, ang, np.exp(flat[:, 5]), np.asarray(_depth(flat))])
-
-
-def _stats(x: np.ndarray) -> dict:
-    return {
-        "mean": float(x.mean()),
-        "sd": float(x.std(ddof=1)),
-        "q05": float(np.quantile(x, 0.05)),
-        "q95": float(np.quantile(x, 0.95)),
-    }
 
 
 def _axial_stats(x: np.ndarray) -> dict:
@@ -658,10 +603,6 @@ def patch_posterior(
     BadInput
         Bad currents, mode, walkers or steps (one line).
     """
-    import arviz as az
-
-    from bayestouch.inference.sampler import convergence, sample
-
     t0 = time.perf_counter()
     if mode not in tx.MODES:
         raise BadInput(f"mode: must be one of {', '.join(tx.MODES)}, got {mode!r}")
@@ -697,12 +638,12 @@ def patch_posterior(
     ess, rhat = az.ess(idata, method="bulk"), az.rhat(idata)
     params = {}
     for name in SUMMARY_NAMES:
-        st = _axial_stats(draws[name]) if name == "angle" else _stats(draws[name])
+        st = _axial_stats(draws[name]) if name == "angle" else interval(draws[name])
         if name != "angle":
             st.update(r_hat=float(rhat[name]), ess_bulk=float(ess[name]))
         params[name] = st
     derived = {
-        k: {**_stats(draws[k]), "r_hat": float(rhat[k]), "ess_bulk": float(ess[k])} for k in ("area_m2", "force_N")
+        k: {**interval(draws[k]), "r_hat": float(rhat[k]), "ess_bulk": float(ess[k])} for k in ("area_m2", "force_N")
     }
     checked = [n for n in SUMMARY_NAMES if n != "angle"]
     diag = convergence([params[n]["r_hat"] for n in checked], [params[n]["ess_bulk"] for n in checked], ch)

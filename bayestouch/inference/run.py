@@ -1,165 +1,42 @@
-"""Posterior runs: initialise, sample with emcee (HDF5 checkpoints, resumable), diagnose, summarise
-(canonicalised draws), write the outputs. The stateful edge of the inference package.
+"""The contact-level fit: the initial estimate of the n-ellipsoid from contact points (m), the walkers' start, the
+canonicalised natural parameters of draws, the contact level's :class:`~bayestouch.inference.posterior.PosteriorModel`
+(Student-t, multiplicative, mixture or FFD-marginalised likelihood) and :func:`run_contact_fit`, which samples it
+and writes the run folder (:func:`bayestouch.inference.posterior.write_posterior`).
 
-Every likelihood level describes itself with a :class:`PosteriorModel` and hands its chain to
-:func:`write_posterior`, which writes the run folder:
-
-* ``chain.h5`` — the emcee backend (the checkpoint; written by :func:`bayestouch.inference.sampler.sample`);
-* ``posterior.nc`` — ArviZ InferenceData: ``posterior`` (every kept draw, canonicalised natural parameters),
-  ``log_likelihood`` and ``posterior_predictive`` (on thinned draws), ``observed_data``;
-* ``summary.json`` — parameters (mean, sd, q05, q95, R-hat, bulk ESS), derived volume, area and inertia (eq. 11–13)
-  with intervals, diagnostics (converged or not, and why), the model;
-* ``mean_shape.ply`` — the posterior-mean surface; ``uncertainty_mesh.ply`` — the same mesh coloured by the
-  per-vertex posterior spread of the surface along its normal (the spread in metres is in the vertex property
-  ``spread``, also summarised in ``summary.json``).
+θ (11,) or more is the contact level's sampled vector (:mod:`bayestouch.inference.contact`); points are (M, 3) m.
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
 from functools import partial
 from pathlib import Path
-from typing import NamedTuple
 
 import numpy as np
+from scipy.optimize import minimize
 
 from bayestouch.backend import jax, jnp
+from bayestouch.errors import BadInput
 from bayestouch.geometry import nellipsoid as ne
+from bayestouch.geometry.symmetry import canonicalize_batch
 from bayestouch.inference import contact as cm
+from bayestouch.inference import ffd_marginal as fm
+from bayestouch.inference.de import de_search
+from bayestouch.inference.posterior import PosteriorModel, vmf_sample, write_posterior
+from bayestouch.inference.sampler import prune_stuck_walkers, sample
 
 __all__ = [
-    "PosteriorModel",
-    "write_posterior",
     "initial_theta",
     "run_contact_fit",
     "contact_model",
+    "ffd_contact_model",
     "NATURAL_NAMES",
-    "interval",
-    "uncertainty_spread",
-    "vmf_sample",
     "natural_draws",
     "start_ball",
 ]
 
 #: summary names (natural units) of the 11 sampled contact-level parameters
 NATURAL_NAMES = ("x_G", "y_G", "z_G", "a", "b", "c", "xi", "psi", "zeta", "n", "sigma")
-
-#: draws kept for the log-likelihood and posterior-predictive groups (memory: draws × observations × 8 bytes)
-PREDICTIVE_DRAWS = 500
-#: draws used for the derived quantities and the uncertainty mesh
-DERIVED_DRAWS = 200
-
-
-class PosteriorModel(NamedTuple):
-    """How a likelihood level's chain becomes outputs.
-
-    names : tuple of str
-        Natural (summary) names of the columns :attr:`natural` returns.
-    natural : callable
-        ``(N, D) sampled → (N, K) natural``, canonicalised (axis order, signs, angle aliases).
-    shape_vectors : callable
-        ``(N, K) natural → (N, 10)`` n-ellipsoid vectors (centre m, axes m, angles rad, n).
-    pointwise_log_lik : callable or None
-        ``(N, D) sampled → (N, M)`` log-likelihood of each observation (ArviZ ``log_likelihood`` group).
-    predictive : callable or None
-        ``((N, D) sampled, np.random.Generator) → {name: (N, ...) array}`` replicated data.
-    observed : dict
-        ``{name: array}`` the data (ArviZ ``observed_data`` group); names match :attr:`predictive`'s.
-    info : dict
-        Written as ``summary["model"]``.
-    refine_mesh : callable, optional
-        ``((K,) natural posterior mean, (V, 3) mean-shape vertices m) → (V, 3) m``: moves the mean mesh (e.g. by
-        the lattice displacements of an FFD model); default: the n-ellipsoid mesh as it is.
-    checks : callable, optional
-        ``(summary dict) → list of str``: the level's own warnings about the fit (e.g. a noise multiplier far above
-        1, i.e. a model that does not fit the data), written as ``summary["diagnostics"]["warnings"]``.
-    predictive_draws : int, optional
-        Draws in the posterior predictive group (default :data:`PREDICTIVE_DRAWS`; fewer where one replicate is
-        large, as a recording's readings are).
-    """
-
-    names: tuple
-    natural: Callable
-    shape_vectors: Callable
-    pointwise_log_lik: Callable | None
-    predictive: Callable | None
-    observed: dict
-    info: dict
-    refine_mesh: Callable | None = None
-    checks: Callable | None = None
-    predictive_draws: int | None = None
-
-
-def interval(x) -> dict:
-    """Mean, sd and the central 90 % interval (q05, q95) of draws ``x`` (N,)."""
-    x = np.asarray(x, float)
-    return {
-        "mean": float(x.mean()),
-        "sd": float(x.std(ddof=1)) if x.size > 1 else 0.0,
-        "q05": float(np.quantile(x, 0.05)),
-        "q95": float(np.quantile(x, 0.95)),
-    }
-
-
-def _thin_rows(n_steps: int, per_walker: int) -> np.ndarray:
-    return np.unique(np.linspace(0, n_steps - 1, max(1, min(n_steps, per_walker))).round().astype(int))
-
-
-def uncertainty_spread(mean_vertices, mean_normals, shape_vectors) -> np.ndarray:
-    """Per-vertex posterior spread (V,) m of the surface: the sd over draws of where each draw's surface crosses
-    the line through a mean-mesh vertex along its normal (first-order distance, so exact near the surface).
-
-    Parameters
-    ----------
-    mean_vertices : (V, 3) float, metres
-    mean_normals : (V, 3) float or None
-        Unit normals of the mean surface. Not needed: the first-order distance is taken along the draw's own
-        gradient, which agrees with the mean surface's normal to first order (``write_posterior`` passes None).
-    shape_vectors : (N, 10) float
-        Posterior draws as n-ellipsoid vectors.
-    """
-    del mean_normals  # the first-order distance is already along the normal to first order
-    d = np.asarray(
-        _first_order_distances(
-            jnp.asarray(np.asarray(shape_vectors, dtype=float)), jnp.asarray(mean_vertices, dtype=float)
-        )
-    )
-    return d.std(axis=0, ddof=1)
-
-
-# module level, data as arguments: compiled once per array shape and shared by every run of a process
-@jax.jit
-@partial(jax.vmap, in_axes=(0, None))
-def _first_order_distances(v, pts):
-    s = ne.from_vector(v)
-    return ne.first_order_distance(s, ne.to_local(s, pts))[0]
-
-
-@jax.jit
-@partial(jax.vmap, in_axes=(0, None))
-def _mesh_vertices(v, dirs):
-    s = ne.from_vector(v)
-    return ne.surface_point(s, ne.unit_nsphere(dirs, s.n))
-
-
-def vmf_sample(mean, kappa, rng: np.random.Generator) -> np.ndarray:
-    """Unit vectors (..., 3) drawn from von Mises–Fisher distributions on the sphere with mean directions
-    ``mean (..., 3)`` (unit) and concentrations ``kappa`` (broadcast to (...,), > 0): the cosine to the mean is
-    w = 1 + ln(u + (1 − u) e^(−2κ))/κ, u ~ U(0, 1) (exact inversion in 3-D; E[w] = coth κ − 1/κ), the azimuth
-    uniform."""
-    mean = np.asarray(mean, float)
-    kappa = np.broadcast_to(np.asarray(kappa, float), mean.shape[:-1])
-    u = rng.random(mean.shape[:-1])
-    w = np.clip(1.0 + np.log(u + (1.0 - u) * np.exp(-2.0 * kappa)) / kappa, -1.0, 1.0)
-    phi = rng.uniform(0.0, 2.0 * np.pi, mean.shape[:-1])
-    # an orthonormal tangent basis (t1, t2) at each mean: t1 ⟂ mean from the axis least aligned with it
-    axis = np.eye(3)[np.argmin(np.abs(mean), axis=-1)]
-    t1 = np.cross(mean, axis)
-    t1 /= np.linalg.norm(t1, axis=-1, keepdims=True)
-    t2 = np.cross(mean, t1)
-    r = np.sqrt(np.maximum(1.0 - w * w, 0.0))[..., None]
-    return w[..., None] * mean + r * (np.cos(phi)[..., None] * t1 + np.sin(phi)[..., None] * t2)
 
 
 @jax.jit
@@ -168,132 +45,6 @@ def _foot_and_normal(theta, pts):
     s = cm.shape_of(theta)
     foot = ne.project_to_surface(s, pts)
     return foot, ne.normals(s, foot)
-
-
-_volumes = jax.jit(jax.vmap(lambda v: ne.volume(ne.from_vector(v))))
-
-
-def _draw_meshes(shape_vectors, res: int):
-    """Vertices (N, V, 3) m of the n-ellipsoids ``shape_vectors (N, 10)`` on one cube-sphere topology, and its
-    faces (one compiled map for all draws)."""
-    from bayestouch.geometry.mesh import cube_sphere
-
-    dirs, faces = cube_sphere(res)
-    return np.asarray(_mesh_vertices(jnp.asarray(np.asarray(shape_vectors, dtype=float)), jnp.asarray(dirs))), faces
-
-
-def _spread_colours(spread: np.ndarray) -> np.ndarray:
-    import matplotlib
-
-    cmap = matplotlib.colormaps["viridis"]
-    hi = float(np.quantile(spread, 0.99)) or 1.0
-    return (np.asarray(cmap(np.clip(spread / hi, 0.0, 1.0))) * 255).round().astype(np.uint8)
-
-
-def write_posterior(out: Path, chain, model: PosteriorModel, *, seed: int, t0: float) -> dict:
-    """Summarise a chain (:class:`~bayestouch.inference.sampler.Chain`) and write the run folder ``out``.
-
-    Returns the summary written to ``summary.json``.
-    """
-    import arviz as az
-    import xarray as xr
-
-    from bayestouch.geometry.integrals import surface_integrals_batch
-    from bayestouch.geometry.mesh import to_trimesh
-    from bayestouch.inference.sampler import convergence
-    from bayestouch.io.files import write_json
-
-    out = Path(out)
-    kept = chain.kept  # (S, W, D)
-    S, W, D = kept.shape
-    nat = model.natural(kept.reshape(-1, D)).reshape(S, W, -1)
-    post = xr.Dataset(
-        {name: (("chain", "draw"), np.swapaxes(nat[..., i], 0, 1)) for i, name in enumerate(model.names)},
-        coords={"chain": np.arange(W), "draw": np.arange(S)},
-    )
-    ess = az.ess(post, method="bulk")
-    rhat = az.rhat(post)
-    params = {
-        name: {**interval(nat[..., i]), "r_hat": float(rhat[name]), "ess_bulk": float(ess[name])}
-        for i, name in enumerate(model.names)
-    }
-    rng = np.random.default_rng(seed)
-    groups = {"posterior": post}
-    rows = _thin_rows(S, max(1, PREDICTIVE_DRAWS // W))
-    sub = kept[rows]  # (s, W, D)
-    flat_sub = np.swapaxes(sub, 0, 1).reshape(-1, D)  # chain-major, matching (chain, draw)
-    coords = {"chain": np.arange(W), "draw": rows}
-    if model.pointwise_log_lik is not None:
-        ll = np.asarray(model.pointwise_log_lik(flat_sub))
-        groups["log_likelihood"] = xr.Dataset(
-            {"obs": (("chain", "draw", "obs_id"), ll.reshape(W, len(rows), -1))}, coords=coords
-        )
-    if model.predictive is not None:
-        prows = rows if model.predictive_draws is None else _thin_rows(S, max(1, model.predictive_draws // W))
-        rep = model.predictive(np.swapaxes(kept[prows], 0, 1).reshape(-1, D), rng)
-        groups["posterior_predictive"] = xr.Dataset(
-            {
-                k: (
-                    ("chain", "draw", *[f"{k}_dim_{j}" for j in range(v.ndim - 1)]),
-                    v.reshape(W, len(prows), *v.shape[1:]),
-                )
-                for k, v in rep.items()
-            },
-            coords={"chain": np.arange(W), "draw": prows},
-        )
-    if model.observed:
-        groups["observed_data"] = xr.Dataset(
-            {k: ([f"{k}_dim_{j}" for j in range(np.ndim(v))], np.asarray(v)) for k, v in model.observed.items()}
-        )
-    idata = az.InferenceData(**groups)
-
-    flat = nat.reshape(-1, nat.shape[-1])
-    draws = flat[rng.choice(len(flat), min(DERIVED_DRAWS, len(flat)), replace=False)]
-    vecs = np.asarray(model.shape_vectors(draws))
-    meshes, tri = _draw_meshes(vecs, 16)
-    ints = surface_integrals_batch(meshes, tri)
-    areas = ints.area
-    inertia = np.linalg.eigvalsh(ints.inertia)[:, ::-1]  # principal moments, largest first
-    # the volume is closed-form for an n-ellipsoid (eq. 11 on the exact surface, not the res-16 mesh)
-    exact_vols = np.asarray(_volumes(jnp.asarray(vecs)))
-
-    mean_nat = flat.mean(axis=0)
-    # the mean shape's mesh (nellipsoid_mesh(mean, 32), through the compiled map of the draws' meshes)
-    verts, faces = _draw_meshes(model.shape_vectors(mean_nat[None]), 32)
-    verts = verts[0]
-    spread = uncertainty_spread(verts, None, vecs[: min(200, len(vecs))])
-    if model.refine_mesh is not None:
-        verts = np.asarray(model.refine_mesh(mean_nat, verts))
-    to_trimesh(verts, faces).export(str(out / "mean_shape.ply"))
-    um = to_trimesh(verts, faces)
-    um.visual.vertex_colors = _spread_colours(spread)
-    um.vertex_attributes["spread"] = spread.astype(np.float32)
-    um.export(str(out / "uncertainty_mesh.ply"))
-
-    diag = convergence([p["r_hat"] for p in params.values()], [p["ess_bulk"] for p in params.values()], chain)
-    summary = {
-        "parameters": params,
-        "derived": {
-            "volume_m3": interval(exact_vols),
-            "area_m2": interval(areas),
-            "inertia_principal_m5": {
-                k: [interval(inertia[:, i])[k] for i in range(3)] for k in ("mean", "sd", "q05", "q95")
-            },
-            "surface_spread_m": {
-                "mean": float(spread.mean()),
-                "max": float(spread.max()),
-                "q95": float(np.quantile(spread, 0.95)),
-            },
-        },
-        "diagnostics": {**diag, "seconds": time.perf_counter() - t0},
-        "model": {**model.info, "seed": seed},
-        "files": ["summary.json", "posterior.nc", "chain.h5", "mean_shape.ply", "uncertainty_mesh.ply"],
-    }
-    summary["diagnostics"]["warnings"] = list(model.checks(summary)) if model.checks is not None else []
-    # uncompressed: posterior draws and replicated points are noisy floats that zlib shrinks by ~10 % at ~1 s a run
-    idata.to_netcdf(str(out / "posterior.nc"), compress=False)
-    write_json(out / "summary.json", summary)
-    return summary
 
 
 # module level, data as arguments: one compiled program per number of points, shared by every initial fit
@@ -315,10 +66,6 @@ def initial_theta(points, seed: int, priors: cm.PriorParams, starts: int = 3) ->
     polish) runs off to surfaces several times too large whose local curvature matches the touched patch — the
     likelihood cannot tell them apart, and the sampler explores that ridge from a sensible start instead.
     """
-    from scipy.optimize import minimize
-
-    from bayestouch.inference.de import de_search
-
     pts = np.asarray(points, float)
     c = pts.mean(axis=0)
     half = 0.5 * np.ptp(pts, axis=0)
@@ -381,8 +128,6 @@ _EXTRA_NATURAL = {"log_kappa": ("kappa", np.exp), "log_eps": ("epsilon", np.exp)
 def natural_draws(flat: np.ndarray, sampled: tuple = cm.PARAM_NAMES) -> np.ndarray:
     """θ draws (S, D) with parameter names ``sampled`` → canonicalised natural parameters (S, D): centre,
     a ≥ b ≥ c, angles, n, σ, then the optional parameters (κ, ε, w) in natural units."""
-    from bayestouch.geometry.symmetry import canonicalize_batch
-
     v = np.column_stack([flat[:, :3], np.exp(flat[:, 3:6]), flat[:, 6:9], np.exp(flat[:, 9])])
     extra = [np.exp(flat[:, 10])]
     for j, name in enumerate(sampled[11:], start=11):
@@ -397,12 +142,13 @@ _EXTRA_SCALE = {"log_kappa": 1e-2, "log_eps": 1e-2, "w_outlier": 1e-3}
 
 
 def contact_model(points, priors: cm.PriorParams, nu: float, *, normals=None, noise: str = "student") -> PosteriorModel:
-    """The contact level as a :class:`PosteriorModel`: pointwise log-likelihood of each point
-    (:func:`~bayestouch.inference.contact.pointwise_log_likelihood`); replicated points are surface points of each
-    draw displaced along the normal by noise of the model's scale (Student-t or Gaussian σ; σ_i for the
+    """The contact level as a :class:`~bayestouch.inference.posterior.PosteriorModel`: pointwise log-likelihood of
+    each point (:func:`~bayestouch.inference.contact.pointwise_log_likelihood`); replicated points are surface points
+    of each draw displaced along the normal by noise of the model's scale (Student-t or Gaussian σ; σ_i for the
     multiplicative model; the mixture's outliers are drawn uniformly along the normal within the data's extent);
     with measured ``normals``, replicated normals are von Mises–Fisher (κ of the draw) about the draw's normal
-    (:func:`vmf_sample`), and the observed group holds the normalised measured normals too."""
+    (:func:`~bayestouch.inference.posterior.vmf_sample`), and the observed group holds the normalised measured
+    normals too."""
     pts = jnp.asarray(points, dtype=jnp.float64)
     m = len(points)
     sampled = cm.param_names(normals is not None, noise)
@@ -473,8 +219,6 @@ def ffd_contact_model(points, dims, tau: float) -> PosteriorModel:
     """The contact level with a Gaussian likelihood and the FFD lattice marginalised
     (:mod:`bayestouch.inference.ffd_marginal`). The pointwise log-likelihood and the replicated points are taken
     conditional on the lattice's posterior mean at each draw; the mean mesh is moved by that mean lattice."""
-    from bayestouch.inference import ffd_marginal as fm
-
     pts = jnp.asarray(points, dtype=jnp.float64)
     m = len(points)
 
@@ -586,9 +330,6 @@ def run_contact_fit(
     dict
         The summary written to ``summary.json``.
     """
-    from bayestouch.errors import BadInput
-    from bayestouch.inference.sampler import prune_stuck_walkers, sample
-
     t0 = time.perf_counter()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -607,8 +348,6 @@ def run_contact_fit(
             points, priors, float(priors.student_nu if nu is None else nu), normals=normals, noise=noise
         )
     else:
-        from bayestouch.inference import ffd_marginal as fm
-
         if normals is not None or noise != "student" or (nu is not None and not np.isinf(nu)):
             raise BadInput(
                 "--ffd: the lattice is marginalised under Gaussian noise; use it without --noise and "

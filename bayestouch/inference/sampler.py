@@ -8,14 +8,16 @@ numbers a summary needs.
 
 from __future__ import annotations
 
-import importlib
-import sys
-import threading
 import time
 from pathlib import Path
 from typing import NamedTuple
 
+import arviz as az
+import emcee
 import numpy as np
+import xarray as xr
+from emcee.state import State
+from scipy.stats import chi2
 
 from bayestouch.errors import BadInput
 
@@ -87,7 +89,6 @@ def _snooker_move():
     target invariant: on a Gaussian with a known posterior its variances come out about 50 % low alone and 10 %
     low as a fifth of the moves (``tests/test_sampler.py``).
     """
-    import emcee
 
     class Snooker(emcee.moves.DESnookerMove):
         def get_proposal(self, s, c, random):
@@ -112,8 +113,6 @@ def _snooker_move():
 def default_moves():
     """Differential-evolution moves, 80 % parallel-direction DE and 20 % snooker (ter Braak 2006; ter Braak & Vrugt
     2008): the shape parameters are strongly correlated, which affine-invariant stretch moves handle poorly."""
-    import emcee
-
     return [(emcee.moves.DEMove(), 0.8), (_snooker_move(), 0.2)]
 
 
@@ -179,8 +178,6 @@ class IndependenceT:
         return -0.5 * (self.nu + len(self.mean)) * np.log1p(np.sum(z * z, axis=1) / self.nu)
 
     def propose(self, model, state):
-        from emcee.state import State
-
         if self.mean is None:
             return self.fallback.propose(model, state)
         w, d = state.coords.shape
@@ -203,8 +200,6 @@ def adaptive_moves(nu: float = 10.0):
     Measured on the 1000-point contact posterior of ``benchmarks/bench_sampling.py`` (32 walkers, 2 seeds): τ 4–6
     steps and a converged stop after 600–650 steps, against ν = 5 at 60 % (τ 7–8, 750–900 steps), ν = 20 at 90 %
     (τ 4, 900–950 steps: R-hat is slower to settle) and :func:`default_moves` (τ 45, 8000 steps)."""
-    import emcee
-
     indep = IndependenceT(emcee.moves.DEMove(), nu=nu)
     return [(indep, 0.8), (emcee.moves.DEMove(), 0.15), (_snooker_move(), 0.05)]
 
@@ -214,7 +209,6 @@ def _buffered_hdf_backend(path: Path, flush_s: float):
     ``flush_s`` seconds (and on :meth:`flush`): emcee's own writes every step at ~7–10 ms a step, as long as a
     whole step of a 1000-point likelihood. A run killed at any moment loses at most ``flush_s`` of sampling; every
     step already on disk stays bit for bit."""
-    import emcee
 
     class Buffered(emcee.backends.HDFBackend):
         def __init__(self, filename):
@@ -286,8 +280,6 @@ def prune_stuck_walkers(
     replaced : int
         How many walkers were replaced.
     """
-    from scipy.stats import chi2
-
     ens = np.array(ensemble, float)
     lp = np.asarray(log_prob, float)
     finite = np.isfinite(lp)
@@ -365,9 +357,6 @@ def _looks_converged(chain: np.ndarray, tau, old_tau, burn: int, length: int, mo
         and abs(np.max(old_tau) - np.max(tau)) < 0.05 * np.max(tau)
     ):
         return False
-    import arviz as az
-    import xarray as xr
-
     kept = chain[burn:]
     if monitor is not None:
         kept = np.asarray(monitor(kept.reshape(-1, kept.shape[2]))).reshape(kept.shape[0], kept.shape[1], -1)
@@ -449,12 +438,7 @@ def sample(
         of the summary), whose R-hat and ESS the stopping rule then checks instead of the sampled parameters', so
         a run does not stop early on a criterion its summary then fails.
     """
-    import emcee
-
     t0 = time.perf_counter() if t0 is None else t0
-    if stop_when_converged and "arviz" not in sys.modules:
-        # the convergence checks need ArviZ (~2 s to import): load it while the start ensemble is prepared
-        threading.Thread(target=importlib.import_module, args=("arviz",), daemon=True).start()
     if chain_path is None:  # in memory: short runs for which a checkpoint costs more than it saves
         backend = emcee.backends.Backend()
         resume = False

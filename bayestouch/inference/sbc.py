@@ -1,69 +1,29 @@
 """Simulation-based calibration (SBC; Talts, Betancourt, Simpson, Vehtari & Gelman 2018) of the contact-level
-model: is its posterior, as sampled by the project's emcee engine, calibrated?
-
-For each of N simulated data sets: draw a truth θ* from the prior, simulate M contact points, sample the
-posterior, and record the rank of each quantity's true value among L roughly independent posterior draws.
-If the posterior is exact, each rank is uniform on {0, …, L} and the truth falls inside any central posterior
-interval as often as its level says (Talts et al. 2018, Theorem 1). We report both: rank histograms with a
-chi-square uniformity test on binned ranks, and the coverage of central 90 % intervals.
-
-The generating prior (``GEN_PRIOR``, uniform in θ, i.e. log-uniform in axes, n and σ)
-    centre x_G, y_G, z_G ∈ [−5, 5] mm; a ∈ [3.5, 5] cm, b ∈ [2.2, 3.2] cm, c ∈ [1, 2] cm;
-    ξ ∈ [0, π], ψ ∈ [0, π), ζ ∈ [−π, π) (the model's symmetry-reduced Euler ranges); n ∈ [1.5, 6];
-    σ ∈ [0.2, 0.45] mm (contact noise "around 0.3 mm").
-SBC is only valid when the inference prior equals the generating prior, and the package's prior box is
-data-dependent (its centre range comes from the data), so the posterior sampled here is
-``contact.log_likelihood`` (Gaussian, ν = ∞, the generating noise model) + the log-density of ``GEN_PRIOR``
-(constant inside its box, −∞ outside).
-
-Data. M points area-uniform on the true surface (``sample_surface``), each moved along the outward normal by
-N(0, σ²). The contact likelihood scores a point by its first-order distance to the surface (G − 1)/|∇G| with G
-homogeneous of degree 1 (exact for a sphere). It is not the exact density of such points: that is
-N(d; 0, σ²) / (A(θ) J(x; θ)), with A the area and J = Π(1 + κ_i d) the Jacobian of the normal offset, and the
-two extra factors nearly cancel (exactly for a sphere: −M log 4πR² against −2 Σ log(ρ_i/R)). The package leaves
-both out, as real contact points are not area-uniform anyway (the strokes decide where they fall). The
-remaining error is small: the maximum-likelihood volume of M = 100 points is off by −0.05 ± 0.10 of its sd
-(100 data sets from ``GEN_PRIOR``), of M = 1000 points by −0.41 ± 0.13 sd (−0.05 % of the volume; 4000 points:
-−0.51 ± 0.14 sd). So the SBC checks the package's own likelihood (``area_term=False``, the default). With 100
-points it passes (seed 0: 90 % coverage 0.88–0.94 for every quantity, every chi-square p ≥ 0.38, volume 0.91
-and p = 0.65; seed 1: 0.88–0.94, smallest p 0.044 of the nine, volume 0.93 and p = 0.98), and with 1000 points
-the volume's coverage drops to 0.82 (its rank mean 0.64: the posterior is a little small). ``area_term=True``
-adds −M log A(θ) alone (the area of a fine inscribed mesh). It is kept so the comparison can be rerun, not as a
-better model: without J it pulls further towards small shapes (maximum-likelihood volume −1.14 ± 0.13 sd at
-M = 1000), and at M = 100 its volume ranks are visibly skewed (chi-square p = 0.013).
-
-Symmetries. Axis permutations and Euler-angle aliases give the same surface, so the posterior in θ can have
-several equivalent modes, and a mode near an angle-range edge continues in its alias elsewhere in the box.
-Walkers started in one mode stay there. We therefore rank only quantities that are invariant under those
-symmetries, where every mode gives the same answer: the centre, the sorted semi-axes a₁ ≥ a₂ ≥ a₃, n, σ and
-the volume. The axis ranges of ``GEN_PRIOR`` are disjoint (a > b > c by at least 3 mm ≫ σ), so the
-principal directions are identified and the permutation aliases lie outside the prior box.
-
-Sampler. Walkers start in a small ball around the truth: SBC tests the posterior, not the initialiser (a
-truth is itself a draw from its posterior, so this start is as good as a converged one), and the first
-``max(2τ, steps/4)`` steps are discarded as burn-in by :func:`bayestouch.inference.sampler.sample`, which runs
-each chain in memory (a checkpoint buys nothing for hundreds of short SBC chains). The chain is thinned by the
-integrated autocorrelation time τ to roughly independent draws (rank statistics from autocorrelated draws are
-not uniform; Talts et al. 2018, sec. 5.1).
-
-``bayestouch sbc --datasets 100 --out DIR`` writes ``DIR/sbc.json`` and
-``DIR/sbc_ranks.png``.
+model: is its posterior, as sampled by the project's emcee engine, calibrated? Simulated data sets of M contact
+points (M, 3) m from the generating prior ``GEN_PRIOR`` (θ (11,)), the rank of each symmetry-invariant quantity's
+truth (centre m, sorted semi-axes m, n, σ m, volume m³) among L posterior draws, rank histograms with chi-square
+p-values and 90 % coverage. The method, the prior and the measured results: ``docs/sbc.md``.
 """
 
 from __future__ import annotations
 
+import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import NamedTuple
 
+import emcee
 import numpy as np
+from scipy.special import gammaln
+from scipy.stats import binom, chi2
 
 from bayestouch.backend import jax, jnp
 from bayestouch.errors import BadInput
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.mesh import cube_sphere, sample_surface
 from bayestouch.inference import contact as cm
+from bayestouch.inference.sampler import sample
 
 __all__ = [
     "GEN_PRIOR",
@@ -83,7 +43,7 @@ __all__ = [
     "sbc",
 ]
 
-#: generating (= inference) prior, uniform in θ on these ranges (see the module docstring)
+#: generating (= inference) prior, uniform in θ on these ranges (``docs/sbc.md``)
 GEN_PRIOR = {
     "x_G": (-5e-3, 5e-3),
     "y_G": (-5e-3, 5e-3),
@@ -193,8 +153,6 @@ def simulate_points(theta, n_points: int, rng: np.random.Generator) -> np.ndarra
 
 def invariants(thetas) -> np.ndarray:
     """Symmetry-invariant quantities (…, 9) of θ (…, 11): centre, sorted axes a₁ ≥ a₂ ≥ a₃, n, σ, volume (SI)."""
-    from scipy.special import gammaln
-
     t = np.asarray(thetas, float)
     axes = -np.sort(-np.exp(t[..., 3:6]), axis=-1)
     n = np.exp(t[..., 9])
@@ -244,7 +202,7 @@ def make_sbc_log_prob(*, area_term: bool = False, likelihood_power: float = 1.0)
     ----------
     area_term : bool
         Add the area normaliser −M log A(θ) of area-uniform points alone (default False: the package's own
-        likelihood, which the module docstring shows to be the closer of the two to the exact density).
+        likelihood, which ``docs/sbc.md`` shows to be the closer of the two to the exact density).
     likelihood_power : float
         Exponent p of the likelihood; p > 1 makes the posterior about √p times too narrow, an overconfident
         posterior for negative controls. 1 for the honest posterior.
@@ -269,8 +227,6 @@ class _Lockstep:
     """
 
     def __init__(self, fn, points: np.ndarray, chunk: int, k: int):
-        import threading
-
         self.fn, self.chunk, self.k = fn, chunk, k
         self.pts = jnp.asarray(np.concatenate([points, np.repeat(points[:1], k - len(points), axis=0)]))
         self.cv = threading.Condition()
@@ -356,8 +312,6 @@ def posterior_draws(
     info : dict
         ``tau_max`` (steps), ``acceptance``, ``short`` (bool).
     """
-    from bayestouch.inference.sampler import sample
-
     rng = np.random.default_rng(seed)
     lo, hi = prior_box()
     scale = 1e-3 * (hi - lo)
@@ -405,8 +359,6 @@ def uniformity_pvalues(ranks, n_draws: int, n_bins: int) -> np.ndarray:
 
     Rank r goes to bin ⌊r · n_bins / (L + 1)⌋; expected counts use the exact number of rank values per bin.
     """
-    from scipy.stats import chi2
-
     r = np.asarray(ranks)
     b = (r * n_bins) // (n_draws + 1)
     per_bin = np.bincount((np.arange(n_draws + 1) * n_bins) // (n_draws + 1), minlength=n_bins)
@@ -552,8 +504,7 @@ def sbc(
 
 
 def de_moves():
-    import emcee
-
+    """emcee moves of every SBC chain: differential evolution alone."""
     return [(emcee.moves.DEMove(), 1.0)]
 
 
@@ -562,7 +513,6 @@ def plot_ranks(result: SBCResult, path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from scipy.stats import binom
 
     L, N = result.draws.shape[1], result.ranks.shape[0]
     nb = result.n_bins

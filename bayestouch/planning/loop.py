@@ -27,7 +27,8 @@ from bayestouch.geometry.integrals import surface_integrals
 from bayestouch.hardware.safety import UnsafePlan
 from bayestouch.inference import contact as cm
 from bayestouch.inference.freespace import Free, with_free
-from bayestouch.inference.run import NATURAL_NAMES, initial_theta, interval, natural_draws, start_ball
+from bayestouch.inference.posterior import interval
+from bayestouch.inference.run import NATURAL_NAMES, initial_theta, natural_draws, start_ball
 from bayestouch.inference.sampler import sample
 from bayestouch.planning.candidates import Strokes, make_candidates, select
 from bayestouch.planning.policies import check_policy, choose

@@ -1,0 +1,96 @@
+"""The curvature (sandwich) adjustment of the raw-current posterior: the likelihood treats correlated readings as
+independent, and draws θ (N, D) are mapped affinely so that their covariance becomes the inverse Godambe
+information, with the score summed over blocks of recording (seconds) within each stroke.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from bayestouch.backend import jax, jnp
+from bayestouch.inference.grating import RawTexture
+from bayestouch.inference.raw.data import RawData
+from bayestouch.inference.raw.likelihood import STUDENT_NU, raw_pointwise
+
+__all__ = ["ADJUST_BLOCK_S", "Adjustment", "curvature_adjustment"]
+
+
+#: block length of the curvature adjustment, seconds of recording: longer than the roughness's and the lag's
+#: correlation (~2 mm of travel at 1 cm/s), short enough for ≥ 3 blocks per parameter
+ADJUST_BLOCK_S = 0.2
+
+
+class Adjustment(NamedTuple):
+    """The curvature adjustment of :func:`curvature_adjustment`: draws θ ↦ mean + (θ − mean) Cᵀ.
+
+    mean : (D,) float
+    C : (D, D) float
+    info : dict
+        Written as ``summary["model"]["adjustment"]``.
+    """
+
+    mean: np.ndarray
+    C: np.ndarray
+    info: dict
+
+    def __call__(self, flat: np.ndarray) -> np.ndarray:
+        return self.mean + (np.asarray(flat) - self.mean) @ self.C.T
+
+
+def curvature_adjustment(
+    flat,
+    data: RawData,
+    finger,
+    nu: float = STUDENT_NU,
+    texture: RawTexture | None = None,
+    block_s: float = ADJUST_BLOCK_S,
+):
+    """The sandwich (Godambe) correction of the posterior of an independence likelihood, as the curvature adjustment
+    of Ribatet, Cooley & Davison (2012, Statistica Sinica 22, 813–845).
+
+    The likelihood treats every reading as independent, but the 1/f noise, the response lag and above all the
+    surface's unmodelled roughness correlate neighbouring frames: the posterior is then far too narrow (on the
+    standard scenario the true volume lies ~30 posterior sds from the mean). With H⁻¹ ≈ Σ the posterior covariance of
+    the draws ``flat (N, D)`` and J the covariance of the score summed over blocks of ``block_s`` seconds within each
+    stroke (their sums nearly independent), the asymptotically right covariance is Σ J Σ (the inverse Godambe
+    information); draws are mapped affinely, θ ↦ θ̄ + C(θ − θ̄), C = chol(ΣJΣ) chol(Σ)⁻¹, so their covariance becomes
+    Σ J Σ while the mean and the shape of the posterior stay. Measured on the standard scenario (textured egg, 10
+    strokes): sds grow 6–18×, the volume's z-score falls from 30 to 2.1 (blocks of 0.1, 0.2, 0.4, 0.8 s: 2.5, 2.1,
+    2.9, 3.2). Blocks are shortened to keep ≥ 3 per parameter.
+
+    Returns
+    -------
+    Adjustment, or None when Σ or ΣJΣ is not positive definite (the draws are then left as they are).
+    """
+    flat = np.asarray(flat, float)
+    D = flat.shape[1]
+    mean = flat.mean(axis=0)
+    S = np.cov(flat.T)
+    G = np.asarray(
+        jax.jit(jax.jacfwd(lambda t: jnp.sum(raw_pointwise(t, data, finger, nu, texture), axis=1)))(jnp.asarray(mean))
+    )  # (F, D): the score of each frame
+    starts = np.flatnonzero(np.asarray(data.start))
+    ends = np.append(starts[1:], len(G))
+    L = max(1, int(round(block_s / float(data.dt))))
+    while L > 1 and sum(-(-(e - s) // L) for s, e in zip(starts, ends, strict=True)) < 3 * D:
+        L -= 1
+    blocks = np.array(
+        [G[i : min(i + L, e)].sum(axis=0) for s, e in zip(starts, ends, strict=True) for i in range(s, e, L)]
+    )
+    blocks -= blocks.mean(axis=0)
+    J = blocks.T @ blocks * len(blocks) / max(len(blocks) - 1, 1)
+    try:
+        Ls = np.linalg.cholesky(S)
+        C = np.linalg.cholesky(S @ J @ S) @ np.linalg.inv(Ls)
+    except np.linalg.LinAlgError:
+        return None
+    Sa = S @ J @ S
+    info = {
+        "method": "curvature adjustment to the sandwich covariance (Ribatet, Cooley & Davison 2012)",
+        "block_s": L * float(data.dt),
+        "blocks": int(len(blocks)),
+        "sd_ratio": [float(r) for r in np.sqrt(np.diag(Sa) / np.diag(S))],
+    }
+    return Adjustment(mean, C, info)

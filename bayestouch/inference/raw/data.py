@@ -1,0 +1,268 @@
+"""The raw-current level's data: a recording (:mod:`bayestouch.io.recording`) read into :class:`RawData` — the
+known taxel positions (m) of the selected frames, the gain- and drift-corrected ln I (F, M) of the selected taxels
+and their modelled noise sd — with the finger that recorded it. The model and its reductions are described in
+``docs/raw_model.md``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from bayestouch.backend import jax, jnp
+from bayestouch.errors import BadInput
+from bayestouch.io.recording import read_recording
+from bayestouch.params import MODELS
+from bayestouch.physics import forward as fw
+from bayestouch.physics import noise as nz
+from bayestouch.physics import taxel as tx
+from bayestouch.physics.virtual import load_finger
+
+__all__ = ["RawData", "open_recording", "load_raw_data", "commanded_points"]
+
+
+class RawData(NamedTuple):
+    """Everything the raw-current likelihood needs (F selected frames, M selected taxels).
+
+    taxel_position : (F, J, 3) float, metres
+        World positions of the taxels that may penetrate (within ``contact_radius``; known pad pose).
+    temperature : (F,) float, kelvin
+        Skin temperature.
+    log_current : (F, M) float
+        Measured ln(I / 1 A), divided by the fixed-pattern gains and the reference-row common drift.
+    noise_sd : (F, M) float
+        Modelled standard deviation of ``log_current`` (dimensionless, before the multiplier k).
+    start : (F,) bool
+        First selected frame of a stroke (the lag restarts at steady state).
+    kernel : (M, J) float
+        Pressure blur from the J penetrating taxels onto the M modelled ones.
+    lag_weights : (3,) float
+        (βˢ, 1 − βˢ, w₁) of the coarse-frame lag.
+    frames : (F,) int
+        Indices of the selected frames in the recording.
+    taxels : (M,) int
+        Indices of the selected taxels.
+    dt : float, seconds
+        Interval between selected frames.
+    mode : str
+        Taxel response mode of the recording ("physics" or "empirical").
+    active : (P,) int or None
+        Flat indices into the F·J penetrating-taxel slots whose distance is evaluated
+        (:func:`~bayestouch.inference.raw.likelihood.prune_clear`); the others are taken to be clear of the surface
+        (no penetration). None: every slot.
+    """
+
+    taxel_position: np.ndarray
+    temperature: np.ndarray
+    log_current: np.ndarray
+    noise_sd: np.ndarray
+    start: np.ndarray
+    kernel: np.ndarray
+    lag_weights: np.ndarray
+    frames: np.ndarray
+    taxels: np.ndarray
+    dt: float
+    mode: str
+    active: np.ndarray | None = None
+
+
+def open_recording(ds_or_path):
+    """A recording as a dataset, and the name to give it in error messages.
+
+    Parameters
+    ----------
+    ds_or_path : xarray.Dataset, str or path
+        A recording (:mod:`bayestouch.io.recording`), or the path of its ``.nc`` file.
+
+    Returns
+    -------
+    ds : xarray.Dataset
+    where : str
+        The path, or ``"recording"`` for a dataset given as such.
+
+    Raises
+    ------
+    BadInput
+        No such file, or a file that cannot be read as netCDF.
+    """
+    if not isinstance(ds_or_path, str | Path):
+        return ds_or_path, "recording"
+    p = Path(ds_or_path)
+    if not p.is_file():
+        raise BadInput(f"recording {p}: no such file; expected a .nc recording from bayestouch simulate")
+    try:
+        ds = read_recording(p)
+    except Exception as e:  # not netCDF/HDF5
+        raise BadInput(
+            f"recording {p}: cannot be read as netCDF ({type(e).__name__}); expected a .nc recording"
+        ) from None
+    return ds, str(p)
+
+
+def _need(ds, name, ndim, where):
+    if name not in ds.variables:
+        raise BadInput(f"{where}: variable '{name}' is missing; expected a bayestouch recording (bayestouch simulate)")
+    v = np.asarray(ds[name].values, dtype=float)
+    if v.ndim != ndim:
+        raise BadInput(f"{where}: variable '{name}' has {v.ndim} dimensions, expected {ndim}")
+    if not np.all(np.isfinite(v)):
+        raise BadInput(f"{where}: variable '{name}' contains NaN or infinite values; expected finite numbers")
+    return v
+
+
+def load_raw_data(
+    ds_or_path,
+    *,
+    models: Path = MODELS,
+    stride: int = 5,
+    radius: float = 4.5e-3,
+    contact_radius: float = 3.2e-3,
+    strokes=None,
+    finger=None,
+):
+    """Read a recording into :class:`RawData` and rebuild its finger.
+
+    Parameters
+    ----------
+    ds_or_path : xarray.Dataset or path
+        A recording (:mod:`bayestouch.io.recording`).
+    models : path
+        Parameter folder of the finger (``finger.toml``, ``skin.toml``, ``taxels.toml``, ``noise.toml``).
+    stride : int
+        Use every ``stride``-th frame of each stroke (≥ 1).
+    radius : float, metres
+        Model the taxels within this pad-coordinate distance of the pad centre.
+    contact_radius : float, metres
+        Taxels that may touch the object (penetration computed), ≤ ``radius``; the others get pressure only
+        through the blur.
+    strokes : sequence of int, optional
+        Use only these strokes (default all).
+    finger : Finger, optional
+        The device; default ``load_finger(models, seed=int(ds.attrs['seed']))`` (the simulated device's gains).
+
+    Returns
+    -------
+    (RawData, Finger)
+    """
+    ds, where = open_recording(ds_or_path)
+    if int(stride) < 1:
+        raise BadInput(f"stride must be an integer ≥ 1, got {stride}")
+    if not radius > 0:
+        raise BadInput(f"radius must be positive (metres), got {radius}")
+    cur = _need(ds, "taxel_current", 2, where)
+    contact = _need(ds, "contact_point", 2, where)
+    normal = _need(ds, "contact_normal", 2, where)
+    depth = _need(ds, "pressing_depth", 1, where)
+    temp = _need(ds, "skin_temperature", 1, where)
+    t = _need(ds, "time", 1, where)
+    si = _need(ds, "stroke_index", 1, where).astype(int)
+    nF, nT = cur.shape
+    for name, v in (("contact_point", contact), ("contact_normal", normal)):
+        if v.shape != (nF, 3):
+            raise BadInput(f"{where}: variable '{name}' has shape {v.shape}, expected ({nF}, 3) (frame, xyz)")
+    for name, v in (("pressing_depth", depth), ("skin_temperature", temp), ("time", t), ("stroke_index", si)):
+        if v.shape != (nF,):
+            raise BadInput(f"{where}: variable '{name}' has shape {v.shape}, expected ({nF},) (frame)")
+    mode = str(ds.attrs.get("mode", "physics"))
+    if mode not in tx.MODES:
+        raise BadInput(f"{where}: attribute 'mode' is {mode!r}, expected one of {tx.MODES}")
+    if finger is None:
+        try:
+            seed = int(ds.attrs.get("seed", 0))
+        except ValueError:
+            raise BadInput(f"{where}: attribute 'seed' must be an integer, got {ds.attrs.get('seed')!r}") from None
+        finger = load_finger(Path(models), seed=seed).finger
+    N = int(np.asarray(finger.reference).size)
+    if nT != N:
+        raise BadInput(f"{where}: variable 'taxel_current' has {nT} taxels, expected {N} (the finger's array)")
+    ref = np.asarray(finger.reference).ravel().astype(bool)
+    if "taxel_reference" in ds.variables and not np.array_equal(np.asarray(ds["taxel_reference"].values) != 0, ref):
+        raise BadInput(f"{where}: variable 'taxel_reference' differs from the finger's reference taxels")
+
+    # -- pad pose of every frame (known kinematics), tangent from successive contact points within a stroke
+    tangent = np.zeros_like(contact)
+    for k in np.unique(si):
+        sel = si == k
+        tangent[sel] = np.gradient(contact[sel], axis=0) if sel.sum() > 1 else np.array([1.0, 0.0, 0.0])
+    tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-30)
+    use_strokes = np.unique(si) if strokes is None else np.asarray(list(strokes), int)
+    frames, start = [], []
+    for k in use_strokes:
+        idx = np.flatnonzero((si == k) & (depth > 0))
+        if idx.size == 0:
+            continue
+        idx = idx[::stride]
+        frames.append(idx)
+        start.append(np.arange(idx.size) == 0)
+    if not frames:
+        raise BadInput(f"{where}: no frames with contact (pressing_depth > 0) in the selected strokes")
+    frames, start = np.concatenate(frames), np.concatenate(start)
+    dts = np.diff(t[si == si[frames[0]]])
+    dt_fine = float(np.median(dts)) if dts.size else 0.02
+
+    grid = np.asarray(finger.grid).reshape(-1, 2)
+    rho = np.hypot(grid[:, 0], grid[:, 1])
+    taxels = np.flatnonzero((rho <= radius) & ~ref)
+    pen = np.flatnonzero((rho <= min(contact_radius, radius)) & ~ref)
+    if pen.size == 0:
+        raise BadInput(
+            f"radius {radius:g} m, contact_radius {contact_radius:g} m select no taxels; expected "
+            "distances of a few taxel pitches"
+        )
+    x = jax.vmap(lambda c, n, tg, d: fw.pad_points(finger, c, n, tg, d))(
+        jnp.asarray(contact[frames]),
+        jnp.asarray(normal[frames]),
+        jnp.asarray(tangent[frames]),
+        jnp.asarray(depth[frames]),
+    )
+    x = np.asarray(x).reshape(len(frames), -1, 3)[:, pen]
+
+    # -- data: gain- and drift-corrected log currents, and their modelled noise
+    gains = np.asarray(finger.gains).ravel()
+    floor = float(nz.adc_lsb(finger.noise))
+    meas = np.maximum(cur[frames], floor)
+    lnI = np.log(meas) - np.log(gains)
+    # the unloaded current at the skin temperature, through the taxels' response lag exactly as the reference
+    # taxels see it (each stroke starts at steady state, as the forward model does); without the lag a warming
+    # skin leaves a drift bias of ~1e-3 in ln I over a 1 s stroke, twice the reading noise
+    unloaded_all = np.asarray(
+        tx.taxel_current(finger.taxels, jnp.zeros((nF, 1)), jnp.asarray(temp)[:, None], mode=mode)
+    )[:, 0]
+    lagged = np.empty_like(unloaded_all)
+    for k in np.unique(si):
+        sel = np.flatnonzero(si == k)
+        lagged[sel] = np.asarray(tx.first_order_lag(unloaded_all[sel, None], dt_fine, float(finger.taxels.lag)))[:, 0]
+    unloaded = lagged[frames]
+    flick = float(nz.flicker_autocovariance(finger.noise, 0.0))
+    white = (np.asarray(nz.noise_std(finger.noise, jnp.asarray(meas))) / meas) ** 2
+    # median over the reference taxels: one read-out glitch on a reference taxel must not shift every taxel
+    c_hat = np.median(lnI[:, ref] - np.log(unloaded)[:, None], axis=1)
+    s_ref = 0.5 * np.pi * (np.mean(white[:, ref], axis=1) + flick) / ref.sum()  # variance of a median: π/2 · σ²/n
+    t_first = {k: t[np.flatnonzero(si == k)[0]] for k in np.unique(si[frames])}
+    t_in = t[frames] - np.array([t_first[k] for k in si[frames]])
+    var = white[:, taxels] + flick + float(finger.noise.drift_local) ** 2 * t_in[:, None] + s_ref[:, None]
+    kernel = np.asarray(finger.kernel)[np.ix_(taxels, pen)]
+    lw = tx.coarse_lag_weights(dt_fine, float(finger.taxels.lag), int(stride))
+    data = RawData(
+        x,
+        temp[frames],
+        lnI[:, taxels] - c_hat[:, None],
+        np.sqrt(var),
+        start,
+        kernel,
+        lw,
+        frames,
+        taxels,
+        dt_fine * stride,
+        mode,
+    )
+    return data, finger
+
+
+def commanded_points(ds, frames) -> np.ndarray:
+    """The commanded pad-centre contact points (len(frames), 3) m of the recording ``ds`` at frame indices
+    ``frames`` (e.g. :attr:`RawData.frames`): the data of the contact-level initial fit, never a shape datum of the
+    raw likelihood."""
+    return np.asarray(ds["contact_point"].values, float)[frames]

@@ -1,0 +1,381 @@
+"""The raw-current fit: the bare-shape start θ (11,) from the commanded contact points, the level's
+:class:`~bayestouch.inference.posterior.PosteriorModel` (natural parameters, pointwise log-likelihood per frame,
+posterior predictive ln I (F, M)), its warnings, and :func:`run_raw_fit`, which samples the posterior of a recording
+and writes the run folder. The model: ``docs/raw_model.md``.
+"""
+
+from __future__ import annotations
+
+import time
+from functools import partial
+from pathlib import Path
+
+import numpy as np
+
+from bayestouch.backend import jax, jnp
+from bayestouch.errors import BadInput
+from bayestouch.inference import contact as cm
+from bayestouch.inference import grating as gr
+from bayestouch.inference.densities import t_scale_factor
+from bayestouch.inference.grating import RawTexture
+from bayestouch.inference.optimize import laplace, laplace_ball, scaled_lbfgs
+from bayestouch.inference.posterior import PosteriorModel, write_posterior
+from bayestouch.inference.raw.adjustment import Adjustment, curvature_adjustment
+from bayestouch.inference.raw.data import RawData, commanded_points, load_raw_data, open_recording
+from bayestouch.inference.raw.likelihood import (
+    LOG_K_PRIOR_SD,
+    RAW_NATURAL_NAMES,
+    RAW_OPT_SCALE,
+    RAW_PARAM_NAMES,
+    RAW_TEXTURE_NATURAL_NAMES,
+    RAW_TEXTURE_PARAM_NAMES,
+    STUDENT_NU,
+    make_raw_log_prob,
+    predict_log_current,
+    prune_clear,
+    prune_clearance,
+    raw_bounds,
+    raw_log_prob,
+    raw_pointwise,
+    reading_scale,
+)
+from bayestouch.inference.raw.texture import initial_raw_texture
+from bayestouch.inference.run import initial_theta, natural_draws
+from bayestouch.inference.sampler import adaptive_moves, sample
+from bayestouch.params import MODELS
+
+__all__ = [
+    "initial_raw_theta",
+    "raw_model",
+    "RAW_PREDICTIVE_DRAWS",
+    "MISFIT_K",
+    "misfit_warnings",
+    "DETECT_NATS",
+    "TEXTURE_STRIDE",
+    "BARE_STRIDE",
+    "RAW_PROPOSAL_NU",
+    "run_raw_fit",
+]
+
+#: draws in a raw fit's posterior predictive group (each replicates all F × M readings)
+RAW_PREDICTIVE_DRAWS = 32
+
+
+def initial_raw_theta(
+    data: RawData,
+    finger,
+    contact_points,
+    seed: int,
+    priors: cm.PriorParams,
+    bounds: cm.Bounds,
+    nu: float = STUDENT_NU,
+    starts: int = 4,
+) -> np.ndarray:
+    """Start θ (11,): the contact-level DE fit (:func:`bayestouch.inference.run.initial_theta`) to the commanded
+    contact points (= pad centre − (R − depth)·n), then L-BFGS-B on the raw log-posterior with exact JAX gradients.
+
+    The raw log-posterior is extremely sharp at k = 1 (relative noise ~4e-4 against signals of 0.05–0.4 in
+    empirical mode), so the optimiser starts at k = 30 (a smoother, Student-t-robust landscape), in variables scaled
+    by the diagonal of the Hessian and restarted until it stops gaining
+    (:func:`~bayestouch.inference.optimize.scaled_lbfgs`). With few strokes the surface patches leave the global
+    shape multimodal, so ``starts`` DE fits (seeds 1000·seed + k) are polished and the best log-posterior wins.
+    """
+    lo, hi = np.asarray(bounds.lower), np.asarray(bounds.upper)
+    fn = jax.jit(jax.value_and_grad(lambda t: -raw_log_prob(t, data, finger, bounds, nu)))
+    best_th, best_f = None, np.inf
+    for k in range(starts):
+        th = initial_theta(contact_points, int(seed) * 1000 + k, priors, starts=1)
+        th[10] = np.log(30.0)
+        th = np.clip(th, lo + 1e-6 * (hi - lo), hi - 1e-6 * (hi - lo))
+        th, _ = scaled_lbfgs(fn, th, lo, hi, RAW_OPT_SCALE[:11])
+        val = float(fn(jnp.asarray(th))[0])
+        if val < best_f:
+            best_th, best_f = th, val
+    return best_th
+
+
+def _natural(flat: np.ndarray) -> np.ndarray:
+    """θ draws (S, 11) or (S, 16) → canonicalised natural parameters: centre, a ≥ b ≥ c, angles, n, k (the contact
+    level's transform: the 11th column, log k here, is exponentiated like log σ there), then the texture's
+    amplitude, wavelength, orientation, phase and roughness (:func:`bayestouch.inference.grating.texture_natural`)."""
+    nat = natural_draws(flat[:, :11])
+    return nat if flat.shape[1] == 11 else np.column_stack([nat, gr.texture_natural(flat)])
+
+
+def raw_model(
+    data: RawData,
+    finger,
+    nu: float = STUDENT_NU,
+    texture: RawTexture | None = None,
+    info: dict | None = None,
+    adjust: Adjustment | None = None,
+):
+    """The raw-current level as a :class:`~bayestouch.inference.posterior.PosteriorModel`: pointwise log-likelihood per
+    selected frame (summed over its taxels: per reading would make posterior.nc ~200 MB for 10 strokes); the
+    observed data are the corrected ln I (F, M), and the posterior predictive replicates them (float32, for
+    :data:`RAW_PREDICTIVE_DRAWS` draws only: 7 MB on the standard scenario) with the Student-t reading noise.
+    ``info`` is merged into the model description; ``adjust`` (:func:`curvature_adjustment`) maps the draws before
+    every summary, the posterior group and the log-likelihood (``chain.h5`` keeps emcee's draws as sampled)."""
+    pw = jax.jit(jax.vmap(lambda t: jnp.sum(raw_pointwise(t, data, finger, nu, texture), axis=1)))
+
+    adj = adjust if adjust is not None else (lambda flat: flat)
+
+    def ll(thetas):
+        thetas = adj(thetas)
+        return np.concatenate(
+            [np.asarray(pw(jnp.asarray(c))) for c in np.array_split(thetas, max(1, len(thetas) // 64))]
+        )
+
+    one = jax.jit(
+        jax.vmap(lambda t: (predict_log_current(t, data, finger, texture), reading_scale(t, data, texture, nu)))
+    )
+
+    def predictive(thetas, rng: np.random.Generator):
+        reps = []
+        for c in np.array_split(adj(thetas), max(1, len(thetas) // 32)):
+            mu, sc = (np.asarray(a) for a in one(jnp.asarray(c)))
+            reps.append((mu + sc * rng.standard_t(nu, size=mu.shape)).astype(np.float32))
+        return {"log_current": np.concatenate(reps)}
+
+    F, M = np.shape(data.log_current)
+    names = RAW_PARAM_NAMES if texture is None else RAW_TEXTURE_PARAM_NAMES
+    desc = {
+        "level": "raw-current",
+        "mode": data.mode,
+        "likelihood": f"Student-t, nu = {nu:g}, scale {t_scale_factor(nu):.3f} x the sd below (the t that fits "
+        "Gaussian readings best), per taxel-frame reading; pointwise log-likelihood per frame (summed over its taxels)",
+        "noise_model": "ln I corrected by fixed-pattern gains and reference-row common drift; sd² = white(shot+"
+        "amplifier+ADC)/I² + stationary 1/f + local random walk + reference-mean variance; "
+        f"times k (sampled, prior log k ~ N(0, {LOG_K_PRIOR_SD:g}))"
+        + ("" if texture is None else "; plus roughness² × its Monte-Carlo response variance"),
+        "frames_used": int(F),
+        "frame_interval_s": float(data.dt),
+        "taxels_used": int(M),
+        "readings": int(F * M),
+        "texture": "not sampled (bare n-ellipsoid)"
+        if texture is None
+        else (
+            "sampled: grating u sin(2 pi s / wavelength) + v cos(2 pi s / wavelength), s = (foot - reference) . "
+            "(cos orientation, sin orientation, 0) in the sampled principal frame; amplitude = hypot(u, v), phase = "
+            "atan2(v, u) at the reference point; roughness RMS as a variance term"
+        ),
+        "parameters_sampled": list(names),
+    }
+    if texture is not None:
+        desc["texture_reference_m"] = [float(v) for v in texture.ref]
+    desc["adjustment"] = adjust.info if adjust is not None else "none: intervals assume independent readings"
+    return PosteriorModel(
+        RAW_NATURAL_NAMES if texture is None else RAW_TEXTURE_NATURAL_NAMES,
+        lambda flat: _natural(adj(flat)),
+        lambda nat: nat[:, :10],
+        ll,
+        predictive,
+        {"log_current": np.asarray(data.log_current)},
+        {**desc, **(info or {})},
+        checks=partial(_raw_warnings, textured=texture is not None),
+        predictive_draws=RAW_PREDICTIVE_DRAWS,
+    )
+
+
+#: noise multiplier k above which a raw fit's summary warns that the model does not fit the readings
+MISFIT_K = 3.0
+
+
+def misfit_warnings(summary: dict, textured: bool = False) -> list[str]:
+    """Warnings of a raw-current fit: the posterior mean of the noise multiplier k above :data:`MISFIT_K` says
+    the residuals are k times the modelled read-out noise — a forward model that misses something (a texture that
+    is not modelled, the lag approximated on coarse frames). Without the curvature adjustment the shape intervals,
+    computed as if the model were right, are then too narrow (standard scenario without the texture: k ≈ 9.6, the
+    true volume ~6 sds from the mean); with it (the default) they are widened for the correlated residuals, and the
+    warning says that a systematic misfit may still bias them (``benchmarks/bench_raw.py``)."""
+    k = float(summary["parameters"]["noise_scale"]["mean"])
+    if k <= MISFIT_K:
+        return []
+    why = (
+        "the lag is approximated on coarse frames (try a smaller stride)"
+        if textured
+        else ("the texture is not modelled (try texture='on'); the lag is approximated on coarse frames")
+    )
+    adjusted = isinstance(summary.get("model", {}).get("adjustment"), dict)
+    tail = (
+        "the sandwich adjustment widens the intervals for correlated residuals, but a systematic misfit can "
+        "still bias them"
+        if adjusted
+        else "the intervals assume the model is right and are likely too narrow"
+    )
+    return [
+        f"noise_scale k = {k:.1f} > {MISFIT_K:g}: the residuals are {k:.0f}x the modelled read-out noise, so the "
+        f"forward model misses part of the signal ({why}); {tail}"
+    ]
+
+
+def _raw_warnings(summary: dict, textured: bool = False) -> list[str]:
+    """:func:`misfit_warnings`, and a warning when a draw came within :data:`PRUNE_CHECK` of a taxel slot the
+    sampler left out (``summary.model.pruning``, :func:`prune_clearance`)."""
+    out = misfit_warnings(summary, textured)
+    pr = summary.get("model", {}).get("pruning")
+    if isinstance(pr, dict) and not pr.get("exact", True):
+        out.append(
+            f"a posterior draw came {pr['min_clearance_m']:.2g} m from a taxel left out as clear of the "
+            f"surface (margin {pr['margin_m']:g} m): the sampled likelihood may be inexact; rerun with "
+            "run_raw_fit(..., prune=False)"
+        )
+    return out
+
+
+#: log-posterior gain (nats) of the best grating over the bare shape above which texture="auto" models the texture.
+#: The maximum of N independent χ²₂/2 gains is ≈ ln N ≈ 12 nats for the ~10⁵ wave vectors searched; on the
+#: untextured egg, whose residuals are not white (1/f noise, lag approximation), the best grating gains ~25–50;
+#: on the textured egg thousands
+DETECT_NATS = 100.0
+#: frame strides: with the texture modelled (its readings vary within 0.1 s, which the coarse-frame lag does not
+#: follow: robust residual sd 1.3 s at stride 2 and 4.4 s at stride 5 at the truth), and without
+TEXTURE_STRIDE = 2
+BARE_STRIDE = 5
+#: degrees of freedom of the raw fit's independence proposal (:func:`bayestouch.inference.sampler.adaptive_moves`):
+#: the raw posterior is close to Gaussian (10⁵ readings), and in 16 dimensions a t proposal matched to a Gaussian
+#: target is accepted at most ~70 % of the time with ν = 10, ~85 % with ν = 30 (its tails stay heavier than the
+#: target's, so π/g stays bounded)
+RAW_PROPOSAL_NU = 30.0
+
+
+def run_raw_fit(
+    recording,
+    out,
+    *,
+    seed: int = 0,
+    walkers: int = 32,
+    steps: int = 1500,
+    resume: bool = False,
+    budget_s: float | None = None,
+    progress: bool = True,
+    stride: int | None = None,
+    radius: float = 4.5e-3,
+    strokes=None,
+    models: Path = MODELS,
+    starts: int = 4,
+    stop_when_converged: bool = True,
+    texture: str = "auto",
+    adjust: bool = True,
+    prune: bool = True,
+) -> dict:
+    """Sample the raw-current posterior of a recording and write the run folder ``out``.
+
+    Parameters
+    ----------
+    recording : path or xarray.Dataset
+    out : path
+        Run folder (``chain.h5``, ``summary.json``, ``posterior.nc``, meshes).
+    seed : int
+        Seeds the initial fit, the roughness Monte Carlo, the walkers and emcee.
+    walkers, steps : int
+    resume : bool
+        Continue the chain in ``out/chain.h5`` (the start, texture search included, is deterministic given the
+        seed, so the same model is rebuilt).
+    budget_s : float, seconds, optional
+        Stop sampling after this wall-clock time.
+    stride : int, optional
+        Frame stride of :func:`load_raw_data`; default :data:`TEXTURE_STRIDE` when the texture is modelled,
+        :data:`BARE_STRIDE` otherwise.
+    radius, strokes, models
+        See :func:`load_raw_data`.
+    starts : int
+        Number of DE starts of :func:`initial_raw_theta`.
+    stop_when_converged : bool
+        Stop before ``steps`` once converged (:func:`bayestouch.inference.sampler.sample`). Sampling is adaptive
+        (``sample(..., adapt=True)``, as :func:`bayestouch.inference.run.run_contact_fit`).
+    texture : {"auto", "on", "off"}
+        Sample the texture (grating and roughness, :mod:`bayestouch.inference.grating`): "on" always, "off" never
+        (the bare n-ellipsoid), "auto" when the best grating found by :func:`initial_raw_texture` gains more than
+        :data:`DETECT_NATS` of log-posterior over the bare shape.
+    adjust : bool
+        Widen the posterior to the sandwich covariance (:func:`curvature_adjustment`): the likelihood treats
+        correlated readings as independent. ``False`` gives the independence posterior as sampled.
+    prune : bool
+        Sample without the taxel slots more than :data:`~bayestouch.inference.raw.likelihood.PRUNE_MARGIN` outside
+        the start's surface (:func:`prune_clear`), checked on the draws afterwards (``summary.model.pruning``).
+
+    Returns
+    -------
+    dict
+        The summary written to ``summary.json``.
+    """
+    if texture not in ("auto", "on", "off"):
+        raise BadInput(f"texture must be one of auto, on, off; got {texture!r}")
+    if stride is not None and int(stride) < 1:
+        raise BadInput(f"stride must be an integer ≥ 1, got {stride}")
+    t0 = time.perf_counter()
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    ds, _ = open_recording(recording)
+    priors = cm.load_priors()
+    # the bare shape: DE on the commanded contact points, then L-BFGS-B on the raw posterior at the coarse stride
+    bare_stride = BARE_STRIDE if stride is None or texture != "off" else int(stride)
+    bare_data, finger = load_raw_data(ds, models=models, stride=bare_stride, radius=radius, strokes=strokes)
+    th0 = initial_raw_theta(
+        bare_data,
+        finger,
+        commanded_points(ds, bare_data.frames),
+        seed,
+        priors,
+        raw_bounds(bare_data, priors),
+        starts=starts,
+    )
+    data, tex, info = bare_data, None, {}
+    if texture != "off":
+        data, _ = load_raw_data(
+            ds, models=models, stride=stride or TEXTURE_STRIDE, radius=radius, strokes=strokes, finger=finger
+        )
+        tp = gr.load_texture_priors()
+        ts = initial_raw_texture(th0, data, finger, priors, tp, seed=seed)
+        planes = ("x-y", "x-z", "y-z")
+        info = {
+            "texture_search": {
+                "candidates": [
+                    {"plane": planes[p], "wavelength_m": lam, "orientation_rad": o, "statistic": st}
+                    for p, lam, o, st in ts.candidates
+                ],
+                "grating_gain_nats": ts.gain,
+                "detect_nats": DETECT_NATS,
+                "requested": texture,
+            }
+        }
+        if texture == "on" or ts.gain > DETECT_NATS:
+            tex, th_start, bounds, nlp = ts.texture, ts.theta, ts.bounds, ts.neg_log_post
+        elif stride is None:
+            data = bare_data
+    if tex is None:
+        th_start = th0
+    if prune:
+        data = prune_clear(data, th_start, tex)
+    if tex is None:
+        bounds = raw_bounds(data, priors)
+        nlp = jax.jit(jax.value_and_grad(lambda t: -raw_log_prob(t, data, finger, bounds)))
+    logp, _, names = make_raw_log_prob(data, finger, priors, texture=tex, bounds=bounds)
+    lo, hi = np.asarray(bounds.lower), np.asarray(bounds.upper)
+    # the Laplace approximation starts the walkers and is the first independence proposal (deterministic given the
+    # seed, so a resumed run rebuilds it)
+    moments = laplace(nlp, th_start, lo, hi, RAW_OPT_SCALE[: len(names)])
+    ch = sample(
+        logp,
+        lambda: laplace_ball(moments, lo, hi, walkers, np.random.default_rng(seed)),
+        out / "chain.h5",
+        walkers=walkers,
+        ndim=len(names),
+        seed=seed,
+        steps=steps,
+        resume=resume,
+        budget_s=budget_s,
+        progress=progress,
+        t0=t0,
+        stop_when_converged=stop_when_converged,
+        adapt=True,
+        proposal=moments,
+        moves=adaptive_moves(RAW_PROPOSAL_NU),
+        monitor=_natural,
+    )
+    flat = ch.kept.reshape(-1, ch.kept.shape[2])
+    if prune:
+        info["pruning"] = prune_clearance(flat[:: max(1, len(flat) // 256)], data, tex)
+    adjust = curvature_adjustment(flat, data, finger, texture=tex) if adjust else None
+    return write_posterior(out, ch, raw_model(data, finger, texture=tex, info=info, adjust=adjust), seed=seed, t0=t0)

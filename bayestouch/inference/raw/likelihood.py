@@ -1,0 +1,252 @@
+"""The raw-current likelihood: θ → signed distances of the penetrating-taxel slots (F, J) m → predicted ln I (F, M)
+of the selected taxels (:func:`bayestouch.physics.forward.log_current_from_distance`) → Student-t log-likelihood of
+the corrected readings; the prior box and the log-posterior, batched over walkers θ (W, 11) or (W, 16) with the
+texture (:mod:`bayestouch.inference.grating`); and the pruning of slots clear of the surface. Pure JAX where it is
+evaluated per draw. Parameters, noise model and reductions: ``docs/raw_model.md``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bayestouch.backend import jax, jnp
+from bayestouch.inference import contact as cm
+from bayestouch.inference import grating as gr
+from bayestouch.inference.densities import student_t_logpdf, t_scale_factor
+from bayestouch.inference.grating import RawTexture
+from bayestouch.inference.raw.data import RawData
+from bayestouch.params import MODELS, Spec, build
+from bayestouch.physics import forward as fw
+
+__all__ = [
+    "RAW_PRIOR_SPECS",
+    "load_raw_priors",
+    "RAW_PARAM_NAMES",
+    "RAW_NATURAL_NAMES",
+    "RAW_TEXTURE_PARAM_NAMES",
+    "RAW_TEXTURE_NATURAL_NAMES",
+    "STUDENT_NU",
+    "LOG_K_RANGE",
+    "LOG_K_PRIOR_SD",
+    "RAW_OPT_SCALE",
+    "slot_distances",
+    "PRUNE_MARGIN",
+    "PRUNE_CHECK",
+    "prune_clear",
+    "prune_clearance",
+    "distance_log_current",
+    "predict_log_current",
+    "reading_scale",
+    "reading_log_lik",
+    "raw_pointwise",
+    "raw_log_likelihood",
+    "raw_bounds",
+    "raw_log_prob_batch",
+    "raw_log_prob",
+    "make_raw_log_prob",
+]
+
+RAW_PRIOR_SPECS = {
+    "noise_scale_min": Spec("1", 1e-3, 1.0),
+    "noise_scale_max": Spec("1", 1.0, 1e8),
+    "log_noise_scale_sd": Spec("1", 1e-2, 100.0),
+}
+
+
+def load_raw_priors(path=None) -> dict[str, float]:
+    """Read ``[raw_priors]`` of ``models/priors.toml`` (or ``path``): the noise multiplier k's box and log-sd."""
+    return build(dict, MODELS / "priors.toml" if path is None else path, "raw_priors", RAW_PRIOR_SPECS)
+
+
+_RAW_PRIORS = load_raw_priors()
+
+RAW_PARAM_NAMES = ("x_G", "y_G", "z_G", "log_a", "log_b", "log_c", "xi", "psi", "zeta", "log_n", "log_k")
+RAW_NATURAL_NAMES = ("x_G", "y_G", "z_G", "a", "b", "c", "xi", "psi", "zeta", "n", "noise_scale")
+#: with the texture (:mod:`bayestouch.inference.grating`)
+RAW_TEXTURE_PARAM_NAMES = RAW_PARAM_NAMES + gr.TEXTURE_NAMES
+RAW_TEXTURE_NATURAL_NAMES = RAW_NATURAL_NAMES + gr.TEXTURE_NATURAL_NAMES
+#: degrees of freedom of the Student-t reading noise
+STUDENT_NU = 4.0
+#: box of log k (noise-scale multiplier) and the sd of its N(0, ·) prior
+#: (``[raw_priors]`` of ``models/priors.toml``)
+LOG_K_RANGE = (float(np.log(_RAW_PRIORS["noise_scale_min"])), float(np.log(_RAW_PRIORS["noise_scale_max"])))
+LOG_K_PRIOR_SD = float(_RAW_PRIORS["log_noise_scale_sd"])
+
+
+#: variable scales (16,) of the raw optimiser (:func:`bayestouch.inference.optimize.scaled_lbfgs`), in the units of
+#: θ: 10 µm, 1e-4 (log axes), 1 mrad, 1e-4 (log n), 0.1 (log k), then 1 µm (u, v), 1e-4 (log λ), 1e-4 rad (o),
+#: 0.1 (log σ_r); the first 11 for the bare shape
+RAW_OPT_SCALE = np.concatenate(
+    [np.full(3, 1e-5), np.full(3, 1e-4), np.full(3, 1e-3), [1e-4], [1e-1], [1e-6, 1e-6, 1e-4, 1e-4, 1e-1]]
+)
+
+
+def _hom(data: RawData):
+    """Homogeneous positions (4, P) m of the evaluated penetrating-taxel slots (all F·J, or ``data.active``)."""
+    x = np.asarray(data.taxel_position, float).reshape(-1, 3)
+    if data.active is not None:
+        x = x[np.asarray(data.active)]
+    return jnp.asarray(np.concatenate([x.T, np.ones((1, len(x)))]))
+
+
+#: signed distance (m) given to the slots :func:`prune_clear` left out: far enough that the softplus penetration is
+#: exactly 0 in float64
+_CLEAR = 1.0
+
+
+def slot_distances(thetas, data: RawData, texture: RawTexture | None = None):
+    """Signed distances (W, F, J) m of the penetrating taxels to the surfaces of ``thetas (W, D)``
+    (:func:`bayestouch.inference.grating.distance_batch`, float64); the slots left out by :func:`prune_clear` get
+    :data:`_CLEAR`."""
+    F, J = np.shape(data.taxel_position)[:2]
+    ref = None if texture is None else texture.ref
+    d = gr.distance_batch(thetas, _hom(data), ref)
+    if data.active is not None:
+        d = jnp.full((d.shape[0], F * J), _CLEAR).at[:, jnp.asarray(data.active)].set(d)
+    return d.reshape(-1, F, J)
+
+
+#: slots farther than this (m) outside the start's surface are not evaluated while sampling (:func:`prune_clear`)
+PRUNE_MARGIN = 1e-4
+#: a draw that brings a left-out slot closer than this (m) to its surface is reported (:func:`prune_clearance`):
+#: there the left-out penetration s·softplus(−φ/s) (s = 1 µm) is still below 1e-19 m
+PRUNE_CHECK = 3e-5
+
+
+def prune_clear(data: RawData, theta, texture: RawTexture | None = None, margin: float = PRUNE_MARGIN) -> RawData:
+    """``data`` evaluating only the penetrating-taxel slots within ``margin`` (m) of (or inside) the surface of
+    ``theta``; the rest are taken as clear of the surface (``docs/raw_model.md``, reduction 4). Exact to float64
+    rounding for every θ whose surface stays more than :data:`PRUNE_CHECK` from the left-out slots."""
+    full = data._replace(active=None)
+    sdf = np.asarray(slot_distances(jnp.asarray(np.asarray(theta, float))[None], full, texture))[0].ravel()
+    return data._replace(active=np.flatnonzero(sdf < margin))
+
+
+def prune_clearance(draws, data: RawData, texture: RawTexture | None = None) -> dict:
+    """How close the slots :func:`prune_clear` left out come to the surfaces of ``draws (S, D)``: the smallest
+    signed distance (m) over draws and left-out slots, and whether it stays above :data:`PRUNE_CHECK`."""
+    F, J = np.shape(data.taxel_position)[:2]
+    info = {"margin_m": PRUNE_MARGIN, "slots_total": int(F * J)}
+    if data.active is None:
+        return {**info, "slots_kept": int(F * J), "min_clearance_m": None, "exact": True}
+    out = np.setdiff1d(np.arange(F * J), np.asarray(data.active))
+    info["slots_kept"] = int(F * J - out.size)
+    if out.size == 0:
+        return {**info, "min_clearance_m": None, "exact": True}
+    rest = data._replace(active=out)
+    ref = None if texture is None else texture.ref
+    d = np.asarray(_jit_distance(jnp.asarray(np.asarray(draws, float)), _hom(rest), ref))
+    m = float(d.min())
+    return {**info, "min_clearance_m": m, "exact": bool(m > PRUNE_CHECK)}
+
+
+@jax.jit
+def _jit_distance(th, hom, ref):
+    return gr.distance_batch(th, hom, ref)
+
+
+def distance_log_current(sdf, data: RawData, finger):
+    """ln I (F, M) of the selected taxels from the signed distances ``sdf (F, J)`` m of the penetrating ones."""
+    return fw.log_current_from_distance(
+        finger, sdf, jnp.asarray(data.kernel), data.temperature, data.start, data.lag_weights, data.mode
+    )
+
+
+def predict_log_current(theta, data: RawData, finger, texture: RawTexture | None = None):
+    """Predicted ln I (F, M) of the selected taxels for θ (11,) (16, with the texture parameters, when ``texture``
+    is given; log k and log σ_r are ignored); pure JAX."""
+    return distance_log_current(slot_distances(jnp.asarray(theta)[None], data, texture)[0], data, finger)
+
+
+def reading_scale(theta, data: RawData, texture: RawTexture | None, nu: float = STUDENT_NU):
+    """Student-t scale (F, M) of the readings: c_ν·k·s (:func:`~bayestouch.inference.densities.t_scale_factor`),
+    with the roughness variance σ_r² v added under a texture: c_ν·√(k²s² + σ_r² v)."""
+    var = (jnp.exp(theta[10]) * jnp.asarray(data.noise_sd)) ** 2
+    if texture is not None:
+        var = var + jnp.exp(2.0 * theta[15]) * jnp.asarray(texture.rough_var)
+    return t_scale_factor(nu) * jnp.sqrt(var)
+
+
+def reading_log_lik(theta, pred, data: RawData, nu, texture):
+    """Log-likelihood (F, M) of every selected reading given the predicted ln I ``pred (F, M)`` at θ (which supplies
+    the noise multiplier k and, with ``texture``, the roughness σ_r): Student-t(``nu``) of scale
+    :func:`reading_scale`; a non-finite residual counts as 1e6."""
+    r = jnp.asarray(data.log_current) - pred
+    r = jnp.where(jnp.isfinite(r), r, 1e6)  # overflowed predictions of absurd shapes: finite, hugely unlikely
+    return student_t_logpdf(r, reading_scale(theta, data, texture, nu), nu)
+
+
+def raw_pointwise(theta, data: RawData, finger, nu: float = STUDENT_NU, texture: RawTexture | None = None):
+    """Log-likelihood (F, M) of every selected reading (Student-t of scale k·s, or √(k²s² + σ_r² v) with the
+    texture)."""
+    return reading_log_lik(theta, predict_log_current(theta, data, finger, texture), data, nu, texture)
+
+
+def raw_log_likelihood(theta, data: RawData, finger, nu: float = STUDENT_NU, texture: RawTexture | None = None):
+    """Σ of :func:`raw_pointwise`."""
+    return jnp.sum(raw_pointwise(theta, data, finger, nu, texture))
+
+
+def raw_bounds(data: RawData, priors: cm.PriorParams) -> cm.Bounds:
+    """Prior box: the contact level's (centre range from the known pad-centre contact region) with log k."""
+    pts = np.asarray(data.taxel_position).reshape(-1, 3)
+    b = cm.bounds_for(pts, priors)
+    lo, hi = np.asarray(b.lower).copy(), np.asarray(b.upper).copy()
+    lo[10], hi[10] = LOG_K_RANGE
+    return cm.Bounds(jnp.asarray(lo), jnp.asarray(hi))
+
+
+def raw_log_prob_batch(
+    thetas, data: RawData, finger, bounds: cm.Bounds, nu: float = STUDENT_NU, texture: RawTexture | None = None
+):
+    """Log-posterior (W,) (unnormalised) of walkers ``thetas (W, D)``: −inf outside the prior box, never NaN;
+    pure JAX. The signed distances of all walkers come from one batched kernel; the skin, taxel and lag models
+    are mapped over walkers."""
+    lp = cm.log_prior(thetas, bounds) - 0.5 * (thetas[:, 10] / LOG_K_PRIOR_SD) ** 2
+    if texture is not None:
+        lp = lp + gr.texture_log_prior(thetas, texture.amplitude_scale)
+    th = jnp.clip(thetas, bounds.lower, bounds.upper)
+    sdf = slot_distances(th, data, texture)
+    pred = jax.vmap(lambda s: distance_log_current(s, data, finger))(sdf)
+    ll = jax.vmap(lambda t, p: jnp.sum(reading_log_lik(t, p, data, nu, texture)))(th, pred)
+    out = jnp.where(jnp.isfinite(lp), lp + ll, -jnp.inf)
+    return jnp.where(jnp.isnan(out), -jnp.inf, out)
+
+
+def raw_log_prob(
+    theta, data: RawData, finger, bounds: cm.Bounds, nu: float = STUDENT_NU, texture: RawTexture | None = None
+):
+    """Log-posterior (unnormalised) of one θ (11,) or (16,) with ``texture``; see :func:`raw_log_prob_batch`."""
+    return raw_log_prob_batch(jnp.asarray(theta)[None], data, finger, bounds, nu, texture)[0]
+
+
+def make_raw_log_prob(
+    data: RawData,
+    finger,
+    priors: cm.PriorParams | None = None,
+    nu: float = STUDENT_NU,
+    texture: RawTexture | None = None,
+    bounds: cm.Bounds | None = None,
+):
+    """A jitted, walker-vectorised log-posterior for ``emcee(vectorize=True)``.
+
+    Returns
+    -------
+    f : callable
+        ``f(thetas (W, D)) → (W,)`` NumPy; −inf outside the prior, never NaN.
+    bounds : Bounds
+        ``bounds`` if given, else :func:`raw_bounds` (which has no texture part: a textured model needs the
+        box of :func:`~bayestouch.inference.raw.texture.textured_bounds`).
+    names : tuple of str
+        :data:`RAW_PARAM_NAMES`, or :data:`RAW_TEXTURE_PARAM_NAMES` with ``texture``.
+    """
+    priors = priors or cm.load_priors()
+    bounds = raw_bounds(data, priors) if bounds is None else bounds
+    batched = jax.jit(lambda t: raw_log_prob_batch(t, data, finger, bounds, nu, texture))
+
+    def f(thetas):
+        th = np.atleast_2d(np.asarray(thetas, dtype=float))
+        out = np.asarray(batched(jnp.asarray(np.nan_to_num(th, nan=np.inf))))
+        return np.where(np.isfinite(th).all(axis=1) & ~np.isnan(out), out, -np.inf)
+
+    return f, bounds, RAW_PARAM_NAMES if texture is None else RAW_TEXTURE_PARAM_NAMES
