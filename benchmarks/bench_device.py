@@ -17,8 +17,9 @@ import numpy as np
 
 from bayestouch.hardware import protocol as pr
 from bayestouch.hardware.device import FingerDevice
+from bayestouch.hardware.frame_models import SyntheticModel
 from bayestouch.hardware.safety import StrokePlan
-from bayestouch.hardware.simulator import SyntheticModel, VirtualDevice
+from bayestouch.hardware.simulator import VirtualDevice
 from benchmarks.harness import best_of
 
 T = 1000  # frames per stroke (the protocol's longest stroke plan)

@@ -15,8 +15,9 @@ import pytest
 from bayestouch.errors import BadInput
 from bayestouch.hardware import protocol as pr
 from bayestouch.hardware.device import DeviceError, FingerDevice, HeaterFault, read_journal
+from bayestouch.hardware.frame_models import FRAME_KEYS, SyntheticModel
 from bayestouch.hardware.safety import Limits, StrokePlan, UnsafePlan, check_plan, load_limits
-from bayestouch.hardware.simulator import FRAME_KEYS, Faults, SyntheticModel, VirtualDevice
+from bayestouch.hardware.simulator import Faults, VirtualDevice
 
 WIRE_KEYS = {
     "taxel_current": "taxel_current",
@@ -365,8 +366,8 @@ def test_cli_simulate_process_prints_its_pty_and_exits_cleanly(tmp_path):
 @pytest.mark.slow
 def test_virtual_finger_streams_the_forward_model(tmp_path):
     """The physics behind the protocol: frames equal record_strokes for the same stroke and seed."""
+    from bayestouch.hardware.frame_models import ForwardModel
     from bayestouch.hardware.safety import plan_from_stroke
-    from bayestouch.hardware.simulator import ForwardModel
     from bayestouch.params import MODELS
     from bayestouch.physics.virtual import record_strokes
     from bayestouch.scene.objects import load_object

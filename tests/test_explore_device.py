@@ -16,8 +16,9 @@ import pytest
 
 from bayestouch.hardware import protocol as pr
 from bayestouch.hardware.device import DeviceError, FingerDevice, ProbePlan, read_journal
+from bayestouch.hardware.frame_models import GuardedModel, SyntheticModel
 from bayestouch.hardware.safety import Limits, UnsafePlan, check_plan
-from bayestouch.hardware.simulator import GuardedModel, SyntheticModel, VirtualDevice
+from bayestouch.hardware.simulator import VirtualDevice
 from bayestouch.planning.candidates import make_candidates, select
 from bayestouch.planning.device_prober import DeviceProber
 from bayestouch.scene.objects import object_from_dict

@@ -171,7 +171,7 @@ def test_log_prob_is_minus_inf_outside_the_prior_and_never_nan():
     v = f(th)
     assert not np.any(np.isnan(v))
     inside = np.all((th >= lo) & (th <= hi), axis=1)
-    depth = np.exp(th[:, 6] - th[:, 2] - th[:, 3]) / np.asarray(pp._volume_factor(np.exp(th[:, 5])))
+    depth = np.exp(th[:, 6] - th[:, 2] - th[:, 3]) / np.asarray(pp.volume_factor(np.exp(th[:, 5])))
     ok = inside & (depth >= pp.DEPTH_MIN) & (depth <= float(F.skin.h))
     assert ok.sum() > 100 and (~ok).sum() > 1000
     assert np.all(np.isfinite(v[ok])) and np.all(v[~ok] == -np.inf)

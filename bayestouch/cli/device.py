@@ -185,8 +185,9 @@ def _currents(text: str):
 
 
 def _simulate(args) -> int:
+    from bayestouch.hardware.frame_models import ForwardModel, GuardedModel, SyntheticModel
     from bayestouch.hardware.safety import load_limits
-    from bayestouch.hardware.simulator import Faults, ForwardModel, GuardedModel, SyntheticModel, VirtualDevice
+    from bayestouch.hardware.simulator import Faults, VirtualDevice
 
     if not args.speed >= 0:
         raise BadInput(f"--speed must be ≥ 0 (0 = as fast as possible), got {args.speed}")

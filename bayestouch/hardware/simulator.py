@@ -2,10 +2,9 @@
 
 :class:`VirtualDevice` serves the protocol of :mod:`bayestouch.hardware.protocol` on a pty from a thread, checks
 each plan with :func:`~bayestouch.hardware.safety.check_plan`, and streams the frames of its frame model
-(:class:`ForwardModel`: the physics of :func:`bayestouch.physics.virtual.record_strokes`; :class:`SyntheticModel`:
-a fast stand-in for tests and benchmarks; :class:`GuardedModel`: guarded strokes on a true object) in real time or
-faster, with optional injected faults (:class:`Faults`). Frames are :data:`FRAME_KEYS` arrays (T, ...), SI units.
-Device-side safety, guarded strokes and the faults: ``docs/hardware.md``.
+(:mod:`bayestouch.hardware.frame_models`) in real time or faster, with optional injected faults (:class:`Faults`).
+Frames are :data:`~bayestouch.hardware.frame_models.FRAME_KEYS` arrays (T, ...), SI units. Device-side safety and
+the faults: ``docs/hardware.md``.
 """
 
 from __future__ import annotations
@@ -20,35 +19,16 @@ from typing import NamedTuple
 
 import numpy as np
 
-from bayestouch.backend import jnp
-from bayestouch.geometry import nellipsoid as ne
 from bayestouch.hardware import protocol as pr
-from bayestouch.hardware.device import winkler_depth
+from bayestouch.hardware.frame_models import FRAME_KEYS, PROBE_KEYS
 from bayestouch.hardware.safety import (
     Limits,
     StrokePlan,
     UnsafePlan,
     check_plan,
-    predicted_force,
-    steady_wire_temperature,
 )
-from bayestouch.params import MODELS
-from bayestouch.physics.virtual import load_finger, record_strokes
-from bayestouch.scene.raycast import CONTACT, INSIDE, MISS, true_ray_distances
-from bayestouch.scene.strokes import stroke_from_path
 
-__all__ = ["Faults", "VirtualDevice", "SyntheticModel", "ForwardModel", "GuardedModel", "FRAME_KEYS"]
-
-#: per-frame arrays a frame model returns (T frames)
-FRAME_KEYS = (
-    "taxel_current",
-    "wire_current",
-    "wire_temperature",
-    "skin_temperature",
-    "finger_tip_position",
-    "finger_curvature",
-    "contact_force",
-)
+__all__ = ["Faults", "VirtualDevice"]
 
 
 class Faults(NamedTuple):
@@ -82,157 +62,6 @@ class Faults(NamedTuple):
     stuck_heater: bool = False
     inbound: bool = False
     seed: int = 0
-
-
-#: per-frame arrays a guarded stroke adds (:meth:`GuardedModel.probe`)
-_PROBE_KEYS = ("probe", "travel", "position")
-
-
-def _grid(rows: int, cols: int, pitch: float = 8e-4):
-    r, c = np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij")
-    uv = np.stack([c.ravel() * pitch, r.ravel() * pitch], axis=1)
-    return uv - uv.mean(axis=0), (r.ravel() < 1).astype(np.uint8)
-
-
-class SyntheticModel:
-    """A fast stand-in for the forward model (tests, benchmarks): a Gaussian pressure spot under the pad
-    centre whose height follows the depth, on a ``rows × cols`` grid; wire temperatures at their steady state.
-
-    Deterministic given ``seed`` and the stroke index (small Gaussian noise on the currents).
-    """
-
-    def __init__(self, rows: int = 16, cols: int = 16, seed: int = 0):
-        self.rows, self.cols, self.seed = int(rows), int(cols), int(seed)
-        self.taxel_uv, self.reference = _grid(self.rows, self.cols)
-
-    def __call__(self, plan: StrokePlan, index: int) -> dict[str, np.ndarray]:
-        T = len(plan.time)
-        g = np.random.default_rng([self.seed, index])
-        r2 = np.sum(self.taxel_uv**2, axis=1)
-        bump = np.exp(-r2 / (2 * 0.002**2)) * (plan.depth / 3e-4)
-        phase = np.sin(2 * np.pi * np.asarray(plan.time) / 2.0)[:, None]
-        cur = 1e-7 * (1.0 + 0.05 * bump[None, :] * (1 + 0.2 * phase)) * (1 + 1e-3 * g.normal(size=(T, len(r2))))
-        temp = np.broadcast_to(steady_wire_temperature(plan.hold_currents), (T, 3))
-        return {
-            "taxel_current": cur,
-            "wire_current": np.broadcast_to(np.asarray(plan.hold_currents, float), (T, 3)).copy(),
-            "wire_temperature": temp.copy(),
-            "skin_temperature": np.full(T, 293.15 + 0.03 * float(np.mean(temp[0] - 293.15))),
-            "finger_tip_position": np.tile([0.0, 0.0, 0.06], (T, 1)),
-            "finger_curvature": np.zeros((T, 2)),
-            "contact_force": np.full(T, predicted_force(plan.depth) / 2.0),
-        }
-
-
-class ForwardModel:
-    """The physics forward model (:func:`bayestouch.physics.virtual.record_strokes`) over a scene object.
-
-    Parameters
-    ----------
-    obj : SceneObject
-        What the virtual finger touches.
-    models : Path
-        Parameter folder (``finger.toml``, ``skin.toml``, ``taxels.toml``, ``noise.toml``).
-    seed : int
-        Fixed pattern of the device and, with the stroke index, the measurement noise.
-
-    Guarded strokes (:meth:`probe`) find the contacts on ``obj`` (:class:`GuardedModel`; pose error ``pose_sd``,
-    0.3 mm, an attribute).
-    """
-
-    def __init__(self, obj, models: Path | None = None, seed: int = 0, mode: str | None = None):
-        self.obj, self.seed, self.mode, self.pose_sd = obj, int(seed), mode, 3e-4
-        self.vf = load_finger(Path(models or MODELS), seed=seed)
-        grid = np.asarray(self.vf.finger.grid)
-        self.rows, self.cols = grid.shape[:2]
-        self.taxel_uv = grid.reshape(-1, 2)
-        self.reference = np.asarray(self.vf.finger.reference).ravel().astype(np.uint8)
-        self._lock = threading.Lock()
-
-    def __call__(self, plan: StrokePlan, index: int) -> dict[str, np.ndarray]:
-        st = stroke_from_path(plan.contact, plan.normal, plan.time, plan.depth)
-        with self._lock:  # one compilation at a time
-            rec = record_strokes(
-                self.obj,
-                [st],
-                self.vf,
-                self.seed * 100003 + index,
-                hold_currents=tuple(np.asarray(plan.hold_currents, float)),
-                mode=self.mode,
-            )
-        return {k: rec[k] for k in FRAME_KEYS}
-
-    def probe(self, plan: StrokePlan, travel: float, threshold: float, index: int) -> dict[str, np.ndarray]:
-        """A guarded stroke on this model's object (:meth:`GuardedModel.probe`, pose error ``pose_sd``)."""
-        return GuardedModel(self.obj, self, pose_sd=self.pose_sd, seed=self.seed).probe(plan, travel, threshold, index)
-
-
-class GuardedModel:
-    """A frame model that can run guarded strokes on a TRUE object (what a real finger with a force-controlled
-    approach does).
-
-    At waypoint j the pad starts at ``start_j`` and moves along ``u_j = −normal_j``. Where the ray
-    ``start_j + t u_j`` first meets the true object (:func:`bayestouch.scene.raycast.true_ray_distances`:
-    the scene object's signed distance, texture and defects included) at t_j ≤ ``travel``, the skin touches;
-    the contact force crosses ``threshold`` once the pad centre is the Winkler indentation
-    δ_th = :func:`~bayestouch.hardware.device.winkler_depth` ``(threshold)`` further in, at
-    ``start_j + (t_j + δ_th) u_j``. That is reported with the device's pose-estimate error, a Gaussian of
-    ``pose_sd`` metres in each coordinate (seeded by ``seed`` and the stroke index): the kinematic chain of a real
-    finger (stage encoders, the bending model of the rod) knows its pad position only that well. No contact within
-    the travel: probe status 1 (the pad at the end of the travel); a start already inside the object: status 2.
-
-    The frames come from the wrapped ``frames`` model (default :class:`SyntheticModel`) on the path the pad
-    actually followed: the true contact points with the true object's normals (the radial projection of the
-    start for status 2, the end of the travel with no force for status 1), pressed to the plan's depth.
-
-    Parameters
-    ----------
-    obj : SceneObject
-        The true object.
-    frames : frame model, optional
-        :class:`SyntheticModel` (default) or :class:`ForwardModel` (of the same object).
-    pose_sd : float, metres
-        Pose-estimate error of the pad centre, per coordinate.
-    seed : int
-    """
-
-    def __init__(self, obj, frames=None, *, pose_sd: float = 3e-4, seed: int = 0):
-        self.obj, self.frames, self.pose_sd, self.seed = obj, frames or SyntheticModel(seed=seed), float(pose_sd), seed
-        self.rows, self.cols = self.frames.rows, self.frames.cols
-        self.taxel_uv, self.reference = self.frames.taxel_uv, self.frames.reference
-
-    def __call__(self, plan: StrokePlan, index: int) -> dict[str, np.ndarray]:
-        """An ordinary stroke: the wrapped model's frames."""
-        return self.frames(plan, index)
-
-    def probe(self, plan: StrokePlan, travel: float, threshold: float, index: int) -> dict[str, np.ndarray]:
-        """A guarded stroke (``plan.contact`` holds the approach starts): :data:`FRAME_KEYS` arrays plus
-        ``probe (T,)``, ``travel (T,)`` m and ``position (T, 3)`` m (see the class docstring)."""
-        start = np.asarray(plan.contact, float)
-        u = -np.asarray(plan.normal, float)
-        t, status = true_ray_distances(self.obj, start, u, float(travel))
-        hit, miss, inside = status == CONTACT, status == MISS, status == INSIDE
-        d_th = float(winkler_depth(threshold))
-        g = np.random.default_rng([self.seed, index, 7])
-        pad = np.where(hit[:, None], start + (t + d_th)[:, None] * u, start)
-        pad = np.where(miss[:, None], start + float(travel) * u, pad)
-        position = pad + self.pose_sd * g.standard_normal(pad.shape)
-        # the path the pad followed, for the frames: true surface points and normals
-        shape = self.obj.shape
-        surf = np.where(hit[:, None], start + t[:, None] * u, start)
-        if inside.any():
-            surf[inside] = ne.evaluate(ne.project_to_surface, shape, jnp.asarray(start[inside]))
-        nrm = np.where(miss[:, None], -u, 0.0)
-        touched = ~miss
-        if touched.any():
-            nrm[touched] = ne.evaluate(ne.normals, shape, jnp.asarray(surf[touched]))
-        followed = StrokePlan(plan.time, surf, nrm, plan.depth, plan.hold_currents)
-        out = {k: np.array(v, float) for k, v in self.frames(followed, index).items()}
-        out["contact_force"][miss] = 0.0
-        out["probe"] = np.select([hit, miss], [0, 1], 2).astype(int)
-        out["travel"] = np.where(hit, t + d_th, np.where(miss, np.nan, 0.0))
-        out["position"] = position
-        return out
 
 
 class VirtualDevice:
@@ -529,7 +358,7 @@ class VirtualDevice:
                 res = {k: np.asarray(res[k], float) for k in FRAME_KEYS}
             else:
                 res = self.model.probe(plan, *probe, index)
-                res = {k: np.asarray(res[k], float) for k in (*FRAME_KEYS, *_PROBE_KEYS)}
+                res = {k: np.asarray(res[k], float) for k in (*FRAME_KEYS, *PROBE_KEYS)}
         except Exception as e:  # the device reports a fault instead of dying
             res = e
         with self._lock:

@@ -1,25 +1,20 @@
-"""Per-contact superellipse patch posterior: (a, b, n) of the paper's eq. 16–18 from one taxel frame or a window of
-K frames of the whole array's currents (K, N) A. θ (7,): centre (u0, v0) m on the pad, log a, log b (log m),
-orientation rad, log n, log V (log m³, the indentation volume); the model's N taxel predictions are Δ ln I (N,).
-The model, its likelihood and prior, and how it is sampled: ``docs/patch_model.md``.
+"""The contact-patch model: a superellipse patch (a, b, n) of the paper's eq. 16–18 and its likelihood for one taxel
+frame or a window of K frames of the whole array's currents (K, N) A. θ (7,): centre (u0, v0) m on the pad, log a,
+log b (log m), orientation rad, log n, log V (log m³, the indentation volume); the model's N taxel predictions are
+Δ ln I (N,). The model, its likelihood and prior, and how it is sampled: ``docs/patch_model.md``.
 """
 
 from __future__ import annotations
 
 import math
-import time
 from functools import partial
 from typing import NamedTuple
 
-import arviz as az
 import numpy as np
-from scipy.optimize import least_squares
 
 from bayestouch.backend import jax, jnp
 from bayestouch.errors import BadInput
 from bayestouch.inference.contact import Bounds
-from bayestouch.inference.posterior import interval
-from bayestouch.inference.sampler import convergence, sample
 from bayestouch.params import MODELS, Spec, build
 from bayestouch.physics import noise as nz
 from bayestouch.physics import skin as sk
@@ -41,10 +36,15 @@ __all__ = [
     "patch_log_current",
     "patch_log_prob",
     "patch_force",
+    "batched_patch_force",
     "make_patch_log_prob",
     "patch_currents",
-    "initial_patch_theta",
-    "patch_posterior",
+    "patch_depth",
+    "patch_residual",
+    "volume_factor",
+    "A_MIN",
+    "DEPTH_MIN",
+    "FLOOR",
 ]
 
 #: names of the 7 sampled parameters θ
@@ -164,7 +164,7 @@ class PatchPosterior(NamedTuple):
 
 def theta_from_params(p: PatchParams) -> np.ndarray:
     """θ (7,) of a :class:`PatchParams` (``PARAM_NAMES`` order)."""
-    vol = p.depth * p.a * p.b * float(_volume_factor(p.n))
+    vol = p.depth * p.a * p.b * float(volume_factor(p.n))
     return np.array([p.u0, p.v0, math.log(p.a), math.log(p.b), p.angle, math.log(p.n), math.log(vol)])
 
 
@@ -172,17 +172,17 @@ def params_from_theta(theta) -> PatchParams:
     """:class:`PatchParams` of θ (7,) (not canonicalised)."""
     t = [float(x) for x in np.asarray(theta, dtype=float)]
     a, b, n = math.exp(t[2]), math.exp(t[3]), math.exp(t[5])
-    return PatchParams(t[0], t[1], a, b, t[4], n, math.exp(t[6]) / (a * b * float(_volume_factor(n))))
+    return PatchParams(t[0], t[1], a, b, t[4], n, math.exp(t[6]) / (a * b * float(volume_factor(n))))
 
 
-def _volume_factor(n):
+def volume_factor(n):
     """V / (δ0 a b) for the profile δ0 (1 − L)₊: ∫(1 − ρ^n)₊ dA = A n/(n + 2), A = 4ab Γ(1+1/n)²/Γ(1+2/n) (eq. 18)."""
     return superellipse_area(1.0, 1.0, n) * n / (n + 2.0)
 
 
-def _depth(theta):
+def patch_depth(theta):
     """Centre penetration δ0 (m) of θ (..., 7)."""
-    return jnp.exp(theta[..., 6] - theta[..., 2] - theta[..., 3]) / _volume_factor(jnp.exp(theta[..., 5]))
+    return jnp.exp(theta[..., 6] - theta[..., 2] - theta[..., 3]) / volume_factor(jnp.exp(theta[..., 5]))
 
 
 # ---------------------------------------------------------------- noise of a window mean
@@ -356,7 +356,7 @@ def _local_stress(theta, model: PatchModel):
     dy = model.positions[:, 1] - theta[1]
     c, s = jnp.cos(theta[4]), jnp.sin(theta[4])
     lev = superellipse(jnp.exp(theta[2]), jnp.exp(theta[3]), jnp.exp(theta[5]), c * dx + s * dy, -s * dx + c * dy)
-    return sk.foam_stress(model.skin, _depth(theta) * jnp.maximum(1.0 - lev, 0.0) / model.skin.h)
+    return sk.foam_stress(model.skin, patch_depth(theta) * jnp.maximum(1.0 - lev, 0.0) / model.skin.h)
 
 
 def patch_pressure(theta, model: PatchModel):
@@ -393,7 +393,7 @@ def patch_log_prob(theta, model: PatchModel, mode: str = "empirical"):
     () float
     """
     theta = jnp.asarray(theta)
-    depth = _depth(theta)
+    depth = patch_depth(theta)
     inside = jnp.all((theta >= model.lower) & (theta <= model.upper)) & (depth >= DEPTH_MIN) & (depth <= model.skin.h)
     r = model.y - patch_log_current(theta, model, mode)
     w = 1.0 / model.sigma**2
@@ -417,11 +417,12 @@ def patch_force(theta, model: PatchModel):
 
 # compiled once per mode and batch shape, shared by every model (the model is an argument, not a constant)
 _batched_log_prob = jax.jit(jax.vmap(patch_log_prob, in_axes=(0, None, None)), static_argnums=2)
-_batched_force = jax.jit(jax.vmap(patch_force, in_axes=(0, None)))
+batched_patch_force = jax.jit(jax.vmap(patch_force, in_axes=(0, None)))
 
 
 @partial(jax.jit, static_argnums=2)
-def _residual(theta, model: PatchModel, mode: str):
+def patch_residual(theta, model: PatchModel, mode: str):
+    """Residuals (N,) of the modelled taxels' Δ ln I under θ (7,) (dimensionless)."""
     return model.y - patch_log_current(theta, model, mode)
 
 
@@ -459,206 +460,3 @@ def patch_currents(params: PatchParams, finger, *, mode: str = "empirical", temp
     model = make_patch_model(np.ones(n), finger, temperature=temperature, gains=np.ones(n))
     d = patch_log_current(jnp.asarray(theta_from_params(params)), model, mode)
     return np.asarray(tx.taxel_current(finger.taxels, 0.0, temperature, mode=mode) * jnp.exp(d))
-
-
-# ---------------------------------------------------------------- start
-
-
-def initial_patch_theta(model: PatchModel, mode: str = "empirical") -> tuple[np.ndarray, np.ndarray]:
-    """Gauss–Newton start θ̂ (7,) and its covariance (7, 7) ((JᵀJ)⁻¹, each sd clipped to ≤ 0.1 of the box).
-
-    A moment guess (centroid and second moments of the signal above 3σ, less the blur variance; δ0 from the
-    signal's total force for an n = 2 paraboloid, F = M δ0 π a b / 2h) refined by ``scipy.optimize.least_squares``
-    on the whitened residuals with the offset profiled out, from n₀ = 2 and 4.
-    """
-    lo, hi = np.asarray(model.lower), np.asarray(model.upper)
-    pos = np.asarray(model.positions)
-    loaded = np.asarray(model.loaded) > 0
-    y, sig = np.asarray(model.y), np.asarray(model.sigma)
-    c0 = np.median(y[~loaded]) if (~loaded).any() else np.median(y)
-    i0 = tx.taxel_current(model.taxels, 0.0, model.temperature, mode=mode)
-    slope = float(jnp.log(tx.taxel_current(model.taxels, 1.0, model.temperature, mode=mode) / i0))  # per Pa
-    s = np.where(loaded, y - c0, 0.0) * np.sign(slope)
-    w = np.maximum(s - 3.0 * sig, 0.0)
-    area_cell = float(model.cell_area)
-    M = float(sk.bonded_layer_modulus(model.skin.E, model.skin.nu))
-    h = float(model.skin.h)
-    if w.sum() > 0:
-        cu, cv = (w @ pos) / w.sum()
-        d = pos - [cu, cv]
-        cov = (w[:, None] * d).T @ d / w.sum()
-        lam, vec = np.linalg.eigh(cov)
-        var_blur = float(sk.blur_width(model.skin)) ** 2
-        a0, b0 = (math.sqrt(6.0 * max(lam[k] - var_blur, A_MIN**2)) for k in (1, 0))
-        ang0 = math.atan2(vec[1, 1], vec[0, 1])
-        force = np.sum(np.maximum(s, 0.0)) / abs(slope) * area_cell
-        d0 = 2.0 * h * force / (M * math.pi * a0 * b0)
-    else:
-        cu, cv, a0, b0, ang0, d0 = 0.0, 0.0, 1e-3, 1e-3, 0.0, 1e-5
-    wts = 1.0 / sig**2
-
-    def resid(t):
-        r = np.asarray(_residual(jnp.asarray(t), model, mode))
-        return (r - np.sum(wts * r) / np.sum(wts)) / sig
-
-    eps = 1e-6 * (hi - lo)
-    best = None
-    for n0 in (2.0, 4.0):
-        t0 = theta_from_params(PatchParams(cu, cv, a0, b0, ang0, n0, min(max(d0, 2 * DEPTH_MIN), 0.5 * h)))
-        t0 = np.clip(t0, lo + eps, hi - eps)
-        r = least_squares(
-            resid, t0, bounds=(lo + eps, hi - eps), x_scale=np.maximum(0.01 * (hi - lo), 1e-6), max_nfev=400
-        )
-        if best is None or r.cost < best.cost:
-            best = r
-    cov = np.linalg.pinv(best.jac.T @ best.jac)
-    sd = np.sqrt(np.abs(np.diag(cov)))
-    sd_ok = np.clip(np.where(np.isfinite(sd), sd, np.inf), 1e-6 * (hi - lo), 0.1 * (hi - lo))
-    shrink = np.where(np.isfinite(sd) & (sd > 0), sd_ok / np.where(sd > 0, sd, 1.0), 0.0)
-    cov = shrink[:, None] * np.where(np.isfinite(cov), cov, 0.0) * shrink[None, :]
-    return best.x, cov + np.diag(np.where(shrink > 0, 0.0, sd_ok**2))
-
-
-# ---------------------------------------------------------------- sampling
-
-
-def _canonical(flat: np.ndarray) -> np.ndarray:
-    """θ draws (M, 7) → natural (M, 7) ``SUMMARY_NAMES`` with a ≥ b and angle in (−π/2, π/2]."""
-    a, b, ang = np.exp(flat[:, 2]), np.exp(flat[:, 3]), flat[:, 4]
-    swap = b > a
-    a, b = np.where(swap, b, a), np.where(swap, a, b)
-    ang = ang + np.where(swap, np.pi / 2, 0.0)
-    ang = np.pi / 2 - np.mod(np.pi / 2 - ang, np.pi)
-    return np.column_stack([flat[:, 0], flat[:, 1], a, b, ang, np.exp(flat[:, 5]), np.asarray(_depth(flat))])
-
-
-def _axial_stats(x: np.ndarray) -> dict:
-    """Statistics of an axial angle (period π): circular mean and sd of 2φ, halved; quantiles about the mean."""
-    z = np.mean(np.exp(2j * x))
-    m = 0.5 * float(np.angle(z))
-    d = np.pi / 2 - np.mod(np.pi / 2 - (x - m), np.pi)
-    sd = 0.5 * math.sqrt(max(-2.0 * math.log(max(abs(z), 1e-300)), 0.0))
-    return {"mean": m, "sd": sd, "q05": m + float(np.quantile(d, 0.05)), "q95": m + float(np.quantile(d, 0.95))}
-
-
-def _start_ensemble(logp, theta0, cov, lo, hi, walkers, rng) -> np.ndarray:
-    """Walkers drawn from N(θ̂, cov) inside the prior box; draws outside the support (δ0 ∉ [1 µm, h]) are redrawn."""
-    eps = 1e-9 * (hi - lo)
-
-    def draw(k):
-        return np.clip(rng.multivariate_normal(theta0, cov, size=k, method="eigh"), lo + eps, hi - eps)
-
-    start = draw(walkers)
-    for _ in range(200):
-        bad = ~np.isfinite(logp(start))
-        if not bad.any():
-            return start
-        start[bad] = draw(int(bad.sum()))
-    raise RuntimeError("could not place the walkers inside the prior's support around the initial fit")
-
-
-def patch_posterior(
-    currents,
-    finger,
-    *,
-    seed: int,
-    mode: str = "empirical",
-    walkers: int = 32,
-    steps: int = 3000,
-    dt: float = 0.02,
-    temperature: float = 300.0,
-    gains=None,
-    baseline=None,
-    sigma=None,
-    elapsed_s: float = 0.0,
-    chain_path=None,
-    progress: bool = False,
-) -> PatchPosterior:
-    """Posterior of the contact patch (a, b, n, orientation, centre, depth) from a frame or a short window.
-
-    Parameters
-    ----------
-    currents : (N,) or (K, N) float, A
-        Measured taxel currents of a static contact (K consecutive frames are averaged).
-    finger : Finger
-    seed : int
-        Seeds the walkers' start and emcee's random state (checked after setting).
-    mode : {"physics", "empirical"}
-        Taxel response used by the model (the one the data come from).
-    walkers, steps : int
-        Ensemble size (even, ≥ 16) and chain length (≥ 100).
-    dt, temperature, gains, baseline, sigma, elapsed_s
-        See :func:`make_patch_model`.
-    chain_path : path or None
-        emcee HDF5 checkpoint through :func:`bayestouch.inference.sampler.sample`; ``None`` samples in memory.
-    progress : bool
-        Show emcee's progress bar.
-
-    Returns
-    -------
-    PatchPosterior
-
-    Raises
-    ------
-    BadInput
-        Bad currents, mode, walkers or steps (one line).
-    """
-    t0 = time.perf_counter()
-    if mode not in tx.MODES:
-        raise BadInput(f"mode: must be one of {', '.join(tx.MODES)}, got {mode!r}")
-    if walkers < 16 or walkers % 2:
-        raise BadInput(f"walkers: expected an even number ≥ 16, got {walkers}")
-    if steps < 100:
-        raise BadInput(f"steps: expected ≥ 100, got {steps}")
-    model = make_patch_model(
-        currents,
-        finger,
-        dt=dt,
-        temperature=temperature,
-        gains=gains,
-        baseline=baseline,
-        sigma=sigma,
-        elapsed_s=elapsed_s,
-    )
-    logp, bounds = make_patch_log_prob(model, mode)
-    theta0, cov = initial_patch_theta(model, mode)
-    lo, hi = np.asarray(bounds.lower), np.asarray(bounds.upper)
-    rng = np.random.default_rng(seed)
-    start = _start_ensemble(logp, theta0, cov, lo, hi, walkers, rng)
-    ch = sample(logp, start, chain_path, walkers=walkers, ndim=7, seed=seed, steps=steps, progress=progress, t0=t0)
-    kept = ch.kept  # (S, W, 7)
-    flat = kept.reshape(-1, 7)
-    nat = _canonical(flat)
-    draws = {name: nat[:, i] for i, name in enumerate(SUMMARY_NAMES)}
-    draws["area_m2"] = np.asarray(superellipse_area(draws["a"], draws["b"], draws["n"]))
-    draws["force_N"] = np.asarray(_batched_force(jnp.asarray(flat), model))
-    shape = kept.shape[:2]
-    post = {k: np.swapaxes(v.reshape(shape), 0, 1) for k, v in draws.items() if k != "angle"}
-    idata = az.from_dict(posterior=post)
-    ess, rhat = az.ess(idata, method="bulk"), az.rhat(idata)
-    params = {}
-    for name in SUMMARY_NAMES:
-        st = _axial_stats(draws[name]) if name == "angle" else interval(draws[name])
-        if name != "angle":
-            st.update(r_hat=float(rhat[name]), ess_bulk=float(ess[name]))
-        params[name] = st
-    derived = {
-        k: {**interval(draws[k]), "r_hat": float(rhat[k]), "ess_bulk": float(ess[k])} for k in ("area_m2", "force_N")
-    }
-    checked = [n for n in SUMMARY_NAMES if n != "angle"]
-    diag = convergence([params[n]["r_hat"] for n in checked], [params[n]["ess_bulk"] for n in checked], ch)
-    k = 1 if np.ndim(currents) == 1 else int(np.shape(currents)[0])
-    summary = {
-        "parameters": params,
-        "derived": derived,
-        "diagnostics": {**diag, "seconds": time.perf_counter() - t0},
-        "model": {
-            "level": "patch",
-            "mode": mode,
-            "frames": k,
-            "seed": seed,
-            "likelihood": "Gaussian on drift-compensated log-currents, offset marginalised",
-            "sigma_median": float(np.median(np.asarray(model.sigma))),
-        },
-    }
-    return PatchPosterior(draws, summary, ch, model, theta0)
