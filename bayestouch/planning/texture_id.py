@@ -79,7 +79,7 @@ class IdSettings:
     correlated : bool
         Whiten each taxel's residuals over the frames of a stroke with the noise model's frame correlation
         (1/f and random walk, :func:`~bayestouch.inference.texture_posterior.frame_whitener`); False treats
-        readings as independent (raw.py's choice).
+        readings as independent (the raw likelihood's choice).
     radius, contact_radius : float, metres
         Taxel selection of :func:`bayestouch.inference.raw.load_raw_data`.
     speed, depth : float
