@@ -217,3 +217,8 @@ def test_small_experiment_identifies(tmp_path):
 def test_cli_bad_input(tmp_path, capsys):
     assert cli_main(["texture-id", "--textures", "99", "--trials", "1", "--out", str(tmp_path)]) == 2
     assert "--textures" in capsys.readouterr().err
+    afile = tmp_path / "a_file"
+    afile.write_text("x")
+    assert cli_main(["texture-id", "--trials", "1", "--out", str(afile)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--out" in err and "not a folder" in err

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
+from bayestouch.cli.args import check_out
 from bayestouch.cli.args import seed as seed_arg
 
 __all__ = ["add_texture_parser", "run_texture_id"]
@@ -39,6 +41,7 @@ def run_texture_id(args) -> int:
     one line)."""
     from bayestouch.planning.texture_id import IdSettings, run_experiment
 
+    check_out(Path(args.out))
     s = run_experiment(
         args.out,
         textures=args.textures,
