@@ -507,3 +507,19 @@ def test_stop_rule_judges_the_monitored_quantities(tmp_path):
 
     held = sample(f, _start(), tmp_path / "held.h5", monitor=stuck, **kw)
     assert held.steps == 2000
+
+
+def test_convergence_checks_thin_out_geometrically_so_long_runs_stay_linear():
+    from bayestouch.inference.sampler import CHECK_GROWTH, _next_check
+
+    lengths = [50]
+    while lengths[-1] < 20_000:
+        lengths.append(_next_check(lengths[-1], 50))
+    gaps = np.diff(lengths)
+    assert all(n % 50 == 0 for n in lengths)
+    assert np.all(gaps >= 50) and np.all(gaps >= CHECK_GROWTH * np.asarray(lengths[:-1]))
+    # no more than one check per 50 steps early on, and far fewer than a fixed spacing's 400 checks by 20 000 steps
+    assert lengths[:11] == list(range(50, 551, 50))
+    assert len(lengths) < 60
+    # a gap never exceeds the growth fraction by more than one check interval (the run stops at most ~10 % late)
+    assert np.all(gaps <= CHECK_GROWTH * np.asarray(lengths[:-1]) + 100)

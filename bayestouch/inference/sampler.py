@@ -41,6 +41,9 @@ __all__ = [
 R_HAT_MAX = 1.01
 ESS_MIN = 400.0
 TAU_FACTOR = 50.0
+#: convergence checks are spaced by at least this fraction of the chain's length: each check reads the whole chain
+#: (τ, R-hat, ESS are O(length)), so checks at a fixed interval made long runs quadratic in their length
+CHECK_GROWTH = 0.1
 #: first step at which an adaptive run (``sample(..., adapt=True)``) fits its independence proposal; later fits at
 #: twice, four times … that step
 ADAPT_FIRST = 100
@@ -345,6 +348,13 @@ def _tau_and_burn(chain: np.ndarray, adapt: bool, first: int = ADAPT_FIRST) -> t
     return tau, skip + _burn_in(len(seg), tau_max), len(seg)
 
 
+def _next_check(length: int, check_every: int) -> int:
+    """The chain length of the convergence check after one at ``length`` steps: ``max(check_every, ⌈CHECK_GROWTH ·
+    length⌉)`` steps later, rounded up to a multiple of ``check_every``."""
+    gap = max(check_every, int(np.ceil(CHECK_GROWTH * length)))
+    return -(-(length + gap) // check_every) * check_every
+
+
 def _looks_converged(chain: np.ndarray, tau, old_tau, burn: int, length: int, monitor=None) -> bool:
     """The stopping rule: the stretch τ was estimated on is longer than 50 τ_max, τ_max stable within 5 % since the
     last check (the estimate the length rule relies on), and on the draws after burn-in every R-hat < 1.01 and every
@@ -413,11 +423,13 @@ def sample(
     t0 : float, optional
         ``time.perf_counter()`` at the start of the whole run (default: now).
     stop_when_converged : bool
-        Every ``check_every`` steps, stop once the chain is longer than 50 integrated autocorrelation times, the
+        At checks spaced by ``max(check_every, 0.1 × length)`` steps (:data:`CHECK_GROWTH`; a check reads the whole
+        chain, so a fixed spacing makes long runs quadratic in their length), stop once the chain is longer than 50
+        integrated autocorrelation times, the
         estimate of the largest τ moved less than 5 % since the last check and R-hat and the bulk ESS of the sampled
         parameters (or of ``monitor``'s quantities) pass (:func:`_looks_converged`).
     check_every : int, optional
-        Steps between convergence checks (default 50 for an adaptive run, 250 otherwise).
+        Fewest steps between convergence checks (default 50 for an adaptive run, 250 otherwise).
     flush_s : float, seconds
         Checkpoint interval.
     adapt : bool
@@ -523,6 +535,11 @@ def sample(
     stopped = False
     old_tau = None
     adapt_at = set(adaptation_steps(steps)) if indep is not None else set()
+    # the check lengths are one fixed sequence (check_every, then _next_check of each), so a resumed run checks where
+    # the uninterrupted one did
+    next_check = check_every
+    while next_check <= first:
+        next_check = _next_check(next_check, check_every)
     if todo > 0:
         try:
             for i, _ in enumerate(
@@ -537,7 +554,8 @@ def sample(
                 if first + i in adapt_at:
                     flush()
                     refit(first + i)
-                if stop_when_converged and i % check_every == 0:
+                if stop_when_converged and first + i >= next_check:
+                    next_check = _next_check(first + i, check_every)
                     flush()
                     chain = backend.get_chain()
                     tau, burn, length = _tau_and_burn(chain, adapt, skip_to)
