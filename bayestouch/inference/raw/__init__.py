@@ -11,7 +11,6 @@ One job per module: :mod:`~bayestouch.inference.raw.data` (the recording read in
 ``docs/raw_model.md``.
 """
 
-from bayestouch.inference.optimize import laplace, laplace_ball
 from bayestouch.inference.raw.adjustment import ADJUST_BLOCK_S, Adjustment, curvature_adjustment
 from bayestouch.inference.raw.data import RawData, load_raw_data
 from bayestouch.inference.raw.fit import (
@@ -83,8 +82,6 @@ __all__ = [
     "texture_reference",
     "canonical_theta",
     "plane_theta",
-    "laplace",
-    "laplace_ball",
     "RAW_PROPOSAL_NU",
     "curvature_adjustment",
     "Adjustment",
