@@ -162,6 +162,11 @@ BAD_FILES = {
         "data row 3, file line 4, column force is -0.5 N, negative",
     ),
     "not UTF-8": (b"x,y,z\n0.1,0.2,\xff\n", "is not UTF-8 text"),
+    "bad contact value": (
+        _csv([r + ",1" for r in RING], "x,y,z,contact", at=3, bad="0.01,0.0,0.0,2"),
+        "data row 3, file line 4, column contact: '2' is not 0 or 1; expected 0 (finger position without contact)",
+    ),
+    "duplicate contact column": (_csv([r + ",1,1" for r in RING], "x,y,z,contact,CONTACT"), "'contact' appears twice"),
 }
 
 
@@ -208,6 +213,160 @@ def test_millimetre_check_spares_a_large_object_in_metres(tmp_path):
 
 
 # ---------------------------------------------------------------------------------------------------------
+# finger positions without contact (column ``contact``)
+
+
+def _free_points(k: int = 7):
+    """Free-space finger positions (metres, a few cm out), with hard-to-round-trip values; seeded."""
+    free = np.random.default_rng(1).normal(0.0, 0.05, (k, 3))
+    free[0] = [0.1 + 0.2, -5e-324, 1e-17]
+    return free
+
+
+@pytest.mark.parametrize("with_normals,with_force", [(True, True), (False, False), (True, False), (False, True)])
+def test_round_trip_with_free_points_is_bitwise(tmp_path, with_normals, with_force):
+    pts, nrm, force = _random_contacts(20)
+    nrm, force = (nrm if with_normals else None), (force if with_force else None)
+    free = _free_points()
+    path = save_contact_points(tmp_path / "cp.csv", pts, nrm, force, free=free)
+    lines = path.read_text(encoding="utf-8").splitlines()
+    header = ["x", "y", "z"] + ["nx", "ny", "nz"] * with_normals + ["force"] * with_force + ["contact"]
+    assert lines[0] == ",".join(header)
+    assert [r.split(",")[-1] for r in lines[1:]] == ["1"] * 20 + ["0"] * 7  # contacts first, then free rows
+    assert all(r.split(",")[3:-1] == [""] * (len(header) - 4) for r in lines[21:])  # empty normal/force cells
+
+    cp = load_contact_points(path)
+    assert _same_bits(cp.points, pts) and _same_bits(cp.free, free)
+    assert cp.free.shape == (7, 3) and cp.free.flags.c_contiguous
+    assert (cp.force is None) if force is None else _same_bits(cp.force, force)
+    assert (cp.normals is None) if nrm is None else np.allclose(cp.normals, _unit(nrm), rtol=0, atol=4e-16)
+
+    # a loaded ContactPoints carries its free points into the next file, bit for bit
+    again = load_contact_points(save_contact_points(tmp_path / "again.csv", cp))
+    assert again.source == str(tmp_path / "again.csv")
+    for name in ("points", "normals", "force", "free"):
+        a, b = getattr(again, name), getattr(cp, name)
+        assert (a is None and b is None) or _same_bits(a, b), name
+    with pytest.raises(BadInput, match="free given both in the ContactPoints and as an argument"):
+        save_contact_points(tmp_path / "both.csv", cp, free=free)
+    assert not (tmp_path / "both.csv").exists()
+
+
+def test_without_free_points_the_file_is_as_before(tmp_path):
+    pts, nrm, force = _random_contacts(20)
+    plain = save_contact_points(tmp_path / "plain.csv", pts, nrm, force).read_bytes()
+    for name, free in [("none", None), ("empty", np.empty((0, 3)))]:
+        path = save_contact_points(tmp_path / f"{name}.csv", ContactPoints(pts, nrm, force, "src", free))
+        assert path.read_bytes() == plain
+        assert b"contact" not in path.read_bytes()
+        assert load_contact_points(path).free is None
+    # ContactPoints is still built positionally from points, normals, force, source
+    cp = ContactPoints(pts, nrm, force, "src")
+    assert cp.source == "src" and cp.free is None and cp._fields[-1] == "free"
+
+
+def test_file_with_contact_column_is_parsed(tmp_path):
+    """Free rows with empty (or junk) normal and force cells, contact spellings, other columns in between."""
+    contacts = [(0.03 * math.cos(t), 0.03 * math.sin(t), 0.002 * t) for t in np.linspace(0, 6, 12).tolist()]
+    rows = [
+        f"{x!r},{y!r},{z!r},0,0,2,0.5,c{i},{v}"
+        for i, ((x, y, z), v) in enumerate(zip(contacts, ["1", "1.0", " TRUE ", "yes", "Yes", "1"] * 2, strict=True))
+    ]
+    free_rows = [
+        "0.05,0.0,0.01,,,,,f0,0",
+        "-0.05,0.01,0.0,,,,,f1, 0.0 ",
+        "0.0,0.06,0.0,x,y,z,-3,f2,False",
+        "0.0,0.0,0.07,0,0,0,,f3,no",
+    ]
+    # free rows interleaved with contacts: data rows keep their numbers for messages about contacts
+    lines = ["x,y,z,NX,ny,nz,force,label, Contact "] + rows[:3] + free_rows[:2] + rows[3:] + free_rows[2:]
+    path = tmp_path / "mixed.csv"
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+    cp = load_contact_points(path)
+    assert cp.points.shape == (12, 3) and _same_bits(cp.points, np.array(contacts))
+    np.testing.assert_array_equal(cp.normals, np.tile([0.0, 0.0, 1.0], (12, 1)))
+    np.testing.assert_array_equal(cp.force, np.full(12, 0.5))
+    np.testing.assert_array_equal(cp.free, [[0.05, 0.0, 0.01], [-0.05, 0.01, 0.0], [0.0, 0.06, 0.0], [0.0, 0.0, 0.07]])
+    assert cp.free.dtype == np.float64
+
+    # a contact row after the free rows is still numbered by its data row and file line
+    lines[7] = lines[7].replace(",0.5,", ",-0.5,")  # data row 7 (a contact), file line 8
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    with pytest.raises(BadInput, match="data row 7, file line 8, column force is -0.5 N, negative"):
+        load_contact_points(path)
+
+
+def test_free_rows_still_need_numeric_positions(tmp_path):
+    path = tmp_path / "free_bad.csv"
+    path.write_text(_csv([r + ",0,0,1,1" for r in RING] + ["0.01,,0.02,,,,0"], "x,y,z,nx,ny,nz,contact"))
+    with pytest.raises(BadInput, match=r"data row 21, file line 22, column y is empty; expected a number in metres"):
+        load_contact_points(path)
+
+
+@pytest.mark.parametrize("value", ["2", "-1", "0.5", "1.5", "01x", "y", "n", "t", "f", "", "nan", "contact"])
+def test_bad_contact_values_name_column_row_and_form(tmp_path, value):
+    path = tmp_path / "bad_contact.csv"
+    path.write_text(_csv([r + ",1" for r in RING], "x,y,z,contact", at=4, bad=f"0.01,0.02,0.03,{value}"))
+    with pytest.raises(BadInput) as e:
+        load_contact_points(path)
+    msg = str(e.value)
+    assert msg.startswith(f"{path}: data row 4, file line 5, column contact") and "\n" not in msg, msg
+    assert "expected 0 (finger position without contact) or 1 (contact)" in msg, msg
+    assert (repr(value) in msg) if value else ("is empty" in msg)
+
+
+def test_min_points_counts_contacts_only(tmp_path):
+    pts = _random_contacts(12)[0]
+    path = save_contact_points(tmp_path / "f.csv", pts[:11], free=_free_points(5))  # 16 rows, 11 contacts
+    with pytest.raises(BadInput) as e:
+        load_contact_points(path)
+    assert "has 11 contact point(s) (rows with contact = 1; 5 without contact); need at least 12 contact" in str(
+        e.value
+    )
+    assert load_contact_points(path, min_points=11).points.shape == (11, 3)
+    cp = load_contact_points(save_contact_points(tmp_path / "g.csv", pts, free=_free_points(5)))
+    assert cp.points.shape == (12, 3) and cp.free.shape == (5, 3)
+    # only free rows: not even min_points=0 accepts a file without a contact
+    with pytest.raises(BadInput, match=r"has 0 contact point\(s\) \(rows with contact = 1; 5 without contact\)"):
+        load_contact_points(
+            save_contact_points(tmp_path / "h.csv", np.empty((0, 3)), free=_free_points(5)), min_points=0
+        )
+
+
+def test_identical_check_applies_to_contacts_only(tmp_path):
+    same = np.tile([0.01, 0.02, 0.03], (12, 1))
+    with pytest.raises(BadInput, match="all 12 contact points are identical"):
+        load_contact_points(save_contact_points(tmp_path / "s.csv", same, free=_free_points(3)))
+    spread = _random_contacts(12)[0]
+    cp = load_contact_points(save_contact_points(tmp_path / "t.csv", spread, free=np.tile([0.1, 0.0, 0.0], (4, 1))))
+    assert cp.free.shape == (4, 3)  # identical free positions are fine
+
+
+def test_millimetre_free_point_triggers_millimetre_error(tmp_path):
+    pts = _random_contacts(20)[0]
+    free = _free_points(3)
+    assert load_contact_points(save_contact_points(tmp_path / "m.csv", pts, free=free)).free.shape == (3, 3)
+    free[1] = [45.0, 0.0, 0.0]  # one free position in millimetres
+    with pytest.raises(BadInput, match=r"x,y,z look like millimetres \(largest \|value\| 45\.0,"):
+        load_contact_points(save_contact_points(tmp_path / "mm.csv", pts, free=free))
+    # also by the bounding-box diagonal alone: contacts near one corner, a free position at the other
+    corner = np.full((12, 3), -1.5) + _random_contacts(12)[0] * 0.01
+    with pytest.raises(BadInput, match="bounding-box diagonal 5.1"):
+        load_contact_points(save_contact_points(tmp_path / "diag.csv", corner, free=[[1.5, 1.5, 1.5]]))
+
+
+def test_file_without_contact_column_has_free_none(tmp_path):
+    (tmp_path / "ring.csv").write_text(_csv(RING))
+    cp = load_contact_points(tmp_path / "ring.csv")
+    assert cp.free is None and cp.points.shape == (20, 3)
+    # a contact column with only contacts: free is None too
+    (tmp_path / "ones.csv").write_text(_csv([r + ",1" for r in RING], "x,y,z,contact"))
+    cp = load_contact_points(tmp_path / "ones.csv")
+    assert cp.free is None and _same_bits(cp.points, load_contact_points(tmp_path / "ring.csv").points)
+
+
+# ---------------------------------------------------------------------------------------------------------
 # saving contact points: validation
 
 
@@ -223,6 +382,8 @@ def test_millimetre_check_spares_a_large_object_in_metres(tmp_path):
         ({"cp_or_points": np.ones((5, 3)), "force": np.ones(4)}, "force must be"),
         ({"cp_or_points": np.ones((5, 3)), "force": -np.ones(5)}, "force must be ≥ 0"),
         ({"cp_or_points": ContactPoints(np.ones((5, 3)), force=np.ones(5)), "force": np.ones(5)}, "force given both"),
+        ({"cp_or_points": np.ones((5, 3)), "free": np.ones((4, 2))}, "free must be a (K, 3) array (metres)"),
+        ({"cp_or_points": np.ones((5, 3)), "free": [[0.0, np.inf, 0.0]]}, "free must be finite, row 1"),
     ],
 )
 def test_save_rejects_bad_arrays_and_writes_nothing(tmp_path, kwargs, needle):

@@ -1,11 +1,15 @@
 """Contact-point CSV files: reading with one-line errors, and writing that reads back bit for bit.
 
-A file has a header line and one contact per row:
+A file has a header line and one finger position per row:
 
 * ``x, y, z`` (required): contact position, metres;
 * ``nx, ny, nz`` (optional, all three or none): outward surface normal, any non-zero length (normalised on
   load);
-* ``force`` (optional): normal contact force, newtons, ≥ 0.
+* ``force`` (optional): normal contact force, newtons, ≥ 0;
+* ``contact`` (optional): 1 = the finger touched the object there (a contact, as above), 0 = a finger position
+  without contact (free space, known to be outside the object; its ``nx, ny, nz`` and ``force`` cells may be
+  empty and are ignored). Also accepted: ``0.0``/``1.0``, ``false``/``true``, ``no``/``yes``. Without the
+  column every row is a contact.
 
 Header names are matched case-insensitively with surrounding whitespace stripped; other columns are ignored.
 Every problem with a file raises :class:`~bayestouch.errors.BadInput` whose message is one line naming the file,
@@ -50,8 +54,21 @@ N_ELLIPSOID_PARAMS = 12
 _POS = ("x", "y", "z")
 _NORMAL = ("nx", "ny", "nz")
 _FORCE = "force"
+_CONTACT = "contact"
 _UNITS = {"x": "metres", "y": "metres", "z": "metres", "nx": "", "ny": "", "nz": "", "force": "newtons"}
-_EXPECTED_HEADER = "x,y,z[,nx,ny,nz][,force]"
+_EXPECTED_HEADER = "x,y,z[,nx,ny,nz][,force][,contact]"
+#: Accepted spellings of the ``contact`` column (lower case, stripped) and their meaning.
+_CONTACT_VALUES = {
+    "1": True,
+    "1.0": True,
+    "true": True,
+    "yes": True,
+    "0": False,
+    "0.0": False,
+    "false": False,
+    "no": False,
+}
+_CONTACT_FORM = "0 (finger position without contact) or 1 (contact)"
 
 
 class ContactPoints(NamedTuple):
@@ -67,12 +84,16 @@ class ContactPoints(NamedTuple):
         Normal contact forces, ≥ 0, None when the file has no ``force`` column.
     source : str
         Where the points came from (the file path as given).
+    free : (K, 3) float, metres, or None
+        Finger positions without contact (rows with ``contact`` = 0: free space, outside the object), None
+        when the file has no ``contact`` column or no such rows.
     """
 
     points: np.ndarray
     normals: np.ndarray | None = None
     force: np.ndarray | None = None
     source: str = ""
+    free: np.ndarray | None = None
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -100,9 +121,10 @@ def _where(row: int, line: int) -> str:
 
 
 def _parse_header(fields: list[str], source: str) -> dict[str, int]:
-    """Column index of each recognised column (``x``, ``y``, ``z``, ``nx``, ``ny``, ``nz``, ``force``)."""
+    """Column index of each recognised column (``x``, ``y``, ``z``, ``nx``, ``ny``, ``nz``, ``force``,
+    ``contact``)."""
     names = [s.strip().lower() for s in fields]
-    known = (*_POS, *_NORMAL, _FORCE)
+    known = (*_POS, *_NORMAL, _FORCE, _CONTACT)
     index: dict[str, int] = {}
     for i, name in enumerate(names):
         if name in known:
@@ -166,6 +188,19 @@ def _parse_cell(text: str, col: str, row: int, line: int, source: str) -> float:
     return v
 
 
+def _parse_contact(text: str, row: int, line: int, source: str) -> bool:
+    """The ``contact`` cell: True for a contact (1), False for a finger position without contact (0)."""
+    s = text.strip()
+    if not s:
+        raise file_error(source, f"{_where(row, line)}, column contact is empty; expected {_CONTACT_FORM}")
+    value = _CONTACT_VALUES.get(s.lower())
+    if value is None:
+        raise file_error(
+            source, f"{_where(row, line)}, column contact: {_show(s)} is not 0 or 1; expected {_CONTACT_FORM}"
+        )
+    return value
+
+
 def load_contact_points(path: str | os.PathLike[str], *, min_points: int = N_ELLIPSOID_PARAMS) -> ContactPoints:
     """Read contact points from a CSV file with a header line.
 
@@ -173,26 +208,30 @@ def load_contact_points(path: str | os.PathLike[str], *, min_points: int = N_ELL
     ----------
     path : str or path-like
         CSV file, UTF-8 (a BOM is allowed), comma-separated. Required columns ``x, y, z`` (metres);
-        optional ``nx, ny, nz`` (all three or none; any non-zero length) and ``force`` (newtons, ≥ 0).
+        optional ``nx, ny, nz`` (all three or none; any non-zero length), ``force`` (newtons, ≥ 0) and
+        ``contact`` (1 = contact, 0 = finger position without contact, whose ``nx, ny, nz`` and ``force``
+        cells may be empty and are ignored; also ``0.0``/``1.0``, ``false``/``true``, ``no``/``yes``).
         Header names are case-insensitive and may carry surrounding whitespace; other columns are ignored;
         blank lines are skipped.
     min_points : int, optional
-        Fewest data rows accepted (default 12, the parameters of the n-ellipsoid).
+        Fewest contacts accepted (default 12, the parameters of the n-ellipsoid); rows with ``contact`` = 0
+        do not count.
 
     Returns
     -------
     ContactPoints
         ``points`` (N, 3) float metres; ``normals`` (N, 3) float unit vectors or None; ``force`` (N,) float
-        newtons or None; ``source`` the path as a string.
+        newtons or None; ``source`` the path as a string; ``free`` (K, 3) float metres, the rows with
+        ``contact`` = 0, or None when there are none.
 
     Raises
     ------
     BadInput
         One line naming the file, the problem (with data row, file line and column where they apply) and
         the expected form: missing/unreadable file, no header, missing or partial columns, ragged rows,
-        non-numeric or non-finite values, too few points, coordinates that look like millimetres (largest
-        ``|x|, |y|, |z|`` > 2 m or bounding-box diagonal > 2 m), all points identical, zero-length normals,
-        negative force.
+        non-numeric or non-finite values, a ``contact`` value other than 0 or 1, too few contacts,
+        coordinates that look like millimetres (largest ``|x|, |y|, |z|`` > 2 m or bounding-box diagonal
+        > 3.5 m, free positions included), all contacts identical, zero-length normals, negative force.
     """
     source = os.fspath(path)
     if isinstance(source, bytes):
@@ -211,32 +250,47 @@ def load_contact_points(path: str | os.PathLike[str], *, min_points: int = N_ELL
         _, header = first
         index = _parse_header(header, source)
         columns = [c for c in (*_POS, *_NORMAL, _FORCE) if c in index]
+        has_contact = _CONTACT in index
         n_fields = len(header)
 
-        values: list[list[float]] = []
+        values: list[list[float]] = []  # contacts: the cells of `columns`
+        rows: list[int] = []  # their data rows and file lines, for messages
         lines: list[int] = []
+        free_values: list[list[float]] = []  # finger positions without contact: x, y, z
         for row, (line, fields) in enumerate(records, start=1):
             if len(fields) != n_fields:
                 raise ragged_error(source, line, len(fields), n_fields, row)
+            if has_contact and not _parse_contact(fields[index[_CONTACT]], row, line, source):
+                free_values.append([_parse_cell(fields[index[c]], c, row, line, source) for c in _POS])
+                continue
             values.append([_parse_cell(fields[index[c]], c, row, line, source) for c in columns])
+            rows.append(row)
             lines.append(line)
 
-    n = len(values)
+    n, k = len(values), len(free_values)
     if n < max(min_points, 1):
         need = max(min_points, 1)
         why = f" (the {need} parameters of the n-ellipsoid)" if need == N_ELLIPSOID_PARAMS else ""
+        if has_contact:
+            have = f"{n} contact point(s) (rows with contact = 1; {k} without contact)"
+            wanted = f"{need} contact point{'s' if need != 1 else ''}"
+        else:
+            have, wanted = f"{n} point(s)", f"{need} point{'s' if need != 1 else ''}"
         raise file_error(
             source,
-            f"has {n} point(s); need at least {need} point{'s' if need != 1 else ''}{why}; "
+            f"has {have}; need at least {wanted}{why}; "
             f"expected one contact per line after the header {_EXPECTED_HEADER}",
         )
 
     table = np.asarray(values, dtype=np.float64).reshape(n, len(columns))
     col = {c: j for j, c in enumerate(columns)}
     points = np.ascontiguousarray(table[:, [col[c] for c in _POS]])
+    free = np.asarray(free_values, dtype=np.float64).reshape(k, 3) if k else None
 
-    max_abs = float(np.max(np.abs(points)))
-    diagonal = float(np.linalg.norm(np.ptp(points, axis=0)))
+    # a file in millimetres is in millimetres throughout: free positions count too
+    every = points if free is None else np.vstack([points, free])
+    max_abs = float(np.max(np.abs(every)))
+    diagonal = float(np.linalg.norm(np.ptp(every, axis=0)))
     if max_abs > MM_MAX_ABS_M or diagonal > MM_MAX_DIAGONAL_M:
         raise file_error(
             source,
@@ -244,10 +298,11 @@ def load_contact_points(path: str | os.PathLike[str], *, min_points: int = N_ELL
             f"diagonal {_num(diagonal)}); give metres (e.g. divide by 1000), within "
             f"±{MM_MAX_ABS_M} m and a bounding-box diagonal ≤ {MM_MAX_DIAGONAL_M} m",
         )
-    if diagonal == 0.0:
+    if not np.any(np.ptp(points, axis=0)):
         at = ", ".join(_num(v) for v in points[0])
+        what = "contact points" if has_contact else "points"
         raise file_error(
-            source, f"all {n} points are identical ({at}); expected contact points spread over the object's surface"
+            source, f"all {n} {what} are identical ({at}); expected contact points spread over the object's surface"
         )
 
     normals = None
@@ -259,7 +314,7 @@ def load_contact_points(path: str | os.PathLike[str], *, min_points: int = N_ELL
             i = int(short[0])
             raise file_error(
                 source,
-                f"{_where(i + 1, lines[i])}, columns nx,ny,nz: normal has zero length "
+                f"{_where(rows[i], lines[i])}, columns nx,ny,nz: normal has zero length "
                 f"({_num(length[i])}; {short.size} row(s) in all); expected a non-zero normal vector",
             )
         # normals already of unit length to within a few ulp are kept bit for bit, so that saving and
@@ -275,11 +330,11 @@ def load_contact_points(path: str | os.PathLike[str], *, min_points: int = N_ELL
             i = int(negative[0])
             raise file_error(
                 source,
-                f"{_where(i + 1, lines[i])}, column force is {_num(force[i])} N, negative "
+                f"{_where(rows[i], lines[i])}, column force is {_num(force[i])} N, negative "
                 f"({negative.size} row(s) in all); expected force ≥ 0 newtons",
             )
 
-    return ContactPoints(points=points, normals=normals, force=force, source=source)
+    return ContactPoints(points=points, normals=normals, force=force, source=source, free=free)
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -304,6 +359,7 @@ def save_contact_points(
     cp_or_points: ContactPoints | np.ndarray | Sequence[Sequence[float]],
     normals: np.ndarray | None = None,
     force: np.ndarray | None = None,
+    free: np.ndarray | None = None,
 ) -> Path:
     """Write contact points to a CSV file that :func:`load_contact_points` reads back bit for bit.
 
@@ -312,12 +368,16 @@ def save_contact_points(
     path : str or path-like
         Target file; parent folders are created; written atomically.
     cp_or_points : ContactPoints or (N, 3) float, metres
-        The points, or a :class:`ContactPoints` whose normals and force are written too.
+        The contact points, or a :class:`ContactPoints` whose normals, force and free positions are written
+        too.
     normals : (N, 3) float, optional
         Outward normals, written as given (non-zero length). Not allowed together with a
         :class:`ContactPoints` that has normals.
     force : (N,) float, newtons, optional
         Contact forces, ≥ 0. Not allowed together with a :class:`ContactPoints` that has force.
+    free : (K, 3) float, metres, optional
+        Finger positions without contact (free space, outside the object). Not allowed together with a
+        :class:`ContactPoints` that has free positions.
 
     Returns
     -------
@@ -328,22 +388,27 @@ def save_contact_points(
     ------
     BadInput
         Wrong shapes, non-finite values, zero-length normals, negative force (naming ``points``,
-        ``normals`` or ``force``); nothing is written.
+        ``normals``, ``force`` or ``free``); nothing is written.
     OSError
         The file cannot be written; an existing file is left as it was.
 
     Notes
     -----
-    Header ``x,y,z[,nx,ny,nz][,force]``; values by :func:`repr`, the shortest text that reads back to the
-    same float.
+    Header ``x,y,z[,nx,ny,nz][,force][,contact]``; values by :func:`repr`, the shortest text that reads back
+    to the same float. The ``contact`` column is written only when there are free positions (K > 0): the N
+    contacts first with ``contact`` = 1, then the K free positions with ``contact`` = 0 and empty normal and
+    force cells. Without free positions the file has no ``contact`` column.
     """
     if isinstance(cp_or_points, ContactPoints):
         if normals is not None and cp_or_points.normals is not None:
             raise BadInput("normals given both in the ContactPoints and as an argument; expected one of them")
         if force is not None and cp_or_points.force is not None:
             raise BadInput("force given both in the ContactPoints and as an argument; expected one of them")
+        if free is not None and cp_or_points.free is not None:
+            raise BadInput("free given both in the ContactPoints and as an argument; expected one of them")
         normals = cp_or_points.normals if normals is None else normals
         force = cp_or_points.force if force is None else force
+        free = cp_or_points.free if free is None else free
         cp_or_points = cp_or_points.points
     pts = _as_array(cp_or_points, "points", (None, 3), "an (N, 3) array (metres)")
     n = len(pts)
@@ -368,11 +433,20 @@ def save_contact_points(
         columns.append(_FORCE)
         parts.append(f[:, None])
     table = np.hstack(parts) if n else np.empty((0, len(columns)))
+    free_pts = np.empty((0, 3))
+    if free is not None:
+        free_pts = _as_array(free, "free", (None, 3), "a (K, 3) array (metres)")
+    blank = [""] * (len(columns) - len(_POS))  # a free row's normal and force cells
+    if len(free_pts):
+        columns.append(_CONTACT)
 
     def write(fh: IO[str]) -> None:
         w = csv.writer(fh, lineterminator="\n")
         w.writerow(columns)
+        mark = ["1"] if len(free_pts) else []
         for r in table.tolist():
-            w.writerow([repr(v) for v in r])
+            w.writerow([repr(v) for v in r] + mark)
+        for r in free_pts.tolist():
+            w.writerow([repr(v) for v in r] + blank + ["0"])
 
     return atomic_write(path, write)
