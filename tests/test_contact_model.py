@@ -133,6 +133,12 @@ def _vmf(mu, kappa, rng):
     return w[:, None] * mu + np.sqrt(1 - w**2)[:, None] * v
 
 
+def _lik(f, b, th):
+    """The log-likelihood part of ``f``'s log-posterior: minus the prior density (size prior, Haar measure)."""
+    th = np.atleast_2d(th)
+    return f(th) - np.asarray(cm.log_prior(jnp.asarray(th), b))
+
+
 @pytest.fixture(scope="module")
 def walkers():
     """Points near TRUTH's surface (with 5 % outliers) and 24 walkers spread over n, axes and angles."""
@@ -162,7 +168,7 @@ def test_fast_log_prob_equals_the_first_order_distance_reference(walkers, nu):
     from jax.scipy.special import gammaln
 
     pts, W, _ = walkers
-    f, _ = cm.make_log_prob(pts, nu=nu)
+    f, b = cm.make_log_prob(pts, nu=nu)
     ref = []
     res = np.asarray(jax.jit(jax.vmap(cm.residuals, (0, None)))(jnp.asarray(W), jnp.asarray(pts)))
     for th, r in zip(W, res, strict=True):
@@ -172,7 +178,7 @@ def test_fast_log_prob_equals_the_first_order_distance_reference(walkers, nu):
         else:
             c = float(gammaln((nu + 1) / 2) - gammaln(nu / 2) - 0.5 * np.log(nu * np.pi))
             ref.append(len(pts) * (c - th[10]) - 0.5 * (nu + 1) * np.sum(np.log1p(z2 / nu)))
-    out = f(W)
+    out = _lik(f, b, W)
     np.testing.assert_allclose(out, ref, rtol=1e-12)
     np.testing.assert_allclose(out, [_np_log_prob(th, pts, nu) for th in W], rtol=1e-12)
     # negative control: a walker's log-probability is not that of another (the comparison can fail)
@@ -189,7 +195,7 @@ def test_options_equal_their_numpy_formulas_and_grow_theta(walkers, noise):
     names = cm.param_names(True, noise)
     assert names[:11] == cm.PARAM_NAMES and names[11] == "log_kappa" and len(names) == len(b.lower) == 13
     assert names[12] == {"multiplicative": "log_eps", "mixture": "w_outlier"}[noise]
-    np.testing.assert_allclose(f(th), [_np_log_prob(t, pts, normals=nrm, noise=noise) for t in th], rtol=1e-12)
+    np.testing.assert_allclose(_lik(f, b, th), [_np_log_prob(t, pts, normals=nrm, noise=noise) for t in th], rtol=1e-12)
     assert cm.param_names() == cm.PARAM_NAMES and len(cm.bounds_for(pts, cm.load_priors()).lower) == 11
     rng = np.random.default_rng(12)
     wild = rng.uniform(np.asarray(b.lower), np.asarray(b.upper), (300, 13))
@@ -353,6 +359,10 @@ def test_mixed_precision_error_is_float32_resolution_of_the_residual(m):
     assert np.all(err[100:][ok[100:]] <= 1e-4 * np.abs(ref[100:][ok[100:]]))
 
 
+def _prior_of(th, pts):
+    return np.asarray(cm.log_prior(jnp.asarray(th), cm.bounds_for(pts, cm.load_priors())))
+
+
 def test_mixed_precision_sums_in_float64_and_float32_accumulation_would_not():
     """Negative control: the same per-point terms, exact but accumulated in float32 (sequentially), miss the sum
     by far more than the mixed kernel does (a float32 total of ~6e4 nats alone has a 4e-3-nat spacing)."""
@@ -362,8 +372,9 @@ def test_mixed_precision_sums_in_float64_and_float32_accumulation_would_not():
     ref = f(near)
     terms = cm.pointwise_log_likelihood(near, pts, cm.load_priors().student_nu)
     f32 = np.cumsum(terms.astype(np.float32), axis=1, dtype=np.float32)[:, -1].astype(float)
+    ref = ref - _prior_of(near, pts)
     np.testing.assert_allclose(terms.sum(axis=1), ref, rtol=1e-12)  # the pointwise terms are the float64 sum's
-    err32, err_mixed = np.abs(f32 - ref), np.abs(g(near) - ref)
+    err32, err_mixed = np.abs(f32 - ref), np.abs(g(near) - _prior_of(near, pts) - ref)
     assert np.median(err32) > 1e-2 and np.median(err32) > 10 * np.median(err_mixed)
 
 

@@ -225,6 +225,8 @@ def test_sparse_posterior_holds_the_truth_and_robust_likelihood_beats_gaussian_o
     e_r, e_g = (bs.shape_errors(s, float(ne.volume(s)), d.truth) for s in (robust, gauss))
     # regression guard at about 2× the measured medians (a broken initialiser gave volume errors of 2.7 here)
     assert vol <= 0.1 and ch <= 0.1, (vol, ch)
-    # measured: Gaussian 62 volume error and 4.6 Chamfer ratio (it runs off) against Student-t's 0.016 and 0.069
+    # measured under the box prior: Gaussian 62 volume error and 4.6 Chamfer ratio (it ran off) against Student-t's
+    # 0.016 and 0.069; the size prior (models/priors.toml) now holds the Gaussian fit to plausible sizes, and it
+    # lands at 0.052 and 0.084 against 0.015 and 0.069: still worse on both
     assert e_g["volume_error"] > 2 * e_r["volume_error"], (e_g, e_r)
-    assert e_g["chamfer_ratio"] > 1.3 * e_r["chamfer_ratio"], (e_g, e_r)
+    assert e_g["chamfer_ratio"] > 1.15 * e_r["chamfer_ratio"], (e_g, e_r)

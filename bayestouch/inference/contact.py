@@ -10,7 +10,9 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+from jax.scipy.special import log_ndtr
 from scipy.special import gammaln
+from scipy.stats import truncnorm
 
 from bayestouch.backend import jax, jnp
 from bayestouch.errors import BadInput
@@ -30,6 +32,9 @@ __all__ = [
     "residuals",
     "log_likelihood",
     "log_prior",
+    "sample_prior",
+    "size_prior",
+    "with_size_prior",
     "log_prob",
     "log_prob_batch",
     "make_log_prob",
@@ -41,8 +46,8 @@ __all__ = [
 #: the 11 parameters of the default layout (no normals, Student-t or Gaussian noise)
 PARAM_NAMES = ("x_G", "y_G", "z_G", "log_a", "log_b", "log_c", "xi", "psi", "zeta", "log_n", "log_sigma")
 
-#: the noise models of the likelihood (``docs/contact_model.md``)
-NOISE_MODELS = ("student", "multiplicative", "mixture")
+#: the noise models of the likelihood (``docs/contact_model.md``); ``"outlier"`` is the default of a fit
+NOISE_MODELS = ("student", "multiplicative", "mixture", "outlier")
 
 PRIOR_SPECS = {
     "centre_margin": Spec("1", 0.0, 10.0),
@@ -58,6 +63,9 @@ PRIOR_SPECS = {
     "eps_min": Spec("1", 1e-12, 1.0),
     "eps_max": Spec("1", 1e-9, 1.0),
     "outlier_max": Spec("1", 1e-3, 0.99),
+    "size_min": Spec("m", 1e-4, 10.0),
+    "size_max": Spec("m", 1e-4, 10.0),
+    "free_miss": Spec("1", 1e-9, 0.5),
 }
 
 _TINY = 1e-300
@@ -80,11 +88,44 @@ class PriorParams(NamedTuple):
     eps_min: float
     eps_max: float
     outlier_max: float
+    size_min: float
+    size_max: float
+    free_miss: float
 
 
 def load_priors(path=None) -> PriorParams:
     """Read ``[priors]`` of ``models/priors.toml`` (or ``path``)."""
-    return build(PriorParams, MODELS / "priors.toml" if path is None else path, "priors", PRIOR_SPECS)
+    p = build(PriorParams, MODELS / "priors.toml" if path is None else path, "priors", PRIOR_SPECS)
+    return with_size_prior(p, p.size_min, p.size_max)
+
+
+def with_size_prior(priors: PriorParams, size_min: float, size_max: float) -> PriorParams:
+    """``priors`` with the size prior "objects ``size_min``–``size_max`` across" (metres).
+
+    The full length 2a of each principal axis is log-normal with its central 95 % interval [size_min, size_max]
+    (:func:`size_prior`); the interval must lie inside the box [2 axis_min, 2 axis_max].
+
+    Raises
+    ------
+    BadInput
+        ``size_min`` ≥ ``size_max``, or the interval outside the box.
+    """
+    lo, hi = float(size_min), float(size_max)
+    if not (np.isfinite(lo) and np.isfinite(hi) and 0 < lo < hi):
+        raise BadInput(f"size prior: expected 0 < min < max metres (e.g. 0.01:0.1 for objects 1-10 cm), got {lo}:{hi}")
+    if lo < 2 * priors.axis_min or hi > 2 * priors.axis_max:
+        raise BadInput(
+            f"size prior: {lo:g}:{hi:g} m must lie within the prior box of object sizes "
+            f"{2 * priors.axis_min:g}:{2 * priors.axis_max:g} m (models/priors.toml axis_min, axis_max)"
+        )
+    return priors._replace(size_min=lo, size_max=hi)
+
+
+def size_prior(priors: PriorParams) -> tuple[float, float]:
+    """Mean and sd of the normal prior on each log semi-axis (log m): the central 95 % of 2a is
+    [size_min, size_max]."""
+    mu = 0.5 * (np.log(priors.size_min) + np.log(priors.size_max)) - np.log(2.0)
+    return float(mu), float((np.log(priors.size_max) - np.log(priors.size_min)) / (2 * 1.959963984540054))
 
 
 def _check_noise(noise: str) -> str:
@@ -97,32 +138,47 @@ def param_names(normals: bool = False, noise: str = "student") -> tuple[str, ...
     """Names of θ's entries for a likelihood with (or without) ``normals`` and the ``noise`` model.
 
     The 11 names of :data:`PARAM_NAMES`, then ``log_kappa`` (vMF concentration, with normals),
-    ``log_eps`` (``noise="multiplicative"``) or ``w_outlier`` (``noise="mixture"``), in that order.
+    ``log_eps`` (``noise="multiplicative"``), ``w_outlier`` (``noise="mixture"``) or ``w_in, w_out``
+    (``noise="outlier"``: the fractions of contacts displaced into the solid and out into free space), in that order.
     """
     _check_noise(noise)
     extra = (("log_kappa",) if normals else ()) + {
         "student": (),
         "multiplicative": ("log_eps",),
         "mixture": ("w_outlier",),
+        "outlier": ("w_in", "w_out"),
     }[noise]
     return PARAM_NAMES + extra
 
 
 class Bounds(NamedTuple):
-    """Box of the uniform prior in θ space: ``lower``, ``upper`` (D,)."""
+    """The prior in θ space: the box ``lower``, ``upper`` (D,) and the density inside it.
+
+    Inside the box the log-density is Σ_j −½((log a_j − size_mu)/size_sd)² (the size prior; flat for the default
+    ``size_sd = inf``) + log sin ξ (Haar measure on rotations in the z-x-z Euler angles ξ, ψ, ζ), up to a constant.
+    ``ordered`` restricts the semi-axes to a ≥ b ≥ c: every surface keeps a representative (permuting the axes is a
+    rotation of the frame) and the posterior over surfaces is unchanged, while θ space holds 6 times fewer aliases
+    of each mode for a sampler to populate.
+    """
 
     lower: jnp.ndarray
     upper: jnp.ndarray
+    size_mu: float = 0.0
+    size_sd: float = float("inf")
+    ordered: bool = False
 
 
 def bounds_for(points, priors: PriorParams, normals: bool = False, noise: str = "student") -> Bounds:
-    """Prior box for data ``points (M, 3)`` m (the centre range is relative to the data's bounding box).
+    """The prior for data ``points (M, 3)`` m: the box (the centre range is the data's bounding box grown by
+    ``centre_margin`` times its largest span on every side) and the size prior of ``priors`` (:func:`size_prior`).
 
     Its length is that of :func:`param_names` ``(normals, noise)``.
     """
     p = np.asarray(points, float)
     lo, hi = p.min(axis=0), p.max(axis=0)
-    span = np.maximum(hi - lo, priors.axis_min)
+    # grown by the largest span in every direction: data from one side of an object can be thin along the
+    # direction in which its centre lies beyond them
+    span = max(float(np.max(hi - lo)), priors.axis_min)
     c_lo, c_hi = lo - priors.centre_margin * span, hi + priors.centre_margin * span
     la = np.log([priors.axis_min, priors.axis_max])
     lower = [c_lo, [la[0]] * 3, [0.0, 0.0, -np.pi], [np.log(priors.n_min), np.log(priors.sigma_min)]]
@@ -136,7 +192,11 @@ def bounds_for(points, priors: PriorParams, normals: bool = False, noise: str = 
     elif noise == "mixture":
         lower.append([0.0])
         upper.append([priors.outlier_max])
-    return Bounds(jnp.asarray(np.concatenate(lower)), jnp.asarray(np.concatenate(upper)))
+    elif noise == "outlier":
+        lower.append([0.0, 0.0])
+        upper.append([0.5 * priors.outlier_max] * 2)
+    mu, sd = size_prior(priors)
+    return Bounds(jnp.asarray(np.concatenate(lower)), jnp.asarray(np.concatenate(upper)), mu, sd)
 
 
 def shape_of(theta) -> ne.NEllipsoid:
@@ -157,26 +217,35 @@ def residuals(theta, points):
 
 
 class _Data(NamedTuple):
-    """What the likelihood needs of the data, prepared once (JAX arrays)."""
+    """What the likelihood needs of the data, prepared once (JAX arrays). Free-space points (finger positions
+    that touched nothing) follow the M contacts in ``hom``; ``free`` marks them."""
 
-    hom: jnp.ndarray  # (4, M): x, y, z, 1
-    normals: jnp.ndarray | None  # (3, M) unit measured normals
-    lever2: jnp.ndarray | None  # (3, M): (x_k − o_k)², m², for the multiplicative noise
-    log_u: jnp.ndarray | None  # log of the outlier density 1/(2D), log(1/m)
+    hom: jnp.ndarray  # (4, M + K): x, y, z, 1
+    normals: jnp.ndarray | None  # (3, M + K) unit measured normals (zeros on free-space rows)
+    lever2: jnp.ndarray | None  # (3, M + K): (x_k − o_k)², m², for the multiplicative noise
+    log_u: jnp.ndarray | None  # log of the outlier density: 1/(2D) ("mixture"), 1/D per side ("outlier"), log(1/m)
+    free: jnp.ndarray | None  # (M + K,) 1 on free-space rows, 0 on contacts; None without free-space points
+    log_miss: float = -np.inf  # log of the probability that a free-space point is mislabelled (priors free_miss)
 
 
-def _prepare(points, normals=None, noise: str = "student", origin=None) -> _Data:
+def _prepare(points, normals=None, noise: str = "student", origin=None, free=None, free_miss: float = 1e-3) -> _Data:
     p = jnp.asarray(points, dtype=jnp.float64)
-    hom = jnp.concatenate([p.T, jnp.ones((1, p.shape[0]))], axis=0)
-    nrm = None if normals is None else jnp.asarray(normals, dtype=jnp.float64).T
+    m = p.shape[0]
+    k = 0 if free is None else len(free)
+    allp = p if k == 0 else jnp.concatenate([p, jnp.asarray(free, dtype=jnp.float64)], axis=0)
+    hom = jnp.concatenate([allp.T, jnp.ones((1, m + k))], axis=0)
+    nrm = None
+    if normals is not None:
+        nrm = jnp.concatenate([jnp.asarray(normals, dtype=jnp.float64).T, jnp.zeros((3, k))], axis=1)
     lever2 = log_u = None
     if noise == "multiplicative":
         o = jnp.mean(p, axis=0) if origin is None else jnp.asarray(origin, dtype=jnp.float64)
-        lever2 = ((p - o) ** 2).T
-    elif noise == "mixture":
+        lever2 = ((allp - o) ** 2).T
+    elif noise in ("mixture", "outlier"):
         diag = jnp.sqrt(jnp.sum((jnp.max(p, axis=0) - jnp.min(p, axis=0)) ** 2))
-        log_u = -jnp.log(2.0 * jnp.maximum(diag, 1e-9))
-    return _Data(hom, nrm, lever2, log_u)
+        log_u = -jnp.log((2.0 if noise == "mixture" else 1.0) * jnp.maximum(diag, 1e-9))
+    mask = None if k == 0 else jnp.concatenate([jnp.zeros(m), jnp.ones(k)])
+    return _Data(hom, nrm, lever2, log_u, mask, float(np.log(free_miss)))
 
 
 class PrincipalFrame(NamedTuple):
@@ -226,8 +295,27 @@ def _student_const(nu: float) -> float:
     return float(gammaln((nu + 1) / 2) - gammaln(nu / 2) - 0.5 * np.log(nu * np.pi))
 
 
+def _outlier_terms(d, ls, w_in, w_out, log_u):
+    """Per-point log-likelihood of the two-sided outlier model (any float dtype): Gaussian core of sd e^ls, and
+    contacts displaced into the solid (d < 0, fraction w_in) or out into free space (d > 0, fraction w_out), each
+    uniform over a length D on its side (log_u = −log D)."""
+    log_core = -0.5 * d * d * jnp.exp(-2.0 * ls) - ls - 0.5 * _LOG_2PI
+    log_w = jnp.log(jnp.maximum(jnp.where(d > 0, w_out, w_in), _TINY_W))
+    return jnp.logaddexp(jnp.log1p(-(w_in + w_out)) + log_core, log_w + log_u)
+
+
+def _free_terms(d, ls, log_miss):
+    """Log-probability that a finger position with first-order distance ``d`` (m) lies outside the object:
+    Φ(d/σ), floored by the probability ``e^log_miss`` that the position is mislabelled."""
+    return jnp.logaddexp(log_miss, jnp.log1p(-jnp.exp(log_miss)) + log_ndtr(d * jnp.exp(-ls)))
+
+
+_TINY_W = 1e-30
+
+
 def _log_lik_terms(th, data: _Data, noise: str, nu: float):
-    """Log-likelihood of each observation (W, M): walkers ``th (W, D)``, the options' terms added per point."""
+    """Log-likelihood of each observation (W, M + K): walkers ``th (W, D)``, the options' terms added per point;
+    free-space rows (``data.free``) carry the free-space term instead."""
     want = data.normals is not None or noise == "multiplicative"
     d, nw = _geometry(th, data.hom, want)
     ls = th[:, 10][:, None]
@@ -241,16 +329,23 @@ def _log_lik_terms(th, data: _Data, noise: str, nu: float):
     if noise == "student":
         z2 = d * d * jnp.exp(-2.0 * ls)
         if np.isinf(nu):
-            return ll - 0.5 * z2 - (ls + 0.5 * _LOG_2PI)
-        return ll + (_student_const(nu) - ls) - 0.5 * (nu + 1) * jnp.log1p(z2 / nu)
-    if noise == "multiplicative":
+            out = ll - 0.5 * z2 - (ls + 0.5 * _LOG_2PI)
+        else:
+            out = ll + (_student_const(nu) - ls) - 0.5 * (nu + 1) * jnp.log1p(z2 / nu)
+    elif noise == "multiplicative":
         eps2 = jnp.exp(2.0 * th[:, k])[:, None]
         var = jnp.exp(2.0 * ls) + eps2 / 3.0 * jnp.sum(nw * nw * data.lever2[None], axis=1)
-        return ll - 0.5 * (d * d / var + jnp.log(var)) - 0.5 * _LOG_2PI
-    w = th[:, k][:, None]
-    log_n = -0.5 * d * d * jnp.exp(-2.0 * ls) - ls - 0.5 * _LOG_2PI
-    log_w = jnp.log(jnp.maximum(w, _TINY))
-    return ll + jnp.logaddexp(jnp.log1p(-w) + log_n, log_w + data.log_u)
+        out = ll - 0.5 * (d * d / var + jnp.log(var)) - 0.5 * _LOG_2PI
+    elif noise == "outlier":
+        out = ll + _outlier_terms(d, ls, th[:, k][:, None], th[:, k + 1][:, None], data.log_u)
+    else:
+        w = th[:, k][:, None]
+        log_n = -0.5 * d * d * jnp.exp(-2.0 * ls) - ls - 0.5 * _LOG_2PI
+        log_w = jnp.log(jnp.maximum(w, _TINY))
+        out = ll + jnp.logaddexp(jnp.log1p(-w) + log_n, log_w + data.log_u)
+    if data.free is None:
+        return out
+    return jnp.where(data.free[None] > 0, _free_terms(d, ls, data.log_miss), out)
 
 
 def _log_lik_batch(th, data: _Data, noise: str, nu: float):
@@ -263,14 +358,16 @@ _F32 = jnp.float32
 _Q_FLOOR32 = 1e-12
 
 
-def _log_lik_mixed(th, hom, nu: float):
-    """Student-t (Gaussian for ν = inf) log-likelihood (W,) of walkers ``th (W, 11)``, mixed precision.
+def _log_lik_mixed(th, data: _Data, noise: str, nu: float):
+    """Student-t (Gaussian for ν = inf) or two-sided outlier log-likelihood (W,) of walkers ``th (W, D)``, free-space
+    points included, mixed precision.
 
     The affine map q = (x − c) R / a is float64 (no cancellation reaches float32: q is cast once, relative
     error 6e-8 per point, independent between points); the per-point transcendentals are float32, written
     overflow-free (powers relative to the largest of the three, so any |q| and n of the prior stay finite);
     each point's term is cast to float64 before the sum over points.
     """
+    hom = data.hom
     a = jnp.exp(th[:, 3:6])
     n = jnp.exp(th[:, 9])
     ls = th[:, 10]
@@ -290,39 +387,124 @@ def _log_lik_mixed(th, hom, nu: float):
     amax = jnp.max(a, axis=1).astype(_F32)[:, None]
     # (G − 1)/|∇G| = (1 − 1/G)/(|∇G|/G), |∇G| floored at 1/max(a) as in _geometry
     d = one_m_gi / jnp.maximum(jnp.sqrt(jnp.sum(u * u, axis=1)), (1.0 - one_m_gi) / amax)
+    # per-walker constants stay float64, added once per contact after the sum (a float32 −log σ per point would
+    # bias the sum by ~M · 6e-8 · |log σ|)
     z = d * jnp.exp(-ls).astype(_F32)[:, None]
-    m = hom.shape[1]
-    if np.isinf(nu):
-        return -0.5 * jnp.sum((z * z).astype(jnp.float64), axis=1) - m * (ls + 0.5 * _LOG_2PI)
-    s = jnp.sum(jnp.log1p(z * z * _F32(1.0 / nu)).astype(jnp.float64), axis=1)
-    return m * (_student_const(nu) - ls) - 0.5 * (nu + 1) * s
+    if noise == "outlier":
+        c = -(ls + 0.5 * _LOG_2PI)  # (W,) float64
+        w_in, w_out = th[:, 11].astype(_F32)[:, None], th[:, 12].astype(_F32)[:, None]
+        log_w = jnp.log(jnp.maximum(jnp.where(d > 0, w_out, w_in), _F32(_TINY_W)))
+        rel = jnp.logaddexp(jnp.log1p(-(w_in + w_out)) - 0.5 * z * z, log_w + (data.log_u - c).astype(_F32)[:, None])
+    elif np.isinf(nu):
+        c = -(ls + 0.5 * _LOG_2PI)
+        rel = -0.5 * z * z
+    else:
+        c = _student_const(nu) - ls
+        rel = _F32(-0.5 * (nu + 1)) * jnp.log1p(z * z * _F32(1.0 / nu))
+    if data.free is None:
+        return jnp.sum(rel.astype(jnp.float64), axis=1) + hom.shape[1] * c
+    is_free = data.free[None] > 0
+    ft = _free_terms(d, ls.astype(_F32)[:, None], _F32(data.log_miss))
+    contacts = jnp.sum(jnp.where(is_free, _F32(0), rel).astype(jnp.float64), axis=1)
+    free_sum = jnp.sum(jnp.where(is_free, ft, _F32(0)).astype(jnp.float64), axis=1)
+    return contacts + jnp.sum(1.0 - data.free) * c + free_sum
 
 
 _log_lik_terms_jit = jax.jit(_log_lik_terms, static_argnums=(2, 3))
 
 
 def pointwise_log_likelihood(
-    thetas, points, nu: float = np.inf, *, normals=None, noise: str = "student", origin=None
+    thetas,
+    points,
+    nu: float = np.inf,
+    *,
+    normals=None,
+    noise: str = "student",
+    origin=None,
+    free=None,
+    free_miss: float = 1e-3,
 ) -> np.ndarray:
-    """Log-likelihood of each contact point (W, M) for walkers ``thetas (W, D)`` (NumPy edge; the ArviZ
-    ``log_likelihood`` group). Arguments as :func:`log_prob_batch`; the sum over points is the log-likelihood
-    that :func:`make_log_prob` samples."""
-    data = _prepare(points, normals, _check_noise(noise), origin)
+    """Log-likelihood of each observation (W, M + K) for walkers ``thetas (W, D)``: the M contact points, then the
+    K free-space points (NumPy edge; the ArviZ ``log_likelihood`` group). Arguments as :func:`log_prob_batch`;
+    the sum over observations is the log-likelihood that :func:`make_log_prob` samples."""
+    data = _prepare(points, normals, _check_noise(noise), origin, _free_or_none(free), free_miss)
     return np.asarray(_log_lik_terms_jit(jnp.asarray(thetas, dtype=jnp.float64), data, noise, float(nu)))
 
 
 def log_prior(theta, bounds: Bounds):
-    """0 inside the prior box (uniform in θ: log-uniform axes, n, σ, ε, κ), −inf outside; θ (…, D)."""
+    """Log prior density of θ (…, D), up to a constant: −inf outside the box; inside, the size prior on the log
+    semi-axes and the Haar measure on rotations (log sin ξ) of :class:`Bounds`, uniform in every other coordinate
+    (log n, log σ, log ε, log κ, outlier fractions)."""
     inside = jnp.all((theta >= bounds.lower) & (theta <= bounds.upper), axis=-1)
-    return jnp.where(inside, 0.0, -jnp.inf)
+    sorted_ = (theta[..., 3] >= theta[..., 4]) & (theta[..., 4] >= theta[..., 5])
+    inside = inside & (sorted_ | jnp.logical_not(bounds.ordered))
+    z = (theta[..., 3:6] - bounds.size_mu) / bounds.size_sd
+    dens = -0.5 * jnp.sum(z * z, axis=-1) + jnp.log(jnp.maximum(jnp.sin(theta[..., 6]), 1e-300))
+    return jnp.where(inside, dens, -jnp.inf)
+
+
+def sample_prior(bounds: Bounds, count: int, rng: np.random.Generator) -> np.ndarray:
+    """``count`` independent draws (count, D) of :func:`log_prior`: uniform in the box, log semi-axes normal
+    (truncated to the box) and ξ from the Haar measure (cos ξ uniform).
+
+    Parameters
+    ----------
+    bounds : Bounds
+    count : int
+    rng : np.random.Generator
+
+    Returns
+    -------
+    (count, D) float
+    """
+    lo, hi = np.asarray(bounds.lower, float), np.asarray(bounds.upper, float)
+    x = lo + (hi - lo) * rng.random((count, lo.size))
+    if np.isfinite(bounds.size_sd):
+        mu, sd = float(bounds.size_mu), float(bounds.size_sd)
+        a, b = (lo[3:6] - mu) / sd, (hi[3:6] - mu) / sd
+        x[:, 3:6] = truncnorm.rvs(a, b, loc=mu, scale=sd, size=(count, 3), random_state=rng)
+    if bounds.ordered:
+        x[:, 3:6] = -np.sort(-x[:, 3:6], axis=1)
+    c_lo, c_hi = np.cos(hi[6]), np.cos(lo[6])
+    x[:, 6] = np.arccos(np.clip(c_lo + (c_hi - c_lo) * rng.random(count), -1.0, 1.0))
+    return np.clip(x, lo, hi)
+
+
+def _free_or_none(free):
+    if free is None:
+        return None
+    f = np.asarray(free, dtype=float).reshape(-1, 3)
+    return f if len(f) else None
 
 
 def _log_prob_batch(thetas, data: _Data, bounds: Bounds, noise: str, nu: float, precision: str = "float64"):
     lp = log_prior(thetas, bounds)
     th = jnp.clip(thetas, bounds.lower, bounds.upper)
-    ll = _log_lik_mixed(th, data.hom, nu) if precision == "mixed" else _log_lik_batch(th, data, noise, nu)
+    ll = _log_lik_mixed(th, data, noise, nu) if precision == "mixed" else _log_lik_batch(th, data, noise, nu)
     out = jnp.where(jnp.isfinite(lp), lp + ll, -jnp.inf)
     return jnp.where(jnp.isnan(out), -jnp.inf, out)
+
+
+def _tempering_parts(thetas, data: _Data, bounds: Bounds, noise: str, nu: float, precision: str):
+    """Log-prior and log-likelihood (W,) each, and their gradients (W, D); non-finite values count 0 in the
+    gradients (a walker outside the box has log-prior −inf and zero gradient)."""
+
+    def prior_sum(t):
+        lp = log_prior(t, bounds)
+        return jnp.sum(jnp.where(jnp.isfinite(lp), lp, 0.0)), lp
+
+    def lik_sum(t):
+        th = jnp.clip(t, bounds.lower, bounds.upper)
+        ll = _log_lik_mixed(th, data, noise, nu) if precision == "mixed" else _log_lik_batch(th, data, noise, nu)
+        ll = jnp.where(jnp.isnan(ll), -jnp.inf, ll)
+        return jnp.sum(jnp.where(jnp.isfinite(ll), ll, 0.0)), ll
+
+    (_, lp), g_lp = jax.value_and_grad(prior_sum, has_aux=True)(thetas)
+    (_, ll), g_ll = jax.value_and_grad(lik_sum, has_aux=True)(thetas)
+    return lp, ll, g_lp, g_ll
+
+
+_tempering_jit = jax.jit(_tempering_parts, static_argnums=(3, 4, 5))
 
 
 # data passed as arguments (not closed over): one compiled program per (W, M, options), shared by every
@@ -331,7 +513,16 @@ _log_prob_jit = jax.jit(_log_prob_batch, static_argnums=(3, 4, 5))
 
 
 def log_prob_batch(
-    thetas, points, bounds: Bounds, nu: float = np.inf, *, normals=None, noise: str = "student", origin=None
+    thetas,
+    points,
+    bounds: Bounds,
+    nu: float = np.inf,
+    *,
+    normals=None,
+    noise: str = "student",
+    origin=None,
+    free=None,
+    free_miss: float = 1e-3,
 ):
     """Log-posterior (unnormalised) of a batch of walkers, pure JAX.
 
@@ -346,16 +537,20 @@ def log_prob_batch(
         Student-t degrees of freedom (``noise="student"``; inf is Gaussian).
     normals : (M, 3) float, optional
         Measured unit outward normals.
-    noise : {"student", "multiplicative", "mixture"}
+    noise : {"student", "multiplicative", "mixture", "outlier"}
     origin : (3,) float, metres, optional
         Centre of the multiplicative perturbation (default: the data centroid, as :func:`bayestouch.paper.perturb`).
+    free : (K, 3) float, metres, optional
+        Free-space points: finger positions that touched nothing (outside the object).
+    free_miss : float
+        Probability that a free-space point is mislabelled (``models/priors.toml`` free_miss).
 
     Returns
     -------
     (W,) float
         −inf outside the prior, never NaN.
     """
-    data = _prepare(points, normals, _check_noise(noise), origin)
+    data = _prepare(points, normals, _check_noise(noise), origin, _free_or_none(free), free_miss)
     return _log_prob_batch(jnp.asarray(thetas), data, bounds, noise, float(nu))
 
 
@@ -396,6 +591,8 @@ def make_log_prob(
     noise: str = "student",
     origin=None,
     precision: str = "float64",
+    free=None,
+    ordered: bool = False,
 ):
     """A jitted, walker-vectorised log-probability ``f(thetas (W, D)) → (W,)`` for ``emcee(vectorize=True)``.
 
@@ -408,24 +605,33 @@ def make_log_prob(
         Student-t degrees of freedom for ``noise="student"`` (default ``priors.student_nu``; inf is Gaussian).
     normals : (M, 3) float, optional
         Measured outward normals (normalised here); adds the vMF term and ``log_kappa``.
-    noise : {"student", "multiplicative", "mixture"}
+    noise : {"student", "multiplicative", "mixture", "outlier"}
     origin : (3,) float, metres, optional
         Centre of the multiplicative perturbation (default the data centroid).
+    free : (K, 3) float, metres, optional
+        Free-space points (finger positions that touched nothing): each adds log(ε + (1 − ε) Φ(d/σ)), d its
+        first-order distance outside the surface, ε = ``priors.free_miss``.
+    ordered : bool
+        Restrict the semi-axes to a ≥ b ≥ c (:class:`Bounds`).
     precision : {"float64", "mixed"}
-        ``"mixed"``: float32 per-point transcendentals, float64 affine map and sum (``noise="student"`` without
-        normals only; about 1.5x faster, log-probability error ~1e-7·(a/σ)·√M nats, see ``docs/contact_model.md``).
+        ``"mixed"``: float32 per-point transcendentals, float64 affine map and sum (``noise="student"`` or
+        ``"outlier"`` without normals only; about 1.5x faster, log-probability error
+        ~1e-7·(a/σ)·√M nats, see ``docs/contact_model.md``).
 
     Returns
     -------
     f : callable
-        NumPy in, NumPy out; D = ``len(param_names(normals is not None, noise))`` (11 by default).
+        NumPy in, NumPy out; D = ``len(param_names(normals is not None, noise))`` (11 by default). ``f.parts``
+        maps walkers (W, D) to (log-prior, log-likelihood, their gradients): the pieces a tempered sampler needs.
     bounds : Bounds
     """
     _check_noise(noise)
     if precision not in ("float64", "mixed"):
         raise BadInput(f"precision: expected 'float64' or 'mixed', got {precision!r}")
-    if precision == "mixed" and (noise != "student" or normals is not None):
-        raise BadInput("precision: 'mixed' is implemented for noise='student' without normals; use 'float64'")
+    if precision == "mixed" and (noise not in ("student", "outlier") or normals is not None):
+        raise BadInput(
+            "precision: 'mixed' is implemented for noise='student' or 'outlier' without normals; use 'float64'"
+        )
     if nu is not None and noise != "student":
         raise BadInput(f"nu: applies to noise='student' only, got nu={nu} with noise={noise!r}")
     p, nrm = _check_points(points, normals)
@@ -433,8 +639,11 @@ def make_log_prob(
     nu = float(priors.student_nu if nu is None else nu)
     if not nu > 0:
         raise BadInput(f"nu: Student-t degrees of freedom must be > 0 (inf for Gaussian), got {nu}")
-    data = _prepare(p, nrm, noise, origin)
-    bounds = bounds_for(p, priors, nrm is not None, noise)
+    fr = _free_or_none(free)
+    if fr is not None and not np.all(np.isfinite(fr)):
+        raise BadInput("free: free-space points must be finite (K, 3) metres")
+    data = _prepare(p, nrm, noise, origin, fr, priors.free_miss)
+    bounds = bounds_for(p, priors, nrm is not None, noise)._replace(ordered=bool(ordered))
     dim = len(bounds.lower)
 
     def f(thetas):
@@ -445,4 +654,11 @@ def make_log_prob(
             raise BadInput(f"thetas: expected a (W, {dim}) array of parameter vectors, got shape {th.shape}")
         return np.asarray(_log_prob_jit(th, data, bounds, noise, nu, precision))
 
+    def parts(thetas):
+        """(log-prior (W,), log-likelihood (W,), their gradients (W, D) each) of walkers (W, D): what a tempered
+        sampler with gradients needs."""
+        out = _tempering_jit(jnp.asarray(thetas, dtype=jnp.float64), data, bounds, noise, nu, precision)
+        return tuple(np.asarray(o) for o in out)
+
+    f.parts = parts
     return f, bounds

@@ -1,0 +1,111 @@
+"""The contact level's default likelihood and priors: the two-sided outlier model, free-space points, the size
+prior, the Haar prior on rotations and the axis order."""
+
+import numpy as np
+import pytest
+
+from bayestouch.backend import jax, jnp
+from bayestouch.errors import BadInput
+from bayestouch.geometry.rotation import rotation_matrix
+from bayestouch.inference import contact as cm
+
+
+def _sphere_points(m=60, r=0.02, seed=0):
+    rng = np.random.default_rng(seed)
+    p = rng.normal(size=(m, 3))
+    return r * p / np.linalg.norm(p, axis=1, keepdims=True)
+
+
+def _theta(r=0.02, n=2.0, sigma=3e-4, w_in=0.05, w_out=0.02):
+    return np.array([0, 0, 0, *[np.log(r)] * 3, 1.0, 1.0, 1.0, np.log(n), np.log(sigma), w_in, w_out])
+
+
+def test_outlier_density_integrates_to_one_and_separates_the_sides():
+    # per-point density over the signed distance d: (1 − w_in − w_out) N(0, σ²) + w_in/D (d < 0) + w_out/D (d > 0)
+    D, sigma, w_in, w_out = 0.05, 3e-4, 0.1, 0.03
+    d = np.linspace(-D, D, 400001)
+    terms = np.exp(np.asarray(cm._outlier_terms(jnp.asarray(d), np.log(sigma), w_in, w_out, -np.log(D))))
+    assert abs(np.trapezoid(terms, d) - 1.0) < 1e-4
+    # far inside the density is w_in/D, far outside w_out/D: the two events are told apart
+    assert terms[1000] == pytest.approx(w_in / D, rel=1e-9)
+    assert terms[-1000] == pytest.approx(w_out / D, rel=1e-9)
+
+
+def test_outlier_model_mixed_matches_float64():
+    pts = _sphere_points()
+    pts[:5] *= 0.7  # five contacts displaced into the solid
+    th = _theta()[None] + np.random.default_rng(1).normal(0, 1e-3, (8, 13))
+    f64, _ = cm.make_log_prob(pts, noise="outlier", precision="float64")
+    f32, _ = cm.make_log_prob(pts, noise="outlier", precision="mixed")
+    assert np.max(np.abs(f64(th) - f32(th))) < 1e-3
+
+
+def test_displaced_contacts_do_not_inflate_sigma():
+    """Contacts displaced 3 mm inwards: the outlier model's likelihood prefers the true σ (0.3 mm) over a σ
+    stretched to cover them (1 mm); the Student-t negative control prefers less of a difference."""
+    rng = np.random.default_rng(2)
+    pts = _sphere_points(80) * (1 + rng.normal(0, 3e-4 / 0.02, (80, 1)))
+    pts[:8] *= 1 - 0.003 / 0.02
+    f, _ = cm.make_log_prob(pts, noise="outlier")
+    lo, hi = _theta(sigma=3e-4, w_in=0.1), _theta(sigma=1e-3, w_in=0.1)
+    assert f(lo[None])[0] - f(hi[None])[0] > 20.0
+
+
+def test_free_space_point_inside_costs_the_mislabel_probability():
+    pts = _sphere_points()
+    th = _theta()[None]
+    f0, _ = cm.make_log_prob(pts, noise="outlier")
+    f_out, _ = cm.make_log_prob(pts, noise="outlier", free=np.array([[0.03, 0.0, 0.0]]))
+    f_in, _ = cm.make_log_prob(pts, noise="outlier", free=np.array([[0.01, 0.0, 0.0]]))
+    priors = cm.load_priors()
+    # a free point well outside costs nothing; one well inside costs log(free_miss)
+    assert f_out(th)[0] == pytest.approx(f0(th)[0], abs=1e-9)
+    assert f_in(th)[0] - f0(th)[0] == pytest.approx(np.log(priors.free_miss), abs=1e-3)
+    # the pointwise group holds contacts then free points, and sums to the likelihood
+    pw = cm.pointwise_log_likelihood(th, pts, noise="outlier", free=np.array([[0.01, 0.0, 0.0]]))
+    assert pw.shape == (1, len(pts) + 1)
+
+
+def test_size_prior_quantiles_and_errors():
+    pr = cm.with_size_prior(cm.load_priors(), 0.01, 0.1)
+    mu, sd = cm.size_prior(pr)
+    # 2a = 2 exp(log a): its 2.5 % and 97.5 % quantiles are the stated range
+    assert 2 * np.exp(mu - 1.959963984540054 * sd) == pytest.approx(0.01)
+    assert 2 * np.exp(mu + 1.959963984540054 * sd) == pytest.approx(0.1)
+    with pytest.raises(BadInput, match="size prior"):
+        cm.with_size_prior(pr, 0.1, 0.01)
+    with pytest.raises(BadInput, match="size prior"):
+        cm.with_size_prior(pr, 0.01, 5.0)
+
+
+def test_prior_draws_are_uniform_over_rotations_and_follow_the_size_prior():
+    """Haar measure: E[R_ij²] = 1/3 for every entry. Uniform Euler angles give E[R_33²] = E[cos² ξ] = 1/2 (the
+    negative control), 37 standard errors away at 20 000 draws."""
+    b = cm.bounds_for(_sphere_points(), cm.load_priors())
+    x = cm.sample_prior(b, 20000, np.random.default_rng(0))
+    R = np.asarray(jax.vmap(rotation_matrix)(jnp.asarray(x[:4000, 6:9])))
+    r2 = (R**2).mean(axis=0)
+    se = np.sqrt(4 / 45 / 4000)  # sd of R_ij² under Haar is √(4/45)
+    assert np.all(np.abs(r2 - 1 / 3) < 4 * se)
+    uniform_xi = np.random.default_rng(1).uniform(0, np.pi, 4000)
+    assert abs(np.mean(np.cos(uniform_xi) ** 2) - 1 / 3) > 4 * se
+    # log semi-axes: normal(mu, sd) truncated far in the tails
+    mu, sd = cm.size_prior(cm.load_priors())
+    assert abs(x[:, 3].mean() - mu) < 4 * sd / np.sqrt(len(x))
+    assert abs(x[:, 3].std() / sd - 1) < 0.03
+    # log_prior includes log sin ξ: the prior draws' density ratio at two ξ is the Haar ratio
+    t = x[:2].copy()
+    t[:, 3:6] = mu
+    t[0, 6], t[1, 6] = np.pi / 2, np.pi / 6
+    lp = np.asarray(cm.log_prior(jnp.asarray(t), b))
+    assert lp[0] - lp[1] == pytest.approx(np.log(2.0), abs=1e-12)
+
+
+def test_ordered_axes_prior_and_draws():
+    b = cm.bounds_for(_sphere_points(), cm.load_priors())._replace(ordered=True)
+    x = cm.sample_prior(b, 1000, np.random.default_rng(0))
+    assert np.all(x[:, 3] >= x[:, 4]) and np.all(x[:, 4] >= x[:, 5])
+    y = x[:3].copy()
+    y[:, [3, 5]] = y[:, [5, 3]]  # largest last: outside the ordered prior
+    assert np.all(np.isinf(np.asarray(cm.log_prior(jnp.asarray(y), b))))
+    assert np.all(np.isfinite(np.asarray(cm.log_prior(jnp.asarray(y), b._replace(ordered=False)))))
