@@ -49,7 +49,7 @@ def test_fit_writes_outputs_and_resumes(points_csv, tmp_path):
         == 0
     )
     chain = emcee.backends.HDFBackend(str(out / "chain.h5"), read_only=True).get_chain()
-    assert chain.shape == (300, 24, 11) and np.array_equal(chain[:200], first)
+    assert chain.shape == (300, 24, 13) and np.array_equal(chain[:200], first)
 
 
 def test_fit_bad_inputs_exit_2(tmp_path, capsys, points_csv):
@@ -216,7 +216,7 @@ def test_fit_killed_mid_run_resumes_with_nothing_lost(points_csv, tmp_path):
         == 0
     )
     after = emcee.backends.HDFBackend(str(out / "chain.h5"), read_only=True).get_chain()
-    assert after.shape == (done, 24, 11) and np.array_equal(after[: len(before)], before)
+    assert after.shape == (done, 24, 13) and np.array_equal(after[: len(before)], before)
 
 
 @pytest.mark.slow

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from bayestouch.errors import BadInput
 
-__all__ = ["seed", "positive_int", "size_list", "one_size", "eps_list", "check_out"]
+__all__ = ["seed", "positive_int", "size_list", "one_size", "size_range", "eps_list", "check_out"]
 
 
 def seed(text: str) -> int:
@@ -68,3 +68,15 @@ def check_out(path: Path) -> Path:
         raise BadInput(f"--out {path} exists and is not a folder")
     path.mkdir(parents=True, exist_ok=True)
     return path
+
+
+def size_range(text: str) -> tuple[float, float]:
+    """An object-size range ``MIN:MAX`` in metres with 0 < MIN < MAX, e.g. ``0.01:0.1``."""
+    parts = text.split(":")
+    try:
+        lo, hi = (float(p) for p in parts) if len(parts) == 2 else (float("nan"),) * 2
+    except ValueError:
+        lo = hi = float("nan")
+    if not (lo > 0 and hi > lo and hi < float("inf")):
+        raise argparse.ArgumentTypeError(f"expected MIN:MAX metres with 0 < MIN < MAX (e.g. 0.01:0.1), got {text!r}")
+    return lo, hi

@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from bayestouch.cli.args import one_size, positive_int
+from bayestouch.cli.args import one_size, positive_int, size_range
 from bayestouch.cli.args import seed as seed_arg
 from bayestouch.errors import BadInput
 
@@ -40,13 +40,36 @@ def add_parser(sub) -> argparse.ArgumentParser:
     )
     fp.add_argument("--no-early-stop", action="store_true", help="sample exactly --steps steps")
     fp.add_argument("--resume", action="store_true", help="continue the chain in OUT/chain.h5")
-    fp.add_argument("--budget", type=float, default=None, help="wall-clock budget for sampling, seconds")
+    fp.add_argument(
+        "--budget",
+        type=float,
+        default=None,
+        help="wall-clock budget for sampling, seconds (default: 60 for contact points, none for a recording; "
+        "0 for none); a run stopped by it is reported as not converged and can be continued with --resume",
+    )
     fp.add_argument(
         "--noise",
-        choices=["student", "gaussian", "multiplicative", "mixture"],
-        default="student",
-        help="contact level residual model: Student-t (default, robust), Gaussian, the paper's "
+        choices=["outlier", "student", "gaussian", "multiplicative", "mixture"],
+        default="outlier",
+        help="contact level residual model: Gaussian with contacts displaced into the solid or out into "
+        "free space as separate outlier events (default), Student-t, Gaussian, the paper's "
         "multiplicative (1 + r) perturbation, or Gaussian + uniform outliers",
+    )
+    fp.add_argument(
+        "--size-prior",
+        type=size_range,
+        default=None,
+        metavar="MIN:MAX",
+        help="contact level: objects MIN-MAX metres across (the central 95 %% of each axis's full length, "
+        "log-normal), e.g. 0.01:0.1 for 1-10 cm (default models/priors.toml: 0.01:0.3)",
+    )
+    fp.add_argument(
+        "--init",
+        choices=["auto", "smc", "optimize"],
+        default="auto",
+        help="contact level: start the chain from a tempered SMC from the prior (finds separated modes, writes "
+        "smc.npz) or from a small ball around an evolutionary-search optimum; auto (default): the optimum for "
+        "300 or more contacts that surround the object, else SMC",
     )
     fp.add_argument("--nu", type=float, default=None, help="Student-t degrees of freedom (default: models/priors.toml)")
     fp.add_argument(
@@ -55,7 +78,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
         default="auto",
         help="arithmetic of the sampled contact-level log-density: mixed (float32 per-point "
         "transcendentals, ~2x faster, error < 1e-3 nat) where it applies (auto: Student-t or Gaussian "
-        "noise, no normals, no --ffd), else float64; summaries are float64 always",
+        "or outlier noise, no normals, no --ffd), else float64; summaries are float64 always",
     )
     fp.add_argument(
         "--ignore-normals",
@@ -100,8 +123,8 @@ def run(args) -> int:
         raise BadInput(
             f"--walkers must be an even number ≥ 24 (twice the parameters, plus a margin), got {args.walkers}"
         )
-    if args.budget is not None and not args.budget > 0:
-        raise BadInput(f"--budget must be > 0 seconds, got {args.budget}")
+    if args.budget is not None and not args.budget >= 0:
+        raise BadInput(f"--budget must be ≥ 0 seconds (0: no budget), got {args.budget}")
     if args.out.exists() and not args.out.is_dir():
         raise BadInput(f"--out {args.out} exists and is not a folder")
     if not args.points.is_file():
@@ -111,6 +134,8 @@ def run(args) -> int:
     if args.points.suffix == ".nc":
         if args.ffd is not None:
             raise BadInput("--ffd applies to contact points (.csv), not to a recording (.nc)")
+        if args.size_prior is not None or args.init != "auto":
+            raise BadInput("--size-prior and --init apply to contact points (.csv), not to a recording (.nc)")
         from bayestouch.inference.raw import run_raw_fit
 
         s = run_raw_fit(
@@ -120,7 +145,7 @@ def run(args) -> int:
             walkers=args.walkers,
             steps=args.steps or 1500,
             resume=args.resume,
-            budget_s=args.budget,
+            budget_s=args.budget or None,
             progress=not args.quiet,
             stop_when_converged=not args.no_early_stop,
             texture=args.texture,
@@ -130,6 +155,8 @@ def run(args) -> int:
         from bayestouch.inference.run import run_contact_fit
         from bayestouch.io.contacts import load_contact_points
 
+        if args.size_prior is not None and args.ffd is not None:
+            raise BadInput("--size-prior: the FFD-marginalised fit keeps its own prior; use one of --size-prior, --ffd")
         if args.texture != "auto" or args.stride is not None:
             raise BadInput("--texture and --stride apply to a recording (.nc), not to contact points (.csv)")
 
@@ -144,7 +171,7 @@ def run(args) -> int:
             walkers=args.walkers,
             steps=args.steps or 20000,
             resume=args.resume,
-            budget_s=args.budget,
+            budget_s="default" if args.budget is None else (args.budget or None),
             progress=not args.quiet,
             normals=None if args.ignore_normals else cp.normals,
             noise=noise,
@@ -153,6 +180,9 @@ def run(args) -> int:
             ffd_tau=args.ffd_tau,
             stop_when_converged=not args.no_early_stop,
             precision=args.precision,
+            free=cp.free,
+            size_prior=args.size_prior,
+            init=args.init,
         )
     d = s["diagnostics"]
     v = s["derived"]["volume_m3"]
@@ -163,6 +193,14 @@ def run(args) -> int:
         f"{'converged' if d['converged'] else 'NOT converged'}"
         f"{' (stopped by --budget)' if d.get('stopped_by_budget') else ''} ({d['seconds']:.1f} s)"
     )
+    if d.get("multimodal"):
+        print(f"MULTIMODAL: {len(d['modes'])} separated shapes; the mean describes none of them:")
+        for i, m in enumerate(d["modes"], start=1):
+            mv = m["volume_m3"]
+            print(
+                f"  mode {i}: weight {m['weight']:.0%}, volume {mv['mean'] * 1e6:.3f} cm³ "
+                f"(90 % {mv['q05'] * 1e6:.3f}–{mv['q95'] * 1e6:.3f}), n {m['n']['mean']:.2f}"
+            )
     for w in d.get("warnings", []):
         print(f"bayestouch fit: warning: {w}", file=sys.stderr)
     return 0

@@ -12,8 +12,10 @@ import time
 from functools import partial
 from pathlib import Path
 
+import emcee
 import numpy as np
 from scipy.optimize import minimize
+from scipy.special import gammaln
 
 from bayestouch.backend import jax, jnp
 from bayestouch.errors import BadInput
@@ -22,8 +24,11 @@ from bayestouch.geometry.symmetry import canonicalize_batch
 from bayestouch.inference import contact as cm
 from bayestouch.inference import ffd_marginal as fm
 from bayestouch.inference.de import de_search
-from bayestouch.inference.posterior import PosteriorModel, vmf_sample, write_posterior
-from bayestouch.inference.sampler import prune_stuck_walkers, sample
+from bayestouch.inference.modes import find_modes
+from bayestouch.inference.posterior import PosteriorModel, interval, vmf_sample, write_posterior
+from bayestouch.inference.sampler import HamiltonianMove, IndependenceMixture, prune_stuck_walkers, sample
+from bayestouch.inference.smc import local_covariances, tempered_smc, tune_step_size
+from bayestouch.io.files import write_json
 
 __all__ = [
     "initial_theta",
@@ -33,7 +38,40 @@ __all__ = [
     "NATURAL_NAMES",
     "natural_draws",
     "start_ball",
+    "smc_stage",
+    "smc_moves",
+    "smc_walkers",
+    "describe_modes",
+    "SMC_PARTICLES",
+    "DEFAULT_BUDGET_S",
+    "DENSE_POINTS",
+    "surrounds",
+    "SMC_ESS",
+    "MIXTURE_COMPONENTS",
 ]
+
+#: particles and conditional-ESS target of the tempered SMC that starts a default fit
+#: (``benchmarks/bench_user_sets.py``: at ESS 0.5 the particles of a one-sided 87-contact set collapsed into
+#: a mode 47 nats below the truth's)
+SMC_PARTICLES = 2048
+SMC_ESS = 0.8
+#: wall-clock budget (s) of a contact-level fit unless given: a user waits at most about this long for a posterior;
+#: one that has not converged by then says so (``diagnostics.converged``, ``stopped_by_budget``) and can be
+#: continued with ``resume``
+DEFAULT_BUDGET_S = 60.0
+#: ``init="auto"`` starts from the optimum (no SMC) for at least this many contacts surrounding the object, at least
+#: this fraction of them beyond ±½ of each semi-axis on each side (:func:`surrounds`)
+DENSE_POINTS = 300
+SURROUND_FRACTION = 0.03
+#: most random-walk steps per stage after the HMC steps
+SMC_RW_STEPS = 10
+#: components of the independence mixture built from the SMC particles, and their bandwidth (fraction of each
+#: particle's neighbourhood covariance, as a scale)
+MIXTURE_COMPONENTS = 256
+MIXTURE_BANDWIDTH = 0.8
+#: particles whose covariance is a walker's inverse mass matrix (``benchmarks/bench_user_sets.py`` set 0: τ 25 steps
+#: at 256 of 2048, against 15-27 at 52 or all 2048 in 1000-step pilots)
+HMC_NEIGHBOURS = 256
 
 #: summary names (natural units) of the 11 sampled contact-level parameters
 NATURAL_NAMES = ("x_G", "y_G", "z_G", "a", "b", "c", "xi", "psi", "zeta", "n", "sigma")
@@ -122,7 +160,13 @@ def start_ball(theta0, bounds, n, rng, sampled: tuple = cm.PARAM_NAMES) -> np.nd
 
 
 #: natural names and transforms of the optional contact-level parameters (after σ)
-_EXTRA_NATURAL = {"log_kappa": ("kappa", np.exp), "log_eps": ("epsilon", np.exp), "w_outlier": ("w_outlier", None)}
+_EXTRA_NATURAL = {
+    "log_kappa": ("kappa", np.exp),
+    "log_eps": ("epsilon", np.exp),
+    "w_outlier": ("w_outlier", None),
+    "w_in": ("w_in", None),
+    "w_out": ("w_out", None),
+}
 
 
 def natural_draws(flat: np.ndarray, sampled: tuple = cm.PARAM_NAMES) -> np.ndarray:
@@ -137,15 +181,147 @@ def natural_draws(flat: np.ndarray, sampled: tuple = cm.PARAM_NAMES) -> np.ndarr
 
 
 #: starting values of the optional parameters: κ = 100 (normals good to ~6°), ε = 10⁻³ (the paper's), w = 5 %
-_EXTRA_START = {"log_kappa": np.log(100.0), "log_eps": np.log(1e-3), "w_outlier": 0.05}
-_EXTRA_SCALE = {"log_kappa": 1e-2, "log_eps": 1e-2, "w_outlier": 1e-3}
+_EXTRA_START = {"log_kappa": np.log(100.0), "log_eps": np.log(1e-3), "w_outlier": 0.05, "w_in": 0.025, "w_out": 0.025}
+_EXTRA_SCALE = {"log_kappa": 1e-2, "log_eps": 1e-2, "w_outlier": 1e-3, "w_in": 1e-3, "w_out": 1e-3}
 
 
-def contact_model(points, priors: cm.PriorParams, nu: float, *, normals=None, noise: str = "student") -> PosteriorModel:
+_prior_jit = jax.jit(cm.log_prior)
+
+
+def smc_stage(logp, bounds: cm.Bounds, seed: int, path: Path | None = None, *, progress: bool = False):
+    """The tempered SMC from the prior (:func:`bayestouch.inference.smc.tempered_smc`) of a contact-level
+    log-posterior ``logp`` (W, D) → (W,) with prior ``bounds``: :data:`SMC_PARTICLES` particles, conditional-ESS
+    target :data:`SMC_ESS`, seeded by ``seed``.
+
+    With ``path`` the particles, their log-likelihoods, the log-evidence and the temperatures are saved there
+    (``smc.npz``) and read back instead of recomputed when the file exists (a resumed run proposes from the same
+    mixture as the uninterrupted one did).
+
+    Returns
+    -------
+    dict
+        ``particles`` (N, D), ``log_lik`` (N,), ``log_evidence`` (nats), ``betas`` (T,), ``complete`` (reached
+        β = 1), ``evaluations``, ``seconds``.
+    """
+    if path is not None and Path(path).exists():
+        with np.load(path) as z:
+            return {k: (z[k] if z[k].ndim else z[k].item()) for k in z.files}
+
+    def log_prior(x):
+        return np.asarray(_prior_jit(jnp.asarray(x), bounds))
+
+    def log_lik(x):
+        with np.errstate(invalid="ignore"):
+            return np.asarray(logp(x)) - log_prior(x)
+
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=1000, desc="tempering", unit="‰β", leave=False)
+
+    def tick(beta, stage):
+        if bar is not None:
+            bar.update(int(1000 * beta) - bar.n)
+
+    rng = np.random.default_rng([seed, 0x5AC])
+    try:
+        r = tempered_smc(
+            log_lik,
+            log_prior,
+            lambda c, g: cm.sample_prior(bounds, c, g),
+            rng,
+            particles=SMC_PARTICLES,
+            ess_target=SMC_ESS,
+            progress=tick,
+            gradients=getattr(logp, "parts", None),
+            max_steps=SMC_RW_STEPS,
+        )
+    finally:
+        if bar is not None:
+            bar.close()
+    res = {
+        "particles": r.particles,
+        "log_lik": r.log_lik,
+        "log_evidence": r.log_evidence,
+        "betas": r.betas,
+        "complete": bool(r.complete),
+        "eps": float(r.eps),
+        "evaluations": int(r.evaluations),
+        "seconds": float(r.seconds),
+    }
+    if path is not None:
+        np.savez(path, **res)
+    return res
+
+
+def smc_walkers(particles, walkers: int, seed: int) -> np.ndarray:
+    """Indices (walkers,) of the particles that start an emcee run after :func:`smc_stage` (distinct where there
+    are enough)."""
+    rng = np.random.default_rng([seed, 0x57A])
+    return rng.choice(len(particles), walkers, replace=len(particles) < walkers)
+
+
+def smc_moves(particles, start, gradients, eps: float, seed: int, components: int = MIXTURE_COMPONENTS):
+    """Moves and starting walkers of an emcee run after :func:`smc_stage`, from the posterior draws
+    ``particles (N, D)`` at indices ``start (W,)`` (:func:`smc_walkers`).
+
+    With ``gradients`` (``make_log_prob(...)[0].parts``): Hamiltonian Monte Carlo of each walker
+    (:class:`~bayestouch.inference.sampler.HamiltonianMove`, up to 8 leapfrog steps) with the covariance of the
+    :data:`HMC_NEIGHBOURS` particles nearest its start as its inverse mass matrix and a step size from a pilot
+    run at 70 % acceptance (:func:`~bayestouch.inference.smc.tune_step_size`, from ``eps``; the pilot moves the
+    walkers, a warm-up before the chain), 90 % of the moves; 10 % an independence mixture
+    (:class:`~bayestouch.inference.sampler.IndependenceMixture`) of ``components`` t components centred on
+    distinct particles with :data:`MIXTURE_BANDWIDTH` of their neighbourhood's covariance, which can carry walkers
+    between separated modes. Without gradients: 70 % differential evolution, 30 % the mixture.
+
+    Returns
+    -------
+    moves : list of (move, weight)
+    walkers : (W, D) float
+    """
+    x = np.asarray(particles, float)
+    rng = np.random.default_rng([seed, 0x313])
+    uniq = np.unique(x, axis=0)
+    pick = rng.choice(len(uniq), min(components, len(uniq)), replace=False)
+    chols = np.linalg.cholesky(local_covariances(uniq, max(4 * x.shape[1], 30), pick)) * MIXTURE_BANDWIDTH
+    mix = IndependenceMixture(uniq[pick], chols, emcee.moves.DEMove())
+    start = np.asarray(start, int)
+    if gradients is None or not np.isfinite(eps):
+        return [(mix, 0.3), (emcee.moves.DEMove(), 0.7)], x[start]
+    walker_chols = np.linalg.cholesky(local_covariances(x, HMC_NEIGHBOURS, start))
+    eps, walkers = tune_step_size(x[start], walker_chols, gradients, rng, eps)
+    return [(HamiltonianMove(gradients, walker_chols, eps), 0.9), (mix, 0.1)], walkers
+
+
+def describe_modes(nat, volumes, seed: int) -> list[dict]:
+    """The separated modes (:func:`bayestouch.inference.modes.find_modes`) of canonical natural draws ``nat (N, ≥
+    10)`` with their volumes ``volumes (N,)`` m³: per mode its ``weight`` (fraction of the draws), the volume's and
+    each semi-axis's and n's mean, sd and 90 % interval; heaviest first."""
+    feats = np.column_stack([np.log(nat[:, 3:6]), np.log(nat[:, 9])])
+    lab = find_modes(feats, np.random.default_rng([seed, 0x30D]))
+    out = []
+    for j in range(int(lab.max()) + 1):
+        m = lab == j
+        out.append(
+            {
+                "weight": float(m.mean()),
+                "volume_m3": interval(volumes[m]),
+                **{k: interval(nat[m, i]) for k, i in (("a", 3), ("b", 4), ("c", 5), ("n", 9))},
+            }
+        )
+    return out
+
+
+def contact_model(
+    points, priors: cm.PriorParams, nu: float, *, normals=None, noise: str = "student", free=None
+) -> PosteriorModel:
     """The contact level as a :class:`~bayestouch.inference.posterior.PosteriorModel`: pointwise log-likelihood of
     each point (:func:`~bayestouch.inference.contact.pointwise_log_likelihood`); replicated points are surface points
     of each draw displaced along the normal by noise of the model's scale (Student-t or Gaussian σ; σ_i for the
-    multiplicative model; the mixture's outliers are drawn uniformly along the normal within the data's extent);
+    multiplicative model; the mixture's outliers are drawn uniformly along the normal within the data's extent, the
+    two-sided outlier model's uniformly within the data's diagonal on their side, inwards with probability w_in and
+    outwards with w_out); free-space points (``free``) count in the pointwise log-likelihood after the contacts;
     with measured ``normals``, replicated normals are von Mises–Fisher (κ of the draw) about the draw's normal
     (:func:`~bayestouch.inference.posterior.vmf_sample`), and the observed group holds the normalised measured
     normals too."""
@@ -167,6 +343,13 @@ def contact_model(points, priors: cm.PriorParams, nu: float, *, normals=None, no
             k = sampled.index("log_eps")
             var = sigma**2 + np.exp(2 * thetas[:, k])[:, None] / 3 * np.einsum("wmk,mk->wm", nrm**2, lever**2)
             e = np.sqrt(var) * rng.standard_normal(shape)
+        elif noise == "outlier":
+            w_in = thetas[:, sampled.index("w_in")][:, None]
+            w_out = thetas[:, sampled.index("w_out")][:, None]
+            u = rng.random(shape)
+            e = sigma * rng.standard_normal(shape)
+            e = np.where(u < w_in, -rng.uniform(0, 2 * half_diag, shape), e)
+            e = np.where((u >= w_in) & (u < w_in + w_out), rng.uniform(0, 2 * half_diag, shape), e)
         else:
             w = thetas[:, sampled.index("w_outlier")][:, None]
             e = np.where(
@@ -178,13 +361,19 @@ def contact_model(points, priors: cm.PriorParams, nu: float, *, normals=None, no
         return rep
 
     def ll(thetas):
-        return cm.pointwise_log_likelihood(thetas, points, nu, normals=normals, noise=noise)
+        return cm.pointwise_log_likelihood(
+            thetas, points, nu, normals=normals, noise=noise, free=free, free_miss=priors.free_miss
+        )
 
     likelihood = {
         "student": "Gaussian" if np.isinf(nu) else f"Student-t, nu = {nu:g}",
         "multiplicative": "Gaussian with the paper's multiplicative (1 + r) perturbation",
         "mixture": "Gaussian + uniform outlier mixture",
+        "outlier": "Gaussian + two-sided outliers (into the solid, out into free space)",
     }[noise]
+    n_free = 0 if free is None else len(free)
+    if n_free:
+        likelihood += f"; {n_free} free-space points"
     if normals is not None:
         likelihood += "; normals: von Mises-Fisher"
     observed = {"points": np.asarray(points)}
@@ -204,6 +393,7 @@ def contact_model(points, priors: cm.PriorParams, nu: float, *, normals=None, no
             "noise": noise,
             "normals_used": normals is not None,
             "n_points": int(m),
+            "n_free_points": int(n_free),
             "parameters_sampled": list(sampled),
         },
     )
@@ -274,16 +464,19 @@ def run_contact_fit(
     walkers: int = 32,
     steps: int = 20000,
     resume: bool = False,
-    budget_s: float | None = None,
+    budget_s: float | None = "default",
     progress: bool = True,
     normals=None,
-    noise: str = "student",
+    noise: str = "outlier",
     nu: float | None = None,
     ffd: tuple[int, int, int] | None = None,
     ffd_tau: float | None = None,
     stop_when_converged: bool = True,
     start=None,
     precision: str = "auto",
+    free=None,
+    size_prior: tuple[float, float] | None = None,
+    init: str = "auto",
 ) -> dict:
     """Sample the contact-level posterior of ``points (M, 3)`` m and write the run folder ``out``.
 
@@ -306,16 +499,32 @@ def run_contact_fit(
         200, 400, …), which on a near-Gaussian posterior cuts τ from ~45 steps to ~5.
     normals : (M, 3) float, optional
         Measured outward normals: adds the von Mises-Fisher term (and κ).
-    noise : {"student", "multiplicative", "mixture"}
-        Residual model (:mod:`bayestouch.inference.contact`); ``nu`` is Student-t's degrees of freedom
-        (default from ``models/priors.toml``; inf is Gaussian).
+    noise : {"outlier", "student", "multiplicative", "mixture"}
+        Residual model (:mod:`bayestouch.inference.contact`): by default a Gaussian core with contacts displaced
+        into the solid and out into free space as separate outlier events (fractions w_in, w_out); ``nu`` is
+        Student-t's degrees of freedom (default from ``models/priors.toml``; inf is Gaussian).
+    free : (K, 3) float, metres, optional
+        Free-space points: finger positions that touched nothing (outside the object).
+    size_prior : (min, max) float, metres, optional
+        Objects ``min``–``max`` across (the central 95 % of each axis's full length); default
+        ``models/priors.toml`` size_min, size_max.
+    init : {"auto", "smc", "optimize"}
+        How the chain starts. ``"auto"`` (default): ``"optimize"`` for dense data that surround the object
+        (:func:`surrounds`: at least :data:`DENSE_POINTS` contacts on both sides of every principal axis of the
+        evolutionary-search optimum), where the posterior is one near-Gaussian mode and the optimum's ball
+        converges in seconds, else ``"smc"``. ``"smc"``: from a tempered SMC from the prior (:func:`smc_stage`; the
+        particles, evidence and temperatures in ``smc.npz``), its walkers drawn from the particles and 80 % of
+        its moves an independence mixture built on them (:func:`mixture_moves`), so separated modes are found and
+        walked between; ``"optimize"`` from a small ball around the evolutionary-search optimum
+        (:func:`initial_theta`) with the adaptive t proposal. Ignored with ``start`` or ``ffd``.
     ffd : (l, m, k) int, optional
         Refine the n-ellipsoid with an FFD lattice of this size, marginalised analytically (Gaussian noise);
         ``ffd_tau`` (m) is the prior sd of the control-point displacements. Not combined with normals or another
         noise model.
-    start : (walkers, D) float, optional
-        A starting ensemble in θ (e.g. the last ensemble of an exploration's posterior): replaces the evolutionary
-        initial fit; walkers are clipped into the prior box, and walkers stuck far below the best are replaced
+    start : (walkers, D) or (walkers, 11) float, optional
+        A starting ensemble in θ (e.g. the last ensemble of an exploration's posterior; an 11-parameter one gets the
+        noise model's extra parameters at their usual start): replaces the evolutionary initial fit; walkers are
+        clipped into the prior box, and walkers stuck far below the best are replaced
         (:func:`bayestouch.inference.sampler.prune_stuck_walkers`).
     precision : {"auto", "float64", "mixed"}
         Arithmetic of the log-density the sampler evaluates (:func:`bayestouch.inference.contact.make_log_prob`):
@@ -331,28 +540,54 @@ def run_contact_fit(
         The summary written to ``summary.json``.
     """
     t0 = time.perf_counter()
+    if isinstance(budget_s, str):
+        budget_s = DEFAULT_BUDGET_S
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     priors = cm.load_priors()
+    if size_prior is not None:
+        priors = cm.with_size_prior(priors, *size_prior)
+    if init not in ("auto", "smc", "optimize"):
+        raise BadInput(f"init: expected 'auto', 'smc' or 'optimize', got {init!r}")
+    theta0 = None
+    if init == "auto":
+        init = "smc"
+        if start is None and ffd is None and len(points) >= DENSE_POINTS:
+            theta0 = initial_theta(points, seed, priors)
+            if surrounds(points, theta0):
+                init = "optimize"
+    if free is not None:
+        free = np.asarray(free, float).reshape(-1, 3)
+        free = free if len(free) else None
     sampled = cm.PARAM_NAMES
     if ffd is None:
         if precision not in ("auto", "float64", "mixed"):
             raise BadInput(f"precision: expected 'auto', 'float64' or 'mixed', got {precision!r}")
         if precision == "auto":
-            precision = "mixed" if noise == "student" and normals is None else "float64"
+            precision = "mixed" if noise in ("student", "outlier") and normals is None else "float64"
         logp, bounds = cm.make_log_prob(
-            points, priors, nu if noise == "student" else None, normals=normals, noise=noise, precision=precision
+            points,
+            priors,
+            nu if noise == "student" else None,
+            normals=normals,
+            noise=noise,
+            precision=precision,
+            free=free,
+            ordered=init == "smc" and start is None,
         )
         sampled = cm.param_names(normals is not None, noise)
         model = contact_model(
-            points, priors, float(priors.student_nu if nu is None else nu), normals=normals, noise=noise
+            points, priors, float(priors.student_nu if nu is None else nu), normals=normals, noise=noise, free=free
         )
     else:
-        if normals is not None or noise != "student" or (nu is not None and not np.isinf(nu)):
+        if free is not None:
+            raise BadInput("--ffd: free-space points are not used by the FFD-marginalised likelihood; drop them")
+        if normals is not None or noise not in ("student", "outlier") or (nu is not None and not np.isinf(nu)):
             raise BadInput(
                 "--ffd: the lattice is marginalised under Gaussian noise; use it without --noise and "
                 "--nu, and with --ignore-normals for a file with normals"
             )
+        noise = "student"
         tau = fm.DEFAULT_TAU if ffd_tau is None else float(ffd_tau)
         if precision == "mixed":
             raise BadInput("precision: 'mixed' is not available with --ffd; use 'auto' or 'float64'")
@@ -364,13 +599,29 @@ def run_contact_fit(
         if start is not None:
             lo, hi = np.asarray(bounds.lower), np.asarray(bounds.upper)
             ens = np.asarray(start, float)
+            if ens.ndim == 2 and ens.shape == (walkers, 11) and len(sampled) > 11:
+                # an 11-parameter ensemble (e.g. an exploration's): the likelihood's extra parameters start where a
+                # fresh fit's do
+                rng = np.random.default_rng([seed, 0xE7])
+                extra = [_EXTRA_START[k] + _EXTRA_SCALE[k] * np.abs(rng.standard_normal(walkers)) for k in sampled[11:]]
+                ens = np.column_stack([ens, *extra])
             if ens.shape != (walkers, len(sampled)):
                 raise BadInput(f"start: expected an ensemble of shape ({walkers}, {len(sampled)}), got {ens.shape}")
             ens = np.clip(ens, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
             ens, _ = prune_stuck_walkers(ens, logp(ens), np.random.default_rng(seed))
             return np.clip(ens, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
-        theta0 = initial_theta(points, seed, priors)
-        return start_ball(theta0, bounds, walkers, np.random.default_rng(seed), sampled)
+        if smc is not None:
+            return smc_start
+        t0_ = initial_theta(points, seed, priors) if theta0 is None else theta0
+        return start_ball(t0_, bounds, walkers, np.random.default_rng(seed), sampled)
+
+    smc, moves = None, None
+    if init == "smc" and start is None and ffd is None:
+        if not resume:
+            (out / "smc.npz").unlink(missing_ok=True)
+        smc = smc_stage(logp, bounds, seed, out / "smc.npz", progress=progress)
+        idx = smc_walkers(smc["particles"], walkers, seed)
+        moves, smc_start = smc_moves(smc["particles"], idx, getattr(logp, "parts", None), smc["eps"], seed)
 
     ch = sample(
         logp,
@@ -386,7 +637,67 @@ def run_contact_fit(
         t0=t0,
         stop_when_converged=stop_when_converged,
         adapt=True,
+        moves=moves,
         monitor=model.natural,
     )
-    model = model._replace(info={**model.info, "precision": precision})
-    return write_posterior(out, ch, model, seed=seed, t0=t0)
+    info = {**model.info, "precision": precision, "init": "start" if start is not None else init}
+    if smc is not None:
+        info["smc"] = {
+            "particles": int(len(smc["particles"])),
+            "stages": int(len(smc["betas"]) - 1),
+            "complete": bool(smc["complete"]),
+            "log_evidence": float(smc["log_evidence"]),
+            "evaluations": int(smc["evaluations"]),
+            "seconds": float(smc["seconds"]),
+        }
+    model = model._replace(info=info)
+    summary = write_posterior(out, ch, model, seed=seed, t0=t0)
+    return _report_modes(out, summary, ch, model, seed, smc)
+
+
+def surrounds(points, theta, fraction: float = SURROUND_FRACTION) -> bool:
+    """Whether contact points ``points (M, 3)`` m surround the n-ellipsoid θ (≥ 10,): on each side of each of its
+    principal axes (scaled principal coordinate beyond ±½) lie at least ``fraction`` of the points."""
+    s = cm.shape_of(jnp.asarray(theta[:10]))
+    q = (np.asarray(points) - np.asarray(s.centre)) @ np.asarray(s.rotation) / np.asarray(s.axes)
+    return bool(np.all((q > 0.5).mean(axis=0) >= fraction) and np.all((q < -0.5).mean(axis=0) >= fraction))
+
+
+def _volumes(nat) -> np.ndarray:
+    """Closed-form volumes (N,) m³ of canonical natural draws (N, ≥ 10) (eq. 11)."""
+    n = nat[:, 9]
+    return 8.0 * np.prod(nat[:, 3:6], axis=1) * np.exp(3 * gammaln(1 + 1 / n) - gammaln(1 + 3 / n))
+
+
+def _report_modes(out: Path, summary: dict, ch, model: PosteriorModel, seed: int, smc) -> dict:
+    """Add the posterior's separated modes (:func:`describe_modes`, from the kept draws) and, from the SMC
+    particles, the modes the global stage found, to ``summary.json``; a multimodal posterior or an SMC stage that
+    did not reach β = 1 is a warning, and a multimodal one is never reported as converged."""
+    kept = ch.kept.reshape(-1, ch.kept.shape[2])
+    nat = model.natural(kept)
+    modes = describe_modes(nat, _volumes(nat), seed)
+    diag = summary["diagnostics"]
+    diag["modes"] = modes
+    diag["multimodal"] = len(modes) > 1
+    warnings = list(diag.get("warnings", []))
+    if smc is not None:
+        pn = model.natural(np.asarray(smc["particles"]))
+        diag["smc_modes"] = describe_modes(pn, _volumes(pn), seed)
+        if not smc["complete"]:
+            warnings.append("tempering stopped before the posterior (beta < 1): the start is not a posterior sample")
+        if len(diag["smc_modes"]) > 1 and len(modes) == 1:
+            warnings.append(
+                f"the tempered SMC found {len(diag['smc_modes'])} modes but the chain holds one: "
+                "the chain may have lost a mode; see diagnostics.smc_modes"
+            )
+    if len(modes) > 1:
+        desc = ", ".join(
+            f"{m['weight']:.0%}: volume {m['volume_m3']['mean'] * 1e6:.3g} cm^3, n {m['n']['mean']:.2g}" for m in modes
+        )
+        warnings.append(
+            f"multimodal posterior: {len(modes)} separated shapes ({desc}); the posterior mean describes none of "
+            "them, see diagnostics.modes"
+        )
+    diag["warnings"] = warnings
+    write_json(out / "summary.json", summary)
+    return summary

@@ -17,6 +17,7 @@ import emcee
 import numpy as np
 import xarray as xr
 from emcee.state import State
+from scipy.special import logsumexp
 from scipy.stats import chi2
 
 from bayestouch.errors import BadInput
@@ -28,6 +29,8 @@ __all__ = [
     "default_moves",
     "adaptive_moves",
     "IndependenceT",
+    "IndependenceMixture",
+    "HamiltonianMove",
     "adaptation_steps",
     "convergence",
     "prune_stuck_walkers",
@@ -180,17 +183,121 @@ class IndependenceT:
         z = (np.asarray(x) - self.mean) @ self._inv.T
         return -0.5 * (self.nu + len(self.mean)) * np.log1p(np.sum(z * z, axis=1) / self.nu)
 
+    def draw(self, random, count: int) -> np.ndarray:
+        """``count`` draws (count, D) of the proposal from a ``np.random.RandomState``."""
+        z = random.standard_normal((count, len(self.mean)))
+        u = random.chisquare(self.nu, count)
+        return self.mean + (z @ self.chol.T) * np.sqrt(self.nu / u)[:, None]
+
     def propose(self, model, state):
         if self.mean is None:
             return self.fallback.propose(model, state)
-        w, d = state.coords.shape
-        z = model.random.standard_normal((w, d))
-        u = model.random.chisquare(self.nu, w)
-        q = self.mean + (z @ self.chol.T) * np.sqrt(self.nu / u)[:, None]
+        w = state.coords.shape[0]
+        q = self.draw(model.random, w)
         lp, blobs = model.compute_log_prob_fn(q)
         lnpdiff = lp - state.log_prob + self.log_g(state.coords) - self.log_g(q)
         accepted = np.log(model.random.rand(w)) < lnpdiff
         return self.fallback.update(state, State(q, log_prob=lp, blobs=blobs), accepted), accepted
+
+
+class IndependenceMixture(IndependenceT):
+    """Independence Metropolis–Hastings with a fixed mixture of multivariate t components as the proposal: a
+    kernel density estimate of earlier posterior draws (e.g. the particles of a tempered SMC run,
+    :mod:`bayestouch.inference.smc`), each component centred on a draw with the scale of its neighbourhood, so a
+    posterior with several separated modes or a curved ridge is proposed from where its mass is and walkers jump
+    between modes in one step. The mixture is fixed: the move leaves π invariant (Tierney 1994, sect. 2.3.3) and
+    :func:`sample`'s refits do not replace it.
+
+    Parameters
+    ----------
+    centres : (J, D) float
+        Component centres.
+    chols : (J, D, D) float
+        Cholesky factors of the components' scale matrices.
+    fallback : emcee move
+        Only for emcee's bookkeeping (``update``).
+    nu : float
+        Degrees of freedom of every component.
+    """
+
+    def __init__(self, centres, chols, fallback, nu: float = 10.0):
+        super().__init__(fallback, nu)
+        self.centres = np.asarray(centres, float)
+        self.chols = np.asarray(chols, float)
+        self.mean = self.centres.mean(axis=0)  # marks the move as fitted
+        self._invs = np.linalg.inv(self.chols)
+        self._log_det = np.sum(np.log(np.abs(np.diagonal(self.chols, axis1=1, axis2=2))), axis=1)
+
+    def fit(self, draws) -> None:  # fixed: refits leave the mixture as it is
+        return None
+
+    def set(self, mean, cov) -> None:
+        return None
+
+    def draw(self, random, count: int) -> np.ndarray:
+        j = random.randint(len(self.centres), size=count)
+        z = random.standard_normal((count, self.centres.shape[1]))
+        u = random.chisquare(self.nu, count)
+        return self.centres[j] + np.einsum("wij,wj->wi", self.chols[j], z) * np.sqrt(self.nu / u)[:, None]
+
+    def log_g(self, x) -> np.ndarray:
+        """Log proposal density (W,) at ``x (W, D)`` up to a constant."""
+        x = np.atleast_2d(np.asarray(x, float))
+        z = np.einsum("jab,wjb->wja", self._invs, x[:, None, :] - self.centres[None])
+        q = np.sum(z * z, axis=2)  # (W, J)
+        d = self.centres.shape[1]
+        return logsumexp(-0.5 * (self.nu + d) * np.log1p(q / self.nu) - self._log_det[None], axis=1)
+
+
+class HamiltonianMove(emcee.moves.Move):
+    """Hamiltonian Monte Carlo (Neal 2011, Handbook of MCMC ch. 5) of every walker independently, as an emcee move.
+
+    Walker w's momentum is N(0, I) in coordinates whitened by its own fixed Cholesky factor ``chols[w]`` (an
+    inverse mass matrix: e.g. the local posterior covariance where the walker started), the leapfrog step size is
+    ``eps`` and the number of leapfrog steps is drawn uniformly from 1 … ``steps`` each time. A walker's kernel
+    depends only on its index, so it is a reversible Metropolis kernel that leaves π invariant; walkers do not
+    interact, so walkers in separated modes stay apart (and R-hat says so) unless another move carries them
+    across.
+
+    Parameters
+    ----------
+    gradients : callable
+        ``(W, D) -> (log_prior (W,), log_lik (W,), ∇log_prior (W, D), ∇log_lik (W, D))``
+        (e.g. ``make_log_prob(...)[0].parts`` of :mod:`bayestouch.inference.contact`).
+    chols : (W, D, D) float
+    eps : float
+    steps : int
+    """
+
+    def __init__(self, gradients, chols, eps: float, steps: int = 8):
+        self.gradients = gradients
+        self.chols = np.asarray(chols, float)
+        self.eps = float(eps)
+        self.steps = int(steps)
+
+    def _grad(self, y):
+        a, b, ga, gb = self.gradients(y)
+        return a + b, np.einsum("wji,wj->wi", self.chols, ga + gb)
+
+    def propose(self, model, state):
+        x = state.coords
+        w, d = x.shape
+        if self.chols.shape[0] != w:
+            raise ValueError(f"HamiltonianMove: {self.chols.shape[0]} mass matrices for {w} walkers")
+        steps = model.random.randint(1, self.steps + 1)
+        r0 = model.random.standard_normal((w, d))
+        _, g = self._grad(x)
+        r = r0 + 0.5 * self.eps * g
+        y = x.copy()
+        for i in range(steps):
+            y = y + self.eps * np.einsum("wij,wj->wi", self.chols, r)
+            lp_y, g = self._grad(y)
+            r = r + (self.eps if i < steps - 1 else 0.5 * self.eps) * g
+        lp, blobs = model.compute_log_prob_fn(y)
+        with np.errstate(invalid="ignore", over="ignore"):
+            log_a = (lp - 0.5 * np.sum(r * r, axis=1)) - (state.log_prob - 0.5 * np.sum(r0 * r0, axis=1))
+        accepted = np.log(model.random.rand(w)) < np.where(np.isfinite(log_a), log_a, -np.inf)
+        return self.update(state, State(y, log_prob=lp, blobs=blobs), accepted), accepted
 
 
 def adaptive_moves(nu: float = 10.0):
@@ -434,7 +541,8 @@ def sample(
         Checkpoint interval.
     adapt : bool
         Sample with :func:`adaptive_moves` (unless ``moves`` are given, which must then hold an
-        :class:`IndependenceT`): at steps 100, 200, 400, … (:func:`adaptation_steps`) the independence proposal is
+        :class:`IndependenceT`; an :class:`IndependenceMixture` is fixed from step 0 and never refitted): at
+        steps 100, 200, 400, … (:func:`adaptation_steps`) the independence proposal is
         refitted to the draws of the second half of the chain before that step. Each stage's kernel leaves the
         target invariant and the kernel changes finitely often, so the chain's law converges to the target as a
         fixed kernel's would; the proposal at every step is a function of the stored chain, so a resumed run uses
@@ -510,8 +618,8 @@ def sample(
 
     if proposal is not None and indep is None:
         raise ValueError("a proposal needs adapt=True")
-    # where the kept draws' kernel begins: the first adaptation, or step 0 when a proposal is given
-    skip_to = 0 if proposal is not None else ADAPT_FIRST
+    # where the kept draws' kernel begins: the first adaptation, or step 0 when a proposal is given or fixed
+    skip_to = 0 if proposal is not None or isinstance(indep, IndependenceMixture) else ADAPT_FIRST
     if indep is not None:
         refit(backend.iteration)
 
