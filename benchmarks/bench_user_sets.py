@@ -63,6 +63,7 @@ Run: ``OMP_NUM_THREADS=1 python -m benchmarks bench_user_sets`` (``BAYESTOUCH_US
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import tempfile
@@ -507,7 +508,7 @@ def shape_metrics(estimate, volume: float, truth: ne.NEllipsoid, seed: int = 0) 
     }
 
 
-def fit_bayestouch_default(points, seed: int = 0, steps: int | None = None) -> dict:
+def fit_bayestouch_default(points, seed: int = 0, steps: int | None = None, free=None) -> dict:
     """bayestouch's default contact-level fit (:func:`bayestouch.inference.run.run_contact_fit`) of ``points``
     (M, 3) m into a temporary run folder, timed.
 
@@ -517,6 +518,8 @@ def fit_bayestouch_default(points, seed: int = 0, steps: int | None = None) -> d
     seed : int
     steps : int, optional
         Largest number of emcee steps (default: run_contact_fit's own); every other setting is its default.
+    free : (K, 3) float, metres, optional
+        Free-space finger positions (what a contact CSV's ``contact = 0`` rows carry).
 
     Returns
     -------
@@ -529,7 +532,9 @@ def fit_bayestouch_default(points, seed: int = 0, steps: int | None = None) -> d
     kwargs = {} if steps is None else {"steps": int(steps)}
     with tempfile.TemporaryDirectory(prefix="bt-user-") as tmp:
         t0 = time.perf_counter()
-        summary = run_contact_fit(np.asarray(points, dtype=np.float64), Path(tmp), seed=seed, progress=False, **kwargs)
+        summary = run_contact_fit(
+            np.asarray(points, dtype=np.float64), Path(tmp), seed=seed, progress=False, free=free, **kwargs
+        )
         seconds = time.perf_counter() - t0
     return {"summary": summary, "seconds": seconds}
 
@@ -645,7 +650,7 @@ def fit_set(d: UserSet, method: str, index: int = 0, steps: int | None = None) -
     failed = dict.fromkeys(("volume_est_m3", "volume_error", "chamfer_m", "chamfer_se_m", "chamfer_ratio"), nan)
     try:
         if method == "bayestouch":
-            fit = fit_bayestouch_default(d.points, seed=d.seed, steps=steps)
+            fit = fit_bayestouch_default(d.points, seed=d.seed, steps=steps, free=d.free_space)
             s = fit["summary"]
             row["seconds"] = fit["seconds"]
             row.update(shape_metrics(_mean_shape(s), s["derived"]["volume_m3"]["mean"], d.truth, seed=index))
@@ -825,13 +830,24 @@ def bench_user_sets(
     if unknown:
         raise ValueError(f"bench_user_sets: unknown methods {unknown}; expected some of {METHODS}")
 
+    shard = os.environ.get("BAYESTOUCH_USER_SHARD")  # "k/K": fit only sets i with i % K == k, save the rows
+    k_of = tuple(int(v) for v in shard.split("/")) if shard else (0, 1)
+    mine = [i for i in range(count) if i % k_of[1] == k_of[0]]
     rows = []
-    with tqdm(total=count * len(methods), desc="user sets", unit="fit") as bar:
-        for i, d in enumerate(make_user_sets(count, seed)):
+    sets = make_user_sets(count, seed)
+    with tqdm(total=len(mine) * len(methods), desc="user sets", unit="fit") as bar:
+        for i in mine:
             for method in methods:
                 bar.set_postfix_str(f"set {i} {method}")
-                rows.append(fit_set(d, method, i, steps))
+                rows.append(fit_set(sets[i], method, i, steps))
                 bar.update()
+    if shard:
+        if out is not None:
+            write_json(Path(out) / f"user_sets.shard{k_of[0]}of{k_of[1]}.json", rows)
+        shards = sorted(Path(out).glob(f"user_sets.shard*of{k_of[1]}.json")) if out is not None else []
+        if len(shards) < k_of[1]:
+            return []  # the last shard to finish writes the summary
+        rows = sorted((r for f in shards for r in json.loads(f.read_text())), key=lambda r: (r["set"], r["method"]))
     summary = summarise(rows, seed)
     note = (
         f"{count} sets (seed {seed}), bayestouch steps: {steps if steps is not None else 'run_contact_fit default'}; "
