@@ -49,11 +49,12 @@ def add_parser(sub) -> argparse.ArgumentParser:
     )
     fp.add_argument(
         "--noise",
-        choices=["outlier", "student", "gaussian", "multiplicative", "mixture"],
-        default="outlier",
+        choices=["auto", "outlier", "student", "gaussian", "multiplicative", "mixture"],
+        default="auto",
         help="contact level residual model: Gaussian with contacts displaced into the solid or out into "
-        "free space as separate outlier events (default), Student-t, Gaussian, the paper's "
-        "multiplicative (1 + r) perturbation, or Gaussian + uniform outliers",
+        "free space as separate outlier events, Student-t, Gaussian, the paper's multiplicative (1 + r) "
+        "perturbation, or Gaussian + uniform outliers; auto (default): outlier, or Student-t for 300 or more "
+        "contacts surrounding the object",
     )
     fp.add_argument(
         "--size-prior",

@@ -467,7 +467,7 @@ def run_contact_fit(
     budget_s: float | None = "default",
     progress: bool = True,
     normals=None,
-    noise: str = "outlier",
+    noise: str = "auto",
     nu: float | None = None,
     ffd: tuple[int, int, int] | None = None,
     ffd_tau: float | None = None,
@@ -499,9 +499,12 @@ def run_contact_fit(
         200, 400, …), which on a near-Gaussian posterior cuts τ from ~45 steps to ~5.
     normals : (M, 3) float, optional
         Measured outward normals: adds the von Mises-Fisher term (and κ).
-    noise : {"outlier", "student", "multiplicative", "mixture"}
-        Residual model (:mod:`bayestouch.inference.contact`): by default a Gaussian core with contacts displaced
-        into the solid and out into free space as separate outlier events (fractions w_in, w_out); ``nu`` is
+    noise : {"auto", "outlier", "student", "multiplicative", "mixture"}
+        Residual model (:mod:`bayestouch.inference.contact`). ``"outlier"``: a Gaussian core with contacts
+        displaced into the solid and out into free space as separate outlier events (fractions w_in, w_out).
+        ``"auto"`` (default): ``"outlier"`` for a fit started by SMC, ``"student"`` (robust, 11 parameters) for a
+        fit from the optimum (dense data surrounding the object), with ``start`` (an exploration's 11-parameter
+        ensemble) or with ``ffd``; ``nu`` is
         Student-t's degrees of freedom (default from ``models/priors.toml``; inf is Gaussian).
     free : (K, 3) float, metres, optional
         Free-space points: finger positions that touched nothing (outside the object).
@@ -556,6 +559,10 @@ def run_contact_fit(
             theta0 = initial_theta(points, seed, priors)
             if surrounds(points, theta0):
                 init = "optimize"
+    if noise == "auto":
+        # dense data surrounding the object: Student-t, whose near-Gaussian posterior the optimum's t proposal
+        # samples in seconds; else the outlier model, whose fractions w_in, w_out near 0 the SMC start handles
+        noise = "student" if init == "optimize" or ffd is not None or start is not None else "outlier"
     if free is not None:
         free = np.asarray(free, float).reshape(-1, 3)
         free = free if len(free) else None
