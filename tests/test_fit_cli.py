@@ -31,23 +31,22 @@ def test_fit_writes_outputs_and_resumes(points_csv, tmp_path):
     import emcee
 
     out = tmp_path / "run"
-    assert main(["fit", str(points_csv), "--out", str(out), "--steps", "200", "--walkers", "24", "--quiet"]) == 0
+    # --budget 0: no time limit (the default 60 s, SMC included, can cut a slow CI machine's chain short)
+    args = ["--walkers", "24", "--quiet", "--budget", "0"]
+    assert main(["fit", str(points_csv), "--out", str(out), "--steps", "200", *args]) == 0
     s = json.loads((out / "summary.json").read_text())
     for k in ("mean", "sd", "q05", "q95", "r_hat", "ess_bulk"):
         assert np.isfinite(s["parameters"]["a"][k])
     v = s["derived"]["volume_m3"]
     assert v["q05"] < float(ne.volume(TRUE)) * 1.02 and v["q95"] > float(ne.volume(TRUE)) * 0.98
     assert s["diagnostics"]["n_samples"] > 0 and s["diagnostics"]["converged"] is False  # 200 steps: too short
-    assert s["model"]["precision"] == "mixed"  # the default Student-t model without normals samples in mixed precision
+    assert s["model"]["precision"] == "mixed"  # the default (outlier) model without normals samples in mixed precision
     assert (out / "posterior.nc").is_file() and (out / "mean_shape.ply").read_bytes()[:3] == b"ply"
     _check_posterior_file(out, n_points=200)
     _check_uncertainty_mesh(out, s)
     first = emcee.backends.HDFBackend(str(out / "chain.h5"), read_only=True).get_chain()
     # resume to 300 steps: the first 200 are kept bit for bit
-    assert (
-        main(["fit", str(points_csv), "--out", str(out), "--steps", "300", "--walkers", "24", "--resume", "--quiet"])
-        == 0
-    )
+    assert main(["fit", str(points_csv), "--out", str(out), "--steps", "300", "--resume", *args]) == 0
     chain = emcee.backends.HDFBackend(str(out / "chain.h5"), read_only=True).get_chain()
     assert chain.shape == (300, 24, 13) and np.array_equal(chain[:200], first)
 
@@ -192,6 +191,8 @@ def test_fit_killed_mid_run_resumes_with_nothing_lost(points_csv, tmp_path):
         "--walkers",
         "24",
         "--quiet",
+        "--budget",
+        "0",
     ]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
@@ -212,6 +213,7 @@ def test_fit_killed_mid_run_resumes_with_nothing_lost(points_csv, tmp_path):
     assert (
         main(
             ["fit", str(points_csv), "--out", str(out), "--steps", str(done), "--walkers", "24", "--resume", "--quiet"]
+            + ["--budget", "0"]
         )
         == 0
     )
