@@ -153,7 +153,7 @@ def run(args) -> int:
             stride=args.stride,
         )
     else:
-        from bayestouch.inference.run import run_contact_fit
+        from bayestouch.inference.run import DEFAULT_BUDGET_S, run_contact_fit
         from bayestouch.io.contacts import load_contact_points
 
         if args.size_prior is not None and args.ffd is not None:
@@ -172,7 +172,7 @@ def run(args) -> int:
             walkers=args.walkers,
             steps=args.steps or 20000,
             resume=args.resume,
-            budget_s="default" if args.budget is None else (args.budget or None),
+            budget_s=DEFAULT_BUDGET_S if args.budget is None else (args.budget or None),
             progress=not args.quiet,
             normals=None if args.ignore_normals else cp.normals,
             noise=noise,

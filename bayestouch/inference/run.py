@@ -15,7 +15,6 @@ from pathlib import Path
 import emcee
 import numpy as np
 from scipy.optimize import minimize
-from scipy.special import gammaln
 
 from bayestouch.backend import jax, jnp
 from bayestouch.errors import BadInput
@@ -464,7 +463,7 @@ def run_contact_fit(
     walkers: int = 32,
     steps: int = 20000,
     resume: bool = False,
-    budget_s: float | None = "default",
+    budget_s: float | None = DEFAULT_BUDGET_S,
     progress: bool = True,
     normals=None,
     noise: str = "auto",
@@ -516,9 +515,9 @@ def run_contact_fit(
         (:func:`surrounds`: at least :data:`DENSE_POINTS` contacts on both sides of every principal axis of the
         evolutionary-search optimum), where the posterior is one near-Gaussian mode and the optimum's ball
         converges in seconds, else ``"smc"``. ``"smc"``: from a tempered SMC from the prior (:func:`smc_stage`; the
-        particles, evidence and temperatures in ``smc.npz``), its walkers drawn from the particles and 80 % of
-        its moves an independence mixture built on them (:func:`mixture_moves`), so separated modes are found and
-        walked between; ``"optimize"`` from a small ball around the evolutionary-search optimum
+        particles, evidence and temperatures in ``smc.npz``), its walkers drawn from the particles and its moves
+        Hamiltonian Monte Carlo and an independence mixture built on them (:func:`smc_moves`), so separated modes
+        are found and walked between; ``"optimize"`` from a small ball around the evolutionary-search optimum
         (:func:`initial_theta`) with the adaptive t proposal. Ignored with ``start`` or ``ffd``.
     ffd : (l, m, k) int, optional
         Refine the n-ellipsoid with an FFD lattice of this size, marginalised analytically (Gaussian noise);
@@ -543,8 +542,6 @@ def run_contact_fit(
         The summary written to ``summary.json``.
     """
     t0 = time.perf_counter()
-    if isinstance(budget_s, str):
-        budget_s = DEFAULT_BUDGET_S
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     priors = cm.load_priors()
@@ -589,12 +586,11 @@ def run_contact_fit(
     else:
         if free is not None:
             raise BadInput("--ffd: free-space points are not used by the FFD-marginalised likelihood; drop them")
-        if normals is not None or noise not in ("student", "outlier") or (nu is not None and not np.isinf(nu)):
+        if normals is not None or noise != "student" or (nu is not None and not np.isinf(nu)):
             raise BadInput(
                 "--ffd: the lattice is marginalised under Gaussian noise; use it without --noise and "
                 "--nu, and with --ignore-normals for a file with normals"
             )
-        noise = "student"
         tau = fm.DEFAULT_TAU if ffd_tau is None else float(ffd_tau)
         if precision == "mixed":
             raise BadInput("precision: 'mixed' is not available with --ffd; use 'auto' or 'float64'")
@@ -670,10 +666,13 @@ def surrounds(points, theta, fraction: float = SURROUND_FRACTION) -> bool:
     return bool(np.all((q > 0.5).mean(axis=0) >= fraction) and np.all((q < -0.5).mean(axis=0) >= fraction))
 
 
+# closed-form volumes (eq. 11, :func:`bayestouch.geometry.nellipsoid.volume`) of draws' first 10 natural columns
+_volumes_of = jax.jit(jax.vmap(lambda v: ne.volume(ne.from_vector(v))))
+
+
 def _volumes(nat) -> np.ndarray:
-    """Closed-form volumes (N,) m³ of canonical natural draws (N, ≥ 10) (eq. 11)."""
-    n = nat[:, 9]
-    return 8.0 * np.prod(nat[:, 3:6], axis=1) * np.exp(3 * gammaln(1 + 1 / n) - gammaln(1 + 3 / n))
+    """Volumes (N,) m³ of canonical natural draws (N, ≥ 10)."""
+    return np.asarray(_volumes_of(jnp.asarray(np.asarray(nat)[:, :10], dtype=jnp.float64)))
 
 
 def _report_modes(out: Path, summary: dict, ch, model: PosteriorModel, seed: int, smc) -> dict:

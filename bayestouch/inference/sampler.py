@@ -31,6 +31,7 @@ __all__ = [
     "IndependenceT",
     "IndependenceMixture",
     "HamiltonianMove",
+    "leapfrog",
     "adaptation_steps",
     "convergence",
     "prune_stuck_walkers",
@@ -249,6 +250,21 @@ class IndependenceMixture(IndependenceT):
         return logsumexp(-0.5 * (self.nu + d) * np.log1p(q / self.nu) - self._log_det[None], axis=1)
 
 
+def leapfrog(x, r, chols, eps: float, steps: int, grad):
+    """``steps`` ≥ 1 leapfrog steps of size ``eps`` from positions ``x (W, D)`` and momenta ``r (W, D)``, the
+    momenta in coordinates whitened by each row's Cholesky factor ``chols (W, D, D)`` (position moves by
+    ε L r); ``grad(y) -> (aux, Lᵀ ∇log π(y))``. Returns the end positions, the end momenta and ``aux`` of the last
+    position."""
+    _, g = grad(x)
+    r = r + 0.5 * eps * g
+    y = x
+    for i in range(steps):
+        y = y + eps * np.einsum("wij,wj->wi", chols, r)
+        aux, g = grad(y)
+        r = r + (eps if i < steps - 1 else 0.5 * eps) * g
+    return y, r, aux
+
+
 class HamiltonianMove(emcee.moves.Move):
     """Hamiltonian Monte Carlo (Neal 2011, Handbook of MCMC ch. 5) of every walker independently, as an emcee move.
 
@@ -276,8 +292,8 @@ class HamiltonianMove(emcee.moves.Move):
         self.steps = int(steps)
 
     def _grad(self, y):
-        a, b, ga, gb = self.gradients(y)
-        return a + b, np.einsum("wji,wj->wi", self.chols, ga + gb)
+        _, _, ga, gb = self.gradients(y)
+        return None, np.einsum("wji,wj->wi", self.chols, ga + gb)
 
     def propose(self, model, state):
         x = state.coords
@@ -286,13 +302,7 @@ class HamiltonianMove(emcee.moves.Move):
             raise ValueError(f"HamiltonianMove: {self.chols.shape[0]} mass matrices for {w} walkers")
         steps = model.random.randint(1, self.steps + 1)
         r0 = model.random.standard_normal((w, d))
-        _, g = self._grad(x)
-        r = r0 + 0.5 * self.eps * g
-        y = x.copy()
-        for i in range(steps):
-            y = y + self.eps * np.einsum("wij,wj->wi", self.chols, r)
-            lp_y, g = self._grad(y)
-            r = r + (self.eps if i < steps - 1 else 0.5 * self.eps) * g
+        y, r, _ = leapfrog(x, r0, self.chols, self.eps, steps, self._grad)
         lp, blobs = model.compute_log_prob_fn(y)
         with np.errstate(invalid="ignore", over="ignore"):
             log_a = (lp - 0.5 * np.sum(r * r, axis=1)) - (state.log_prob - 0.5 * np.sum(r0 * r0, axis=1))

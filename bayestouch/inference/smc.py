@@ -29,6 +29,8 @@ from typing import NamedTuple
 import numpy as np
 from scipy.special import logsumexp
 
+from bayestouch.inference.sampler import leapfrog
+
 __all__ = [
     "SMCResult",
     "tempered_smc",
@@ -60,8 +62,6 @@ class SMCResult(NamedTuple):
     seconds : float
     complete : bool
         Reached β = 1 within the budget.
-    scales : (N, D, D) float
-        Cholesky factors of the final stage's proposal covariances (for proposals built from the particles).
     eps : float
         The HMC step size adapted by the last stage (nan without ``gradients``).
     """
@@ -76,7 +76,6 @@ class SMCResult(NamedTuple):
     evaluations: int
     seconds: float
     complete: bool
-    scales: np.ndarray
     eps: float = float("nan")
 
 
@@ -128,17 +127,10 @@ def hmc_step(x, lp, ll, chol, beta: float, eps: float, steps: int, gradients, rn
 
     def grad(y):
         a, b, ga, gb = gradients(y)
-        g = ga + beta * gb
-        return a, b, np.einsum("nji,nj->ni", chol, g)  # Lᵀ ∇log π
+        return (a, b), np.einsum("nji,nj->ni", chol, ga + beta * gb)  # Lᵀ ∇log π
 
     r0 = rng.standard_normal((n, d))
-    _, _, g = grad(x)
-    r = r0 + 0.5 * eps * g
-    y = x.copy()
-    for i in range(steps):
-        y = y + eps * np.einsum("nij,nj->ni", chol, r)
-        a, b, g = grad(y)
-        r = r + (eps if i < steps - 1 else 0.5 * eps) * g
+    y, r, (a, b) = leapfrog(x, r0, chol, eps, steps, grad)
     with np.errstate(invalid="ignore", over="ignore"):
         log_a = (a + beta * b - 0.5 * np.sum(r * r, axis=1)) - (lp + beta * ll - 0.5 * np.sum(r0 * r0, axis=1))
     acc = np.log(rng.random(n)) < np.where(np.isfinite(log_a), log_a, -np.inf)
@@ -250,9 +242,7 @@ def tempered_smc(
     scale = 2.38**2 / d
     acc_prev = 0.25
     eps = 0.5
-    hmc_accs: list[float] = []
     complete = False
-    chol = None
     for _stage in range(max_stages):
         finite = np.isfinite(ll)
         if not finite.any():
@@ -281,7 +271,6 @@ def tempered_smc(
                 evals += n * leapfrog
             acc_h = n_acc_h / (n * hmc_steps)
             eps *= float(np.exp(np.clip(acc_h - 0.65, -0.3, 0.3) * 3.0))
-            hmc_accs.append(acc_h)
         n_acc = 0
         for _ in range(m):
             prop = x + np.sqrt(scale) * np.einsum("nij,nj->ni", chol, rng.standard_normal((n, d)))
@@ -316,6 +305,5 @@ def tempered_smc(
         evals,
         time.perf_counter() - t0,
         complete,
-        np.sqrt(scale) * chol,
         eps if gradients is not None else float("nan"),
     )
