@@ -101,11 +101,33 @@ def test_prior_draws_are_uniform_over_rotations_and_follow_the_size_prior():
     assert lp[0] - lp[1] == pytest.approx(np.log(2.0), abs=1e-12)
 
 
-def test_ordered_axes_prior_and_draws():
-    b = cm.bounds_for(_sphere_points(), cm.load_priors())._replace(ordered=True)
-    x = cm.sample_prior(b, 1000, np.random.default_rng(0))
-    assert np.all(x[:, 3] >= x[:, 4]) and np.all(x[:, 4] >= x[:, 5])
-    y = x[:3].copy()
-    y[:, [3, 5]] = y[:, [5, 3]]  # largest last: outside the ordered prior
-    assert np.all(np.isinf(np.asarray(cm.log_prior(jnp.asarray(y), b))))
-    assert np.all(np.isfinite(np.asarray(cm.log_prior(jnp.asarray(y), b._replace(ordered=False)))))
+def test_angles_are_periodic_and_wrap_to_the_same_surface():
+    pts = _sphere_points()
+    b = cm.bounds_for(pts, cm.load_priors())
+    x = cm.sample_prior(b, 200, np.random.default_rng(0))
+    rng = np.random.default_rng(1)
+    y = x.copy()
+    # aliases outside the box: ψ + kπ, ζ + 2kπ and (ξ, ψ, ζ) → (−ξ, ψ + π, ζ + π)
+    y[:, 7] += np.pi * rng.integers(-3, 4, len(y))
+    y[:, 8] += 2 * np.pi * rng.integers(-3, 4, len(y))
+    flip = rng.random(len(y)) < 0.5
+    y[flip, 6] = -y[flip, 6] + 2 * np.pi * rng.integers(-2, 3, flip.sum())
+    y[flip, 7] += np.pi
+    y[flip, 8] += np.pi
+    lp_x, lp_y = (np.asarray(cm.log_prior(jnp.asarray(v), b)) for v in (x, y))
+    np.testing.assert_allclose(lp_y, lp_x, atol=1e-9)  # no wall at the box's angle edges; same density
+    # the same surface: every point's residual agrees
+    r = np.stack([np.asarray(cm.residuals(jnp.asarray(v[:11]), jnp.asarray(pts))) for v in (x[0], y[0])])
+    np.testing.assert_allclose(r[1], r[0], atol=1e-12)
+    w = cm.wrap_angles(y)
+    lo, hi = np.asarray(b.lower), np.asarray(b.upper)
+    assert np.all((w[:, 6:9] >= lo[6:9]) & (w[:, 6:9] <= hi[6:9]))
+    for u, v in zip(w[:20], y[:20], strict=True):
+        ru, rv = rotation_matrix(jnp.asarray(u[6:9])), rotation_matrix(jnp.asarray(v[6:9]))
+        # R and R·diag(−1, −1, 1) (ψ + π) are one n-ellipsoid's frames
+        assert np.allclose(ru, rv, atol=1e-9) or np.allclose(ru, rv @ np.diag([-1.0, -1.0, 1.0]), atol=1e-9)
+    # negative control: a centre outside the box is still outside the prior
+    z = x[:1].copy()
+    z[0, 0] = float(hi[0]) + 1.0
+    assert np.isinf(np.asarray(cm.log_prior(jnp.asarray(z), b))[0])
+

@@ -32,6 +32,7 @@ __all__ = [
     "residuals",
     "log_likelihood",
     "log_prior",
+    "wrap_angles",
     "sample_prior",
     "size_prior",
     "with_size_prior",
@@ -155,17 +156,21 @@ class Bounds(NamedTuple):
     """The prior in θ space: the box ``lower``, ``upper`` (D,) and the density inside it.
 
     Inside the box the log-density is Σ_j −½((log a_j − size_mu)/size_sd)² (the size prior; flat for the default
-    ``size_sd = inf``) + log sin ξ (Haar measure on rotations in the z-x-z Euler angles ξ, ψ, ζ), up to a constant.
-    ``ordered`` restricts the semi-axes to a ≥ b ≥ c: every surface keeps a representative (permuting the axes is a
-    rotation of the frame) and the posterior over surfaces is unchanged, while θ space holds 6 times fewer aliases
-    of each mode for a sampler to populate.
+    ``size_sd = inf``) + log |sin ξ| (Haar measure on rotations in the z-x-z Euler angles ξ, ψ, ζ), up to a constant.
+
+    The Euler angles are periodic, not boxed: their box ξ ∈ [0, π], ψ ∈ [0, π), ζ ∈ [−π, π) is one fundamental
+    domain of the surfaces' rotations (:func:`wrap_angles` maps any angles into it), and the density is the same at
+    every alias of a surface. A box edge there would be a wall a sampler cannot cross although the surface on its
+    other side is a continuation of the one on this side (a mode with ψ near 0 cut from its half near π), so the
+    sampled θ moves freely through the angles and the summaries canonicalise. The semi-axes are not ordered for
+    the same reason: at a = b the frame with the two axes swapped (ψ + π/2) is the same surface, and a ≥ b would be
+    a wall through any mode whose two longest axes are not resolved by the data.
     """
 
     lower: jnp.ndarray
     upper: jnp.ndarray
     size_mu: float = 0.0
     size_sd: float = float("inf")
-    ordered: bool = False
 
 
 def bounds_for(points, priors: PriorParams, normals: bool = False, noise: str = "student") -> Bounds:
@@ -431,15 +436,33 @@ def pointwise_log_likelihood(
     return np.asarray(_log_lik_terms_jit(jnp.asarray(thetas, dtype=jnp.float64), data, noise, float(nu)))
 
 
+#: the Euler angles' columns (6, 7, 8) of θ, long enough for any parameter set
+_ANGLE_MASK = np.isin(np.arange(32), (6, 7, 8))
+
+
+def wrap_angles(theta) -> np.ndarray:
+    """θ (…, D) with its Euler angles mapped into the box ξ ∈ [0, π], ψ ∈ [0, π), ζ ∈ [−π, π): the same surface.
+
+    R = R(z, ζ) R(x, ξ) R(z, ψ); R(x, −ξ) = R(z, π) R(x, ξ) R(z, π), so (ξ, ψ, ζ) ≡ (−ξ, ψ + π, ζ + π); and the
+    n-ellipsoid is symmetric under R(z, π) in its own frame, so ψ ≡ ψ + π.
+    """
+    th = np.array(theta, dtype=float, copy=True)
+    xi = np.mod(th[..., 6], 2 * np.pi)
+    flip = xi > np.pi
+    th[..., 6] = np.where(flip, 2 * np.pi - xi, xi)
+    th[..., 7] = np.mod(th[..., 7], np.pi)
+    th[..., 8] = np.mod(th[..., 8] + np.where(flip, np.pi, 0.0) + np.pi, 2 * np.pi) - np.pi
+    return th
+
+
 def log_prior(theta, bounds: Bounds):
-    """Log prior density of θ (…, D), up to a constant: −inf outside the box; inside, the size prior on the log
-    semi-axes and the Haar measure on rotations (log sin ξ) of :class:`Bounds`, uniform in every other coordinate
-    (log n, log σ, log ε, log κ, outlier fractions)."""
-    inside = jnp.all((theta >= bounds.lower) & (theta <= bounds.upper), axis=-1)
-    sorted_ = (theta[..., 3] >= theta[..., 4]) & (theta[..., 4] >= theta[..., 5])
-    inside = inside & (sorted_ | jnp.logical_not(bounds.ordered))
+    """Log prior density of θ (…, D), up to a constant: −inf outside the box (the Euler angles are periodic and
+    never outside it); inside, the size prior on the log semi-axes and the Haar measure on rotations (log |sin ξ|)
+    of :class:`Bounds`, uniform in every other coordinate (log n, log σ, log ε, log κ, outlier fractions)."""
+    boxed = (theta >= bounds.lower) & (theta <= bounds.upper)
+    inside = jnp.all(jnp.where(_ANGLE_MASK[: theta.shape[-1]], True, boxed), axis=-1)
     z = (theta[..., 3:6] - bounds.size_mu) / bounds.size_sd
-    dens = -0.5 * jnp.sum(z * z, axis=-1) + jnp.log(jnp.maximum(jnp.sin(theta[..., 6]), 1e-300))
+    dens = -0.5 * jnp.sum(z * z, axis=-1) + jnp.log(jnp.maximum(jnp.abs(jnp.sin(theta[..., 6])), 1e-300))
     return jnp.where(inside, dens, -jnp.inf)
 
 
@@ -463,8 +486,6 @@ def sample_prior(bounds: Bounds, count: int, rng: np.random.Generator) -> np.nda
         mu, sd = float(bounds.size_mu), float(bounds.size_sd)
         a, b = (lo[3:6] - mu) / sd, (hi[3:6] - mu) / sd
         x[:, 3:6] = truncnorm.rvs(a, b, loc=mu, scale=sd, size=(count, 3), random_state=rng)
-    if bounds.ordered:
-        x[:, 3:6] = -np.sort(-x[:, 3:6], axis=1)
     c_lo, c_hi = np.cos(hi[6]), np.cos(lo[6])
     x[:, 6] = np.arccos(np.clip(c_lo + (c_hi - c_lo) * rng.random(count), -1.0, 1.0))
     return np.clip(x, lo, hi)
@@ -592,7 +613,6 @@ def make_log_prob(
     origin=None,
     precision: str = "float64",
     free=None,
-    ordered: bool = False,
 ):
     """A jitted, walker-vectorised log-probability ``f(thetas (W, D)) → (W,)`` for ``emcee(vectorize=True)``.
 
@@ -611,8 +631,6 @@ def make_log_prob(
     free : (K, 3) float, metres, optional
         Free-space points (finger positions that touched nothing): each adds log(ε + (1 − ε) Φ(d/σ)), d its
         first-order distance outside the surface, ε = ``priors.free_miss``.
-    ordered : bool
-        Restrict the semi-axes to a ≥ b ≥ c (:class:`Bounds`).
     precision : {"float64", "mixed"}
         ``"mixed"``: float32 per-point transcendentals, float64 affine map and sum (``noise="student"`` or
         ``"outlier"`` without normals only; about 1.5x faster, log-probability error
@@ -643,7 +661,7 @@ def make_log_prob(
     if fr is not None and not np.all(np.isfinite(fr)):
         raise BadInput("free: free-space points must be finite (K, 3) metres")
     data = _prepare(p, nrm, noise, origin, fr, priors.free_miss)
-    bounds = bounds_for(p, priors, nrm is not None, noise)._replace(ordered=bool(ordered))
+    bounds = bounds_for(p, priors, nrm is not None, noise)
     dim = len(bounds.lower)
 
     def f(thetas):

@@ -35,6 +35,8 @@ from bayestouch.inference.sampler import convergence
 from bayestouch.io.files import write_json
 
 __all__ = [
+    "ANGLE_NAMES",
+    "judged_quantities",
     "PosteriorModel",
     "write_posterior",
     "interval",
@@ -48,6 +50,13 @@ __all__ = [
 PREDICTIVE_DRAWS = 500
 #: draws used for the derived quantities and the uncertainty mesh
 DERIVED_DRAWS = 200
+
+
+#: summary names of the Euler angles, reported but not judged for convergence: the canonical frame's angles jump
+#: between their aliases' values wherever two semi-axes are close or an angle is near its wrap (ψ near 0 and π are
+#: one orientation), so their R-hat and ESS measure that bookkeeping, not the chain's mixing. The orientation's
+#: mixing shows in the centre, semi-axes and n, which the surface ties to it.
+ANGLE_NAMES = ("xi", "psi", "zeta")
 
 
 class PosteriorModel(NamedTuple):
@@ -88,6 +97,18 @@ class PosteriorModel(NamedTuple):
     refine_mesh: Callable | None = None
     checks: Callable | None = None
     predictive_draws: int | None = None
+
+
+def judged_quantities(names, natural):
+    """The stopping rule's monitor (:func:`bayestouch.inference.sampler.sample`) for natural quantities ``names``
+    computed by ``natural`` ((N, D) sampled → (N, len(names))): sampled draws (N, D) → those quantities without the
+    Euler angles (:data:`ANGLE_NAMES`), the ones whose R-hat and ESS :func:`write_posterior` judges."""
+    keep = np.array([k for k, name in enumerate(names) if name not in ANGLE_NAMES])
+
+    def monitor(draws):
+        return np.asarray(natural(draws))[:, keep]
+
+    return monitor
 
 
 def interval(x) -> dict:
@@ -250,7 +271,8 @@ def write_posterior(out: Path, chain, model: PosteriorModel, *, seed: int, t0: f
     um.vertex_attributes["spread"] = spread.astype(np.float32)
     um.export(str(out / "uncertainty_mesh.ply"))
 
-    diag = convergence([p["r_hat"] for p in params.values()], [p["ess_bulk"] for p in params.values()], chain)
+    judged = [p for name, p in params.items() if name not in ANGLE_NAMES]
+    diag = convergence([p["r_hat"] for p in judged], [p["ess_bulk"] for p in judged], chain)
     summary = {
         "parameters": params,
         "derived": {

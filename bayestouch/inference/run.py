@@ -24,7 +24,7 @@ from bayestouch.inference import contact as cm
 from bayestouch.inference import ffd_marginal as fm
 from bayestouch.inference.de import de_search
 from bayestouch.inference.modes import find_modes
-from bayestouch.inference.posterior import PosteriorModel, interval, vmf_sample, write_posterior
+from bayestouch.inference.posterior import PosteriorModel, interval, judged_quantities, vmf_sample, write_posterior
 from bayestouch.inference.sampler import HamiltonianMove, IndependenceMixture, prune_stuck_walkers, sample
 from bayestouch.inference.smc import local_covariances, tempered_smc, tune_step_size
 from bayestouch.io.files import write_json
@@ -40,6 +40,7 @@ __all__ = [
     "smc_stage",
     "smc_moves",
     "smc_walkers",
+    "optimum_mode",
     "describe_modes",
     "SMC_PARTICLES",
     "DEFAULT_BUDGET_S",
@@ -71,6 +72,11 @@ MIXTURE_BANDWIDTH = 0.8
 #: particles whose covariance is a walker's inverse mass matrix (``benchmarks/bench_user_sets.py`` set 0: τ 25 steps
 #: at 256 of 2048, against 15-27 at 52 or all 2048 in 1000-step pilots)
 HMC_NEIGHBOURS = 256
+#: an optimum this many nats above every SMC particle is a mode the SMC missed (:func:`optimum_mode`): its
+#: log-posterior is e^5 ≈ 150 times the best particle's, which a population of posterior draws would not miss
+MISSED_MODE_NATS = 5.0
+#: share of the walkers started in, and of the independence mixture's components centred on, such a mode
+MISSED_MODE_SHARE = 0.5
 
 #: summary names (natural units) of the 11 sampled contact-level parameters
 NATURAL_NAMES = ("x_G", "y_G", "z_G", "a", "b", "c", "xi", "psi", "zeta", "n", "sigma")
@@ -154,7 +160,7 @@ def start_ball(theta0, bounds, n, rng, sampled: tuple = cm.PARAM_NAMES) -> np.nd
     scale = np.concatenate(
         [np.full(3, 1e-4), np.full(3, 1e-3), np.full(3, 1e-3), [1e-3], [1e-2], [_EXTRA_SCALE[k] for k in extra]]
     )
-    p = np.clip(theta0, lo, hi) + scale * rng.normal(size=(n, theta0.size))
+    p = cm.wrap_angles(np.clip(theta0, lo, hi) + scale * rng.normal(size=(n, theta0.size)))
     return np.clip(p, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
 
 
@@ -261,7 +267,91 @@ def smc_walkers(particles, walkers: int, seed: int) -> np.ndarray:
     return rng.choice(len(particles), walkers, replace=len(particles) < walkers)
 
 
-def smc_moves(particles, start, gradients, eps: float, seed: int, components: int = MIXTURE_COMPONENTS):
+def optimum_mode(
+    points, logp, bounds: cm.Bounds, priors: cm.PriorParams, seed: int, sampled: tuple = cm.PARAM_NAMES, theta0=None
+) -> dict:
+    """The evolutionary-search optimum (:func:`initial_theta`, or ``theta0``) polished by L-BFGS on the sampled
+    log-posterior, and its Laplace covariance: the check that a tempered SMC did not miss the dominant mode.
+
+    Tempering from the prior can lose a narrow mode whose prior mass is small (one-sided data: a compact surface
+    fitting every contact beside broad ones fitting most); a global search of the fit's cost finds it directly.
+
+    Parameters
+    ----------
+    points : (M, 3) float, metres
+    logp : callable
+        :func:`~bayestouch.inference.contact.make_log_prob`'s ``f`` (with ``f.parts``), D parameters.
+    bounds : Bounds
+        Its prior; the polish stays inside the box (the angles are free, as in the prior).
+    seed : int
+        Seeds the evolutionary search.
+    sampled : tuple of str
+        ``logp``'s parameter names (:func:`~bayestouch.inference.contact.param_names`); the optional ones start
+        at their usual values.
+    theta0 : (11,) float, optional
+        The evolutionary-search optimum when already found.
+
+    Returns
+    -------
+    dict
+        ``theta`` (D,), ``log_post`` (nats) and ``cov`` (D, D): the inverse of the negative Hessian (central
+        differences of the gradient), its eigenvalues floored at 1 (no direction wider than one unit of θ).
+    """
+    lo, hi = np.asarray(bounds.lower, float), np.asarray(bounds.upper, float)
+    d = lo.size
+    th = initial_theta(points, seed, priors) if theta0 is None else np.asarray(theta0, float)
+    x0 = np.concatenate([th[:11], [_EXTRA_START[k] for k in sampled[11:]]])
+    x0 = np.clip(x0, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
+    box = [(None, None) if 6 <= j <= 8 else (lo[j], hi[j]) for j in range(d)]
+
+    def grad(x):
+        lp, ll, glp, gll = logp.parts(np.atleast_2d(x))
+        return np.asarray(lp, float) + np.asarray(ll, float), np.asarray(glp, float) + np.asarray(gll, float)
+
+    def fg(x):
+        v, g = grad(x)
+        return (float(-v[0]), -g[0]) if np.isfinite(v[0]) else (1e300, np.zeros(d))
+
+    res = minimize(fg, x0, jac=True, method="L-BFGS-B", bounds=box, options={"maxiter": 1000})
+    x = res.x if res.fun <= fg(x0)[0] else x0
+    h = 1e-6
+    pm = np.concatenate([x + h * np.eye(d), x - h * np.eye(d)])
+    g = grad(pm)[1]
+    hess = (g[:d] - g[d:]) / (2 * h)
+    lam, vec = np.linalg.eigh(-0.5 * (hess + hess.T))
+    cov = (vec / np.maximum(lam, 1.0)) @ vec.T
+    return {"theta": x, "log_post": float(-fg(x)[0]), "cov": cov}
+
+
+def _laplace_draws(centre, chol, count: int, gradients, rng, tries: int = 100) -> np.ndarray:
+    """``count`` draws (count, D) of N(centre, chol cholᵀ) with a finite log-posterior (``gradients``' sum; redrawn
+    up to ``tries`` times, then the centre itself)."""
+    out = np.repeat(np.asarray(centre, float)[None], count, axis=0)
+    todo = np.arange(count)
+    for _ in range(tries):
+        if not len(todo):
+            break
+        # always ``count`` candidates: one batch shape, one compiled log-density
+        y = centre + rng.standard_normal((count, len(centre))) @ chol.T
+        ok = np.ones(count, bool)
+        if gradients is not None:
+            lp, ll, _, _ = gradients(y)
+            ok = np.isfinite(np.asarray(lp, float) + np.asarray(ll, float))
+        good = y[ok][: len(todo)]
+        out[todo[: len(good)]] = good
+        todo = todo[len(good) :]
+    return out
+
+
+def smc_moves(
+    particles,
+    start,
+    gradients,
+    eps: float,
+    seed: int,
+    components: int = MIXTURE_COMPONENTS,
+    extra_mode: dict | None = None,
+):
     """Moves and starting walkers of an emcee run after :func:`smc_stage`, from the posterior draws
     ``particles (N, D)`` at indices ``start (W,)`` (:func:`smc_walkers`).
 
@@ -274,6 +364,11 @@ def smc_moves(particles, start, gradients, eps: float, seed: int, components: in
     distinct particles with :data:`MIXTURE_BANDWIDTH` of their neighbourhood's covariance, which can carry walkers
     between separated modes. Without gradients: 70 % differential evolution, 30 % the mixture.
 
+    ``extra_mode`` (:func:`optimum_mode`'s dict), a mode the particles missed: :data:`MISSED_MODE_SHARE` of the
+    walkers start from its Laplace approximation N(θ*, Σ) instead (Σ their inverse mass matrix), and as many
+    components of the mixture as there are particle components × that share over its complement are centred on
+    θ* with scale Σ, so walkers move between it and the particles' modes in both directions.
+
     Returns
     -------
     moves : list of (move, weight)
@@ -284,12 +379,24 @@ def smc_moves(particles, start, gradients, eps: float, seed: int, components: in
     uniq = np.unique(x, axis=0)
     pick = rng.choice(len(uniq), min(components, len(uniq)), replace=False)
     chols = np.linalg.cholesky(local_covariances(uniq, max(4 * x.shape[1], 30), pick)) * MIXTURE_BANDWIDTH
-    mix = IndependenceMixture(uniq[pick], chols, emcee.moves.DEMove())
+    centres = uniq[pick]
     start = np.asarray(start, int)
-    if gradients is None or not np.isfinite(eps):
-        return [(mix, 0.3), (emcee.moves.DEMove(), 0.7)], x[start]
+    walkers = x[start]
     walker_chols = np.linalg.cholesky(local_covariances(x, HMC_NEIGHBOURS, start))
-    eps, walkers = tune_step_size(x[start], walker_chols, gradients, rng, eps)
+    if extra_mode is not None:
+        share = MISSED_MODE_SHARE
+        chol = np.linalg.cholesky(extra_mode["cov"])
+        extra = int(round(len(centres) * share / (1 - share)))
+        centres = np.concatenate([centres, np.repeat(extra_mode["theta"][None], extra, axis=0)])
+        chols = np.concatenate([chols, np.repeat(chol[None], extra, axis=0)])
+        moved = np.arange(len(start)) < round(share * len(start))
+        walkers = walkers.copy()
+        walkers[moved] = _laplace_draws(extra_mode["theta"], chol, int(moved.sum()), gradients, rng)
+        walker_chols[moved] = chol
+    mix = IndependenceMixture(centres, chols, emcee.moves.DEMove())
+    if gradients is None or not np.isfinite(eps):
+        return [(mix, 0.3), (emcee.moves.DEMove(), 0.7)], walkers
+    eps, walkers = tune_step_size(walkers, walker_chols, gradients, rng, eps)
     return [(HamiltonianMove(gradients, walker_chols, eps), 0.9), (mix, 0.1)], walkers
 
 
@@ -577,7 +684,6 @@ def run_contact_fit(
             noise=noise,
             precision=precision,
             free=free,
-            ordered=init == "smc" and start is None,
         )
         sampled = cm.param_names(normals is not None, noise)
         model = contact_model(
@@ -610,7 +716,7 @@ def run_contact_fit(
                 ens = np.column_stack([ens, *extra])
             if ens.shape != (walkers, len(sampled)):
                 raise BadInput(f"start: expected an ensemble of shape ({walkers}, {len(sampled)}), got {ens.shape}")
-            ens = np.clip(ens, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
+            ens = np.clip(cm.wrap_angles(ens), lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
             ens, _ = prune_stuck_walkers(ens, logp(ens), np.random.default_rng(seed))
             return np.clip(ens, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
         if smc is not None:
@@ -624,7 +730,13 @@ def run_contact_fit(
             (out / "smc.npz").unlink(missing_ok=True)
         smc = smc_stage(logp, bounds, seed, out / "smc.npz", progress=progress)
         idx = smc_walkers(smc["particles"], walkers, seed)
-        moves, smc_start = smc_moves(smc["particles"], idx, getattr(logp, "parts", None), smc["eps"], seed)
+        opt = optimum_mode(points, logp, bounds, priors, seed, sampled, theta0)
+        best_particle = float(np.max(np.asarray(logp(smc["particles"]))))
+        missed = opt["log_post"] - best_particle > MISSED_MODE_NATS
+        smc["optimum_above_particles"] = opt["log_post"] - best_particle
+        moves, smc_start = smc_moves(
+            smc["particles"], idx, getattr(logp, "parts", None), smc["eps"], seed, extra_mode=opt if missed else None
+        )
 
     ch = sample(
         logp,
@@ -641,7 +753,7 @@ def run_contact_fit(
         stop_when_converged=stop_when_converged,
         adapt=True,
         moves=moves,
-        monitor=model.natural,
+        monitor=judged_quantities(model.names, model.natural),
     )
     info = {**model.info, "precision": precision, "init": "start" if start is not None else init}
     if smc is not None:
@@ -652,6 +764,10 @@ def run_contact_fit(
             "log_evidence": float(smc["log_evidence"]),
             "evaluations": int(smc["evaluations"]),
             "seconds": float(smc["seconds"]),
+            # the polished evolutionary-search optimum's log-posterior above the best particle's (nats); above
+            # MISSED_MODE_NATS its mode was added to the start and the proposals (optimum_mode)
+            "optimum_above_particles": float(smc["optimum_above_particles"]),
+            "missed_mode_added": bool(smc["optimum_above_particles"] > MISSED_MODE_NATS),
         }
     model = model._replace(info=info)
     summary = write_posterior(out, ch, model, seed=seed, t0=t0)

@@ -65,7 +65,8 @@ class Chain(NamedTuple):
     burn : int
         Steps discarded as burn-in.
     tau_max : float
-        Largest integrated autocorrelation time (steps), NaN when it cannot be estimated.
+        Largest integrated autocorrelation time (steps) of the monitored quantities (the sampled parameters without
+        a monitor), NaN when it cannot be estimated.
     acceptance : float or None
         Mean acceptance fraction of this call's steps (None when nothing was sampled now).
     stopped_by_budget : bool
@@ -472,11 +473,20 @@ def _next_check(length: int, check_every: int) -> int:
     return -(-(length + gap) // check_every) * check_every
 
 
-def _looks_converged(chain: np.ndarray, tau, old_tau, burn: int, length: int, monitor=None) -> bool:
-    """The stopping rule: the stretch τ was estimated on is longer than 50 τ_max, τ_max stable within 5 % since the
-    last check (the estimate the length rule relies on), and on the draws after burn-in every R-hat < 1.01 and every
-    bulk ESS > 400 (ArviZ, walkers as chains) — the summary's own criterion, on the summary's quantities when
-    ``monitor`` maps draws (N, D) to them (N, Q)."""
+def monitored(chain: np.ndarray, monitor=None) -> np.ndarray:
+    """``chain (n, W, D)`` mapped draw by draw through ``monitor`` ((N, D) → (N, Q)) to (n, W, Q); the chain itself
+    without one."""
+    if monitor is None:
+        return chain
+    n, w, d = chain.shape
+    return np.asarray(monitor(chain.reshape(-1, d))).reshape(n, w, -1)
+
+
+def _looks_converged(chain: np.ndarray, tau, old_tau, burn: int, length: int) -> bool:
+    """The stopping rule on ``chain (n, W, Q)`` (the monitored quantities): the stretch τ was estimated on is longer
+    than 50 τ_max, τ_max stable within 5 % since the last check (the estimate the length rule relies on), and on
+    the draws after burn-in every R-hat < 1.01 and every bulk ESS > 400 (ArviZ, walkers as chains) — the summary's
+    own criterion."""
     if not (
         np.all(np.isfinite(tau))
         and np.all(np.isfinite(old_tau))
@@ -485,8 +495,6 @@ def _looks_converged(chain: np.ndarray, tau, old_tau, burn: int, length: int, mo
     ):
         return False
     kept = chain[burn:]
-    if monitor is not None:
-        kept = np.asarray(monitor(kept.reshape(-1, kept.shape[2]))).reshape(kept.shape[0], kept.shape[1], -1)
     ds = xr.Dataset({"theta": (("chain", "draw", "dim"), np.swapaxes(kept, 0, 1))})
     return bool(
         float(az.rhat(ds)["theta"].max()) < R_HAT_MAX and float(az.ess(ds, method="bulk")["theta"].min()) > ESS_MIN
@@ -565,8 +573,10 @@ def sample(
         (:meth:`IndependenceT.weight_spread`), and τ and burn-in are taken from step 0.
     monitor : callable, optional
         ``(N, D) -> (N, Q)``: the quantities the run will be judged on (e.g. the canonicalised natural parameters
-        of the summary), whose R-hat and ESS the stopping rule then checks instead of the sampled parameters', so
-        a run does not stop early on a criterion its summary then fails.
+        of the summary), whose τ, R-hat and ESS the stopping rule then checks instead of the sampled parameters',
+        so a run does not stop early on a criterion its summary then fails; the returned τ and burn-in are theirs
+        too (sampled coordinates that wander between aliases of one surface, such as periodic angles, would
+        otherwise make τ meaningless).
     """
     t0 = time.perf_counter() if t0 is None else t0
     if chain_path is None:  # in memory: short runs for which a checkpoint costs more than it saves
@@ -675,9 +685,9 @@ def sample(
                 if stop_when_converged and first + i >= next_check:
                     next_check = _next_check(first + i, check_every)
                     flush()
-                    chain = backend.get_chain()
+                    chain = monitored(backend.get_chain(), monitor)
                     tau, burn, length = _tau_and_burn(chain, adapt, skip_to)
-                    if old_tau is not None and _looks_converged(chain, tau, old_tau, burn, length, monitor):
+                    if old_tau is not None and _looks_converged(chain, tau, old_tau, burn, length):
                         break
                     old_tau = tau
         finally:
@@ -685,7 +695,7 @@ def sample(
     chain = backend.get_chain()
     lp = backend.get_log_prob()
     n_done = chain.shape[0]
-    tau, burn, length = _tau_and_burn(chain, adapt, skip_to)
+    tau, burn, length = _tau_and_burn(monitored(chain, monitor), adapt, skip_to)
     tau_max = float(np.nanmax(tau)) if np.isfinite(tau).any() else float("nan")
     acc = float(np.mean(sampler.acceptance_fraction)) if todo > 0 and sampler.iteration > 0 else None
     return Chain(

@@ -19,7 +19,7 @@ from bayestouch.inference import grating as gr
 from bayestouch.inference.densities import t_scale_factor
 from bayestouch.inference.grating import RawTexture
 from bayestouch.inference.optimize import laplace, laplace_ball, scaled_lbfgs
-from bayestouch.inference.posterior import PosteriorModel, write_posterior
+from bayestouch.inference.posterior import PosteriorModel, judged_quantities, write_posterior
 from bayestouch.inference.raw.adjustment import Adjustment, curvature_adjustment
 from bayestouch.inference.raw.data import RawData, commanded_points, load_raw_data, open_recording
 from bayestouch.inference.raw.likelihood import (
@@ -372,7 +372,7 @@ def run_raw_fit(
         adapt=True,
         proposal=moments,
         moves=adaptive_moves(RAW_PROPOSAL_NU),
-        monitor=_natural,
+        monitor=judged_quantities(RAW_NATURAL_NAMES if tex is None else RAW_TEXTURE_NATURAL_NAMES, _natural),
     )
     flat = ch.kept.reshape(-1, ch.kept.shape[2])
     if prune:
