@@ -130,4 +130,3 @@ def test_angles_are_periodic_and_wrap_to_the_same_surface():
     z = x[:1].copy()
     z[0, 0] = float(hi[0]) + 1.0
     assert np.isinf(np.asarray(cm.log_prior(jnp.asarray(z), b))[0])
-
