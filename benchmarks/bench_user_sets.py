@@ -37,9 +37,10 @@ third set has exactly 15 % outliers (half outward along the normal, half in a ra
 here every set has 0–15 %, of both signs, 3–10 mm along the normal; and there are no free-space samples.
 
 Methods: **bayestouch** through its default contact-level path
-:func:`bayestouch.inference.run.run_contact_fit` (default settings: Student-t residuals, 32 walkers, up to 20 000
-adaptive steps stopping when converged) into a temporary run folder, point estimate the posterior-mean shape of
-the summary (mean canonicalised parameters), volume the summary's posterior-mean volume; **sage** its default
+:func:`bayestouch.inference.run.run_contact_fit` (default settings: tempered SMC from the prior checked against
+the polished optimum, then emcee, 32 walkers, outlier noise model, the 60 s budget, free-space positions given)
+into a temporary run folder, point estimate the summary's posterior-mean shape (``derived.mean_shape``, the shape
+of ``mean_shape.ply``), volume the summary's posterior-mean volume; **sage** its default
 single-superquadric fit (:func:`benchmarks.bench_sparse.fit_sage`); **gpis** :func:`benchmarks.gpis.fit_gpis`.
 
 Metrics per set and method: volume error |V̂/V − 1| (closed forms for the truth and the superquadric, the mesh
@@ -600,8 +601,8 @@ def bayestouch_metrics(summary: dict, truth: ne.NEllipsoid) -> dict:
 
 
 def _mean_shape(summary: dict) -> ne.NEllipsoid:
-    """The posterior-mean shape: mean canonicalised parameters of the summary."""
-    return ne.from_vector(jnp.asarray([summary["parameters"][k]["mean"] for k in ne.PARAM_NAMES]))
+    """The posterior-mean shape of the summary (``derived.mean_shape``, the shape of ``mean_shape.ply``)."""
+    return ne.from_vector(jnp.asarray([summary["derived"]["mean_shape"][k] for k in ne.PARAM_NAMES]))
 
 
 def fit_set(d: UserSet, method: str, index: int = 0, steps: int | None = None) -> dict:
@@ -691,6 +692,11 @@ def _proportion(flags) -> dict:
     return {"k": k, "n": n, "fraction": k / n if n else float("nan"), "wilson95": [lo, hi]}
 
 
+def _or(value, default: float) -> float:
+    """``value`` as a float, ``default`` where it is None or NaN."""
+    return default if value is None or not np.isfinite(value) else float(value)
+
+
 def summarise(rows: list[dict], seed: int = 0) -> dict:
     """Per-method summary of the rows of :func:`fit_set`.
 
@@ -736,8 +742,16 @@ def summarise(rows: list[dict], seed: int = 0) -> dict:
                         "mean": float(z.mean()) if z.size else float("nan"),
                         "sd": float(z.std(ddof=1)) if z.size > 1 else float("nan"),
                     },
-                    "max_r_hat_median": float(np.median([r["bt_max_r_hat"] for r in ok])) if ok else float("nan"),
-                    "min_ess_bulk_median": float(np.median([r["bt_min_ess_bulk"] for r in ok])) if ok else float("nan"),
+                    # a chain too short for R-hat (NaN; null in a shard's JSON) counts as not mixed at all
+                    "max_r_hat_median": float(np.median([_or(r["bt_max_r_hat"], np.inf) for r in ok]))
+                    if ok
+                    else float("nan"),
+                    "min_ess_bulk_median": float(np.median([_or(r["bt_min_ess_bulk"], 0.0) for r in ok]))
+                    if ok
+                    else float("nan"),
+                    "off_by_more_than_3_sd": int(np.sum(np.abs(z) > 3)),
+                    "chain_steps_median": float(np.median([r["bt_steps"] for r in ok])) if ok else float("nan"),
+                    "chains_of_one_step": sum(int(r["bt_steps"]) <= 1 for r in ok),
                 }
             )
         out[method] = s
@@ -787,6 +801,27 @@ def markdown_table(summary: dict, note: str = "") -> str:
     return "\n".join(lines) + "\n"
 
 
+def write_results(rows: list[dict], out, count: int, seed: int, steps) -> dict:
+    """Summarise the per-set ``rows`` (:func:`summarise`) and, with a folder ``out``, write ``user_sets.csv``,
+    ``user_sets.json`` and ``user_sets.md`` there. Returns the summary."""
+    from bayestouch.io.files import write_csv_rows, write_json, write_text
+
+    summary = summarise(rows, seed)
+    note = (
+        f"{count} sets (seed {seed}), bayestouch steps: {steps if steps is not None else 'run_contact_fit default'}; "
+        "a failed fit counts as an infinite error."
+    )
+    if out is not None:
+        out = Path(out)
+        write_csv_rows(out / "user_sets.csv", rows)
+        write_json(
+            out / "user_sets.json",
+            {"sets": count, "seed": seed, "steps": steps, "bootstrap_resamples": BOOTSTRAP_RESAMPLES, **summary},
+        )
+        write_text(out / "user_sets.md", markdown_table(summary, note))
+    return summary
+
+
 def bench_user_sets(
     count: int | None = None,
     seed: int = 0,
@@ -820,7 +855,7 @@ def bench_user_sets(
     """
     from tqdm import tqdm
 
-    from bayestouch.io.files import write_csv_rows, write_json, write_text
+    from bayestouch.io.files import write_json
 
     count = int(os.environ.get("BAYESTOUCH_USER_SETS", 50)) if count is None else int(count)
     if steps is None and os.environ.get("BAYESTOUCH_USER_STEPS"):
@@ -848,19 +883,7 @@ def bench_user_sets(
         if len(shards) < k_of[1]:
             return []  # the last shard to finish writes the summary
         rows = sorted((r for f in shards for r in json.loads(f.read_text())), key=lambda r: (r["set"], r["method"]))
-    summary = summarise(rows, seed)
-    note = (
-        f"{count} sets (seed {seed}), bayestouch steps: {steps if steps is not None else 'run_contact_fit default'}; "
-        "a failed fit counts as an infinite error."
-    )
-    if out is not None:
-        out = Path(out)
-        write_csv_rows(out / "user_sets.csv", rows)
-        write_json(
-            out / "user_sets.json",
-            {"sets": count, "seed": seed, "steps": steps, "bootstrap_resamples": BOOTSTRAP_RESAMPLES, **summary},
-        )
-        write_text(out / "user_sets.md", markdown_table(summary, note))
+    summary = write_results(rows, out, count, seed, steps)
 
     results = []
     for m, s in summary.items():

@@ -62,3 +62,75 @@ def test_default_fit_of_a_one_sided_contaminated_set(tmp_path):
     s2 = run_contact_fit(pts, tmp_path, seed=0, steps=450, progress=False, free=free, resume=True, budget_s=None)
     assert s2["diagnostics"]["steps"] == 450
     assert np.array_equal(np.load(tmp_path / "smc.npz")["particles"], before)
+
+
+def test_optimum_mode_reaches_the_optimum_with_its_laplace_width():
+    """All-round contacts on a sphere (r = 20 mm, 0.3 mm noise): the polished optimum has the radius, a
+    log-posterior at least the truth's, and a Laplace sd of log σ near the Gaussian limit 1/√(2M)."""
+    from bayestouch.inference import contact as cm
+    from bayestouch.inference.run import optimum_mode
+
+    m = 120
+    rng = np.random.default_rng(5)
+    pts = _sphere(m, seed=4) + rng.normal(0, 3e-4, (m, 3))
+    priors = cm.load_priors()
+    logp, bounds = cm.make_log_prob(pts, priors, noise="outlier", precision="float64")
+    opt = optimum_mode(pts, logp, bounds, priors, seed=0, sampled=cm.param_names(False, "outlier"))
+    th = opt["theta"]
+    np.testing.assert_allclose(np.exp(th[3:6]), 0.02, atol=5e-4)
+    truth = np.array([0, 0, 0, *[np.log(0.02)] * 3, 1.0, 1.0, 1.0, np.log(2.0), np.log(3e-4), 1e-3, 1e-3])
+    assert opt["log_post"] >= float(logp(truth[None])[0]) - 1e-6
+    assert opt["log_post"] == float(logp(th[None])[0])
+    sd = np.sqrt(np.diag(opt["cov"]))
+    assert np.all(np.linalg.eigvalsh(opt["cov"]) > 0)
+    # Gaussian core, no outliers: the sd of log σ is about 1/√(2M) = 0.065 (±30 % for the outlier fractions' pull)
+    assert 0.045 < sd[10] < 0.085
+    assert np.all(sd[3:6] < 0.03)  # every radius constrained to a few per cent
+
+
+def test_smc_moves_start_half_the_walkers_in_a_missed_mode():
+    from bayestouch.inference.run import smc_moves
+
+    rng = np.random.default_rng(0)
+    particles = rng.normal(0.0, 1.0, (512, 4))
+    far = {"theta": np.full(4, 20.0), "cov": 0.25 * np.eye(4)}
+    start = np.arange(32)
+    moves, walkers = smc_moves(particles, start, None, np.nan, seed=0, components=64, extra_mode=far)
+    near = np.linalg.norm(walkers - 20.0, axis=1) < 0.5 * 6
+    assert near.sum() == 16 and np.allclose(walkers[~near], particles[start][~near])
+    mix = moves[0][0]
+    assert len(mix.centres) == 128 and np.sum(np.all(mix.centres == 20.0, axis=1)) == 64
+    # negative control: without the missed mode no walker and no component is there
+    moves0, walkers0 = smc_moves(particles, start, None, np.nan, seed=0, components=64)
+    assert not np.any(np.linalg.norm(walkers0 - 20.0, axis=1) < 3) and len(moves0[0][0].centres) == 64
+
+
+def test_mean_shape_vector_is_the_same_for_every_alias():
+    """Draws of one n-ellipsoid written as different aliases (axes permuted with the frame, wrapped angles) have
+    that n-ellipsoid as their mean shape; averaging their canonical-looking parameters would not (negative control:
+    the arithmetic mean of the raw vectors is off)."""
+    from bayestouch.geometry import nellipsoid as ne
+    from bayestouch.geometry.rotation import euler_from_matrix, rotation_matrix
+    from bayestouch.inference.posterior import mean_shape_vector
+
+    truth = np.array([0.01, -0.02, 0.03, 0.04, 0.02, 0.01, 0.7, 0.4, -1.1, 3.0])
+    R = np.asarray(rotation_matrix(truth[6:9]))
+    perms = [(0, 1, 2), (1, 0, 2), (2, 1, 0), (0, 2, 1)]
+    rows = []
+    for p in perms:
+        P = np.eye(3)[:, list(p)]
+        Rp = R @ P
+        if np.linalg.det(Rp) < 0:
+            Rp[:, 0] = -Rp[:, 0]
+        ang = np.asarray(euler_from_matrix(Rp))
+        rows.append(np.concatenate([truth[:3], truth[3:6][list(p)], ang, [truth[9]]]))
+    rows = np.array(rows)
+    shapes = [ne.from_vector(r) for r in rows]
+    pts = np.array([[0.05, -0.01, 0.03], [0.0, 0.0, 0.0], [0.02, -0.04, 0.05]])
+    res = [np.asarray(ne.inside_outside(s, pts)) for s in shapes]  # the rows are one surface
+    np.testing.assert_allclose(np.array(res), np.tile(res[0], (len(res), 1)), rtol=1e-9)  # one surface
+    m = mean_shape_vector(rows)
+    np.testing.assert_allclose(m[3:6], truth[3:6], rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(ne.inside_outside(ne.from_vector(m), pts)), res[0], rtol=1e-9)
+    naive = rows.mean(axis=0)
+    assert not np.allclose(np.asarray(ne.inside_outside(ne.from_vector(naive), pts)), res[0], rtol=1e-3)

@@ -214,6 +214,21 @@ def test_budget_stops_early_and_says_so(tmp_path):
     assert len(_full_chain(tmp_path / "b.h5")) == ch.steps
     ok = sample(f, _start(), tmp_path / "ok.h5", walkers=32, ndim=D, seed=1, steps=20, budget_s=600, progress=False)
     assert not ok.stopped_by_budget and ok.steps == 20
+    # a budget spent before the chain began (t0 long ago) still leaves min_steps steps, marked as stopped by it
+    late = sample(
+        f,
+        _start(),
+        tmp_path / "late.h5",
+        walkers=32,
+        ndim=D,
+        seed=1,
+        steps=500,
+        budget_s=1.0,
+        min_steps=40,
+        t0=time.perf_counter() - 10.0,
+        progress=False,
+    )
+    assert late.stopped_by_budget and late.steps == 40
 
 
 def test_emcee_snooker_is_biased_and_ours_is_not():

@@ -33,6 +33,7 @@ __all__ = [
     "log_likelihood",
     "log_prior",
     "wrap_angles",
+    "ANGLE_COLUMNS",
     "sample_prior",
     "size_prior",
     "with_size_prior",
@@ -436,8 +437,9 @@ def pointwise_log_likelihood(
     return np.asarray(_log_lik_terms_jit(jnp.asarray(thetas, dtype=jnp.float64), data, noise, float(nu)))
 
 
-#: the Euler angles' columns (6, 7, 8) of θ, long enough for any parameter set
-_ANGLE_MASK = np.isin(np.arange(32), (6, 7, 8))
+#: the Euler angles' columns of θ (periodic: no box, :func:`wrap_angles`)
+ANGLE_COLUMNS = (6, 7, 8)
+_ANGLE_MASK = np.isin(np.arange(32), ANGLE_COLUMNS)  # long enough for any parameter set
 
 
 def wrap_angles(theta) -> np.ndarray:

@@ -31,12 +31,14 @@ from bayestouch.backend import jax, jnp
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.integrals import surface_integrals_batch
 from bayestouch.geometry.mesh import cube_sphere, to_trimesh
+from bayestouch.geometry.rotation import euler_from_matrix, rotation_matrix
 from bayestouch.inference.sampler import convergence
 from bayestouch.io.files import write_json
 
 __all__ = [
     "ANGLE_NAMES",
     "judged_quantities",
+    "mean_shape_vector",
     "PosteriorModel",
     "write_posterior",
     "interval",
@@ -97,6 +99,29 @@ class PosteriorModel(NamedTuple):
     refine_mesh: Callable | None = None
     checks: Callable | None = None
     predictive_draws: int | None = None
+
+
+_rotations = jax.jit(jax.vmap(rotation_matrix))
+
+
+def mean_shape_vector(vectors) -> np.ndarray:
+    """The posterior-mean n-ellipsoid (10,) of draws ``vectors (N, 10)`` (centre m, semi-axes m, angles rad, n),
+    whatever alias each draw is written in.
+
+    The centre and n are averaged; the axes and orientation come from the mean of the symmetric matrices
+    R diag(a, b, c) Rᵀ (eigenvalues the semi-axes, eigenvectors the principal directions), which every alias of a
+    surface (permuted axes, flipped signs, wrapped angles) shares. Averaging the canonical angles instead jumps
+    wherever two semi-axes are close or an angle is near its wrap, and gives a shape no draw resembles.
+    """
+    v = np.asarray(vectors, float)
+    R = np.asarray(_rotations(jnp.asarray(v[:, 6:9])))
+    S = np.einsum("nij,nj,nkj->ik", R, v[:, 3:6], R) / len(v)
+    axes, vec = np.linalg.eigh(S)
+    axes, vec = axes[::-1], vec[:, ::-1]
+    if np.linalg.det(vec) < 0:
+        vec[:, 2] = -vec[:, 2]
+    angles = np.asarray(euler_from_matrix(jnp.asarray(vec)))
+    return np.concatenate([v[:, :3].mean(axis=0), axes, angles, [v[:, 9].mean()]])
 
 
 def judged_quantities(names, natural):
@@ -260,7 +285,8 @@ def write_posterior(out: Path, chain, model: PosteriorModel, *, seed: int, t0: f
 
     mean_nat = flat.mean(axis=0)
     # the mean shape's mesh (nellipsoid_mesh(mean, 32), through the compiled map of the draws' meshes)
-    verts, faces = _draw_meshes(model.shape_vectors(mean_nat[None]), 32)
+    mean_vec = mean_shape_vector(vecs)
+    verts, faces = _draw_meshes(mean_vec[None], 32)
     verts = verts[0]
     spread = uncertainty_spread(verts, None, vecs[: min(200, len(vecs))])
     if model.refine_mesh is not None:
@@ -277,6 +303,9 @@ def write_posterior(out: Path, chain, model: PosteriorModel, *, seed: int, t0: f
         "parameters": params,
         "derived": {
             "volume_m3": interval(exact_vols),
+            # the mesh mean_shape.ply is drawn from (mean_shape_vector): the shape to plot or compare, not the
+            # parameters' means, which are averages of canonical labels
+            "mean_shape": dict(zip(ne.PARAM_NAMES, map(float, mean_vec), strict=True)),
             "area_m2": interval(areas),
             "inertia_principal_m5": {
                 k: [interval(inertia[:, i])[k] for i in range(3)] for k in ("mean", "sd", "q05", "q95")

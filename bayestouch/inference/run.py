@@ -24,6 +24,7 @@ from bayestouch.inference import contact as cm
 from bayestouch.inference import ffd_marginal as fm
 from bayestouch.inference.de import de_search
 from bayestouch.inference.modes import find_modes
+from bayestouch.inference.optimize import fd_hessian
 from bayestouch.inference.posterior import PosteriorModel, interval, judged_quantities, vmf_sample, write_posterior
 from bayestouch.inference.sampler import HamiltonianMove, IndependenceMixture, prune_stuck_walkers, sample
 from bayestouch.inference.smc import local_covariances, tempered_smc, tune_step_size
@@ -72,6 +73,8 @@ MIXTURE_BANDWIDTH = 0.8
 #: particles whose covariance is a walker's inverse mass matrix (``benchmarks/bench_user_sets.py`` set 0: τ 25 steps
 #: at 256 of 2048, against 15-27 at 52 or all 2048 in 1000-step pilots)
 HMC_NEIGHBOURS = 256
+#: steps the chain runs even when its preparation (SMC, the optimum check) used up the budget (a few seconds)
+MIN_CHAIN_STEPS = 200
 #: an optimum this many nats above every SMC particle is a mode the SMC missed (:func:`optimum_mode`): its
 #: log-posterior is e^5 ≈ 150 times the best particle's, which a population of posterior draws would not miss
 MISSED_MODE_NATS = 5.0
@@ -268,7 +271,14 @@ def smc_walkers(particles, walkers: int, seed: int) -> np.ndarray:
 
 
 def optimum_mode(
-    points, logp, bounds: cm.Bounds, priors: cm.PriorParams, seed: int, sampled: tuple = cm.PARAM_NAMES, theta0=None
+    points,
+    logp,
+    bounds: cm.Bounds,
+    priors: cm.PriorParams,
+    seed: int,
+    sampled: tuple = cm.PARAM_NAMES,
+    theta0=None,
+    batch: int = 32,
 ) -> dict:
     """The evolutionary-search optimum (:func:`initial_theta`, or ``theta0``) polished by L-BFGS on the sampled
     log-posterior, and its Laplace covariance: the check that a tempered SMC did not miss the dominant mode.
@@ -290,6 +300,9 @@ def optimum_mode(
         at their usual values.
     theta0 : (11,) float, optional
         The evolutionary-search optimum when already found.
+    batch : int
+        ``logp.parts`` is called on blocks of this many rows (padded), the walkers' count, whose program the
+        chain compiles anyway.
 
     Returns
     -------
@@ -302,11 +315,15 @@ def optimum_mode(
     th = initial_theta(points, seed, priors) if theta0 is None else np.asarray(theta0, float)
     x0 = np.concatenate([th[:11], [_EXTRA_START[k] for k in sampled[11:]]])
     x0 = np.clip(x0, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
-    box = [(None, None) if 6 <= j <= 8 else (lo[j], hi[j]) for j in range(d)]
+    angle = np.isin(np.arange(d), cm.ANGLE_COLUMNS)  # periodic: no bounds
+    box = [(None, None) if angle[j] else (lo[j], hi[j]) for j in range(d)]
 
     def grad(x):
-        lp, ll, glp, gll = logp.parts(np.atleast_2d(x))
-        return np.asarray(lp, float) + np.asarray(ll, float), np.asarray(glp, float) + np.asarray(gll, float)
+        x = np.atleast_2d(x)
+        rows = -(-len(x) // batch) * batch
+        lp, ll, glp, gll = logp.parts(np.concatenate([x, np.repeat(x[-1:], rows - len(x), axis=0)]))
+        v = np.asarray(lp, float) + np.asarray(ll, float)
+        return v[: len(x)], (np.asarray(glp, float) + np.asarray(gll, float))[: len(x)]
 
     def fg(x):
         v, g = grad(x)
@@ -314,11 +331,8 @@ def optimum_mode(
 
     res = minimize(fg, x0, jac=True, method="L-BFGS-B", bounds=box, options={"maxiter": 1000})
     x = res.x if res.fun <= fg(x0)[0] else x0
-    h = 1e-6
-    pm = np.concatenate([x + h * np.eye(d), x - h * np.eye(d)])
-    g = grad(pm)[1]
-    hess = (g[:d] - g[d:]) / (2 * h)
-    lam, vec = np.linalg.eigh(-0.5 * (hess + hess.T))
+    hess = fd_hessian(fg, x, np.full(d, 1e-6), np.where(angle, -np.inf, lo), np.where(angle, np.inf, hi))
+    lam, vec = np.linalg.eigh(0.5 * (hess + hess.T))
     cov = (vec / np.maximum(lam, 1.0)) @ vec.T
     return {"theta": x, "log_post": float(-fg(x)[0]), "cov": cov}
 
@@ -730,7 +744,7 @@ def run_contact_fit(
             (out / "smc.npz").unlink(missing_ok=True)
         smc = smc_stage(logp, bounds, seed, out / "smc.npz", progress=progress)
         idx = smc_walkers(smc["particles"], walkers, seed)
-        opt = optimum_mode(points, logp, bounds, priors, seed, sampled, theta0)
+        opt = optimum_mode(points, logp, bounds, priors, seed, sampled, theta0, batch=walkers)
         best_particle = float(np.max(np.asarray(logp(smc["particles"]))))
         missed = opt["log_post"] - best_particle > MISSED_MODE_NATS
         smc["optimum_above_particles"] = opt["log_post"] - best_particle
@@ -748,6 +762,7 @@ def run_contact_fit(
         steps=steps,
         resume=resume,
         budget_s=budget_s,
+        min_steps=MIN_CHAIN_STEPS,
         progress=progress,
         t0=t0,
         stop_when_converged=stop_when_converged,

@@ -512,6 +512,7 @@ def sample(
     steps: int,
     resume: bool = False,
     budget_s: float | None = None,
+    min_steps: int = 0,
     progress: bool = True,
     moves=None,
     t0: float | None = None,
@@ -543,6 +544,10 @@ def sample(
         Continue the chain in ``chain_path`` when it holds one (else start a new chain).
     budget_s : float, seconds, optional
         Stop sampling once this much wall-clock time has passed since ``t0``.
+    min_steps : int
+        The budget stops the chain only once it holds this many steps: a run whose preparation (e.g. a tempered
+        SMC on a slow or busy machine) took the whole budget still returns a chain to summarise, marked as stopped
+        by the budget.
     moves : emcee moves, optional
         Default :func:`default_moves`.
     t0 : float, optional
@@ -676,7 +681,7 @@ def sample(
                 ),
                 start=1,
             ):
-                if budget_s is not None and time.perf_counter() - t0 > budget_s:
+                if budget_s is not None and time.perf_counter() - t0 > budget_s and first + i >= min_steps:
                     stopped = True
                     break
                 if first + i in adapt_at:
