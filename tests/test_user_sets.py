@@ -228,15 +228,23 @@ def test_summary_counts_failures_and_coverage():
         "bt_volume_z": 0.5,
         "bt_max_r_hat": 1.005,
         "bt_min_ess_bulk": 800.0,
+        "bt_steps": 900,
     }
     rows = [_row("bayestouch", 0.01 * (i + 1), 0.02, 10.0 + i, **bt) for i in range(4)]
     rows[3]["bt_volume_covered"] = False
+    # a 1-step chain: no R-hat (NaN, null in a shard's JSON), counted as unmixed; its volume 4 sds off
+    rows[2] |= {"bt_steps": 1, "bt_max_r_hat": None, "bt_min_ess_bulk": None, "bt_volume_z": -4.0}
     rows += [_row("gpis", 0.5, 0.3, 2.0), _row("gpis", np.nan, np.nan, 2.0) | {"error": "no zero crossing"}]
     s = us.summarise(rows)
     assert s["bayestouch"]["volume_error"]["median"] == pytest.approx(0.025)
     assert s["bayestouch"]["volume_coverage_90"]["k"] == 3 and s["bayestouch"]["volume_coverage_90"]["n"] == 4
     assert s["bayestouch"]["axis_interval_coverage_90"]["n"] == 12
     assert s["bayestouch"]["converged"] == 4
+    b = s["bayestouch"]
+    assert b["chains_of_one_step"] == 1 and b["off_by_more_than_3_sd"] == 1 and b["chain_steps_median"] == 900
+    assert b["max_r_hat_median"] == pytest.approx(1.005) and b["min_ess_bulk_median"] == pytest.approx(800.0)
+    rows[1] |= {"bt_max_r_hat": float("nan")}  # two of four unmixed: the median R-hat is infinite
+    assert us.summarise(rows)["bayestouch"]["max_r_hat_median"] == np.inf
     assert s["gpis"]["failed"] == 1 and s["gpis"]["volume_error"]["median"] == np.inf
     table = us.markdown_table(s)
     assert "| gpis | 2 | 1 |" in table and "3/4 = 0.75" in table
