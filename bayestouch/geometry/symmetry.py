@@ -22,6 +22,7 @@ __all__ = [
     "AXIS_RTOL",
     "canonicalize",
     "canonicalize_batch",
+    "rotation_matrices",
     "proper_signed_permutations",
     "param_distance",
 ]
@@ -37,8 +38,9 @@ _rotation_batch = jax.jit(jax.vmap(rotation_matrix))
 _euler_batch = jax.jit(lambda R: euler_from_matrix(jnp.moveaxis(R, 0, -1)).T)
 
 
-def _rotations(angles) -> np.ndarray:
-    """(S, 3) Euler angles (ξ, ψ, ζ) in radians → (S, 3, 3) rotation matrices of eq. 2."""
+def rotation_matrices(angles) -> np.ndarray:
+    """(S, 3) Euler angles (ξ, ψ, ζ) in radians → (S, 3, 3) rotation matrices of eq. 2 (one compiled program per
+    power-of-two batch size)."""
     angles = np.asarray(angles, dtype=np.float64)
     return np.asarray(_rotation_batch(jnp.asarray(pad_pow2(angles, fill=0.0))))[: len(angles)]
 
@@ -58,7 +60,7 @@ def _canonical_rotation(axes: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np
 
 def _canonical_rows(flat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(S, 10) parameter vectors → canonical (S, 10) vectors and their (S, 3, 3) rotation matrices."""
-    axes, R = _canonical_rotation(flat[:, 3:6], _rotations(flat[:, 6:9]))
+    axes, R = _canonical_rotation(flat[:, 3:6], rotation_matrices(flat[:, 6:9]))
     # pad to a power of two so that the compiled Euler extraction is reused across batch sizes
     angles = np.asarray(_euler_batch(jnp.asarray(pad_pow2(R, fill=np.eye(3)))))[: len(R)]
     return np.concatenate([flat[:, 0:3], axes, angles, flat[:, 9:10]], axis=1), R

@@ -31,7 +31,8 @@ from bayestouch.backend import jax, jnp
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.integrals import surface_integrals_batch
 from bayestouch.geometry.mesh import cube_sphere, to_trimesh
-from bayestouch.geometry.rotation import euler_from_matrix, rotation_matrix
+from bayestouch.geometry.rotation import euler_from_matrix
+from bayestouch.geometry.symmetry import rotation_matrices
 from bayestouch.inference.sampler import convergence
 from bayestouch.io.files import write_json
 
@@ -101,9 +102,6 @@ class PosteriorModel(NamedTuple):
     predictive_draws: int | None = None
 
 
-_rotations = jax.jit(jax.vmap(rotation_matrix))
-
-
 def mean_shape_vector(vectors) -> np.ndarray:
     """The posterior-mean n-ellipsoid (10,) of draws ``vectors (N, 10)`` (centre m, semi-axes m, angles rad, n),
     whatever alias each draw is written in.
@@ -114,7 +112,7 @@ def mean_shape_vector(vectors) -> np.ndarray:
     wherever two semi-axes are close or an angle is near its wrap, and gives a shape no draw resembles.
     """
     v = np.asarray(vectors, float)
-    R = np.asarray(_rotations(jnp.asarray(v[:, 6:9])))
+    R = rotation_matrices(v[:, 6:9])
     S = np.einsum("nij,nj,nkj->ik", R, v[:, 3:6], R) / len(v)
     axes, vec = np.linalg.eigh(S)
     axes, vec = axes[::-1], vec[:, ::-1]

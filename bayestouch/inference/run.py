@@ -329,12 +329,13 @@ def optimum_mode(
         v, g = grad(x)
         return (float(-v[0]), -g[0]) if np.isfinite(v[0]) else (1e300, np.zeros(d))
 
+    f0 = fg(x0)[0]
     res = minimize(fg, x0, jac=True, method="L-BFGS-B", bounds=box, options={"maxiter": 1000})
-    x = res.x if res.fun <= fg(x0)[0] else x0
+    x, fx = (res.x, float(res.fun)) if res.fun <= f0 else (x0, f0)
     hess = fd_hessian(fg, x, np.full(d, 1e-6), np.where(angle, -np.inf, lo), np.where(angle, np.inf, hi))
     lam, vec = np.linalg.eigh(0.5 * (hess + hess.T))
     cov = (vec / np.maximum(lam, 1.0)) @ vec.T
-    return {"theta": x, "log_post": float(-fg(x)[0]), "cov": cov}
+    return {"theta": x, "log_post": -fx, "cov": cov}
 
 
 def _laplace_draws(centre, chol, count: int, gradients, rng, tries: int = 100) -> np.ndarray:
