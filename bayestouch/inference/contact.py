@@ -33,6 +33,7 @@ __all__ = [
     "log_likelihood",
     "log_prior",
     "wrap_angles",
+    "clip_to_box",
     "ANGLE_COLUMNS",
     "sample_prior",
     "size_prior",
@@ -468,6 +469,14 @@ def log_prior(theta, bounds: Bounds):
     return jnp.where(inside, dens, -jnp.inf)
 
 
+def clip_to_box(theta, bounds: Bounds):
+    """θ (…, D) clipped into the prior box except in its Euler angles, which are periodic and pass unchanged (the
+    likelihood is periodic in them; clipping them would give every angle beyond the box the likelihood of the box
+    edge, a plateau on which the posterior is improper)."""
+    mask = _ANGLE_MASK[: theta.shape[-1]]
+    return jnp.where(mask, theta, jnp.clip(theta, bounds.lower, bounds.upper))
+
+
 def sample_prior(bounds: Bounds, count: int, rng: np.random.Generator) -> np.ndarray:
     """``count`` independent draws (count, D) of :func:`log_prior`: uniform in the box, log semi-axes normal
     (truncated to the box) and ξ from the Haar measure (cos ξ uniform).
@@ -502,7 +511,7 @@ def _free_or_none(free):
 
 def _log_prob_batch(thetas, data: _Data, bounds: Bounds, noise: str, nu: float, precision: str = "float64"):
     lp = log_prior(thetas, bounds)
-    th = jnp.clip(thetas, bounds.lower, bounds.upper)
+    th = clip_to_box(thetas, bounds)
     ll = _log_lik_mixed(th, data, noise, nu) if precision == "mixed" else _log_lik_batch(th, data, noise, nu)
     out = jnp.where(jnp.isfinite(lp), lp + ll, -jnp.inf)
     return jnp.where(jnp.isnan(out), -jnp.inf, out)
@@ -517,7 +526,7 @@ def _tempering_parts(thetas, data: _Data, bounds: Bounds, noise: str, nu: float,
         return jnp.sum(jnp.where(jnp.isfinite(lp), lp, 0.0)), lp
 
     def lik_sum(t):
-        th = jnp.clip(t, bounds.lower, bounds.upper)
+        th = clip_to_box(t, bounds)
         ll = _log_lik_mixed(th, data, noise, nu) if precision == "mixed" else _log_lik_batch(th, data, noise, nu)
         ll = jnp.where(jnp.isnan(ll), -jnp.inf, ll)
         return jnp.sum(jnp.where(jnp.isfinite(ll), ll, 0.0)), ll

@@ -127,7 +127,6 @@ def with_free(logp, bounds, free: Free):
     inside = pad_pow2(free.inside if j else np.zeros((1, 3)), min_size=8)
     w_ray = (np.arange(len(starts)) < k).astype(float)
     w_in = (np.arange(len(inside)) < j).astype(float)
-    lo, hi = np.asarray(bounds.lower), np.asarray(bounds.upper)
     args = [jnp.asarray(a) for a in (starts, dirs)] + [
         jnp.float64(free.t_max),
         jnp.asarray(inside),
@@ -138,7 +137,7 @@ def with_free(logp, bounds, free: Free):
     def f(thetas):
         th = np.asarray(thetas, dtype=np.float64)
         base = logp(th)
-        extra = np.asarray(free_log_lik(jnp.asarray(np.clip(th, lo, hi)), *args))
+        extra = np.asarray(free_log_lik(cm.clip_to_box(jnp.asarray(th), bounds), *args))
         out = np.where(np.isfinite(base), base + extra, -np.inf)
         return np.where(np.isnan(out), -np.inf, out)
 

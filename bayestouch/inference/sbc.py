@@ -183,7 +183,7 @@ def _one_log_prob(area_term: bool, likelihood_power: float):
     power = float(likelihood_power)
 
     def one(theta, pts):
-        t = jnp.clip(theta, bounds.lower, bounds.upper)
+        t = cm.clip_to_box(theta, bounds)
         ll = cm.log_likelihood(t, pts, np.inf)
         if area_term:
             ll = ll - pts.shape[0] * jnp.log(_mesh_area(t, dirs, faces))

@@ -205,7 +205,7 @@ def raw_log_prob_batch(
     lp = cm.log_prior(thetas, bounds) - 0.5 * (thetas[:, 10] / LOG_K_PRIOR_SD) ** 2
     if texture is not None:
         lp = lp + gr.texture_log_prior(thetas, texture.amplitude_scale)
-    th = jnp.clip(thetas, bounds.lower, bounds.upper)
+    th = cm.clip_to_box(thetas, bounds)
     sdf = slot_distances(th, data, texture)
     pred = jax.vmap(lambda s: distance_log_current(s, data, finger))(sdf)
     ll = jax.vmap(lambda t, p: jnp.sum(reading_log_lik(t, p, data, nu, texture)))(th, pred)
