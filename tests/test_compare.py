@@ -119,6 +119,38 @@ def test_canonicalize_batch_matches_rows(shape, rng):
     np.testing.assert_allclose(out[:25], np.broadcast_to(out[0], (25, 10)), atol=1e-9)  # the aliases
 
 
+def test_align_batch_gathers_every_alias_into_one_vector():
+    """The 24 aliases of a shape (:func:`sym.aliases`), their angles shifted by whole turns and by the Euler twin
+    (−ξ, ψ + π, ζ + π), aligned to one of them, are that one vector; each alias is the same surface (negative
+    control: before alignment the rows spread by radians)."""
+    v = np.array([0.01, -0.02, 0.03, 0.04, 0.025, 0.012, 0.9, 0.4, -1.1, 3.5])
+    al = sym.aliases(v)
+    pts = np.random.default_rng(0).normal(0, 0.03, (64, 3))
+    f0 = np.asarray(F(ne.from_vector(v), pts))
+    for row in al:
+        np.testing.assert_allclose(np.asarray(F(ne.from_vector(row), pts)), f0, rtol=1e-9)
+    rng = np.random.default_rng(1)
+    shifted = al.copy()
+    shifted[:, 6:9] += 2 * np.pi * rng.integers(-2, 3, (24, 3))
+    twin = rng.random(24) < 0.5
+    shifted[twin, 6], shifted[twin, 7], shifted[twin, 8] = (
+        -shifted[twin, 6],
+        shifted[twin, 7] + np.pi,
+        shifted[twin, 8] + np.pi,
+    )
+    assert np.ptp(shifted[:, 3:9], axis=0).max() > 3.0
+    ref = al[5]
+    out = sym.align_batch(shifted, ref)
+    np.testing.assert_allclose(out, np.broadcast_to(ref, out.shape), atol=1e-9)
+    # a slightly perturbed cloud stays compact and near the reference, in its own alias
+    cloud = np.repeat(v[None], 200, axis=0)
+    cloud[:, 6:9] += rng.normal(0, 0.05, (200, 3))
+    mixed = np.array([sym.aliases(c)[k] for c, k in zip(cloud, rng.integers(0, 24, 200), strict=True)])
+    got = sym.align_batch(mixed, ref)
+    assert np.abs(got[:, 6:9] - ref[6:9]).max() < 0.5
+    assert np.allclose(got[:, 3:6], ref[3:6])
+
+
 # ---------------------------------------------------------------------------------------- parameter distance
 
 

@@ -88,21 +88,31 @@ def test_optimum_mode_reaches_the_optimum_with_its_laplace_width():
     assert np.all(sd[3:6] < 0.03)  # every radius constrained to a few per cent
 
 
-def test_smc_moves_start_half_the_walkers_in_a_missed_mode():
-    from bayestouch.inference.run import smc_moves
+def test_smc_moves_one_component_per_mode_and_half_the_walkers_in_a_missed_mode():
+    from bayestouch.inference.run import MIXTURE_SHARE, smc_moves
 
     rng = np.random.default_rng(0)
-    particles = rng.normal(0.0, 1.0, (512, 4))
+    # two separated modes holding 75 % and 25 % of the particles
+    particles = np.vstack([rng.normal(0.0, 1.0, (768, 4)), rng.normal(0.0, 1.0, (256, 4)) + [12.0, 0, 0, 0]])
+    moves, walkers = smc_moves(particles, 32, seed=0)
+    mix, share = moves[0]
+    assert share == MIXTURE_SHARE and abs(sum(w for _, w in moves) - 1) < 1e-12
+    assert len(mix.centres) == 2
+    np.testing.assert_allclose(mix.weights, [0.75, 0.25])
+    np.testing.assert_allclose(mix.centres[1], [12.0, 0, 0, 0], atol=0.2)
+    np.testing.assert_allclose(mix.chols[0] @ mix.chols[0].T, np.eye(4), atol=0.2)  # the mode's own width
+    assert all(any(np.array_equal(w, p) for p in particles) for w in walkers)  # walkers start at particles
+    assert len(np.unique(walkers, axis=0)) == 32
     far = {"theta": np.full(4, 20.0), "cov": 0.25 * np.eye(4)}
-    start = np.arange(32)
-    moves, walkers = smc_moves(particles, start, None, np.nan, seed=0, components=64, extra_mode=far)
+    moves, walkers = smc_moves(particles, 32, seed=0, extra_mode=far)
     near = np.linalg.norm(walkers - 20.0, axis=1) < 0.5 * 6
-    assert near.sum() == 16 and np.allclose(walkers[~near], particles[start][~near])
+    assert near.sum() == 16
     mix = moves[0][0]
-    assert len(mix.centres) == 128 and np.sum(np.all(mix.centres == 20.0, axis=1)) == 64
-    # negative control: without the missed mode no walker and no component is there
-    moves0, walkers0 = smc_moves(particles, start, None, np.nan, seed=0, components=64)
-    assert not np.any(np.linalg.norm(walkers0 - 20.0, axis=1) < 3) and len(moves0[0][0].centres) == 64
+    assert len(mix.centres) == 3 and np.all(mix.centres[2] == 20.0)
+    np.testing.assert_allclose(mix.weights, [0.375, 0.125, 0.5])
+    # negative control: one Gaussian cloud is one component, no walker far away
+    moves0, walkers0 = smc_moves(particles[:768], 32, seed=0)
+    assert len(moves0[0][0].centres) == 1 and not np.any(np.linalg.norm(walkers0 - 20.0, axis=1) < 3)
 
 
 def test_mean_shape_vector_is_the_same_for_every_alias():

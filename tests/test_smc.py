@@ -155,6 +155,50 @@ def test_independence_mixture_corrects_wrong_proposal_weights():
     assert abs(ch.kept[..., 0][ch.kept[..., 0] > 0].std() - SD) < 0.05
 
 
+def test_weighted_independence_mixture_samples_the_target_not_its_weights():
+    """A mixture weighted 0.1 / 0.9 where the target holds 0.3 / 0.7: the component weights enter the proposal
+    density, so the chain still gives 0.7. Negative control: the same draws scored as if the weights were equal
+    (the weights left out of the density) give a chain that is off."""
+    centres = MU.copy()
+    chols = np.repeat(np.eye(2)[None] * 0.8, 2, axis=0)
+    w = 16
+    start = MU[np.arange(w) % 2] + 0.1 * np.random.default_rng(0).normal(size=(w, 2))
+
+    def run(mix):
+        ch = sample(
+            lambda x: _log_lik(x) + _log_prior(x),
+            start,
+            None,
+            walkers=w,
+            ndim=2,
+            seed=4,
+            steps=3000,
+            progress=False,
+            moves=[(mix, 1.0)],
+        )
+        return (ch.kept[..., 0] > 0).mean()
+
+    mix = IndependenceMixture(centres, chols, emcee.moves.DEMove(), weights=[0.9, 0.1])
+    assert np.allclose(mix.weights, [0.9, 0.1])
+    draws = mix.draw(np.random.RandomState(0), 20000)
+    assert abs(np.mean(np.linalg.norm(draws - MU[0], axis=1) < np.linalg.norm(draws - MU[1], axis=1)) - 0.9) < 0.01
+    assert abs(run(mix) - 0.7) < 0.04
+
+    class Unweighted(IndependenceMixture):
+        def log_g(self, x):
+            saved = self._log_det
+            self._log_det = saved + self._log_w
+            try:
+                return super().log_g(x)
+            finally:
+                self._log_det = saved
+
+    bad = Unweighted(centres, chols, emcee.moves.DEMove(), weights=[0.9, 0.1])
+    assert abs(run(bad) - 0.7) > 0.1
+    with pytest.raises(ValueError, match="weights"):
+        IndependenceMixture(centres, chols, emcee.moves.DEMove(), weights=[1.0, -1.0])
+
+
 def test_find_modes_two_separated_one_skewed():
     rng = np.random.default_rng(0)
     two = np.vstack([rng.normal(0, 1, (700, 2)), rng.normal([8, 0], 1, (300, 2))])

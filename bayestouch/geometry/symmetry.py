@@ -25,6 +25,8 @@ __all__ = [
     "rotation_matrices",
     "proper_signed_permutations",
     "param_distance",
+    "aliases",
+    "align_batch",
 ]
 
 #: relative tolerance under which two semi-axes count as equal in :func:`param_distance`
@@ -115,6 +117,79 @@ def canonicalize(shape: NEllipsoid) -> NEllipsoid:
     """
     v = np.asarray(ne.to_vector(shape), dtype=np.float64)
     return ne.from_vector(canonicalize_batch(v))
+
+
+# ---------------------------------------------------------------------------------------- aligned aliases
+
+
+def _euler_near(R: np.ndarray, ref_angles: np.ndarray) -> np.ndarray:
+    """Euler angles (S, 3) rad of rotations ``R (S, 3, 3)``: of the two Euler triples of each, (ξ, ψ, ζ) and
+    (−ξ, ψ + π, ζ + π), the one nearer ``ref_angles (3,)`` on the circle, shifted by multiples of 2π to lie within
+    π of it."""
+    ang = np.asarray(_euler_batch(jnp.asarray(pad_pow2(R, fill=np.eye(3)))))[: len(R)]
+    alt = np.column_stack([-ang[:, 0], ang[:, 1] + np.pi, ang[:, 2] + np.pi])
+    out, best = None, None
+    for cand in (ang, alt):
+        d = np.mod(cand - ref_angles + np.pi, 2 * np.pi) - np.pi
+        cost = np.sum(d * d, axis=1)
+        near = ref_angles + d
+        if out is None:
+            out, best = near, cost
+        else:
+            out = np.where((cost < best)[:, None], near, out)
+    return out
+
+
+def aliases(v) -> np.ndarray:
+    """The 24 parameter vectors (24, D) of one n-ellipsoid's surface: its frame R times each proper signed
+    permutation with the semi-axes permuted alike.
+
+    Parameters
+    ----------
+    v : (D ≥ 9,) float
+        Semi-axes (or any per-axis function of them, e.g. their logs) at 3:6 and Euler angles (ξ, ψ, ζ) rad at
+        6:9, as in :func:`~bayestouch.geometry.nellipsoid.to_vector` or the contact level's θ; other entries are
+        copied.
+    """
+    v = np.asarray(v, dtype=np.float64)
+    R = rotation_matrices(v[None, 6:9])[0]
+    out = np.repeat(v[None], len(_PROPER), axis=0)
+    out[:, 3:6] = v[3:6][_PERMS]
+    out[:, 6:9] = _euler_near(R[None] @ _PROPER, v[6:9])
+    return out
+
+
+def align_batch(V, ref) -> np.ndarray:
+    """Each row of ``V`` rewritten as the alias of its surface whose frame is nearest the frame of ``ref``.
+
+    Sampled Euler angles and axis labels wander between the 24 aliases of a surface (:func:`aliases`); a cloud of
+    draws of one compact posterior can therefore be scattered over many copies of it in parameter space. Aligned,
+    it is one compact cloud (the alias R P maximising trace(R_refᵀ R P) over the proper signed permutations P,
+    its Euler triple the one nearest ``ref``'s angles, unwrapped to within π of them). Each alias map preserves
+    the Haar measure on rotations, so aligned posterior draws are draws of the posterior restricted to the copy
+    about ``ref``.
+
+    Parameters
+    ----------
+    V : (S, D ≥ 9) float
+        Rows as :func:`aliases`' ``v``.
+    ref : (D ≥ 9,) float
+
+    Returns
+    -------
+    (S, D) float
+        The same surfaces.
+    """
+    V = np.asarray(V, dtype=np.float64)
+    ref = np.asarray(ref, dtype=np.float64)
+    R = rotation_matrices(V[:, 6:9])
+    R_ref = rotation_matrices(ref[None, 6:9])[0]
+    score = np.einsum("ki,skj,gji->sg", R_ref, R, _PROPER)  # trace(R_refᵀ R P)
+    g = np.argmax(score, axis=1)
+    out = V.copy()
+    out[:, 3:6] = np.take_along_axis(V[:, 3:6], _PERMS[g], axis=1)
+    out[:, 6:9] = _euler_near(R @ _PROPER[g], ref[6:9])
+    return out
 
 
 # ---------------------------------------------------------------------------------------- parameter distance

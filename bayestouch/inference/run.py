@@ -19,15 +19,15 @@ from scipy.optimize import minimize
 from bayestouch.backend import jax, jnp
 from bayestouch.errors import BadInput
 from bayestouch.geometry import nellipsoid as ne
-from bayestouch.geometry.symmetry import canonicalize_batch
+from bayestouch.geometry.symmetry import aliases, align_batch, canonicalize_batch
 from bayestouch.inference import contact as cm
 from bayestouch.inference import ffd_marginal as fm
 from bayestouch.inference.de import de_search
 from bayestouch.inference.modes import find_modes
 from bayestouch.inference.optimize import fd_hessian
 from bayestouch.inference.posterior import PosteriorModel, interval, judged_quantities, vmf_sample, write_posterior
-from bayestouch.inference.sampler import HamiltonianMove, IndependenceMixture, prune_stuck_walkers, sample
-from bayestouch.inference.smc import local_covariances, tempered_smc, tune_step_size
+from bayestouch.inference.sampler import IndependenceMixture, prune_stuck_walkers, sample
+from bayestouch.inference.smc import tempered_smc
 from bayestouch.io.files import write_json
 
 __all__ = [
@@ -40,7 +40,7 @@ __all__ = [
     "start_ball",
     "smc_stage",
     "smc_moves",
-    "smc_walkers",
+    "align_particles",
     "optimum_mode",
     "describe_modes",
     "SMC_PARTICLES",
@@ -48,7 +48,7 @@ __all__ = [
     "DENSE_POINTS",
     "surrounds",
     "SMC_ESS",
-    "MIXTURE_COMPONENTS",
+    "MIXTURE_SHARE",
 ]
 
 #: particles and conditional-ESS target of the tempered SMC that starts a default fit
@@ -66,13 +66,12 @@ DENSE_POINTS = 300
 SURROUND_FRACTION = 0.03
 #: most random-walk steps per stage after the HMC steps
 SMC_RW_STEPS = 10
-#: components of the independence mixture built from the SMC particles, and their bandwidth (fraction of each
-#: particle's neighbourhood covariance, as a scale)
-MIXTURE_COMPONENTS = 256
-MIXTURE_BANDWIDTH = 0.8
-#: particles whose covariance is a walker's inverse mass matrix (``benchmarks/bench_user_sets.py`` set 0: τ 25 steps
-#: at 256 of 2048, against 15-27 at 52 or all 2048 in 1000-step pilots)
-HMC_NEIGHBOURS = 256
+#: the independence mixture after the SMC (:func:`smc_moves`): its share of the chain's moves, the degrees of freedom
+#: of its t components and the factor on each mode's sd (``benchmarks/bench_user_sets.py``, set 11: τ 22 steps at
+#: 0.8, ν 10, scale 1.0 against 34 at ν 5, scale 1.2, and 85 with differential evolution alone)
+MIXTURE_SHARE = 0.8
+MIXTURE_NU = 10.0
+MIXTURE_SCALE = 1.0
 #: steps the chain runs even when its preparation (SMC, the optimum check) used up the budget (a few seconds)
 MIN_CHAIN_STEPS = 200
 #: an optimum this many nats above every SMC particle is a mode the SMC missed (:func:`optimum_mode`): its
@@ -263,13 +262,6 @@ def smc_stage(logp, bounds: cm.Bounds, seed: int, path: Path | None = None, *, p
     return res
 
 
-def smc_walkers(particles, walkers: int, seed: int) -> np.ndarray:
-    """Indices (walkers,) of the particles that start an emcee run after :func:`smc_stage` (distinct where there
-    are enough)."""
-    rng = np.random.default_rng([seed, 0x57A])
-    return rng.choice(len(particles), walkers, replace=len(particles) < walkers)
-
-
 def optimum_mode(
     points,
     logp,
@@ -338,9 +330,9 @@ def optimum_mode(
     return {"theta": x, "log_post": -fx, "cov": cov}
 
 
-def _laplace_draws(centre, chol, count: int, gradients, rng, tries: int = 100) -> np.ndarray:
-    """``count`` draws (count, D) of N(centre, chol cholᵀ) with a finite log-posterior (``gradients``' sum; redrawn
-    up to ``tries`` times, then the centre itself)."""
+def _laplace_draws(centre, chol, count: int, logp, rng, tries: int = 100) -> np.ndarray:
+    """``count`` draws (count, D) of N(centre, chol cholᵀ) with a finite log-posterior ``logp`` ((count, D) ->
+    (count,); redrawn up to ``tries`` times, then the centre itself)."""
     out = np.repeat(np.asarray(centre, float)[None], count, axis=0)
     todo = np.arange(count)
     for _ in range(tries):
@@ -348,41 +340,29 @@ def _laplace_draws(centre, chol, count: int, gradients, rng, tries: int = 100) -
             break
         # always ``count`` candidates: one batch shape, one compiled log-density
         y = centre + rng.standard_normal((count, len(centre))) @ chol.T
-        ok = np.ones(count, bool)
-        if gradients is not None:
-            lp, ll, _, _ = gradients(y)
-            ok = np.isfinite(np.asarray(lp, float) + np.asarray(ll, float))
+        ok = np.ones(count, bool) if logp is None else np.isfinite(np.asarray(logp(y), float))
         good = y[ok][: len(todo)]
         out[todo[: len(good)]] = good
         todo = todo[len(good) :]
     return out
 
 
-def smc_moves(
-    particles,
-    start,
-    gradients,
-    eps: float,
-    seed: int,
-    components: int = MIXTURE_COMPONENTS,
-    extra_mode: dict | None = None,
-):
-    """Moves and starting walkers of an emcee run after :func:`smc_stage`, from the posterior draws
-    ``particles (N, D)`` at indices ``start (W,)`` (:func:`smc_walkers`).
+def smc_moves(particles, walkers: int, seed: int, extra_mode: dict | None = None, logp=None):
+    """Moves and starting walkers of an emcee run after :func:`smc_stage`, from posterior draws ``particles (N, D)``
+    aligned to one alias (:func:`align_particles`).
 
-    With ``gradients`` (``make_log_prob(...)[0].parts``): Hamiltonian Monte Carlo of each walker
-    (:class:`~bayestouch.inference.sampler.HamiltonianMove`, up to 8 leapfrog steps) with the covariance of the
-    :data:`HMC_NEIGHBOURS` particles nearest its start as its inverse mass matrix and a step size from a pilot
-    run at 70 % acceptance (:func:`~bayestouch.inference.smc.tune_step_size`, from ``eps``; the pilot moves the
-    walkers, a warm-up before the chain), 90 % of the moves; 10 % an independence mixture
-    (:class:`~bayestouch.inference.sampler.IndependenceMixture`) of ``components`` t components centred on
-    distinct particles with :data:`MIXTURE_BANDWIDTH` of their neighbourhood's covariance, which can carry walkers
-    between separated modes. Without gradients: 70 % differential evolution, 30 % the mixture.
+    The particles are split into their separated modes (:func:`bayestouch.inference.modes.find_modes` on the
+    standardised θ); each mode is one multivariate t component (ν = :data:`MIXTURE_NU`) with that mode's mean and
+    covariance × :data:`MIXTURE_SCALE`², weighted by its share of the particles. The independence mixture
+    (:class:`~bayestouch.inference.sampler.IndependenceMixture`) is :data:`MIXTURE_SHARE` of the moves: a proposal
+    shaped like the posterior is accepted often and is independent of the walker's place, so walkers jump between
+    modes in one step; the rest are differential evolution (80 %) and its snooker variant (20 %), which follow the
+    local shape the mixture misses (a ridge, an outlier fraction at 0). The walkers start at distinct particles.
 
     ``extra_mode`` (:func:`optimum_mode`'s dict), a mode the particles missed: :data:`MISSED_MODE_SHARE` of the
-    walkers start from its Laplace approximation N(θ*, Σ) instead (Σ their inverse mass matrix), and as many
-    components of the mixture as there are particle components × that share over its complement are centred on
-    θ* with scale Σ, so walkers move between it and the particles' modes in both directions.
+    walkers start from its Laplace approximation N(θ*, Σ) instead (finite under ``logp``, ``(W, D) -> (W,)``), and
+    a component N(θ*, Σ) of that weight joins the mixture, so walkers move between it and the particles' modes in
+    both directions.
 
     Returns
     -------
@@ -390,29 +370,41 @@ def smc_moves(
     walkers : (W, D) float
     """
     x = np.asarray(particles, float)
+    n, d = x.shape
     rng = np.random.default_rng([seed, 0x313])
-    uniq = np.unique(x, axis=0)
-    pick = rng.choice(len(uniq), min(components, len(uniq)), replace=False)
-    chols = np.linalg.cholesky(local_covariances(uniq, max(4 * x.shape[1], 30), pick)) * MIXTURE_BANDWIDTH
-    centres = uniq[pick]
-    start = np.asarray(start, int)
-    walkers = x[start]
-    walker_chols = np.linalg.cholesky(local_covariances(x, HMC_NEIGHBOURS, start))
+    start = rng.choice(n, walkers, replace=n < walkers)
+    ws = x[start].copy()
+    lab = find_modes(x, rng)
+    centres, chols, weights = [], [], []
+    for j in range(int(lab.max()) + 1):
+        y = x[lab == j]
+        cov = np.cov(y.T) if len(y) > d else np.cov(x.T)
+        cov = cov + np.diag(1e-10 * np.diag(cov) + 1e-300)
+        centres.append(y.mean(axis=0))
+        chols.append(np.linalg.cholesky(cov) * MIXTURE_SCALE)
+        weights.append(len(y) / n)
     if extra_mode is not None:
         share = MISSED_MODE_SHARE
         chol = np.linalg.cholesky(extra_mode["cov"])
-        extra = int(round(len(centres) * share / (1 - share)))
-        centres = np.concatenate([centres, np.repeat(extra_mode["theta"][None], extra, axis=0)])
-        chols = np.concatenate([chols, np.repeat(chol[None], extra, axis=0)])
-        moved = np.arange(len(start)) < round(share * len(start))
-        walkers = walkers.copy()
-        walkers[moved] = _laplace_draws(extra_mode["theta"], chol, int(moved.sum()), gradients, rng)
-        walker_chols[moved] = chol
-    mix = IndependenceMixture(centres, chols, emcee.moves.DEMove())
-    if gradients is None or not np.isfinite(eps):
-        return [(mix, 0.3), (emcee.moves.DEMove(), 0.7)], walkers
-    eps, walkers = tune_step_size(walkers, walker_chols, gradients, rng, eps)
-    return [(HamiltonianMove(gradients, walker_chols, eps), 0.9), (mix, 0.1)], walkers
+        centres.append(np.asarray(extra_mode["theta"], float))
+        chols.append(chol)
+        weights = [w * (1 - share) for w in weights] + [share]
+        moved = np.arange(walkers) < round(share * walkers)
+        ws[moved] = _laplace_draws(extra_mode["theta"], chol, int(moved.sum()), logp, rng)
+    mix = IndependenceMixture(np.array(centres), np.array(chols), emcee.moves.DEMove(), MIXTURE_NU, weights)
+    rest = 1.0 - MIXTURE_SHARE
+    return [(mix, MIXTURE_SHARE), (emcee.moves.DEMove(), 0.8 * rest), (emcee.moves.DESnookerMove(), 0.2 * rest)], ws
+
+
+def align_particles(particles, log_post, ref=None) -> np.ndarray:
+    """Posterior draws θ (N, D) rewritten as the aliases nearest one reference frame
+    (:func:`bayestouch.geometry.symmetry.align_batch`): ``ref (D,)``, by default the alias of the
+    highest-``log_post (N,)`` particle whose Euler angle ξ is nearest π/2 (farthest from the angles' gimbal poles)."""
+    x = np.asarray(particles, float)
+    if ref is None:
+        al = aliases(x[int(np.nanargmax(log_post))])
+        ref = al[int(np.argmin(np.abs(al[:, 6] - 0.5 * np.pi)))]
+    return align_batch(x, ref)
 
 
 def describe_modes(nat, volumes, seed: int) -> list[dict]:
@@ -744,14 +736,14 @@ def run_contact_fit(
         if not resume:
             (out / "smc.npz").unlink(missing_ok=True)
         smc = smc_stage(logp, bounds, seed, out / "smc.npz", progress=progress)
-        idx = smc_walkers(smc["particles"], walkers, seed)
+        post = np.asarray(smc["log_lik"]) + np.asarray(_prior_jit(jnp.asarray(smc["particles"]), bounds))
         opt = optimum_mode(points, logp, bounds, priors, seed, sampled, theta0, batch=walkers)
-        best_particle = float(np.max(np.asarray(logp(smc["particles"]))))
+        best_particle = float(np.max(post))
         missed = opt["log_post"] - best_particle > MISSED_MODE_NATS
         smc["optimum_above_particles"] = opt["log_post"] - best_particle
-        moves, smc_start = smc_moves(
-            smc["particles"], idx, getattr(logp, "parts", None), smc["eps"], seed, extra_mode=opt if missed else None
-        )
+        # one compact cloud: the particles as the aliases nearest the best particle's (or the missed optimum's) frame
+        aligned = align_particles(smc["particles"], post, opt["theta"] if missed else None)
+        moves, smc_start = smc_moves(aligned, walkers, seed, extra_mode=opt if missed else None, logp=logp)
 
     ch = sample(
         logp,

@@ -220,15 +220,23 @@ class IndependenceMixture(IndependenceT):
         Only for emcee's bookkeeping (``update``).
     nu : float
         Degrees of freedom of every component.
+    weights : (J,) float, optional
+        Component probabilities (normalised here); default equal.
     """
 
-    def __init__(self, centres, chols, fallback, nu: float = 10.0):
+    def __init__(self, centres, chols, fallback, nu: float = 10.0, weights=None):
         super().__init__(fallback, nu)
         self.centres = np.asarray(centres, float)
         self.chols = np.asarray(chols, float)
+        w = np.ones(len(self.centres)) if weights is None else np.asarray(weights, float)
+        if w.shape != (len(self.centres),) or not np.all(w >= 0) or not w.sum() > 0:
+            raise ValueError(f"weights: expected {len(self.centres)} non-negative numbers, not all 0")
+        self.weights = w / w.sum()
         self.mean = self.centres.mean(axis=0)  # marks the move as fitted
         self._invs = np.linalg.inv(self.chols)
-        self._log_det = np.sum(np.log(np.abs(np.diagonal(self.chols, axis1=1, axis2=2))), axis=1)
+        with np.errstate(divide="ignore"):
+            self._log_w = np.log(self.weights)
+        self._log_det = np.sum(np.log(np.abs(np.diagonal(self.chols, axis1=1, axis2=2))), axis=1) - self._log_w
 
     def fit(self, draws) -> None:  # fixed: refits leave the mixture as it is
         return None
@@ -237,7 +245,7 @@ class IndependenceMixture(IndependenceT):
         return None
 
     def draw(self, random, count: int) -> np.ndarray:
-        j = random.randint(len(self.centres), size=count)
+        j = random.choice(len(self.centres), size=count, p=self.weights)
         z = random.standard_normal((count, self.centres.shape[1]))
         u = random.chisquare(self.nu, count)
         return self.centres[j] + np.einsum("wij,wj->wi", self.chols[j], z) * np.sqrt(self.nu / u)[:, None]
