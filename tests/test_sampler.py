@@ -524,6 +524,29 @@ def test_stop_rule_judges_the_monitored_quantities(tmp_path):
     assert held.steps == 2000
 
 
+def test_convergence_checks_map_each_step_through_the_monitor_once(tmp_path):
+    """The stopping rule's checks map only the steps added since the last check: the monitor sees every draw of
+    the chain exactly once over the whole run (rows counted), and the τ and burn-in it returns are those of the whole
+    monitored chain mapped at once."""
+    from bayestouch.inference.sampler import _tau_and_burn
+
+    A, y, _, _ = _problem()
+    f = _log_prob(A, y, NOISE_SD**2)
+    kw = {"walkers": 32, "ndim": D, "seed": 1, "steps": 2000, "progress": False, "stop_when_converged": True}
+    rows = []
+
+    def counting(flat):
+        rows.append(len(flat))
+        return flat[:, :2] ** 2
+
+    ch = sample(f, _start(), tmp_path / "a.h5", adapt=True, monitor=counting, **kw)
+    assert ch.steps < 2000 and sum(rows) == ch.steps * 32
+    assert len(rows) > 3  # several checks, each mapping its own new steps
+    full = _full_chain(tmp_path / "a.h5")
+    tau, burn, _ = _tau_and_burn(full[:, :, :2] ** 2, True)
+    assert ch.tau_max == float(np.max(tau)) and ch.burn == burn
+
+
 def test_convergence_checks_thin_out_geometrically_so_long_runs_stay_linear():
     from bayestouch.inference.sampler import CHECK_GROWTH, _next_check
 

@@ -629,10 +629,11 @@ def run_contact_fit(
         (:func:`surrounds`: at least :data:`DENSE_POINTS` contacts on both sides of every principal axis of the
         evolutionary-search optimum), where the posterior is one near-Gaussian mode and the optimum's ball
         converges in seconds, else ``"smc"``. ``"smc"``: from a tempered SMC from the prior (:func:`smc_stage`; the
-        particles, evidence and temperatures in ``smc.npz``), its walkers drawn from the particles and its moves
-        Hamiltonian Monte Carlo and an independence mixture built on them (:func:`smc_moves`), so separated modes
-        are found and walked between; ``"optimize"`` from a small ball around the evolutionary-search optimum
-        (:func:`initial_theta`) with the adaptive t proposal. Ignored with ``start`` or ``ffd``.
+        particles, evidence and temperatures in ``smc.npz``), its walkers drawn from the particles aligned to one
+        alias (:func:`align_particles`) and its moves mostly an independence mixture with a t component per
+        separated mode of them (:func:`smc_moves`), so separated modes are found and walked between;
+        ``"optimize"`` from a small ball around the evolutionary-search optimum (:func:`initial_theta`) with the
+        adaptive t proposal. Ignored with ``start`` or ``ffd``.
     ffd : (l, m, k) int, optional
         Refine the n-ellipsoid with an FFD lattice of this size, marginalised analytically (Gaussian noise);
         ``ffd_tau`` (m) is the prior sd of the control-point displacements. Not combined with normals or another

@@ -490,6 +490,26 @@ def monitored(chain: np.ndarray, monitor=None) -> np.ndarray:
     return np.asarray(monitor(chain.reshape(-1, d))).reshape(n, w, -1)
 
 
+class _MonitoredChain:
+    """The monitored quantities of a growing chain (:func:`monitored`), each step mapped once: a convergence check
+    maps only the steps added since the last one (the monitor is applied draw by draw)."""
+
+    def __init__(self, monitor):
+        self.monitor = monitor
+        self.values: np.ndarray | None = None
+
+    def extend(self, chain: np.ndarray) -> np.ndarray:
+        """The monitored ``chain (n, W, D)`` (n, W, Q); its first steps must be those seen before."""
+        done = 0 if self.values is None else len(self.values)
+        if self.monitor is None or done > len(chain):
+            return monitored(chain, self.monitor)
+        if done == len(chain) and self.values is not None:
+            return self.values
+        new = monitored(chain[done:], self.monitor)
+        self.values = new if self.values is None else np.concatenate([self.values, new])
+        return self.values
+
+
 def _looks_converged(chain: np.ndarray, tau, old_tau, burn: int, length: int) -> bool:
     """The stopping rule on ``chain (n, W, Q)`` (the monitored quantities): the stretch τ was estimated on is longer
     than 50 τ_max, τ_max stable within 5 % since the last check (the estimate the length rule relies on), and on
@@ -681,6 +701,7 @@ def sample(
     next_check = check_every
     while next_check <= first:
         next_check = _next_check(next_check, check_every)
+    seen = _MonitoredChain(monitor)
     if todo > 0:
         try:
             for i, _ in enumerate(
@@ -698,7 +719,7 @@ def sample(
                 if stop_when_converged and first + i >= next_check:
                     next_check = _next_check(first + i, check_every)
                     flush()
-                    chain = monitored(backend.get_chain(), monitor)
+                    chain = seen.extend(backend.get_chain())
                     tau, burn, length = _tau_and_burn(chain, adapt, skip_to)
                     if old_tau is not None and _looks_converged(chain, tau, old_tau, burn, length):
                         break
@@ -708,7 +729,7 @@ def sample(
     chain = backend.get_chain()
     lp = backend.get_log_prob()
     n_done = chain.shape[0]
-    tau, burn, length = _tau_and_burn(monitored(chain, monitor), adapt, skip_to)
+    tau, burn, length = _tau_and_burn(seen.extend(chain), adapt, skip_to)
     tau_max = float(np.nanmax(tau)) if np.isfinite(tau).any() else float("nan")
     acc = float(np.mean(sampler.acceptance_fraction)) if todo > 0 and sampler.iteration > 0 else None
     return Chain(
