@@ -393,6 +393,9 @@ def smc_moves(particles, walkers: int, seed: int, extra_mode: dict | None = None
         ws[moved] = _laplace_draws(extra_mode["theta"], chol, int(moved.sum()), logp, rng)
     mix = IndependenceMixture(np.array(centres), np.array(chols), emcee.moves.DEMove(), MIXTURE_NU, weights)
     rest = 1.0 - MIXTURE_SHARE
+    if walkers < 2 * d:  # too few walkers for red-blue moves: a random walk with the particles' covariance instead
+        cov = np.cov(x.T) + np.diag(1e-10 * np.var(x, axis=0) + 1e-300)
+        return [(mix, MIXTURE_SHARE), (emcee.moves.GaussianMove(cov * 0.25 * 2.38**2 / d), rest)], ws
     return [(mix, MIXTURE_SHARE), (emcee.moves.DEMove(), 0.8 * rest), (emcee.moves.DESnookerMove(), 0.2 * rest)], ws
 
 
