@@ -131,25 +131,29 @@ def test_hamiltonian_move_samples_a_correlated_gaussian():
     assert abs(np.corrcoef(x[:, 0], x[:, 1])[0, 1] - 0.9) < 0.05
 
 
+def _bimodal_chain(move, seed: int, walkers: int = 16):
+    """3000 steps of the 2-D bimodal target with ``move`` alone, walkers started half in each mode."""
+    start = MU[np.arange(walkers) % 2] + 0.1 * np.random.default_rng(0).normal(size=(walkers, 2))
+    return sample(
+        lambda x: _log_lik(x) + _log_prior(x),
+        start,
+        None,
+        walkers=walkers,
+        ndim=2,
+        seed=seed,
+        steps=3000,
+        progress=False,
+        moves=[(move, 1.0)],
+    )
+
+
 def test_independence_mixture_corrects_wrong_proposal_weights():
     """Target: the 2-D bimodal density (weights 0.3 / 0.7); proposal: equal weights on the two modes and too
     wide. The chain must recover 0.7, not the proposal's 0.5."""
     centres = MU.copy()
     chols = np.repeat(np.eye(2)[None] * 0.8, 2, axis=0)
     mix = IndependenceMixture(centres, chols, emcee.moves.DEMove())
-    w = 16
-    start = MU[np.arange(w) % 2] + 0.1 * np.random.default_rng(0).normal(size=(w, 2))
-    ch = sample(
-        lambda x: _log_lik(x) + _log_prior(x),
-        start,
-        None,
-        walkers=w,
-        ndim=2,
-        seed=3,
-        steps=3000,
-        progress=False,
-        moves=[(mix, 1.0)],
-    )
+    ch = _bimodal_chain(mix, seed=3)
     right = (ch.kept[..., 0] > 0).mean()
     assert abs(right - 0.7) < 0.04
     assert abs(ch.kept[..., 0][ch.kept[..., 0] > 0].std() - SD) < 0.05
@@ -161,22 +165,9 @@ def test_weighted_independence_mixture_samples_the_target_not_its_weights():
     (the weights left out of the density) give a chain that is off."""
     centres = MU.copy()
     chols = np.repeat(np.eye(2)[None] * 0.8, 2, axis=0)
-    w = 16
-    start = MU[np.arange(w) % 2] + 0.1 * np.random.default_rng(0).normal(size=(w, 2))
 
     def run(mix):
-        ch = sample(
-            lambda x: _log_lik(x) + _log_prior(x),
-            start,
-            None,
-            walkers=w,
-            ndim=2,
-            seed=4,
-            steps=3000,
-            progress=False,
-            moves=[(mix, 1.0)],
-        )
-        return (ch.kept[..., 0] > 0).mean()
+        return (_bimodal_chain(mix, seed=4).kept[..., 0] > 0).mean()
 
     mix = IndependenceMixture(centres, chols, emcee.moves.DEMove(), weights=[0.9, 0.1])
     assert np.allclose(mix.weights, [0.9, 0.1])

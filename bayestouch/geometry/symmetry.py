@@ -127,17 +127,10 @@ def _euler_near(R: np.ndarray, ref_angles: np.ndarray) -> np.ndarray:
     (−ξ, ψ + π, ζ + π), the one nearer ``ref_angles (3,)`` on the circle, shifted by multiples of 2π to lie within
     π of it."""
     ang = np.asarray(_euler_batch(jnp.asarray(pad_pow2(R, fill=np.eye(3)))))[: len(R)]
-    alt = np.column_stack([-ang[:, 0], ang[:, 1] + np.pi, ang[:, 2] + np.pi])
-    out, best = None, None
-    for cand in (ang, alt):
-        d = np.mod(cand - ref_angles + np.pi, 2 * np.pi) - np.pi
-        cost = np.sum(d * d, axis=1)
-        near = ref_angles + d
-        if out is None:
-            out, best = near, cost
-        else:
-            out = np.where((cost < best)[:, None], near, out)
-    return out
+    twin = np.column_stack([-ang[:, 0], ang[:, 1] + np.pi, ang[:, 2] + np.pi])
+    d, d_twin = (np.mod(a - ref_angles + np.pi, 2 * np.pi) - np.pi for a in (ang, twin))
+    better = np.sum(d_twin * d_twin, axis=1) < np.sum(d * d, axis=1)
+    return ref_angles + np.where(better[:, None], d_twin, d)
 
 
 def aliases(v) -> np.ndarray:

@@ -253,7 +253,6 @@ def smc_stage(logp, bounds: cm.Bounds, seed: int, path: Path | None = None, *, p
         "log_evidence": r.log_evidence,
         "betas": r.betas,
         "complete": bool(r.complete),
-        "eps": float(r.eps),
         "evaluations": int(r.evaluations),
         "seconds": float(r.seconds),
     }
@@ -374,12 +373,16 @@ def smc_moves(particles, walkers: int, seed: int, extra_mode: dict | None = None
     rng = np.random.default_rng([seed, 0x313])
     start = rng.choice(n, walkers, replace=n < walkers)
     ws = x[start].copy()
+
+    def ridged_cov(y):
+        cov = np.cov(y.T)
+        return cov + np.diag(1e-10 * np.diag(cov) + 1e-300)
+
     lab = find_modes(x, rng)
     centres, chols, weights = [], [], []
     for j in range(int(lab.max()) + 1):
         y = x[lab == j]
-        cov = np.cov(y.T) if len(y) > d else np.cov(x.T)
-        cov = cov + np.diag(1e-10 * np.diag(cov) + 1e-300)
+        cov = ridged_cov(y if len(y) > d else x)
         centres.append(y.mean(axis=0))
         chols.append(np.linalg.cholesky(cov) * MIXTURE_SCALE)
         weights.append(len(y) / n)
@@ -394,8 +397,7 @@ def smc_moves(particles, walkers: int, seed: int, extra_mode: dict | None = None
     mix = IndependenceMixture(np.array(centres), np.array(chols), emcee.moves.DEMove(), MIXTURE_NU, weights)
     rest = 1.0 - MIXTURE_SHARE
     if walkers < 2 * d:  # too few walkers for red-blue moves: a random walk with the particles' covariance instead
-        cov = np.cov(x.T) + np.diag(1e-10 * np.var(x, axis=0) + 1e-300)
-        return [(mix, MIXTURE_SHARE), (emcee.moves.GaussianMove(cov * 0.25 * 2.38**2 / d), rest)], ws
+        return [(mix, MIXTURE_SHARE), (emcee.moves.GaussianMove(ridged_cov(x) * 0.25 * 2.38**2 / d), rest)], ws
     return [(mix, MIXTURE_SHARE), (emcee.moves.DEMove(), 0.8 * rest), (emcee.moves.DESnookerMove(), 0.2 * rest)], ws
 
 

@@ -500,13 +500,12 @@ class _MonitoredChain:
 
     def extend(self, chain: np.ndarray) -> np.ndarray:
         """The monitored ``chain (n, W, D)`` (n, W, Q); its first steps must be those seen before."""
+        if self.monitor is None:
+            return chain
         done = 0 if self.values is None else len(self.values)
-        if self.monitor is None or done > len(chain):
-            return monitored(chain, self.monitor)
-        if done == len(chain) and self.values is not None:
-            return self.values
-        new = monitored(chain[done:], self.monitor)
-        self.values = new if self.values is None else np.concatenate([self.values, new])
+        if done < len(chain):
+            new = monitored(chain[done:], self.monitor)
+            self.values = new if self.values is None else np.concatenate([self.values, new])
         return self.values
 
 
