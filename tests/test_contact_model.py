@@ -393,3 +393,53 @@ def test_precision_option_checks():
     f, _ = cm.make_log_prob(pts)
     f64, _ = cm.make_log_prob(pts, precision="float64")
     assert np.array_equal(f(TRUTH[None]), f64(TRUTH[None]))
+
+
+def test_padded_log_prob_equals_the_unpadded_sum_and_sizes_share_one_program():
+    """make_log_prob pads the data to padded_size columns masked out of every sum: its value (float64 and mixed
+    precision, contacts and free-space points, outlier noise) and its tempering gradient equal the unpadded
+    pointwise terms' sum; two data sets in one size bucket compile one program (negative control: a set in the
+    next bucket compiles another)."""
+    sizes = [cm.padded_size(n) for n in range(1, 3000)]
+    n = np.arange(1, 3000)
+    assert np.all(np.diff(sizes) >= 0) and np.all(np.asarray(sizes) >= n) and np.all(np.asarray(sizes) % 8 == 0)
+    assert np.all(np.asarray(sizes)[n > 64] <= 1.19 * n[n > 64] + 8)
+    rng = np.random.default_rng(5)
+    s = ne.NEllipsoid(jnp.zeros(3), jnp.array([0.03, 0.02, 0.015]), jnp.array([0.3, 0.5, 0.2]), jnp.asarray(3.0))
+    pts = sample_surface(s, 90, 5) + rng.normal(0, 3e-4, (90, 3))
+    free = pts[:12] * 1.4
+    assert cm.padded_size(90 + 12) > 102
+    priors = cm.load_priors()
+    for precision in ("float64", "mixed"):
+        f, b = cm.make_log_prob(pts, priors, noise="outlier", precision=precision, free=free)
+        th = np.column_stack(
+            [
+                rng.normal(0, 1e-3, (6, 3)),
+                np.log([[0.03, 0.02, 0.015]] * 6),
+                [[0.3, 0.5, 0.2]] * 6,
+                np.full((6, 1), np.log(3.0)),
+                np.full((6, 1), np.log(3e-4)),
+                np.full((6, 2), 0.02),
+            ]
+        )
+        ref = cm.pointwise_log_likelihood(th, pts, noise="outlier", free=free, free_miss=priors.free_miss).sum(axis=1)
+        ref = ref + np.asarray(cm.log_prior(jnp.asarray(th), b))
+        tol = 1e-9 if precision == "float64" else 1e-3
+        np.testing.assert_allclose(f(th), ref, rtol=0, atol=tol)
+        _, ll, _, g = f.parts(th)
+        assert np.all(np.isfinite(g))
+        if precision == "float64":  # the masked columns add nothing to the gradient: finite differences agree
+            h = 1e-7
+            e = np.zeros_like(th)
+            e[:, 3] = h
+            fd = (f.parts(th + e)[1] - f.parts(th - e)[1]) / (2 * h)
+            np.testing.assert_allclose(g[:, 3], fd, rtol=1e-5)
+    jit = cm._log_prob_jit
+    f1, b1 = cm.make_log_prob(pts[:70], priors, noise="outlier")
+    f1(th[:2])
+    before = jit._cache_size()
+    cm.make_log_prob(pts[:75], priors, noise="outlier")[0](th[:2])  # 70 and 75 share the bucket of 80
+    assert cm.padded_size(70) == cm.padded_size(75) == 80 and cm.padded_size(81) == 96
+    assert jit._cache_size() == before
+    cm.make_log_prob(pts[:81], priors, noise="outlier")[0](th[:2])  # 81 pads to 96: a new program
+    assert jit._cache_size() == before + 1
