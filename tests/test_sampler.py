@@ -561,3 +561,32 @@ def test_convergence_checks_thin_out_geometrically_so_long_runs_stay_linear():
     assert len(lengths) < 60
     # a gap never exceeds the growth fraction by more than one check interval (the run stops at most ~10 % late)
     assert np.all(gaps <= CHECK_GROWTH * np.asarray(lengths[:-1]) + 100)
+
+
+def test_thinned_autocorrelation_time_is_the_whole_chains_and_falls_back_when_tau_is_short():
+    """The convergence checks read τ from a long chain thinned to ~CHECK_STEPS steps: on AR(1) walkers with
+    τ = (1 + ρ)/(1 − ρ) = 100 and 20,000 steps it equals the whole chain's estimate within 5 % (and the truth within
+    the estimator's error); with τ ≈ 3 thinning would report ~k instead (negative control: thinned by hand, the
+    estimate is 3× too large) and the whole chain is read."""
+    from bayestouch.inference import sampler as S
+
+    rng = np.random.default_rng(0)
+
+    def ar1(tau, n, w=16):
+        rho = (tau - 1) / (tau + 1)
+        x = np.empty((n, w, 1))
+        x[0] = rng.normal(size=(w, 1))
+        e = rng.normal(size=(n, w, 1)) * np.sqrt(1 - rho**2)
+        for t in range(1, n):
+            x[t] = rho * x[t - 1] + e[t]
+        return x
+
+    long = ar1(100.0, 20000)
+    full, thin = S.integrated_time(long)[0], S._thinned_time(long)[0]
+    assert 20000 // S.CHECK_STEPS > 1
+    assert abs(thin / full - 1) < 0.05 and abs(full / 100 - 1) < 0.15
+    fast = ar1(3.0, 20000)
+    k = 20000 // S.CHECK_STEPS
+    by_hand = S.integrated_time(fast[::k])[0] * k
+    assert by_hand > 2 * S.integrated_time(fast)[0]
+    assert S._thinned_time(fast)[0] == S.integrated_time(fast)[0]

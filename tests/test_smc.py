@@ -202,3 +202,31 @@ def test_find_modes_two_separated_one_skewed():
     # two overlapping Gaussians 2 sds apart are one mode
     close = np.vstack([rng.normal(0, 1, (500, 2)), rng.normal([2, 0], 1, (500, 2))])
     assert find_modes(close, rng).max() == 0
+
+
+def test_gaussian_mixture_recovers_a_known_mixture_and_bic_picks_its_size():
+    """EM + BIC on draws of a known two-component mixture in 6 dimensions (weights 0.7/0.3, distinct
+    covariances, scales from 1e-3 to 1 as θ's centre and log-axes have): weights, means and covariances within
+    a few Monte Carlo standard errors, K = 2; negative control: one Gaussian gives K = 1."""
+    from bayestouch.inference.modes import gaussian_mixture
+
+    rng = np.random.default_rng(3)
+    d, n = 6, 3000
+    scale = np.array([1e-3, 1e-3, 1.0, 0.1, 0.1, 1.0])
+    A = rng.normal(size=(d, d)) * 0.3 + np.eye(d)
+    cov0, cov1 = A @ A.T, np.diag(rng.uniform(0.2, 1.0, d))
+    mu1 = np.full(d, 4.0)
+    k = rng.random(n) < 0.7
+    z = np.where(k[:, None], rng.multivariate_normal(np.zeros(d), cov0, n), rng.multivariate_normal(mu1, cov1, n))
+    w, mu, cov = gaussian_mixture(z * scale, rng)
+    assert len(w) == 2
+    se_w = np.sqrt(0.21 / n)
+    assert abs(w[0] - 0.7) < 4 * se_w
+    np.testing.assert_allclose(mu[0] / scale, 0.0, atol=4 * np.sqrt(np.diag(cov0).max() / (0.7 * n)))
+    np.testing.assert_allclose(mu[1] / scale, mu1, atol=4 * np.sqrt(1.0 / (0.3 * n)))
+    np.testing.assert_allclose(cov[0] / np.outer(scale, scale), cov0, atol=0.15 * np.diag(cov0).max())
+    np.testing.assert_allclose(cov[1] / np.outer(scale, scale), cov1, atol=0.15)
+    one = rng.multivariate_normal(np.zeros(d), cov0, n) * scale
+    assert len(gaussian_mixture(one, rng)[0]) == 1
+    with pytest.raises(ValueError, match="more than D"):
+        gaussian_mixture(one[:6], rng)

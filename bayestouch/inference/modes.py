@@ -14,13 +14,30 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.cluster.hierarchy import fcluster, linkage
+from scipy.linalg import solve_triangular
 
-__all__ = ["find_modes", "MAX_MODES", "MIN_WEIGHT", "SEPARATION", "MAX_DRAWS"]
+__all__ = [
+    "find_modes",
+    "gaussian_mixture",
+    "MAX_MODES",
+    "MIN_WEIGHT",
+    "SEPARATION",
+    "MAX_DRAWS",
+    "MAX_COMPONENTS",
+]
 
 MAX_MODES = 4
 MIN_WEIGHT = 0.03
 SEPARATION = 4.0
 MAX_DRAWS = 2000
+#: most components :func:`gaussian_mixture` tries
+MAX_COMPONENTS = 6
+#: EM of :func:`gaussian_mixture`: ridge on each standardised covariance, iterations, tolerance on the mean
+#: log-likelihood per draw, random starts per component count
+_EM_RIDGE = 1e-6
+_EM_ITERATIONS = 100
+_EM_TOL = 1e-4
+_EM_STARTS = 2
 
 
 def _separation(a: np.ndarray, b: np.ndarray) -> float:
@@ -75,3 +92,101 @@ def find_modes(features, rng: np.random.Generator) -> np.ndarray:
         full = best
     order = np.argsort(-np.bincount(full))
     return np.argsort(order)[full]
+
+
+def _log_gauss(z, means, covs):
+    """log N(z_i | means_k, covs_k) (N, K) of rows ``z (N, D)``, and whether every covariance is positive definite."""
+    n, d = z.shape
+    out = np.empty((n, len(means)))
+    for k, (mu, cov) in enumerate(zip(means, covs, strict=True)):
+        try:
+            chol = np.linalg.cholesky(cov)
+        except np.linalg.LinAlgError:
+            return out, False
+        y = solve_triangular(chol, (z - mu).T, lower=True)
+        out[:, k] = -0.5 * np.sum(y * y, axis=0) - np.sum(np.log(np.diag(chol))) - 0.5 * d * np.log(2 * np.pi)
+    return out, True
+
+
+def _em(z, labels, k):
+    """EM from the hard assignment ``labels (N,)`` in 0 … k − 1: (log-likelihood, weights, means, covs), or None
+    when a component collapses (fewer than D + 1 draws' worth of weight)."""
+    n, d = z.shape
+    resp = np.eye(k)[labels]
+    ll_old = -np.inf
+    for _ in range(_EM_ITERATIONS):
+        nk = resp.sum(axis=0)
+        if nk.min() < d + 1:
+            return None
+        means = (resp.T @ z) / nk[:, None]
+        covs = np.array([((resp[:, j, None] * (z - means[j])).T @ (z - means[j])) / nk[j] for j in range(k)])
+        covs += _EM_RIDGE * np.eye(d)[None]
+        weights = nk / n
+        lg, ok = _log_gauss(z, means, covs)
+        if not ok:
+            return None
+        joint = lg + np.log(weights)[None]
+        norm = np.logaddexp.reduce(joint, axis=1)
+        ll = float(norm.sum())
+        resp = np.exp(joint - norm[:, None])
+        if ll - ll_old < _EM_TOL * n:
+            break
+        ll_old = ll
+    return ll, weights, means, covs
+
+
+def _kmeanspp(z, k, rng):
+    """Hard assignment (N,) to ``k`` centres chosen by k-means++ seeding (Arthur & Vassilvitskii 2007)."""
+    centres = [z[rng.integers(len(z))]]
+    for _ in range(1, k):
+        d2 = np.min(((z[:, None, :] - np.array(centres)[None]) ** 2).sum(axis=2), axis=1)
+        centres.append(z[rng.choice(len(z), p=d2 / d2.sum())])
+    return np.argmin(((z[:, None, :] - np.array(centres)[None]) ** 2).sum(axis=2), axis=1)
+
+
+def gaussian_mixture(x, rng: np.random.Generator, max_components: int = MAX_COMPONENTS):
+    """A Gaussian mixture fitted to draws ``x (N, D)`` by EM (Dempster, Laird & Rubin 1977), the number of
+    components K ≤ ``max_components`` chosen by the Bayesian information criterion (Schwarz 1978).
+
+    The mixture describes a posterior's shape beyond its separated modes: a skewed or curved mode takes several
+    overlapping components. EM runs in coordinates standardised by each column's sd (a ridge of :data:`_EM_RIDGE`
+    keeps every covariance positive definite), from :data:`_EM_STARTS` k-means++ starts per K; a K whose
+    components collapse is skipped.
+
+    Parameters
+    ----------
+    x : (N, D) float
+        Draws, N > D + 1.
+    rng : np.random.Generator
+        Seeds the starts.
+    max_components : int
+        Largest K tried (at most N // (D + 1)).
+
+    Returns
+    -------
+    weights : (K,) float
+        Component probabilities, summing to 1, heaviest first.
+    means : (K, D) float
+    covs : (K, D, D) float
+        In the units of ``x``.
+    """
+    x = np.asarray(x, float)
+    n, d = x.shape
+    if n <= d + 1:
+        raise ValueError(f"gaussian_mixture: x needs more than D + 1 = {d + 1} draws, got {n}")
+    loc, scale = x.mean(axis=0), x.std(axis=0) + 1e-300
+    z = (x - loc) / scale
+    best, best_bic = None, np.inf
+    for k in range(1, max(1, min(int(max_components), n // (d + 1))) + 1):
+        starts = 1 if k == 1 else _EM_STARTS
+        fits = [_em(z, np.zeros(n, int) if k == 1 else _kmeanspp(z, k, rng), k) for _ in range(starts)]
+        fits = [f for f in fits if f is not None]
+        if not fits:
+            continue
+        ll, w, mu, cov = max(fits, key=lambda f: f[0])
+        bic = -2.0 * ll + (k - 1 + k * d + k * d * (d + 1) / 2) * np.log(n)
+        if bic < best_bic:
+            best, best_bic = (w, mu, cov), bic
+    w, mu, cov = best
+    order = np.argsort(-w)
+    return w[order], loc + mu[order] * scale, cov[order] * np.outer(scale, scale)[None]

@@ -23,7 +23,7 @@ from bayestouch.geometry.symmetry import aliases, align_batch, canonicalize_batc
 from bayestouch.inference import contact as cm
 from bayestouch.inference import ffd_marginal as fm
 from bayestouch.inference.de import de_search
-from bayestouch.inference.modes import find_modes
+from bayestouch.inference.modes import find_modes, gaussian_mixture
 from bayestouch.inference.optimize import fd_hessian
 from bayestouch.inference.posterior import PosteriorModel, interval, judged_quantities, vmf_sample, write_posterior
 from bayestouch.inference.sampler import IndependenceMixture, prune_stuck_walkers, sample
@@ -70,6 +70,8 @@ SMC_RW_STEPS = 10
 #: of its t components and the factor on each mode's sd (``benchmarks/bench_user_sets.py``, set 11: τ 22 steps at
 #: 0.8, ν 10, scale 1.0 against 34 at ν 5, scale 1.2, and 85 with differential evolution alone)
 MIXTURE_SHARE = 0.8
+#: sampled parameters that the independence mixture proposes in log space (positive, their mass often piled near 0)
+POSITIVE_NEAR_ZERO = ("w_outlier", "w_in", "w_out")
 MIXTURE_NU = 10.0
 MIXTURE_SCALE = 1.0
 #: steps the chain runs even when its preparation (SMC, the optimum check) used up the budget (a few seconds)
@@ -346,22 +348,24 @@ def _laplace_draws(centre, chol, count: int, logp, rng, tries: int = 100) -> np.
     return out
 
 
-def smc_moves(particles, walkers: int, seed: int, extra_mode: dict | None = None, logp=None):
+def smc_moves(particles, walkers: int, seed: int, extra_mode: dict | None = None, logp=None, log_columns=()):
     """Moves and starting walkers of an emcee run after :func:`smc_stage`, from posterior draws ``particles (N, D)``
     aligned to one alias (:func:`align_particles`).
 
-    The particles are split into their separated modes (:func:`bayestouch.inference.modes.find_modes` on the
-    standardised θ); each mode is one multivariate t component (ν = :data:`MIXTURE_NU`) with that mode's mean and
-    covariance × :data:`MIXTURE_SCALE`², weighted by its share of the particles. The independence mixture
-    (:class:`~bayestouch.inference.sampler.IndependenceMixture`) is :data:`MIXTURE_SHARE` of the moves: a proposal
-    shaped like the posterior is accepted often and is independent of the walker's place, so walkers jump between
-    modes in one step; the rest are differential evolution (80 %) and its snooker variant (20 %), which follow the
-    local shape the mixture misses (a ridge, an outlier fraction at 0). The walkers start at distinct particles.
+    A Gaussian mixture is fitted to the particles (:func:`bayestouch.inference.modes.gaussian_mixture`: EM, the
+    number of components by BIC), in coordinates where ``log_columns`` (positive parameters piled near 0, such as
+    outlier fractions) are logarithms; each component becomes a multivariate t (ν = :data:`MIXTURE_NU`, covariance
+    × :data:`MIXTURE_SCALE`²) of the same weight. Separated modes take components of their own, and a skewed or
+    curved mode (an unseen semi-axis bounded on one side by the contacts, open on the other) several. The
+    independence mixture (:class:`~bayestouch.inference.sampler.IndependenceMixture`) is :data:`MIXTURE_SHARE`
+    of the moves: a proposal shaped like the posterior is accepted often and is independent of the walker's place,
+    so walkers jump between modes in one step; the rest are differential evolution (80 %) and its snooker variant
+    (20 %), which follow the local shape the mixture misses. The walkers start at distinct particles.
 
     ``extra_mode`` (:func:`optimum_mode`'s dict), a mode the particles missed: :data:`MISSED_MODE_SHARE` of the
     walkers start from its Laplace approximation N(θ*, Σ) instead (finite under ``logp``, ``(W, D) -> (W,)``), and
-    a component N(θ*, Σ) of that weight joins the mixture, so walkers move between it and the particles' modes in
-    both directions.
+    a component of that weight fitted to such draws joins the mixture, so walkers move between it and the
+    particles' modes in both directions.
 
     Returns
     -------
@@ -370,34 +374,37 @@ def smc_moves(particles, walkers: int, seed: int, extra_mode: dict | None = None
     """
     x = np.asarray(particles, float)
     n, d = x.shape
+    cols = np.asarray(log_columns, int)
     rng = np.random.default_rng([seed, 0x313])
     start = rng.choice(n, walkers, replace=n < walkers)
     ws = x[start].copy()
 
-    def ridged_cov(y):
-        cov = np.cov(y.T)
+    def to_mixture_space(y):
+        u = np.array(y, dtype=float)
+        u[:, cols] = np.log(np.maximum(u[:, cols], 1e-300))
+        return u
+
+    def ridged(cov):
         return cov + np.diag(1e-10 * np.diag(cov) + 1e-300)
 
-    lab = find_modes(x, rng)
-    centres, chols, weights = [], [], []
-    for j in range(int(lab.max()) + 1):
-        y = x[lab == j]
-        cov = ridged_cov(y if len(y) > d else x)
-        centres.append(y.mean(axis=0))
-        chols.append(np.linalg.cholesky(cov) * MIXTURE_SCALE)
-        weights.append(len(y) / n)
+    weights, centres, covs = gaussian_mixture(to_mixture_space(x), rng)
+    weights, centres = list(weights), list(centres)
+    chols = [np.linalg.cholesky(ridged(c)) * MIXTURE_SCALE for c in covs]
     if extra_mode is not None:
         share = MISSED_MODE_SHARE
         chol = np.linalg.cholesky(extra_mode["cov"])
-        centres.append(np.asarray(extra_mode["theta"], float))
-        chols.append(chol)
+        near = to_mixture_space(_laplace_draws(extra_mode["theta"], chol, max(4 * d, 256), logp, rng))
+        centres.append(near.mean(axis=0))
+        chols.append(np.linalg.cholesky(ridged(np.cov(near.T))))
         weights = [w * (1 - share) for w in weights] + [share]
         moved = np.arange(walkers) < round(share * walkers)
         ws[moved] = _laplace_draws(extra_mode["theta"], chol, int(moved.sum()), logp, rng)
-    mix = IndependenceMixture(np.array(centres), np.array(chols), emcee.moves.DEMove(), MIXTURE_NU, weights)
+    mix = IndependenceMixture(
+        np.array(centres), np.array(chols), emcee.moves.DEMove(), MIXTURE_NU, weights, log_columns=cols
+    )
     rest = 1.0 - MIXTURE_SHARE
     if walkers < 2 * d:  # too few walkers for red-blue moves: a random walk with the particles' covariance instead
-        return [(mix, MIXTURE_SHARE), (emcee.moves.GaussianMove(ridged_cov(x) * 0.25 * 2.38**2 / d), rest)], ws
+        return [(mix, MIXTURE_SHARE), (emcee.moves.GaussianMove(ridged(np.cov(x.T)) * 0.25 * 2.38**2 / d), rest)], ws
     return [(mix, MIXTURE_SHARE), (emcee.moves.DEMove(), 0.8 * rest), (emcee.moves.DESnookerMove(), 0.2 * rest)], ws
 
 
@@ -749,7 +756,10 @@ def run_contact_fit(
         smc["optimum_above_particles"] = opt["log_post"] - best_particle
         # one compact cloud: the particles as the aliases nearest the best particle's (or the missed optimum's) frame
         aligned = align_particles(smc["particles"], post, opt["theta"] if missed else None)
-        moves, smc_start = smc_moves(aligned, walkers, seed, extra_mode=opt if missed else None, logp=logp)
+        positive = [i for i, name in enumerate(sampled) if name in POSITIVE_NEAR_ZERO]
+        moves, smc_start = smc_moves(
+            aligned, walkers, seed, extra_mode=opt if missed else None, logp=logp, log_columns=positive
+        )
 
     ch = sample(
         logp,

@@ -17,7 +17,6 @@ import emcee
 import numpy as np
 import xarray as xr
 from emcee.state import State
-from scipy.special import logsumexp
 from scipy.stats import chi2
 
 from bayestouch.errors import BadInput
@@ -48,6 +47,11 @@ TAU_FACTOR = 50.0
 #: convergence checks are spaced by at least this fraction of the chain's length: each check reads the whole chain
 #: (τ, R-hat, ESS are O(length)), so checks at a fixed interval made long runs quadratic in their length
 CHECK_GROWTH = 0.1
+#: a convergence check reads a long chain thinned to about this many steps, provided the thinning interval stays
+#: below a tenth of τ_max (so τ, R-hat and bulk ESS are those of the whole chain to a few per cent); a check that
+#: passes on the thinned chain is confirmed on the whole one
+CHECK_STEPS = 2000
+CHECK_STEPS_PER_TAU = 10.0
 #: first step at which an adaptive run (``sample(..., adapt=True)``) fits its independence proposal; later fits at
 #: twice, four times … that step
 ADAPT_FIRST = 100
@@ -222,10 +226,15 @@ class IndependenceMixture(IndependenceT):
         Degrees of freedom of every component.
     weights : (J,) float, optional
         Component probabilities (normalised here); default equal.
+    log_columns : sequence of int, optional
+        Coordinates that are positive (e.g. outlier fractions near 0): the mixture lives in the space where they
+        are logarithms (``centres`` and ``chols`` there), so a proposal never leaves their support and a mass
+        piled near 0 is a Gaussian in log space; the density carries the Jacobian Π 1/x_j.
     """
 
-    def __init__(self, centres, chols, fallback, nu: float = 10.0, weights=None):
+    def __init__(self, centres, chols, fallback, nu: float = 10.0, weights=None, log_columns=()):
         super().__init__(fallback, nu)
+        self.log_columns = np.asarray(log_columns, int)
         self.centres = np.asarray(centres, float)
         self.chols = np.asarray(chols, float)
         w = np.ones(len(self.centres)) if weights is None else np.asarray(weights, float)
@@ -248,15 +257,24 @@ class IndependenceMixture(IndependenceT):
         j = random.choice(len(self.centres), size=count, p=self.weights)
         z = random.standard_normal((count, self.centres.shape[1]))
         u = random.chisquare(self.nu, count)
-        return self.centres[j] + np.einsum("wij,wj->wi", self.chols[j], z) * np.sqrt(self.nu / u)[:, None]
+        y = self.centres[j] + np.einsum("wij,wj->wi", self.chols[j], z) * np.sqrt(self.nu / u)[:, None]
+        y[:, self.log_columns] = np.exp(y[:, self.log_columns])
+        return y
 
     def log_g(self, x) -> np.ndarray:
-        """Log proposal density (W,) at ``x (W, D)`` up to a constant."""
-        x = np.atleast_2d(np.asarray(x, float))
-        z = np.einsum("jab,wjb->wja", self._invs, x[:, None, :] - self.centres[None])
+        """Log proposal density (W,) at ``x (W, D)`` up to a constant; −inf where a ``log_columns`` entry is ≤ 0."""
+        y = np.array(np.atleast_2d(x), dtype=float)
+        pos = y[:, self.log_columns]
+        ok = np.all(pos > 0, axis=1)
+        logs = np.log(np.where(pos > 0, pos, 1.0))
+        y[:, self.log_columns] = logs
+        z = np.einsum("jab,wjb->wja", self._invs, y[:, None, :] - self.centres[None])
         q = np.sum(z * z, axis=2)  # (W, J)
         d = self.centres.shape[1]
-        return logsumexp(-0.5 * (self.nu + d) * np.log1p(q / self.nu) - self._log_det[None], axis=1)
+        lc = -0.5 * (self.nu + d) * np.log1p(q / self.nu) - self._log_det[None]  # (W, J)
+        top = lc.max(axis=1)  # finite: a component of positive weight has a finite density everywhere
+        out = top + np.log(np.sum(np.exp(lc - top[:, None]), axis=1))
+        return np.where(ok, out - np.sum(logs, axis=1), -np.inf)
 
 
 def leapfrog(x, r, chols, eps: float, steps: int, grad):
@@ -462,14 +480,33 @@ def _stationary(log_prob) -> bool:
     return bool(abs(lp[h:].mean() - lp[:h].mean()) < lp[h:].std())
 
 
-def _tau_and_burn(chain: np.ndarray, adapt: bool, first: int = ADAPT_FIRST) -> tuple[np.ndarray, int, int]:
+def _thinned_time(seg: np.ndarray) -> np.ndarray:
+    """:func:`integrated_time` of ``seg (n, W, D)`` from every k-th step, k = n // :data:`CHECK_STEPS`, times k,
+    where the thinned chain's largest τ is at least :data:`CHECK_STEPS_PER_TAU` steps (τ_k ≈ τ/k there: thinning
+    by k ≤ τ/10 loses nothing of the estimate); from the whole chain otherwise. Only the largest τ is exact this
+    way: a parameter with τ below k comes out near k."""
+    k = len(seg) // CHECK_STEPS
+    if k > 1:
+        tau = integrated_time(seg[::k])
+        if np.all(np.isfinite(tau)) and np.max(tau) >= CHECK_STEPS_PER_TAU:
+            return tau * k
+    return integrated_time(seg)
+
+
+def _tau_and_burn(
+    chain: np.ndarray, adapt: bool, first: int = ADAPT_FIRST, thin: bool = False
+) -> tuple[np.ndarray, int, int]:
     """Integrated autocorrelation times (D,) of ``chain (n, W, D)``, the burn-in and the length of the stretch τ
     was estimated on. An adaptive chain is judged after its first adaptation (step ``first``), where the
-    kernel of its kept draws begins; burn-in there is :func:`_burn_in` of that stretch."""
+    kernel of its kept draws begins; burn-in there is :func:`_burn_in` of that stretch. ``thin``: τ of a long
+    chain from a thinned copy (:func:`_thinned_time`; the convergence checks), whose largest τ only is exact."""
     n = chain.shape[0]
     skip = first if adapt and n > first else 0
     seg = chain[skip:]
-    tau = integrated_time(seg) if len(seg) > 1 else np.full(chain.shape[2], np.nan)
+    if len(seg) <= 1:
+        tau = np.full(chain.shape[2], np.nan)
+    else:
+        tau = _thinned_time(seg) if thin else integrated_time(seg)
     tau_max = float(np.nanmax(tau)) if np.isfinite(tau).any() else float("nan")
     return tau, skip + _burn_in(len(seg), tau_max), len(seg)
 
@@ -522,10 +559,16 @@ def _looks_converged(chain: np.ndarray, tau, old_tau, burn: int, length: int) ->
     ):
         return False
     kept = chain[burn:]
-    ds = xr.Dataset({"theta": (("chain", "draw", "dim"), np.swapaxes(kept, 0, 1))})
-    return bool(
-        float(az.rhat(ds)["theta"].max()) < R_HAT_MAX and float(az.ess(ds, method="bulk")["theta"].min()) > ESS_MIN
-    )
+
+    def passes(draws):
+        ds = xr.Dataset({"theta": (("chain", "draw", "dim"), np.swapaxes(draws, 0, 1))})
+        return bool(
+            float(az.rhat(ds)["theta"].max()) < R_HAT_MAX and float(az.ess(ds, method="bulk")["theta"].min()) > ESS_MIN
+        )
+
+    # a thinned copy first (every k-th step, k ≤ τ_max/10 keeps R-hat and the bulk ESS), the whole chain to confirm
+    k = int(min(len(kept) // CHECK_STEPS, np.max(tau) // CHECK_STEPS_PER_TAU))
+    return (k <= 1 or passes(kept[::k])) and passes(kept)
 
 
 def sample(
@@ -719,7 +762,7 @@ def sample(
                     next_check = _next_check(first + i, check_every)
                     flush()
                     chain = seen.extend(backend.get_chain())
-                    tau, burn, length = _tau_and_burn(chain, adapt, skip_to)
+                    tau, burn, length = _tau_and_burn(chain, adapt, skip_to, thin=True)
                     if old_tau is not None and _looks_converged(chain, tau, old_tau, burn, length):
                         break
                     old_tau = tau
