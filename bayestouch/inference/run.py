@@ -29,6 +29,7 @@ from bayestouch.inference.posterior import PosteriorModel, interval, judged_quan
 from bayestouch.inference.sampler import IndependenceMixture, prune_stuck_walkers, sample
 from bayestouch.inference.smc import tempered_smc
 from bayestouch.io.files import write_json
+from bayestouch.io.runfolder import fingerprint, prepare_run_folder
 
 __all__ = [
     "initial_theta",
@@ -67,13 +68,14 @@ SURROUND_FRACTION = 0.03
 #: most random-walk steps per stage after the HMC steps
 SMC_RW_STEPS = 10
 #: the independence mixture after the SMC (:func:`smc_moves`): its share of the chain's moves, the degrees of freedom
-#: of its t components and the factor on each mode's sd (``benchmarks/bench_user_sets.py``, set 11: τ 22 steps at
-#: 0.8, ν 10, scale 1.0 against 34 at ν 5, scale 1.2, and 85 with differential evolution alone)
+#: of its t components and the factor on each component's sd (``benchmarks/bench_user_sets.py``, set 11: τ 22 steps
+#: at 0.8, ν 10, scale 1.0 against 34 at ν 5, scale 1.2, and 85 with differential evolution alone; sets 4 and 35:
+#: acceptance 0.37-0.53 at ν 10-30, scale 1.0, against 0.18-0.34 at ν 5, scale 1.1)
 MIXTURE_SHARE = 0.8
-#: sampled parameters that the independence mixture proposes in log space (positive, their mass often piled near 0)
-POSITIVE_NEAR_ZERO = ("w_outlier", "w_in", "w_out")
 MIXTURE_NU = 10.0
 MIXTURE_SCALE = 1.0
+#: sampled parameters that the independence mixture proposes in log space (positive, their mass often piled near 0)
+POSITIVE_NEAR_ZERO = ("w_outlier", "w_in", "w_out")
 #: steps the chain runs even when its preparation (SMC, the optimum check) used up the budget (a few seconds)
 MIN_CHAIN_STEPS = 200
 #: an optimum this many nats above every SMC particle is a mode the SMC missed (:func:`optimum_mode`): its
@@ -602,6 +604,7 @@ def run_contact_fit(
     free=None,
     size_prior: tuple[float, float] | None = None,
     init: str = "auto",
+    overwrite: bool = False,
 ) -> dict:
     """Sample the contact-level posterior of ``points (M, 3)`` m and write the run folder ``out``.
 
@@ -612,7 +615,10 @@ def run_contact_fit(
     walkers, steps : int
         Ensemble size and the largest number of steps of the chain.
     resume : bool
-        Continue the chain in ``out/chain.h5`` up to ``steps`` (nothing already sampled is lost).
+        Continue the chain in ``out/chain.h5`` up to ``steps`` (nothing already sampled is lost); refused when
+        ``out`` holds a run of other data or options (:mod:`bayestouch.io.runfolder`).
+    overwrite : bool
+        Replace a run already in ``out``, which is otherwise refused.
     budget_s : float, seconds
         Stop sampling after this wall-clock time (the summary says so).
     stop_when_converged : bool
@@ -642,8 +648,8 @@ def run_contact_fit(
         evolutionary-search optimum), where the posterior is one near-Gaussian mode and the optimum's ball
         converges in seconds, else ``"smc"``. ``"smc"``: from a tempered SMC from the prior (:func:`smc_stage`; the
         particles, evidence and temperatures in ``smc.npz``), its walkers drawn from the particles aligned to one
-        alias (:func:`align_particles`) and its moves mostly an independence mixture with a t component per
-        separated mode of them (:func:`smc_moves`), so separated modes are found and walked between;
+        alias (:func:`align_particles`) and its moves mostly an independence mixture fitted to them
+        (:func:`smc_moves`: EM, components by BIC), so separated modes are found and walked between;
         ``"optimize"`` from a small ball around the evolutionary-search optimum (:func:`initial_theta`) with the
         adaptive t proposal. Ignored with ``start`` or ``ffd``.
     ffd : (l, m, k) int, optional
@@ -670,7 +676,6 @@ def run_contact_fit(
     """
     t0 = time.perf_counter()
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     priors = cm.load_priors()
     if size_prior is not None:
         priors = cm.with_size_prior(priors, *size_prior)
@@ -723,6 +728,19 @@ def run_contact_fit(
         precision = "float64"
         logp, bounds = fm.make_ffd_log_prob(points, ffd, tau=tau, priors=priors)
         model = ffd_contact_model(points, tuple(ffd), tau)
+    options = {
+        "noise": noise,
+        "nu": None if nu is None else float(nu),
+        "ffd": None if ffd is None else [int(k) for k in ffd],
+        "ffd_tau": None if ffd is None else tau,
+        "precision": precision,
+        "init": init,
+        "walkers": int(walkers),
+        "seed": int(seed),
+        "priors": {k: float(v) for k, v in priors._asdict().items()},
+    }
+    fp = fingerprint("contact", {"points": points, "normals": normals, "free-space points": free}, options)
+    prepare_run_folder(out, fp, resume=resume, overwrite=overwrite)
 
     def initial():
         if start is not None:
