@@ -225,6 +225,7 @@ def run_demo(
         budget_s=sizes.fit_budget_s,
         progress=progress,
         start=res.ensemble,
+        overwrite=True,  # the demo's folder is rebuilt by every run
     )
 
     # 3. the strokes as the finger feels them

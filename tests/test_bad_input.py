@@ -7,6 +7,7 @@ holding the fixture files written by :func:`_files`) and a piece of the message 
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from bayestouch.cli import main
@@ -39,6 +40,13 @@ TABLE = [
     ("simulate --object {egg} --out {tmp}/r.nc --force 70", "--force"),
     # impossible parameters
     ("simulate --object {tmp}/negative_axes.toml --out {tmp}/r.nc", "axes"),
+    ("fit {tmp}/huge.csv --out {tmp}/o", "--subsample"),
+    ("fit {tmp}/micrometres.csv --out {tmp}/o", "span only"),
+    ("fit {tmp}/good.csv --out {tmp}/o --subsample 10", "--subsample"),
+    ("simulate --object {tmp}/nan_axes.toml --out {tmp}/r.nc", "finite"),
+    ("simulate --object {tmp}/huge_n.toml --out {tmp}/r.nc", "'n' must be in"),
+    ("simulate --object {tmp}/negative_modes.toml --out {tmp}/r.nc", "'modes'"),
+    ("simulate --object {tmp}/negative_seed.toml --out {tmp}/r.nc", "'seed'"),
     ("simulate --object {egg} --out {tmp}/r.nc --duration -1", "--duration"),
     ("simulate --object {egg} --out {tmp}/r.nc --rate 0", "--rate"),
     ("simulate --object {egg} --out {tmp}/r.nc --currents 0.1,0.1", "three"),
@@ -68,6 +76,8 @@ TABLE = [
     ("experiment --trials 0 --out {tmp}/o", "--trials"),
     ("experiment --objects teapot --out {tmp}/o", "teapot"),
     ("experiment --scheduler nonsense --out {tmp}/o", "--scheduler"),
+    ("experiment --trials 1000000000 --out {tmp}/o", "split it"),
+    ("experiment --scheduler tcp://127.0.0.1:9 --budget 1 --trials 1 --out {tmp}/o", "no Dask scheduler"),
     ("device simulate --drop 2", "--drop"),
     ("device run --port {tmp}/no_such_port --strokes 0 --out {tmp}/r.nc", "--strokes"),
     ("demo --seed -1 --out {tmp}/o", "--seed"),
@@ -108,11 +118,32 @@ def _files(tmp):
             f"{0.03 * c:.4f},{0.02 * s:.4f},0.0\n" for c, s in zip([1, 0, -1, 0] * 10, [0, 1, 0, -1] * 10, strict=True)
         )
     )
+    d = np.random.default_rng(0).normal(size=(50_001, 3))
+    np.savetxt(
+        tmp / "huge.csv",
+        0.03 * d / np.linalg.norm(d, axis=1, keepdims=True),
+        delimiter=",",
+        header="x,y,z",
+        comments="",
+        fmt="%.6f",
+    )
+    np.savetxt(
+        tmp / "micrometres.csv",
+        3e-5 * d[:80] / np.linalg.norm(d[:80], axis=1, keepdims=True),
+        delimiter=",",
+        header="x,y,z",
+        comments="",
+    )
     (tmp / "not_a_recording.nc").write_bytes(b"this is not netCDF")
     (tmp / "no_shape.toml").write_text('[object]\nname = "x"\n')
     (tmp / "broken.toml").write_text("[shape\ncentre_m = [0, 0\n")
     (tmp / "millimetres.toml").write_text("[shape]\ncentre_m = [0, 0, 0]\naxes_m = [45, 25, 5]\nn = 10\n")
     (tmp / "negative_axes.toml").write_text("[shape]\ncentre_m = [0, 0, 0]\naxes_m = [0.03, -0.02, 0.02]\nn = 2\n")
+    (tmp / "nan_axes.toml").write_text("[shape]\ncentre_m = [0, 0, 0]\naxes_m = [0.03, nan, 0.02]\nn = 2\n")
+    (tmp / "huge_n.toml").write_text("[shape]\ncentre_m = [0, 0, 0]\naxes_m = [0.03, 0.02, 0.02]\nn = 3000\n")
+    shape = "[shape]\ncentre_m = [0, 0, 0]\naxes_m = [0.03, 0.02, 0.02]\nn = 2\n"
+    (tmp / "negative_modes.toml").write_text(shape + "[texture]\nwavelength_m = 0.002\nmodes = -5\n")
+    (tmp / "negative_seed.toml").write_text(shape + "[texture]\nwavelength_m = 0.002\nseed = -1\n")
     (tmp / "bad_strokes.json").write_text('{"strokes": [{"contact": [[0, 0]]}]}')
     (tmp / "keep.txt").write_text("recorded")
     (tmp / "folder.nc").mkdir()

@@ -136,6 +136,27 @@ def test_faults_survived_with_nothing_lost(device, tmp_path, name):
     assert all((d.stroke_id, i) in logged for d in got for i in range(len(d.plan.time)))
 
 
+def test_an_unanswered_status_on_a_slow_link_waits_for_the_frames(device, monkeypatch):
+    """A link that stalls for longer than a status request's retries wait (its answer comes after the client gave
+    up): the stroke waits for its frames until its own time-out instead of failing at the first unanswered status
+    request (before, that DeviceError escaped and `device run` aborted with every frame still on its way). The
+    first status request during the stroke is made unanswered; 1.5 s stalls make the client ask."""
+    sim, dev = device(Faults(delay=1.5, delay_prob=0.1, seed=1))
+    real, calls = dev.status, []
+
+    def slow_status():
+        calls.append(1)
+        if len(calls) == 1:
+            raise DeviceError(f"{dev.url}: no answer to StatusRequest after {dev.retries} tries")
+        return real()
+
+    monkeypatch.setattr(dev, "status", slow_status)
+    plan = make_plan(60)
+    data = dev.run_stroke(plan)
+    assert calls and sim.stats["stalls"] > 0
+    assert _matches_model(data, sim.model.out[max(sim.model.out)])
+
+
 def test_inbound_faults_survived(device):
     # the device's decoder rejects damaged commands and the client retries them; 1e-4 per byte on a 1.1 kB
     # command fails ~20 % of tries (8 tries: ~1e-6 of giving up); strokes are repeated until the device has
@@ -287,6 +308,18 @@ def test_cli_run_writes_the_simulate_schema(device, tmp_path):
     assert run_device(_parser().parse_args([*argv, "--out", str(out2), "--quiet"])) == 0
     ds2 = read_recording(out2)
     assert ds2["taxel_current"].shape == (52, 256) and np.array_equal(np.unique(ds2["stroke_index"]), [0, 1])
+    # nothing recorded is lost: an existing recording is refused without --overwrite, and an earlier failed run's
+    # journal is kept under a new name rather than deleted
+    recorded = out2.read_bytes()
+    with pytest.raises(BadInput, match="already exists.*--overwrite"):
+        run_device(_parser().parse_args([*argv, "--out", str(out2), "--quiet"]))
+    assert out2.read_bytes() == recorded
+    out3 = tmp_path / "again.nc"
+    (tmp_path / "again.nc.journal").write_bytes(b"frames of a failed run")
+    assert run_device(_parser().parse_args([*argv, "--out", str(out3), "--quiet"])) == 0
+    kept = [p for p in tmp_path.iterdir() if p.name.startswith("again.nc.journal.")]
+    assert len(kept) == 1 and kept[0].read_bytes() == b"frames of a failed run"
+    assert run_device(_parser().parse_args([*argv, "--out", str(out3), "--overwrite", "--quiet"])) == 0
 
 
 def test_cli_bad_input(tmp_path):
@@ -424,3 +457,31 @@ def test_record_strokes_drives_the_device_like_the_simulator(device):
     n = sum(len(s.time) for s in strokes)
     assert all(len(v) == n for v in rec.values())
     assert np.array_equal(rec["contact_point"], np.concatenate([s.contact for s in strokes]))
+
+
+def test_virtual_finger_refuses_malformed_commands_and_keeps_answering(tmp_path):
+    """As PROTOCOL.md §6 says a firmware must: a PROBE_STROKE whose normals are fewer than its start points, and a
+    STROKE whose max_force is NaN (which would disable the force abort), are refused with NAK 2, and the device
+    still answers afterwards (before, the first killed the device thread and the second was run at 5 N)."""
+    from bayestouch.hardware.frame_models import GuardedModel
+    from bayestouch.params import MODELS
+    from bayestouch.scene.objects import load_object
+
+    sim = VirtualDevice(GuardedModel(load_object(MODELS / "objects" / "sphere.toml")), link=tmp_path / "finger")
+    sim.start()
+    dev = FingerDevice(str(tmp_path / "finger"), journal=tmp_path / "j.journal").open()
+    try:
+        p = make_plan(20)
+        short = pr.ProbeStroke(41, p.depth, 1.0, p.hold_currents, p.time, p.contact, p.normal[:10], 0.01, 0.05)
+        rep = dev._command(short)
+        assert isinstance(rep, pr.Nak) and rep.code == 2 and "normal" in rep.reason
+        nan_force = pr.StrokeCommand(42, p.depth, float("nan"), p.hold_currents, p.time, p.contact, p.normal)
+        rep = dev._command(nan_force)
+        assert isinstance(rep, pr.Nak) and rep.code == 2 and "max_force" in rep.reason
+        assert isinstance(dev._command(pr.StatusRequest()), pr.Status)  # still alive
+        assert not sim.heater_on and sim.stats["tx_frames"] == 0
+        # negative control: the well-formed stroke is accepted
+        assert isinstance(dev._command(nan_force._replace(stroke_id=43, max_force=1.0)), pr.Ack)
+    finally:
+        dev.close()
+        sim.close()

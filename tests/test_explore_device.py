@@ -167,7 +167,10 @@ def test_explore_port_drives_the_finger_and_writes_the_recording(finger, tmp_pat
     assert all(s["chamfer"] is None and s["volume_error"] is None for s in strokes)  # NaN: no truth
     assert sum(s["refused"] for s in strokes) >= 1  # unsafe candidates met and replaced: the loop went on
     s0 = json.loads((out / "summary_0.json").read_text())
-    assert "no truth" in s0["errors_note"]
+    assert "no truth" in s0["errors_note"] and s0["object"].startswith("unknown")
+    # a second exploration into the folder is refused (its stroke summaries would mix with these)
+    assert main(argv) == 2 and "already holds an exploration" in capsys.readouterr().err
+    assert json.loads((out / "summary_0.json").read_text()) == s0
     # the contacts lie on the TRUE ball (the scout's belief was a sphere of 2.5 cm 1 mm off)
     pts = load_contact_points(out / "points.csv").points
     assert len(pts) == strokes[-1]["n_points"]

@@ -524,3 +524,30 @@ def test_write_json_numpy_types_and_nan_to_null(tmp_path):
         write_json(path, {"bad": object()})
     assert json.loads(path.read_text()) == back
     assert _leftovers(path.parent) == ["y.json"]
+
+
+@pytest.mark.parametrize(
+    "name,index,value,needle",
+    [
+        ("taxel_current", (3, 7), 1e-46, "below 1e-15 A"),
+        ("taxel_current", (5, 0), float("nan"), "non-finite"),
+        ("skin_temperature", (2,), -5.0, "outside"),
+        ("contact_force", (4,), -1.0, "outside"),
+    ],
+)
+def test_a_damaged_recording_is_refused_before_a_fit(tmp_path, name, index, value, needle):
+    """Currents damaged to 1e-46 A, NaN frames, −5 K or −1 N are a damaged recording: the raw fit's loader refuses
+    it in one line naming the variable (negative control: the undamaged recording loads)."""
+    from bayestouch.inference.raw.data import open_recording
+    from bayestouch.io.recording import read_recording, write_recording
+    from bayestouch.params import MODELS
+
+    ds = read_recording(MODELS.parent / "data" / "recordings" / "sphere.nc")
+    open_recording(ds)  # the undamaged recording passes
+    v = ds[name].values.copy()
+    v[index] = value
+    bad = ds.assign({name: (ds[name].dims, v, ds[name].attrs)})
+    write_recording(bad, tmp_path / "bad.nc")
+    for source in (bad, tmp_path / "bad.nc"):
+        with pytest.raises(BadInput, match=f"'{name}'.*{needle}"):
+            open_recording(source)

@@ -238,6 +238,15 @@ def test_experiment_writes_results_and_resumes_without_redoing(tmp_path, monkeyp
     again = run_experiment(tmp_path, **{**kw, "plot": False}, resume=True)
     assert again["ran"] == 0 and again["skipped"] == 2 and calls == []
     assert read_csv_rows(tmp_path / "results.csv") == rows
+    # nothing recorded is lost or silently mixed: a new run over the results, or a resume with another seed or
+    # other settings, is refused and leaves results.csv as it was
+    with pytest.raises(BadInput, match="already holds results.csv.*--resume.*--overwrite"):
+        run_experiment(tmp_path, **{**kw, "plot": False})
+    with pytest.raises(BadInput, match="seed 3 \\(now 7\\)"):
+        run_experiment(tmp_path, **{**kw, "plot": False, "seed": 7}, resume=True)
+    with pytest.raises(BadInput, match="budget 1 \\(now 2\\)"):
+        run_experiment(tmp_path, **{**kw, "plot": False, "budget": 2}, resume=True)
+    assert read_csv_rows(tmp_path / "results.csv") == rows and calls == []
     # an incomplete trial (its last stroke missing) is run again, the complete one is kept
     write_csv_rows(
         tmp_path / "results.csv", [r for r in rows if not (r["planner"] == "random" and r["stroke"] == "1")], COLUMNS

@@ -110,6 +110,7 @@ def add_device_parser(subparsers) -> argparse.ArgumentParser:
     )
     rp.add_argument("--port", required=True, help="serial port path or pyserial URL (loop://, socket://HOST:PORT)")
     rp.add_argument("--out", required=True, type=Path, help="recording to write (.nc)")
+    rp.add_argument("--overwrite", action="store_true", help="replace an existing --out recording")
     rp.add_argument("--strokes", type=int, default=1, help="number of random strokes (default 1)")
     rp.add_argument(
         "--stroke-file",
@@ -304,9 +305,14 @@ def _run(args) -> int:
     from bayestouch.hardware.device import DeviceError, FingerDevice, build_recording
     from bayestouch.io.recording import write_recording
 
+    if args.out.exists() and not args.overwrite:
+        raise BadInput(f"--out {args.out} already exists; pass --overwrite to replace it, or choose another file")
     journal = args.journal or args.out.with_name(args.out.name + ".journal")
     if journal.exists() and args.journal is None:
-        journal.unlink()
+        # an earlier run's journal (the frames of a failed run): kept under a new name, never deleted
+        kept = journal.with_name(f"{journal.name}.{time.strftime('%Y%m%dT%H%M%S')}")
+        journal.replace(kept)
+        print(f"bayestouch device run: kept the earlier journal {journal} as {kept}", file=sys.stderr)
     t0 = time.perf_counter()
     done = []
     attrs = {
@@ -325,7 +331,8 @@ def _run(args) -> int:
             for p in tqdm(plans, desc="strokes", unit="stroke", disable=args.quiet):
                 done.append(dev.run_stroke(p))
             info = dev.info
-    except DeviceError as e:
+    except (DeviceError, BadInput) as e:
+        # a fault, or a stroke refused by the device's own limits after good ones: the good strokes are kept
         if done:
             write_recording(build_recording(done, dev.info, {**attrs, "incomplete": "true"}), args.out)
         print(
@@ -334,7 +341,7 @@ def _run(args) -> int:
             + f"everything received is in {journal}",
             file=sys.stderr,
         )
-        return 1
+        return 2 if isinstance(e, BadInput) else 1
     write_recording(build_recording(done, info, attrs), args.out)
     if args.journal is None:
         journal.unlink(missing_ok=True)

@@ -62,6 +62,7 @@ def add_planning_parsers(subparsers) -> tuple[argparse.ArgumentParser, argparse.
         default=None,
         help="stop early once the volume's posterior sd is below this (m^3)",
     )
+    ep.add_argument("--overwrite", action="store_true", help="replace an exploration already in --out")
     _common(ep)
     xp = subparsers.add_parser(
         "experiment",
@@ -74,7 +75,12 @@ def add_planning_parsers(subparsers) -> tuple[argparse.ArgumentParser, argparse.
     xp.add_argument("--trials", type=int, default=3, help="seeded trials per object and planner (default 3)")
     xp.add_argument("--workers", type=int, default=2, help="processes (default 2; 1 runs in this process)")
     xp.add_argument("--scheduler", default=None, help="Dask scheduler address tcp://HOST:PORT (optional)")
-    xp.add_argument("--resume", action="store_true", help="keep complete trials of an existing results.csv")
+    xp.add_argument(
+        "--resume",
+        action="store_true",
+        help="keep complete trials of an existing results.csv (refused when made with another seed or settings)",
+    )
+    xp.add_argument("--overwrite", action="store_true", help="replace an existing results.csv")
     _common(xp)
     return ep, xp
 
@@ -138,13 +144,23 @@ def run_explore(args) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise BadInput(f"--out {out} exists and is not a folder")
+    earlier = sorted(out.glob("summary_*.json")) if out.is_dir() else []
+    if earlier and not args.overwrite:
+        raise BadInput(
+            f"--out {out} already holds an exploration ({len(earlier)} stroke summaries); pass --overwrite to "
+            "replace it, or choose another folder"
+        )
+    for f in earlier:  # --overwrite: no stale stroke of the earlier run is left beside the new ones
+        f.unlink()
     out.mkdir(parents=True, exist_ok=True)
     truthless = obj is None
+    object_name = name if name is not None else "unknown (a finger without --object)"
 
     def on_stroke(rec):
         write_json(
             out / f"summary_{rec.stroke}.json",
             {
+                "object": object_name,
                 **rec.summary,
                 "seconds": rec.seconds,
                 "eig_nats": rec.eig,
@@ -294,6 +310,7 @@ def run_experiment(args) -> int:
         workers=args.workers,
         scheduler=args.scheduler,
         resume=args.resume,
+        overwrite=args.overwrite,
         settings=_settings(args),
     )
     g = gap_closed(res["rows"]) if res["rows"] else float("nan")

@@ -6,11 +6,17 @@ import argparse
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from bayestouch.cli.args import one_size, positive_int, size_range
 from bayestouch.cli.args import seed as seed_arg
 from bayestouch.errors import BadInput
 
-__all__ = ["add_parser", "run"]
+__all__ = ["add_parser", "run", "MAX_CONTACTS"]
+
+#: most contacts a fit takes (more need --subsample): the contact-level posterior of 50,000 points is already far
+#: narrower than the n-ellipsoid's misfit to any real object, and its outputs hold every point's log-likelihood
+MAX_CONTACTS = 50_000
 
 
 def add_parser(sub) -> argparse.ArgumentParser:
@@ -39,7 +45,24 @@ def add_parser(sub) -> argparse.ArgumentParser:
         "> 400)",
     )
     fp.add_argument("--no-early-stop", action="store_true", help="sample exactly --steps steps")
-    fp.add_argument("--resume", action="store_true", help="continue the chain in OUT/chain.h5")
+    fp.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue the chain in OUT/chain.h5 (refused when OUT holds a run of other data or options)",
+    )
+    fp.add_argument(
+        "--subsample",
+        type=int,
+        default=None,
+        metavar="N",
+        help=f"fit N contacts drawn at random (seeded by --seed) from a larger file; files of more than {MAX_CONTACTS} "
+        "contacts need it",
+    )
+    fp.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace the run already in OUT (without it, a folder holding a run is refused)",
+    )
     fp.add_argument(
         "--budget",
         type=float,
@@ -135,8 +158,10 @@ def run(args) -> int:
     if args.points.suffix == ".nc":
         if args.ffd is not None:
             raise BadInput("--ffd applies to contact points (.csv), not to a recording (.nc)")
-        if args.size_prior is not None or args.init != "auto":
-            raise BadInput("--size-prior and --init apply to contact points (.csv), not to a recording (.nc)")
+        if args.size_prior is not None or args.init != "auto" or args.subsample is not None:
+            raise BadInput(
+                "--size-prior, --init and --subsample apply to contact points (.csv), not to a recording (.nc)"
+            )
         from bayestouch.inference.raw import run_raw_fit
 
         s = run_raw_fit(
@@ -146,6 +171,7 @@ def run(args) -> int:
             walkers=args.walkers,
             steps=args.steps or 1500,
             resume=args.resume,
+            overwrite=args.overwrite,
             budget_s=args.budget or None,
             progress=not args.quiet,
             stop_when_converged=not args.no_early_stop,
@@ -162,6 +188,21 @@ def run(args) -> int:
             raise BadInput("--texture and --stride apply to a recording (.nc), not to contact points (.csv)")
 
         cp = load_contact_points(args.points)
+        if args.subsample is not None:
+            if args.subsample < 20:
+                raise BadInput(f"--subsample must be an integer ≥ 20 contacts, got {args.subsample}")
+            if args.subsample < len(cp.points):
+                keep = np.sort(np.random.default_rng([args.seed, 0x5B5]).choice(len(cp.points), args.subsample, False))
+                cp = cp._replace(
+                    points=cp.points[keep],
+                    normals=None if cp.normals is None else cp.normals[keep],
+                    force=None if cp.force is None else cp.force[keep],
+                )
+        if len(cp.points) > MAX_CONTACTS:
+            raise BadInput(
+                f"{args.points}: {len(cp.points)} contacts; a fit takes at most {MAX_CONTACTS} (the posterior of "
+                f"more is no sharper than the model's own error): pass --subsample N to fit N of them"
+            )
         if args.nu is not None and (args.noise != "student" or not args.nu > 0):
             raise BadInput(f"--nu must be > 0 and goes with --noise student, got --nu {args.nu} --noise {args.noise}")
         noise, nu = ("student", float("inf")) if args.noise == "gaussian" else (args.noise, args.nu)
@@ -172,6 +213,7 @@ def run(args) -> int:
             walkers=args.walkers,
             steps=args.steps or 20000,
             resume=args.resume,
+            overwrite=args.overwrite,
             budget_s=DEFAULT_BUDGET_S if args.budget is None else (args.budget or None),
             progress=not args.quiet,
             normals=None if args.ignore_normals else cp.normals,

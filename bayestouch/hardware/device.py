@@ -650,6 +650,11 @@ class FingerDevice:
                     st = self.status()
                 except _Disconnected:
                     continue
+                except DeviceError:
+                    # a slow link (answers later than the retries wait): frames may still come; the stroke's own
+                    # time-out below decides, not one unanswered status request
+                    last_activity = time.monotonic()
+                    continue
                 if st.stroke_id != sid:
                     return None
                 if st.done != 255:

@@ -293,6 +293,10 @@ class VirtualDevice:
             if probe and not hasattr(self.model, "probe"):
                 self._reply(packet, pr.Nak(seq, 4, "this finger's frame model cannot run guarded strokes"))
                 return
+            problem = _command_layout_problem(msg, probe)
+            if problem is not None:  # as a firmware must (PROTOCOL.md §6): malformed contents are refused, not run
+                self._reply(packet, pr.Nak(seq, 2, problem))
+                return
             plan = StrokePlan(msg.time, msg.start if probe else msg.contact, msg.normal, msg.depth, msg.hold_currents)
             lim = self.limits._replace(max_force=min(self.limits.max_force, float(msg.max_force)))
             try:
@@ -469,3 +473,28 @@ class VirtualDevice:
                     self._heater_off()
             self._step_stroke(now)
             self._flush()
+
+
+def _command_layout_problem(msg, probe: bool) -> str | None:
+    """What is malformed in a STROKE or PROBE_STROKE's contents (None when nothing): waypoint arrays of one length T
+    (time (T,), points and normals (T, 3)), three hold currents, and finite scalars with max_force > 0 (a NaN
+    max_force would disable the force abort)."""
+    t = np.asarray(msg.time, dtype=float)
+    pts = np.asarray(msg.start if probe else msg.contact, dtype=float)
+    nrm = np.asarray(msg.normal, dtype=float)
+    if t.ndim != 1 or len(t) < 2:
+        return f"time: expected T ≥ 2 waypoint times, got shape {t.shape}"
+    if pts.shape != (len(t), 3) or nrm.shape != (len(t), 3):
+        name = "start" if probe else "contact"
+        return f"{name} {pts.shape} and normal {nrm.shape} must both be ({len(t)}, 3), one row per waypoint time"
+    if np.shape(msg.hold_currents) != (3,):
+        return f"hold_currents: expected 3 values, got shape {np.shape(msg.hold_currents)}"
+    scalars = {"max_force": msg.max_force, "depth": msg.depth}
+    if probe:
+        scalars.update(travel=msg.travel, threshold=msg.threshold)
+    for k, v in scalars.items():
+        if not np.isfinite(float(v)):
+            return f"{k}: expected a finite number, got {v}"
+    if not float(msg.max_force) > 0:
+        return f"max_force: expected > 0 N, got {msg.max_force}"
+    return None

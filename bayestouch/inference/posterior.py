@@ -34,7 +34,7 @@ from bayestouch.geometry.mesh import cube_sphere, to_trimesh
 from bayestouch.geometry.rotation import euler_from_matrix
 from bayestouch.geometry.symmetry import rotation_matrices
 from bayestouch.inference.sampler import convergence
-from bayestouch.io.files import write_json
+from bayestouch.io.files import atomic_path, write_json
 
 __all__ = [
     "ANGLE_NAMES",
@@ -289,11 +289,9 @@ def write_posterior(out: Path, chain, model: PosteriorModel, *, seed: int, t0: f
     spread = uncertainty_spread(verts, None, vecs[: min(200, len(vecs))])
     if model.refine_mesh is not None:
         verts = np.asarray(model.refine_mesh(mean_nat, verts))
-    to_trimesh(verts, faces).export(str(out / "mean_shape.ply"))
     um = to_trimesh(verts, faces)
     um.visual.vertex_colors = _spread_colours(spread)
     um.vertex_attributes["spread"] = spread.astype(np.float32)
-    um.export(str(out / "uncertainty_mesh.ply"))
 
     judged = [p for name, p in params.items() if name not in ANGLE_NAMES]
     diag = convergence([p["r_hat"] for p in judged], [p["ess_bulk"] for p in judged], chain)
@@ -320,7 +318,13 @@ def write_posterior(out: Path, chain, model: PosteriorModel, *, seed: int, t0: f
     }
     summary["diagnostics"]["warnings"] = list(model.checks(summary)) if model.checks is not None else []
     # uncompressed: posterior draws and replicated points are noisy floats that zlib shrinks by ~10 % at ~1 s a run
-    idata.to_netcdf(str(out / "posterior.nc"), compress=False)
+    # every file atomically (a kill leaves each one old or new, never truncated), the summary last
+    with atomic_path(out / "mean_shape.ply") as tmp:
+        to_trimesh(verts, faces).export(str(tmp))
+    with atomic_path(out / "uncertainty_mesh.ply") as tmp:
+        um.export(str(tmp))
+    with atomic_path(out / "posterior.nc") as tmp:
+        idata.to_netcdf(str(tmp), compress=False)
     write_json(out / "summary.json", summary)
     return summary
 

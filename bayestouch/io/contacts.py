@@ -39,6 +39,7 @@ __all__ = [
     "save_contact_points",
     "MM_MAX_ABS_M",
     "MM_MAX_DIAGONAL_M",
+    "MIN_DIAGONAL_M",
     "MIN_NORMAL_LENGTH",
     "N_ELLIPSOID_PARAMS",
 ]
@@ -46,6 +47,9 @@ __all__ = [
 #: Above either limit (metres) the coordinates are taken to be millimetres.
 MM_MAX_ABS_M = 2.0
 MM_MAX_DIAGONAL_M = 3.5  # a 2 m cube in metres passes
+#: Below this bounding-box diagonal (metres) the contacts cannot be an object a finger strokes (the prior's smallest
+#: semi-axis is 1 mm, models/priors.toml axis_min): the coordinates are in the wrong unit.
+MIN_DIAGONAL_M = 1e-3
 #: Normals shorter than this cannot be normalised.
 MIN_NORMAL_LENGTH = 1e-12
 #: Parameters of the paper's n-ellipsoid: the fewest contact points that can determine one.
@@ -297,6 +301,13 @@ def load_contact_points(path: str | os.PathLike[str], *, min_points: int = N_ELL
             f"x,y,z look like millimetres (largest |value| {_num(max_abs)}, bounding-box "
             f"diagonal {_num(diagonal)}); give metres (e.g. divide by 1000), within "
             f"±{MM_MAX_ABS_M} m and a bounding-box diagonal ≤ {MM_MAX_DIAGONAL_M} m",
+        )
+    span = float(np.linalg.norm(np.ptp(points, axis=0)))
+    if 0 < span < MIN_DIAGONAL_M:
+        raise file_error(
+            source,
+            f"the contact points span only {_num(span)} m (bounding-box diagonal); the objects a finger strokes are "
+            f"at least {MIN_DIAGONAL_M * 1e3:g} mm across: give metres (a file in millimetres divided twice?)",
         )
     if not np.any(np.ptp(points, axis=0)):
         at = ", ".join(_num(v) for v in points[0])

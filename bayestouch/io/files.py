@@ -30,6 +30,7 @@ __all__ = [
     "write_json",
     "write_text",
     "atomic_write",
+    "atomic_path",
     "read_csv_records",
     "file_error",
     "ragged_error",
@@ -163,6 +164,27 @@ def atomic_write(path: str | os.PathLike[str], write: Callable[[IO[str]], None])
         raise
     _fsync_dir(target.parent)
     return target
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
+    """A temporary path beside ``path`` for a writer that takes a file name (netCDF, PLY, HDF5, ``.npz``): when
+    the ``with`` block ends without an exception the file there is flushed to disk and replaces ``path``
+    (:func:`os.replace`); otherwise it is removed and ``path`` is left as it was. The temporary name ends in
+    ``path``'s own suffix, so writers that choose a format by the extension choose the same one.
+    """
+    target = Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = target.parent / f".{target.name}.{secrets.token_hex(6)}.tmp{target.suffix}"
+    try:
+        yield tmp
+        with open(tmp, "rb+") as f:
+            os.fsync(f.fileno())
+        os.replace(tmp, target)
+    finally:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+    _fsync_dir(target.parent)
 
 
 def write_text(path: str | os.PathLike[str], text: str) -> Path:

@@ -18,7 +18,9 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-__all__ = ["UNITS", "build_dataset", "write_recording", "read_recording"]
+from bayestouch.errors import BadInput
+
+__all__ = ["UNITS", "PHYSICAL_RANGES", "build_dataset", "write_recording", "read_recording", "check_recording"]
 
 UNITS = {
     "time": "s",
@@ -115,3 +117,48 @@ def read_recording(path):
     """Open a recording (``xarray.Dataset``, loaded into memory)."""
     with xr.open_dataset(path, engine="h5netcdf") as ds:
         return ds.load()
+
+
+#: the physically possible range of each recorded quantity (SI units): a value outside, or a non-finite one, is a
+#: damaged recording, not a measurement. Taxel currents are ~1e-8 to 1e-6 A (models/taxels.toml); a non-zero
+#: magnitude below 1 fA is beneath any read-out's resolution (a float reinterpreted from damaged bytes).
+PHYSICAL_RANGES = {
+    "time": (-1e6, 1e6),
+    "taxel_current": (-1e-2, 1e-2),
+    "contact_force": (0.0, 1e3),
+    "friction_force": (-1e3, 1e3),
+    "pressing_depth": (-0.1, 0.1),
+    "contact_point": (-10.0, 10.0),
+    "wire_current": (-10.0, 10.0),
+    "wire_temperature": (1.0, 2000.0),
+    "skin_temperature": (1.0, 2000.0),
+    "finger_tip_position": (-10.0, 10.0),
+    "stroke_depth": (-0.1, 0.1),
+}
+#: smallest non-zero taxel current magnitude a read-out can report, A
+CURRENT_FLOOR_A = 1e-15
+
+
+def check_recording(ds, where: str = "recording") -> None:
+    """Raise :class:`~bayestouch.errors.BadInput` naming the first variable of ``ds`` that holds a non-finite value,
+    a value outside :data:`PHYSICAL_RANGES` or (taxel currents) a non-zero magnitude below
+    :data:`CURRENT_FLOOR_A`, with how many values and the first frame; ``where`` names the recording."""
+    for name, (lo, hi) in PHYSICAL_RANGES.items():
+        if name not in ds:
+            continue
+        v = np.asarray(ds[name].values, dtype=float)
+        unit = UNITS.get(name, "")
+        bad = ~np.isfinite(v)
+        what = "non-finite"
+        if not bad.any():
+            bad = (v < lo) | (v > hi)
+            what = f"outside [{lo:g}, {hi:g}] {unit}"
+        if not bad.any() and name == "taxel_current":
+            bad = (v != 0) & (np.abs(v) < CURRENT_FLOOR_A)
+            what = f"non-zero below {CURRENT_FLOOR_A:g} A (below any read-out's resolution)"
+        if bad.any():
+            first = tuple(int(i) for i in np.argwhere(bad)[0])
+            raise BadInput(
+                f"{where}: '{name}' holds {int(bad.sum())} {what} value(s) (first at index {first}): a damaged "
+                "recording, not a measurement"
+            )

@@ -18,6 +18,8 @@ progress bar) and :func:`wilson_interval`.
 
 from __future__ import annotations
 
+import contextlib
+import json
 import multiprocessing as mp
 import sys
 from collections.abc import Callable, Sequence
@@ -29,7 +31,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from bayestouch.errors import BadInput
-from bayestouch.io.files import read_csv_rows, write_csv_rows
+from bayestouch.io.files import read_csv_rows, write_csv_rows, write_json
 from bayestouch.params import MODELS
 from bayestouch.planning.loop import ExploreSettings, explore
 from bayestouch.planning.policies import check_policy
@@ -64,6 +66,10 @@ COLUMNS = (
     "decision_s",
     "seed",
 )
+#: most trials of one experiment (each is seconds to minutes of work and a task object in memory)
+MAX_TRIALS = 100_000
+#: seconds to wait for a Dask scheduler to answer
+SCHEDULER_TIMEOUT_S = 10.0
 #: default objects (models/objects/<name>.toml)
 OBJECTS = ("egg", "sphere", "box", "cylinder")
 _MODELS = MODELS / "objects"
@@ -212,6 +218,7 @@ def run_experiment(
     workers: int = 2,
     scheduler: str | None = None,
     resume: bool = False,
+    overwrite: bool = False,
     settings: dict | None = None,
     plot: bool = True,
     log=None,
@@ -233,7 +240,10 @@ def run_experiment(
     scheduler : str, optional
         ``tcp://HOST:PORT`` of a Dask scheduler (needs ``dask[distributed]``).
     resume : bool
-        Keep the complete trials of an existing ``results.csv`` and run only the others.
+        Keep the complete trials of an existing ``results.csv`` and run only the others; refused when they were
+        made with another seed, budget or settings (``experiment.json``).
+    overwrite : bool
+        Replace an existing ``results.csv``, which is otherwise refused.
     settings : dict, optional
         Fields of :class:`~bayestouch.planning.loop.ExploreSettings`.
 
@@ -251,12 +261,17 @@ def run_experiment(
         raise BadInput(f"budget: expected an integer number of strokes ≥ 1, got {budget!r}")
     if not isinstance(trials, int | np.integer) or trials < 1:
         raise BadInput(f"trials: expected an integer ≥ 1, got {trials!r}")
+    if trials * max(len(planners), 1) * max(len(list(objects)), 1) > MAX_TRIALS:
+        raise BadInput(
+            f"trials: {trials} × {len(planners)} planner(s) × {len(list(objects))} object(s) is more than "
+            f"{MAX_TRIALS} trials in one experiment; split it into several --out folders"
+        )
     if not isinstance(seed, int | np.integer) or seed < 0:
         raise BadInput(f"seed: expected an integer ≥ 0, got {seed!r}")
     if workers < 1:
         raise BadInput(f"workers: expected an integer ≥ 1, got {workers}")
     if scheduler is not None:
-        _check_address(scheduler)
+        _connect(scheduler).close()  # before any work or output: an unreachable scheduler is bad input
     paths = {str(o): resolve_object(str(o)) for o in objects}
     names = {o: p.stem if p.parent == _MODELS else str(o) for o, p in paths.items()}
     unknown = set(settings or {}) - set(ExploreSettings._fields)
@@ -267,11 +282,36 @@ def run_experiment(
         raise BadInput(f"--out {out} exists and is not a folder")
     out.mkdir(parents=True, exist_ok=True)
     csv_path = out / "results.csv"
+    meta_path = out / "experiment.json"
+    meta = {"seed": int(seed), "budget": int(budget), "settings": dict(settings or {})}
+    if csv_path.is_file() and not resume and not overwrite:
+        raise BadInput(
+            f"--out {out} already holds results.csv; pass --resume to keep its complete trials, --overwrite to "
+            "replace it, or choose another folder"
+        )
     rows: list[dict] = []
     if resume and csv_path.is_file():
+        old_meta = None
+        with contextlib.suppress(OSError, ValueError):
+            old_meta = json.loads(meta_path.read_text(encoding="utf-8"))
+        if old_meta is not None and old_meta != json.loads(json.dumps(meta)):
+            diff = [f"{k} {old_meta.get(k)!r} (now {v!r})" for k, v in meta.items() if old_meta.get(k) != v]
+            raise BadInput(
+                f"--resume: {csv_path} was made with {'; '.join(diff)}; resume with the same settings or choose "
+                "another --out"
+            )
         old = read_csv_rows(csv_path)
+        wrong = [
+            r for r in old if r.get("seed") not in (None, "") and int(r["seed"]) != _trial_seed(seed, int(r["trial"]))
+        ]
+        if wrong:
+            raise BadInput(
+                f"--resume: {csv_path} holds trials of another --seed (trial {wrong[0]['trial']}); resume with the "
+                "seed they were made with or choose another --out"
+            )
         done = _complete(old, budget)
         rows = [r for r in old if _key(r) in done]
+    write_json(meta_path, meta)
     done = {_key(r) for r in rows}
     tasks = [
         {
@@ -336,18 +376,30 @@ def _check_address(address) -> None:
         raise BadInput(f"--scheduler: expected an address like tcp://HOST:PORT, got {address!r}")
 
 
-def _run_dask(address: str, tasks: Sequence, run: Callable, finished: Callable) -> None:
+def _connect(address: str):
+    """A Dask client of the scheduler at ``address``; BadInput when dask.distributed is missing or nothing answers."""
     try:
         from dask.distributed import Client
-        from dask.distributed import as_completed as dask_completed
     except ImportError:
         raise BadInput(
             '--scheduler: needs dask\'s distributed scheduler; install it with pip install "dask[distributed]"'
         ) from None
     _check_address(address)
+    try:
+        return Client(address, set_as_default=False, timeout=SCHEDULER_TIMEOUT_S)
+    except (OSError, TimeoutError) as e:
+        raise BadInput(
+            f"--scheduler {address}: no Dask scheduler answered within {SCHEDULER_TIMEOUT_S:g} s ({type(e).__name__}); "
+            "start one with `dask scheduler` or check the address"
+        ) from None
+
+
+def _run_dask(address: str, tasks: Sequence, run: Callable, finished: Callable) -> None:
+    from dask.distributed import as_completed as dask_completed
+
     # set_as_default=False: the client is used explicitly; as the default it would point dask's global scheduler at
     # the cluster, and once closed leave it there ("no Client active") for every later xarray/dask call
-    with Client(address, set_as_default=False) as client:
+    with _connect(address) as client:
         # pure=False: every task runs (a retried task after a worker died reruns the whole trial)
         futures = [client.submit(run, t, pure=False, retries=2) for t in tasks]
         for f in dask_completed(futures, loop=client.loop):  # not the default client's loop: there is none

@@ -200,18 +200,34 @@ def defect_arrays(d: tuple[Defect, ...]) -> Defects:
 
 def _vec3(d: dict, key: str, where: str) -> tuple[float, float, float]:
     v = d.get(key)
-    if not (isinstance(v, list) and len(v) == 3 and all(isinstance(x, int | float) for x in v)):
-        raise BadInput(f"{where}: '{key}' must be a list of three numbers, got {v!r}")
+    if not (
+        isinstance(v, list)
+        and len(v) == 3
+        and all(isinstance(x, int | float) and not isinstance(x, bool) and np.isfinite(x) for x in v)
+    ):
+        raise BadInput(f"{where}: '{key}' must be a list of three finite numbers, got {v!r}")
     return tuple(float(x) for x in v)
 
 
 def _num(d: dict, key: str, where: str, *, positive: bool = True, default=None) -> float:
     v = d.get(key, default)
-    if not isinstance(v, int | float) or isinstance(v, bool):
-        raise BadInput(f"{where}: '{key}' must be a number, got {v!r}")
+    if not isinstance(v, int | float) or isinstance(v, bool) or not np.isfinite(v):
+        raise BadInput(f"{where}: '{key}' must be a finite number, got {v!r}")
     if positive and not v > 0:
         raise BadInput(f"{where}: '{key}' must be > 0, got {v}")
     return float(v)
+
+
+def _int(d: dict, key: str, where: str, lo: int, hi: int, default: int) -> int:
+    v = d.get(key, default)
+    if not isinstance(v, int) or isinstance(v, bool) or not lo <= v <= hi:
+        raise BadInput(f"{where}: '{key}' must be an integer in [{lo}, {hi}], got {v!r}")
+    return int(v)
+
+
+#: largest exponent of an object file: n = 100 is a box to within 1 % of its edge, and |q|^n of the points the
+#: simulator evaluates (|q| up to a few) stays finite in float64 far beyond it (at n ≈ 3000 it does not)
+N_MAX = 100.0
 
 
 def object_from_dict(doc: dict, where: str = "object", source: Path | None = None) -> SceneObject:
@@ -228,8 +244,10 @@ def object_from_dict(doc: dict, where: str = "object", source: Path | None = Non
         raise BadInput(f"{where} [shape]: 'axes_m' {list(axes)} look like millimetres; give metres")
     angles = _vec3(shape, "angles_rad", f"{where} [shape]") if "angles_rad" in shape else (0.0, 0.0, 0.0)
     n = _num(shape, "n", f"{where} [shape]")
-    if n < 1.0:
-        raise BadInput(f"{where} [shape]: 'n' must be ≥ 1 (convex n-ellipsoid), got {n}")
+    if not 1.0 <= n <= N_MAX:
+        raise BadInput(
+            f"{where} [shape]: 'n' must be in [1, {N_MAX:g}] (convex n-ellipsoid; {N_MAX:g} is already a box), got {n}"
+        )
     defects = []
     for i, d in enumerate(doc.get("defects", [])):
         w = f"{where} [[defects]] #{i + 1}"
@@ -247,8 +265,8 @@ def object_from_dict(doc: dict, where: str = "object", source: Path | None = Non
             _num(t, "wavelength_m", w),
             _num(t, "orientation_rad", w, positive=False, default=0.0),
             _num(t, "roughness_m", w, positive=False, default=0.0),
-            int(_num(t, "seed", w, positive=False, default=0)),
-            int(_num(t, "modes", w, positive=False, default=16)),
+            _int(t, "seed", w, 0, 2**63 - 1, 0),
+            _int(t, "modes", w, 1, 4096, 16),
         )
         if max(texture.amplitude, texture.roughness) > 0.2 * min(axes):
             raise BadInput(f"{w}: amplitude_m/roughness_m must stay below a fifth of the smallest axis (metres)")
@@ -259,7 +277,7 @@ def object_from_dict(doc: dict, where: str = "object", source: Path | None = Non
         if not (isinstance(dims, list) and len(dims) == 3 and all(isinstance(x, int) and x >= 2 for x in dims)):
             raise BadInput(f"{w}: 'dims' must be three integers ≥ 2 like [4, 4, 3], got {dims!r}")
         amp = _num(f, "amplitude_m", w, positive=False, default=0.0)
-        rng = np.random.default_rng(int(_num(f, "seed", w, positive=False, default=0)))
+        rng = np.random.default_rng(_int(f, "seed", w, 0, 2**63 - 1, 0))
         ffd = FFDSpec(tuple(dims), amp * rng.standard_normal((*dims, 3)), _num(f, "margin", w, default=0.15))
     return SceneObject(
         str(meta.get("name", source.stem if source else "object")),

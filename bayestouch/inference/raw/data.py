@@ -13,7 +13,7 @@ import numpy as np
 
 from bayestouch.backend import jax, jnp
 from bayestouch.errors import BadInput
-from bayestouch.io.recording import read_recording
+from bayestouch.io.recording import check_recording, read_recording
 from bayestouch.params import MODELS
 from bayestouch.physics import forward as fw
 from bayestouch.physics import noise as nz
@@ -88,6 +88,7 @@ def open_recording(ds_or_path):
         No such file, or a file that cannot be read as netCDF.
     """
     if not isinstance(ds_or_path, str | Path):
+        check_recording(ds_or_path)
         return ds_or_path, "recording"
     p = Path(ds_or_path)
     if not p.is_file():
@@ -98,6 +99,7 @@ def open_recording(ds_or_path):
         raise BadInput(
             f"recording {p}: cannot be read as netCDF ({type(e).__name__}); expected a .nc recording"
         ) from None
+    check_recording(ds, f"recording {p}")
     return ds, str(p)
 
 

@@ -42,6 +42,7 @@ from bayestouch.inference.raw.likelihood import (
 from bayestouch.inference.raw.texture import initial_raw_texture
 from bayestouch.inference.run import initial_theta, natural_draws
 from bayestouch.inference.sampler import adaptive_moves, sample
+from bayestouch.io.runfolder import dataset_digest, fingerprint, prepare_run_folder
 from bayestouch.params import MODELS
 
 __all__ = [
@@ -258,6 +259,7 @@ def run_raw_fit(
     texture: str = "auto",
     adjust: bool = True,
     prune: bool = True,
+    overwrite: bool = False,
 ) -> dict:
     """Sample the raw-current posterior of a recording and write the run folder ``out``.
 
@@ -271,7 +273,10 @@ def run_raw_fit(
     walkers, steps : int
     resume : bool
         Continue the chain in ``out/chain.h5`` (the start, texture search included, is deterministic given the
-        seed, so the same model is rebuilt).
+        seed, so the same model is rebuilt); refused when ``out`` holds a run of another recording or other
+        options (:mod:`bayestouch.io.runfolder`).
+    overwrite : bool
+        Replace a run already in ``out``, which is otherwise refused.
     budget_s : float, seconds, optional
         Stop sampling after this wall-clock time.
     stride : int, optional
@@ -306,8 +311,22 @@ def run_raw_fit(
         raise BadInput(f"stride must be an integer ≥ 1, got {stride}")
     t0 = time.perf_counter()
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     ds, _ = open_recording(recording)
+    options = {
+        "walkers": int(walkers),
+        "seed": int(seed),
+        "stride": None if stride is None else int(stride),
+        "radius": float(radius),
+        "strokes": None if strokes is None else [int(k) for k in np.atleast_1d(strokes)],
+        "models": str(Path(models).resolve()),
+        "starts": int(starts),
+        "texture": texture,
+        "adjust": bool(adjust),
+        "prune": bool(prune),
+    }
+    prepare_run_folder(
+        out, fingerprint("raw", {"recording": dataset_digest(ds)}, options), resume=resume, overwrite=overwrite
+    )
     priors = cm.load_priors()
     # the bare shape: DE on the commanded contact points, then L-BFGS-B on the raw posterior at the coarse stride
     bare_stride = BARE_STRIDE if stride is None or texture != "off" else int(stride)

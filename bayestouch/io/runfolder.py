@@ -1,0 +1,161 @@
+"""A fit's output folder: a finished result is never overwritten by accident, and a chain is resumed only by the run
+that made it.
+
+Every fit writes ``run.json`` into its folder before anything else: the level (contact or raw), a SHA-256 of each
+input array and the options that shape the posterior (noise model, priors, walkers, seed …). A later fit into the
+same folder
+
+* without ``resume`` or ``overwrite`` is refused when the folder holds a result (``summary.json``, ``chain.h5`` or
+  ``posterior.nc``): one line naming the folder and the two ways on;
+* with ``resume`` is refused when its fingerprint differs from the folder's, naming what differs (the data, or each
+  option with both values), so another object's points or a changed seed never continue a chain;
+* with ``overwrite`` first removes the old run's outputs, so the folder never shows an old summary beside a new
+  chain.
+
+Folders written before ``run.json`` existed resume as before (the chain's walkers × parameters are still checked).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bayestouch.errors import BadInput
+from bayestouch.io.files import write_json
+
+__all__ = ["FINGERPRINT_FILE", "RESULT_FILES", "dataset_digest", "fingerprint", "prepare_run_folder"]
+
+#: the file holding a run's fingerprint
+FINGERPRINT_FILE = "run.json"
+#: files whose presence means the folder holds a run (finished or resumable)
+RESULT_FILES = ("summary.json", "chain.h5", "posterior.nc")
+#: outputs of a fit that ``overwrite`` removes before the new run starts
+_OUTPUTS = (*RESULT_FILES, "mean_shape.ply", "uncertainty_mesh.ply", "smc.npz", FINGERPRINT_FILE)
+
+
+def _digest(value) -> str | None:
+    if value is None:
+        return None
+    if isinstance(value, bytes):
+        return hashlib.sha256(value).hexdigest()
+    a = np.ascontiguousarray(np.asarray(value, dtype=np.float64))
+    h = hashlib.sha256(str(a.shape).encode())
+    h.update(a.tobytes())
+    return h.hexdigest()
+
+
+def dataset_digest(ds) -> bytes:
+    """SHA-256 (32 bytes) of an ``xarray.Dataset``'s variables (names, dtypes, shapes, values) and attributes: the
+    identity of a recording, whether it was read from a file or built in memory."""
+    h = hashlib.sha256()
+    for name in sorted(map(str, ds.variables)):
+        a = np.asarray(ds[name].values)
+        h.update(f"{name}|{a.dtype}|{a.shape}|".encode())
+        h.update(repr(a.tolist()).encode() if a.dtype.kind == "O" else np.ascontiguousarray(a).tobytes())
+    h.update(repr(sorted((str(k), str(v)) for k, v in ds.attrs.items())).encode())
+    return h.digest()
+
+
+def _plain(value: Any) -> Any:
+    """Options as JSON round-trips them (tuples as lists, NumPy scalars as Python numbers, inf as a string)."""
+    if isinstance(value, Mapping):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not np.isfinite(value):
+        return repr(value)
+    return value
+
+
+def fingerprint(level: str, data: Mapping[str, Any], options: Mapping[str, Any]) -> dict:
+    """The fingerprint of a run: ``level`` (e.g. ``"contact"``), a SHA-256 of each input in ``data`` (arrays, in
+    float64, or raw ``bytes`` such as a recording file's; None for an absent input) and the ``options`` (JSON
+    values)."""
+    return {
+        "level": str(level),
+        "data_sha256": {str(k): _digest(v) for k, v in data.items()},
+        "options": _plain(dict(options)),
+    }
+
+
+def _differences(old: dict, new: dict) -> list[str]:
+    out = []
+    if old.get("level") != new["level"]:
+        out.append(f"a {old.get('level')}-level fit, not {new['level']}")
+    for k, v in new["data_sha256"].items():
+        if old.get("data_sha256", {}).get(k) != v:
+            out.append(f"other {k}")
+    old_opt = old.get("options", {})
+    for k, v in new["options"].items():
+        if k in old_opt and old_opt[k] != v:
+            out.append(f"{k} {old_opt[k]!r} (now {v!r})")
+        elif k not in old_opt:
+            out.append(f"no {k} option (now {v!r})")
+    return out
+
+
+def prepare_run_folder(out, fp: dict, *, resume: bool, overwrite: bool = False) -> Path:
+    """Check ``out`` for a fit with fingerprint ``fp`` (:func:`fingerprint`) and record ``fp`` there (module
+    docstring).
+
+    Parameters
+    ----------
+    out : path
+        The run folder (created when missing).
+    fp : dict
+    resume : bool
+        Continue the run in ``out``: refused when its fingerprint differs.
+    overwrite : bool
+        Replace a run in ``out``: its outputs are removed first.
+
+    Returns
+    -------
+    pathlib.Path
+        ``out``.
+
+    Raises
+    ------
+    BadInput
+        ``out`` is a file; it holds a run and neither ``resume`` nor ``overwrite`` is given; ``resume`` with a
+        different fingerprint; both ``resume`` and ``overwrite``.
+    """
+    out = Path(out)
+    if resume and overwrite:
+        raise BadInput("--resume and --overwrite exclude each other: continue the run in the folder, or replace it")
+    if out.exists() and not out.is_dir():
+        raise BadInput(f"--out {out} exists and is not a folder")
+    held = [f for f in RESULT_FILES if (out / f).exists()]
+    old = None
+    path = out / FINGERPRINT_FILE
+    if path.exists():
+        try:
+            old = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            old = {}
+    if resume and old is not None and (held or (out / "smc.npz").exists()):
+        diff = _differences(old, fp)
+        if diff:
+            raise BadInput(
+                f"--resume: {out} holds a run made with {'; '.join(diff)}; resume it with its own data and "
+                "options, or choose another --out (or --overwrite to replace it)"
+            )
+    elif not resume and held:
+        if not overwrite:
+            raise BadInput(
+                f"--out {out} already holds a run ({', '.join(held)}); pass --resume to continue it, --overwrite to "
+                "replace it, or choose another folder"
+            )
+        for name in _OUTPUTS:
+            with contextlib.suppress(FileNotFoundError):
+                (out / name).unlink()
+    out.mkdir(parents=True, exist_ok=True)
+    write_json(path, fp)
+    return out

@@ -1,0 +1,99 @@
+"""Run folders: a finished run is never overwritten by accident, a chain is resumed only by its own data and options,
+and outputs are replaced atomically."""
+
+import json
+
+import numpy as np
+import pytest
+
+from bayestouch.cli import main
+from bayestouch.errors import BadInput
+from bayestouch.io.contacts import save_contact_points
+from bayestouch.io.files import atomic_path
+from bayestouch.io.runfolder import FINGERPRINT_FILE, fingerprint, prepare_run_folder
+
+
+def _fp(points, **options):
+    return fingerprint(
+        "contact", {"points": points, "free-space points": None}, {"seed": 0, "noise": "outlier", **options}
+    )
+
+
+def test_a_folder_holding_a_run_is_refused_without_resume_or_overwrite(tmp_path):
+    pts = np.arange(12.0).reshape(4, 3)
+    out = tmp_path / "run"
+    prepare_run_folder(out, _fp(pts), resume=False)  # an empty folder: accepted, fingerprint written
+    assert json.loads((out / FINGERPRINT_FILE).read_text())["options"]["seed"] == 0
+    (out / "summary.json").write_text('{"old": true}')
+    with pytest.raises(BadInput, match="already holds a run.*--resume.*--overwrite"):
+        prepare_run_folder(out, _fp(pts), resume=False)
+    assert (out / "summary.json").read_text() == '{"old": true}'  # nothing lost
+    prepare_run_folder(out, _fp(pts), resume=True)  # the same data and options resume
+    prepare_run_folder(out, _fp(pts, seed=1), resume=False, overwrite=True)
+    assert not (out / "summary.json").exists()  # the old run's outputs went before the new run starts
+    assert json.loads((out / FINGERPRINT_FILE).read_text())["options"]["seed"] == 1
+    with pytest.raises(BadInput, match="exclude each other"):
+        prepare_run_folder(out, _fp(pts), resume=True, overwrite=True)
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(BadInput, match="not a folder"):
+        prepare_run_folder(tmp_path / "file", _fp(pts), resume=False)
+
+
+def test_resume_refuses_other_data_or_options_and_names_them(tmp_path):
+    pts = np.arange(12.0).reshape(4, 3)
+    out = tmp_path / "run"
+    prepare_run_folder(out, _fp(pts), resume=False)
+    (out / "chain.h5").write_bytes(b"chain")
+    other = pts.copy()
+    other[0, 0] += 1e-12  # one coordinate off by a picometre is other data
+    with pytest.raises(BadInput, match="other points"):
+        prepare_run_folder(out, _fp(other), resume=True)
+    with pytest.raises(BadInput, match=r"seed 0 \(now 7\)"):
+        prepare_run_folder(out, _fp(pts, seed=7), resume=True)
+    with pytest.raises(BadInput, match="noise 'outlier' \\(now 'student'\\)"):
+        prepare_run_folder(out, _fp(pts, noise="student"), resume=True)
+    assert (out / "chain.h5").read_bytes() == b"chain"
+    # a folder from before fingerprints (no run.json) resumes as before
+    (out / FINGERPRINT_FILE).unlink()
+    prepare_run_folder(out, _fp(other), resume=True)
+
+
+def test_atomic_path_keeps_the_old_file_when_the_writer_fails(tmp_path):
+    target = tmp_path / "posterior.nc"
+    target.write_bytes(b"old")
+    with pytest.raises(RuntimeError), atomic_path(target) as tmp:
+        assert tmp.suffix == ".nc" and tmp.parent == tmp_path
+        tmp.write_bytes(b"half")
+        raise RuntimeError("killed")
+    assert target.read_bytes() == b"old" and sorted(p.name for p in tmp_path.iterdir()) == ["posterior.nc"]
+    with atomic_path(target) as tmp:
+        tmp.write_bytes(b"new")
+    assert target.read_bytes() == b"new" and sorted(p.name for p in tmp_path.iterdir()) == ["posterior.nc"]
+
+
+def test_fit_cli_refuses_to_replace_or_wrongly_resume_a_run(tmp_path, capsys):
+    """The issue's cases end to end: a second fit into a finished run's folder, and a resume with another object's
+    points or another seed, exit 2 with one line and leave the run as it was; --overwrite replaces it."""
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(150, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    egg = tmp_path / "egg.csv"
+    sphere = tmp_path / "sphere.csv"
+    save_contact_points(egg, d * [0.03, 0.022, 0.015] + rng.normal(0, 3e-4, (150, 3)))
+    save_contact_points(sphere, d * 0.02 + rng.normal(0, 3e-4, (150, 3)))
+    out = tmp_path / "run"
+    fast = ["--walkers", "24", "--steps", "60", "--init", "optimize", "--no-early-stop", "--budget", "0", "--quiet"]
+    assert main(["fit", str(egg), "--out", str(out), *fast]) == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    capsys.readouterr()
+    assert main(["fit", str(egg), "--out", str(out), *fast]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "already holds a run" in err and len(err.splitlines()) == 1
+    assert main(["fit", str(sphere), "--out", str(out), "--resume", *fast]) == 2
+    assert "other points" in capsys.readouterr().err
+    assert main(["fit", str(egg), "--out", str(out), "--resume", "--seed", "7", *fast]) == 2
+    assert "seed 0 (now 7)" in capsys.readouterr().err
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    assert main(["fit", str(sphere), "--out", str(out), "--overwrite", *fast]) == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert abs(s["derived"]["mean_shape"]["a"] - 0.02) < 2e-3  # the sphere's run, not the egg's
