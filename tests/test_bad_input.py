@@ -44,6 +44,7 @@ TABLE = [
     ("fit {tmp}/micrometres.csv --out {tmp}/o", "span only"),
     ("fit {tmp}/good.csv --out {tmp}/o --subsample 10", "--subsample"),
     ("simulate --object {tmp}/nan_axes.toml --out {tmp}/r.nc", "finite"),
+    ("simulate --object {egg} --strokes 1000000000 --out {tmp}/r.nc", "split it"),
     ("simulate --object {tmp}/huge_n.toml --out {tmp}/r.nc", "'n' must be in"),
     ("simulate --object {tmp}/negative_modes.toml --out {tmp}/r.nc", "'modes'"),
     ("simulate --object {tmp}/negative_seed.toml --out {tmp}/r.nc", "'seed'"),

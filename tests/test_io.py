@@ -533,6 +533,7 @@ def test_write_json_numpy_types_and_nan_to_null(tmp_path):
         ("taxel_current", (5, 0), float("nan"), "non-finite"),
         ("skin_temperature", (2,), -5.0, "outside"),
         ("contact_force", (4,), -1.0, "outside"),
+        ("contact_point", (6, 0), 31.5, "outside"),  # a contact point in millimetres
     ],
 )
 def test_a_damaged_recording_is_refused_before_a_fit(tmp_path, name, index, value, needle):

@@ -13,7 +13,11 @@ from bayestouch.cli.args import seed as seed_arg
 from bayestouch.errors import BadInput
 from bayestouch.params import MODELS
 
-__all__ = ["add_parser", "run"]
+__all__ = ["add_parser", "run", "MAX_FRAMES"]
+
+#: most frames of one simulated recording (a frame holds every taxel's current and the finger's state: 200,000
+#: frames of a 16 × 16 skin are ~0.5 GB in memory)
+MAX_FRAMES = 200_000
 
 
 def add_parser(sub) -> argparse.ArgumentParser:
@@ -69,6 +73,12 @@ def run(args) -> int:
         ) from None
     if len(currents) != 3:
         raise BadInput(f"--currents must be three numbers in amperes, got {len(currents)}")
+    frames = args.strokes * int(np.ceil(args.duration * args.rate))
+    if frames > MAX_FRAMES:
+        raise BadInput(
+            f"--strokes {args.strokes} × --duration {args.duration:g} s × --rate {args.rate:g} Hz is {frames} frames, "
+            f"more than {MAX_FRAMES} in one recording (each frame holds every taxel); split it into several recordings"
+        )
     if args.force is not None and not (0 < args.force <= 2.0):
         raise BadInput(f"--force must be in (0, 2] newtons, got {args.force}")
     from bayestouch import __version__

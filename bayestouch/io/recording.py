@@ -128,11 +128,11 @@ PHYSICAL_RANGES = {
     "contact_force": (0.0, 1e3),
     "friction_force": (-1e3, 1e3),
     "pressing_depth": (-0.1, 0.1),
-    "contact_point": (-10.0, 10.0),
+    "contact_point": (-2.0, 2.0),  # as contact files (io.contacts.MM_MAX_ABS_M): beyond, millimetres
     "wire_current": (-10.0, 10.0),
     "wire_temperature": (1.0, 2000.0),
     "skin_temperature": (1.0, 2000.0),
-    "finger_tip_position": (-10.0, 10.0),
+    "finger_tip_position": (-2.0, 2.0),
     "stroke_depth": (-0.1, 0.1),
 }
 #: smallest non-zero taxel current magnitude a read-out can report, A
