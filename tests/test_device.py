@@ -485,3 +485,39 @@ def test_virtual_finger_refuses_malformed_commands_and_keeps_answering(tmp_path)
     finally:
         dev.close()
         sim.close()
+
+
+def test_cli_run_keeps_the_good_strokes_when_the_device_refuses_a_later_one(device, tmp_path, capsys):
+    """One safe stroke, then one the device's own (stricter) limits forbid (the client learns them at the handshake
+    and refuses the stroke): `device run` exits 2 naming the limit and writes the good stroke as an incomplete recording (before, nothing was written: the good stroke
+    survived only in the journal)."""
+    from bayestouch.cli.device import run_device
+    from bayestouch.io.recording import read_recording
+
+    sim, dev = device(limits=Limits(max_current=0.1))
+    dev.close()
+    plans = [make_plan(30, currents=(0.08, 0.0, 0.0)), make_plan(20, currents=(0.15, 0.0, 0.0))]
+    f = tmp_path / "strokes.json"
+    f.write_text(
+        json.dumps(
+            {
+                "strokes": [
+                    {
+                        "time": p.time.tolist(),
+                        "contact": p.contact.tolist(),
+                        "normal": p.normal.tolist(),
+                        "depth": p.depth,
+                        "hold_currents": p.hold_currents.tolist(),
+                    }
+                    for p in plans
+                ]
+            }
+        )
+    )
+    out = tmp_path / "dev.nc"
+    argv = ["device", "run", "--port", str(tmp_path / "finger"), "--stroke-file", str(f), "--out", str(out)]
+    assert run_device(_parser().parse_args([*argv, "--quiet"])) == 2
+    err = capsys.readouterr().err
+    assert "outside [0, 0.1] A" in err and "1 complete stroke(s)" in err
+    ds = read_recording(out)
+    assert ds.attrs["incomplete"] == "true" and ds["taxel_current"].shape[0] == 30
