@@ -489,8 +489,8 @@ def test_virtual_finger_refuses_malformed_commands_and_keeps_answering(tmp_path)
 
 def test_cli_run_keeps_the_good_strokes_when_the_device_refuses_a_later_one(device, tmp_path, capsys):
     """One safe stroke, then one the device's own (stricter) limits forbid (the client learns them at the handshake
-    and refuses the stroke): `device run` exits 2 naming the limit and writes the good stroke as an incomplete recording (before, nothing was written: the good stroke
-    survived only in the journal)."""
+    and refuses the stroke): `device run` exits 2 naming the limit and writes the good stroke as an incomplete
+    recording (before, nothing was written: the good stroke survived only in the journal)."""
     from bayestouch.cli.device import run_device
     from bayestouch.io.recording import read_recording
 
