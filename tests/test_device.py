@@ -521,3 +521,34 @@ def test_cli_run_keeps_the_good_strokes_when_the_device_refuses_a_later_one(devi
     assert "outside [0, 0.1] A" in err and "1 complete stroke(s)" in err
     ds = read_recording(out)
     assert ds.attrs["incomplete"] == "true" and ds["taxel_current"].shape[0] == 30
+
+
+def test_frames_with_impossible_contents_are_rejected_never_recorded(tmp_path):
+    """A device whose frame 5 holds a NaN taxel current (a well-formed packet: the CRC passes) and whose frame 7
+    holds a 1e-46 A current: the client counts and journals them as bad frames, asks for them again, and gives up
+    with a DeviceError rather than return a stroke holding them (before, both were recorded as data). Negative
+    control: frame_problem passes the device's good frames."""
+    from bayestouch.hardware.device import frame_problem
+
+    class Damaged(SyntheticModel):
+        def __call__(self, plan, index):
+            r = super().__call__(plan, index)
+            r["taxel_current"] = np.array(r["taxel_current"], dtype=float)
+            r["taxel_current"][5, 0] = np.nan
+            r["taxel_current"][7, 3] = 1e-46
+            return r
+
+    sim = VirtualDevice(Damaged(seed=3), link=tmp_path / "finger")
+    sim.start()
+    dev = FingerDevice(str(tmp_path / "finger"), journal=tmp_path / "j.journal", retries=2, timeout=0.1).open()
+    try:
+        with pytest.raises(DeviceError, match="still missing"):
+            dev.run_stroke(make_plan(20))
+        assert dev.stats["bad_frames"] >= 2
+        logged = [m for m in read_journal(tmp_path / "j.journal") if isinstance(m, pr.Frame)]
+        good = [m for m in logged if m.index not in (5, 7)]
+        assert good and all(frame_problem(m, dev.info) is None for m in good)
+        assert any(m.index == 5 and frame_problem(m, dev.info) == "taxel_current: non-finite value" for m in logged)
+    finally:
+        dev.close()
+        sim.close()

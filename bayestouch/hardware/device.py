@@ -28,7 +28,7 @@ from bayestouch.hardware.safety import (
     check_plan,
     plan_from_stroke,
 )
-from bayestouch.io.recording import build_dataset
+from bayestouch.io.recording import CURRENT_FLOOR_A, PHYSICAL_RANGES, build_dataset
 from bayestouch.params import MODELS
 from bayestouch.physics import bending
 from bayestouch.physics import skin as sk
@@ -45,6 +45,7 @@ __all__ = [
     "ProbeData",
     "winkler_depth",
     "depth_for_force",
+    "frame_problem",
 ]
 
 
@@ -263,6 +264,7 @@ class FingerDevice:
             "bad_packets": 0,
             "frames": 0,
             "duplicate_frames": 0,
+            "bad_frames": 0,
         }
 
     # ------------------------------------------------------------ connection
@@ -614,6 +616,11 @@ class FingerDevice:
                         continue
                     if m.index >= T:
                         continue
+                    if frame_problem(m, self.info) is not None:
+                        # well-formed packet, impossible contents: journaled, never recorded; requested again
+                        self.stats["bad_frames"] += 1
+                        self._log(m)
+                        continue
                     frames[m.index] = m
                     self.stats["frames"] += 1
                     self._log(m)
@@ -679,6 +686,38 @@ class FingerDevice:
         for p in plans:
             self.check(p)
         return [self.run_stroke(p) for p in tqdm(plans, desc="strokes", unit="stroke", disable=not progress)]
+
+
+_FRAME_RANGES = {
+    "taxel_current": PHYSICAL_RANGES["taxel_current"],
+    "wire_current": PHYSICAL_RANGES["wire_current"],
+    "wire_temperature": PHYSICAL_RANGES["wire_temperature"],
+    "skin_temperature": PHYSICAL_RANGES["skin_temperature"],
+    "tip_position": PHYSICAL_RANGES["finger_tip_position"],
+    "contact_force": PHYSICAL_RANGES["contact_force"],
+}
+
+
+def frame_problem(frame, info=None) -> str | None:
+    """What is impossible in a decoded frame (None when nothing): taxel count other than the handshake's
+    rows × cols (``info``, a HELLO_REPLY), a non-finite value, a value outside the physical ranges of a recording
+    (:data:`bayestouch.io.recording.PHYSICAL_RANGES`) or a non-zero taxel current below
+    :data:`~bayestouch.io.recording.CURRENT_FLOOR_A`. A frame with such contents passed the packet's CRC, so it is
+    the device's data that is wrong; the client rejects it rather than record it."""
+    if info is not None and np.size(frame.taxel_current) != info.rows * info.cols:
+        return f"{np.size(frame.taxel_current)} taxel currents, the handshake says {info.rows} × {info.cols}"
+    for name, (lo, hi) in _FRAME_RANGES.items():
+        v = np.asarray(getattr(frame, name), dtype=float)
+        if not np.all(np.isfinite(v)):
+            return f"{name}: non-finite value"
+        if np.any((v < lo) | (v > hi)):
+            return f"{name}: outside [{lo:g}, {hi:g}]"
+    i = np.abs(np.asarray(frame.taxel_current, dtype=float))
+    if np.any((i > 0) & (i < CURRENT_FLOOR_A)):
+        return f"taxel_current: non-zero below {CURRENT_FLOOR_A:g} A"
+    if not np.isfinite(frame.time):
+        return "time: non-finite"
+    return None
 
 
 def _runs(idx: list[int]) -> list[tuple[int, int]]:
