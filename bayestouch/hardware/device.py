@@ -695,6 +695,7 @@ _FRAME_RANGES = {
     "skin_temperature": PHYSICAL_RANGES["skin_temperature"],
     "tip_position": PHYSICAL_RANGES["finger_tip_position"],
     "contact_force": PHYSICAL_RANGES["contact_force"],
+    "curvature": (-1e4, 1e4),  # 1/m: a bend radius under 0.1 mm is no rod's
 }
 
 

@@ -161,9 +161,12 @@ def check_plan(plan: StrokePlan, limits: Limits, *, wire=None, skin=None, tip_ra
         raise UnsafePlan("stroke plan: waypoints must be finite numbers")
     if t[0] < 0 or np.any(np.diff(t) <= 0):
         raise UnsafePlan("stroke plan: waypoint times must start at ≥ 0 s and increase strictly")
+    if t[-1] > 1e6 or np.any(np.abs(c) > 10.0) or np.any(np.abs(n) > 10.0):
+        raise UnsafePlan("stroke plan: times beyond 1e6 s, waypoints beyond ±10 m or normals far from unit length")
     if np.any(np.abs(np.linalg.norm(n, axis=1) - 1.0) > 1e-3):
         raise UnsafePlan("stroke plan: normals must be unit vectors")
-    speed = float(np.max(np.linalg.norm(np.diff(c, axis=0), axis=1) / np.diff(t)))
+    with np.errstate(over="ignore"):  # times 1e-300 s apart: an infinite speed, refused below
+        speed = float(np.max(np.linalg.norm(np.diff(c, axis=0), axis=1) / np.diff(t)))
     if speed > limits.max_speed:
         raise UnsafePlan(f"stroke plan: speed {speed:.3g} m/s exceeds the limit of {limits.max_speed:g} m/s")
     I = np.asarray(plan.hold_currents, float).reshape(-1)

@@ -28,7 +28,7 @@ from bayestouch.hardware.safety import (
     check_plan,
 )
 
-__all__ = ["Faults", "VirtualDevice"]
+__all__ = ["Faults", "VirtualDevice", "command_problem"]
 
 
 class Faults(NamedTuple):
@@ -293,7 +293,7 @@ class VirtualDevice:
             if probe and not hasattr(self.model, "probe"):
                 self._reply(packet, pr.Nak(seq, 4, "this finger's frame model cannot run guarded strokes"))
                 return
-            problem = _command_layout_problem(msg, probe)
+            problem = command_problem(msg, probe)
             if problem is not None:  # as a firmware must (PROTOCOL.md §6): malformed contents are refused, not run
                 self._reply(packet, pr.Nak(seq, 2, problem))
                 return
@@ -475,7 +475,7 @@ class VirtualDevice:
             self._flush()
 
 
-def _command_layout_problem(msg, probe: bool) -> str | None:
+def command_problem(msg, probe: bool) -> str | None:
     """What is malformed in a STROKE or PROBE_STROKE's contents (None when nothing): waypoint arrays of one length T
     (time (T,), points and normals (T, 3)), three hold currents, and finite scalars with max_force > 0 (a NaN
     max_force would disable the force abort)."""
@@ -489,6 +489,10 @@ def _command_layout_problem(msg, probe: bool) -> str | None:
         return f"{name} {pts.shape} and normal {nrm.shape} must both be ({len(t)}, 3), one row per waypoint time"
     if np.shape(msg.hold_currents) != (3,):
         return f"hold_currents: expected 3 values, got shape {np.shape(msg.hold_currents)}"
+    name = "start" if probe else "contact"
+    for k, a in (("time", t), (name, pts), ("normal", nrm), ("hold_currents", msg.hold_currents)):
+        if not np.all(np.isfinite(np.asarray(a, dtype=float))):
+            return f"{k}: expected finite numbers"
     scalars = {"max_force": msg.max_force, "depth": msg.depth}
     if probe:
         scalars.update(travel=msg.travel, threshold=msg.threshold)
@@ -497,4 +501,6 @@ def _command_layout_problem(msg, probe: bool) -> str | None:
             return f"{k}: expected a finite number, got {v}"
     if not float(msg.max_force) > 0:
         return f"max_force: expected > 0 N, got {msg.max_force}"
+    if probe and not 0 < float(msg.travel) <= 0.1:
+        return f"travel: expected in (0, 0.1] m, got {msg.travel}"
     return None
