@@ -64,6 +64,20 @@ def test_default_fit_of_a_one_sided_contaminated_set(tmp_path):
     assert np.array_equal(np.load(tmp_path / "smc.npz")["particles"], before)
 
 
+def test_the_time_budget_covers_the_smc_and_a_cut_tempering_says_so(tmp_path):
+    """With a budget of 1 s the tempered SMC stops after its first stages (its share of the budget is 0.5 s)
+    instead of tempering to the posterior, the summary says so (complete False, β < 1, a warning) and the chain
+    still runs its minimum steps; negative control: without a budget the same data temper to β = 1 (the test
+    above)."""
+    rng = np.random.default_rng(3)
+    pts = _sphere(60, hemisphere=True, seed=1) + rng.normal(0, 3e-4, (60, 3))
+    s = run_contact_fit(pts, tmp_path, seed=0, progress=False, budget_s=1.0)
+    smc = s["model"]["smc"]
+    assert not smc["complete"] and np.load(tmp_path / "smc.npz")["betas"][-1] < 1
+    assert any("tempering stopped" in w for w in s["diagnostics"]["warnings"])
+    assert s["diagnostics"]["stopped_by_budget"] and not s["diagnostics"]["converged"]
+
+
 def test_optimum_mode_reaches_the_optimum_with_its_laplace_width():
     """All-round contacts on a sphere (r = 20 mm, 0.3 mm noise): the polished optimum has the radius, a
     log-posterior at least the truth's, and a Laplace sd of log σ near the Gaussian limit 1/√(2M)."""

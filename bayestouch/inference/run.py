@@ -78,6 +78,10 @@ MIXTURE_SCALE = 1.0
 POSITIVE_NEAR_ZERO = ("w_outlier", "w_in", "w_out")
 #: steps the chain runs even when its preparation (SMC, the optimum check) used up the budget (a few seconds)
 MIN_CHAIN_STEPS = 200
+#: shares of a fit's time budget the tempered SMC may use, and that the SMC and the optimum check together may use
+#: (on the user sets the two take ~15 s and ~4 s of the default 60 s; 50,000 contacts would take hours)
+SMC_BUDGET_SHARE = 0.5
+OPTIMUM_BUDGET_SHARE = 0.7
 #: scale of the robust loss of the robust evolutionary searches (:func:`candidate_thetas`), a fraction of the data's
 #: radius (0.5 mm for a 25 mm object: a few noise sds, well below displacements of 3-10 mm)
 ROBUST_SCALE = 0.02
@@ -217,10 +221,12 @@ _EXTRA_SCALE = {"log_kappa": 1e-2, "log_eps": 1e-2, "w_outlier": 1e-3, "w_in": 1
 _prior_jit = jax.jit(cm.log_prior)
 
 
-def smc_stage(logp, bounds: cm.Bounds, seed: int, path: Path | None = None, *, progress: bool = False):
+def smc_stage(logp, bounds: cm.Bounds, seed: int, path: Path | None = None, *, progress: bool = False, budget_s=None):
     """The tempered SMC from the prior (:func:`bayestouch.inference.smc.tempered_smc`) of a contact-level
     log-posterior ``logp`` (W, D) → (W,) with prior ``bounds``: :data:`SMC_PARTICLES` particles, conditional-ESS
     target :data:`SMC_ESS`, seeded by ``seed``.
+
+    ``budget_s`` (seconds): tempering stops after the stage that passes it (``complete`` False; the fit warns).
 
     With ``path`` the particles, their log-likelihoods, the log-evidence and the temperatures are saved there
     (``smc.npz``) and read back instead of recomputed when the file exists (a resumed run proposes from the same
@@ -265,6 +271,7 @@ def smc_stage(logp, bounds: cm.Bounds, seed: int, path: Path | None = None, *, p
             progress=tick,
             gradients=getattr(logp, "parts", None),
             max_steps=SMC_RW_STEPS,
+            budget_s=budget_s,
         )
     finally:
         if bar is not None:
@@ -292,6 +299,7 @@ def optimum_mode(
     sampled: tuple = cm.PARAM_NAMES,
     theta0=None,
     batch: int = 32,
+    budget_s: float | None = None,
 ) -> dict:
     """The best of :data:`OPTIMUM_STARTS` evolutionary searches (:func:`candidate_thetas`, and ``theta0``), each
     polished by L-BFGS on the sampled log-posterior, and its Laplace covariance: the check that a tempered SMC did
@@ -317,6 +325,8 @@ def optimum_mode(
     batch : int
         ``logp.parts`` is called on blocks of this many rows (padded), the walkers' count, whose program the
         chain compiles anyway.
+    budget_s : float, seconds, optional
+        No further search result is polished once this much time has passed (the first always is).
 
     Returns
     -------
@@ -343,7 +353,10 @@ def optimum_mode(
         return (float(-v[0]), -g[0]) if np.isfinite(v[0]) else (1e300, np.zeros(d))
 
     x, fx = None, np.inf
+    began = time.perf_counter()
     for th in starts:  # each search result polished on the sampled posterior: the robust cost ranks them otherwise
+        if x is not None and budget_s is not None and time.perf_counter() - began > budget_s:
+            break
         x0 = np.clip(
             np.concatenate([th[:11], [_EXTRA_START[k] for k in sampled[11:]]]),
             lo + 1e-9 * (hi - lo),
@@ -793,9 +806,11 @@ def run_contact_fit(
     if init == "smc" and start is None and ffd is None:
         if not resume:
             (out / "smc.npz").unlink(missing_ok=True)
-        smc = smc_stage(logp, bounds, seed, out / "smc.npz", progress=progress)
+        share = None if budget_s is None else SMC_BUDGET_SHARE * budget_s
+        smc = smc_stage(logp, bounds, seed, out / "smc.npz", progress=progress, budget_s=share)
         post = np.asarray(smc["log_lik"]) + np.asarray(_prior_jit(jnp.asarray(smc["particles"]), bounds))
-        opt = optimum_mode(points, logp, bounds, priors, seed, sampled, theta0, batch=walkers)
+        left = None if budget_s is None else max(OPTIMUM_BUDGET_SHARE * budget_s - (time.perf_counter() - t0), 0.0)
+        opt = optimum_mode(points, logp, bounds, priors, seed, sampled, theta0, batch=walkers, budget_s=left)
         best_particle = float(np.max(post))
         missed = opt["log_post"] - best_particle > MISSED_MODE_NATS
         smc["optimum_above_particles"] = opt["log_post"] - best_particle
