@@ -71,6 +71,22 @@ def device(tmp_path):
         obj.close()
 
 
+def _stroke_file(path, plans, currents: bool = False):
+    """A ``device run --stroke-file`` JSON of ``plans`` (with their hold currents when ``currents``)."""
+    rows = [
+        {
+            "time": p.time.tolist(),
+            "contact": p.contact.tolist(),
+            "normal": p.normal.tolist(),
+            "depth": p.depth,
+            **({"hold_currents": p.hold_currents.tolist()} if currents else {}),
+        }
+        for p in plans
+    ]
+    path.write_text(json.dumps({"strokes": rows}))
+    return path
+
+
 def _matches_model(data, model_out) -> bool:
     """Every frame equals what the device's model produced (float32 on the wire)."""
     return all(
@@ -257,22 +273,7 @@ def test_cli_run_writes_the_simulate_schema(device, tmp_path):
     sim, dev = device()
     dev.close()
     plans = [make_plan(30), make_plan(20)]
-    f = tmp_path / "strokes.json"
-    f.write_text(
-        json.dumps(
-            {
-                "strokes": [
-                    {
-                        "time": p.time.tolist(),
-                        "contact": p.contact.tolist(),
-                        "normal": p.normal.tolist(),
-                        "depth": p.depth,
-                    }
-                    for p in plans
-                ]
-            }
-        )
-    )
+    f = _stroke_file(tmp_path / "strokes.json", plans)
     out = tmp_path / "dev.nc"
     args = _parser().parse_args(
         ["device", "run", "--port", str(tmp_path / "finger"), "--stroke-file", str(f), "--out", str(out), "--quiet"]
@@ -497,23 +498,7 @@ def test_cli_run_keeps_the_good_strokes_when_the_device_refuses_a_later_one(devi
     sim, dev = device(limits=Limits(max_current=0.1))
     dev.close()
     plans = [make_plan(30, currents=(0.08, 0.0, 0.0)), make_plan(20, currents=(0.15, 0.0, 0.0))]
-    f = tmp_path / "strokes.json"
-    f.write_text(
-        json.dumps(
-            {
-                "strokes": [
-                    {
-                        "time": p.time.tolist(),
-                        "contact": p.contact.tolist(),
-                        "normal": p.normal.tolist(),
-                        "depth": p.depth,
-                        "hold_currents": p.hold_currents.tolist(),
-                    }
-                    for p in plans
-                ]
-            }
-        )
-    )
+    f = _stroke_file(tmp_path / "strokes.json", plans, currents=True)
     out = tmp_path / "dev.nc"
     argv = ["device", "run", "--port", str(tmp_path / "finger"), "--stroke-file", str(f), "--out", str(out)]
     assert run_device(_parser().parse_args([*argv, "--quiet"])) == 2
