@@ -28,7 +28,7 @@ from bayestouch.hardware.safety import (
     check_plan,
 )
 
-__all__ = ["Faults", "VirtualDevice", "command_problem"]
+__all__ = ["Faults", "VirtualDevice", "command_refusal"]
 
 
 class Faults(NamedTuple):
@@ -293,24 +293,11 @@ class VirtualDevice:
             if probe and not hasattr(self.model, "probe"):
                 self._reply(packet, pr.Nak(seq, 4, "this finger's frame model cannot run guarded strokes"))
                 return
-            problem = command_problem(msg, probe)
-            if problem is not None:  # as a firmware must (PROTOCOL.md §6): malformed contents are refused, not run
-                self._reply(packet, pr.Nak(seq, 2, problem))
+            reason = command_refusal(msg, self.limits)
+            if reason is not None:  # as a firmware must (PROTOCOL.md §6): refused before anything moves
+                self._reply(packet, pr.Nak(seq, 2, reason))
                 return
             plan = StrokePlan(msg.time, msg.start if probe else msg.contact, msg.normal, msg.depth, msg.hold_currents)
-            lim = self.limits._replace(max_force=min(self.limits.max_force, float(msg.max_force)))
-            try:
-                # a guarded stroke is checked along the midpoints of its approach lines (ProbePlan.stroke_plan)
-                mid = np.asarray(msg.start) - 0.5 * float(msg.travel) * np.asarray(msg.normal) if probe else None
-                check_plan(plan._replace(contact=mid) if probe else plan, lim)
-                if probe and not (0 < msg.threshold < lim.max_force and 0 < msg.travel <= 0.1):
-                    raise UnsafePlan(
-                        f"probe plan: threshold {msg.threshold:g} N must be in (0, {lim.max_force:g}) and travel "
-                        f"{msg.travel:g} m in (0, 0.1]"
-                    )
-            except UnsafePlan as e:
-                self._reply(packet, pr.Nak(seq, 2, str(e)))
-                return
             self._reply(packet, pr.Ack(seq))
             self.stroke_id, self._cmd, self._frames, self._n_sent, self._done = msg.stroke_id, msg, None, 0, 255
             self.state, self.heater_on, self.watchdog_tripped = 1, True, False
@@ -475,21 +462,20 @@ class VirtualDevice:
             self._flush()
 
 
-def command_problem(msg, probe: bool) -> str | None:
+def _layout_problem(msg, probe: bool) -> str | None:
     """What is malformed in a STROKE or PROBE_STROKE's contents (None when nothing): waypoint arrays of one length T
-    (time (T,), points and normals (T, 3)), three hold currents, and finite scalars with max_force > 0 (a NaN
-    max_force would disable the force abort)."""
+    (time (T,), points and normals (T, 3)), three hold currents, finite numbers, max_force > 0 (a NaN max_force
+    would disable the force abort) and a probe's travel in (0, 0.1] m (its approach midpoints are computed next)."""
+    name = "start" if probe else "contact"
     t = np.asarray(msg.time, dtype=float)
-    pts = np.asarray(msg.start if probe else msg.contact, dtype=float)
+    pts = np.asarray(getattr(msg, name), dtype=float)
     nrm = np.asarray(msg.normal, dtype=float)
     if t.ndim != 1 or len(t) < 2:
         return f"time: expected T ≥ 2 waypoint times, got shape {t.shape}"
     if pts.shape != (len(t), 3) or nrm.shape != (len(t), 3):
-        name = "start" if probe else "contact"
         return f"{name} {pts.shape} and normal {nrm.shape} must both be ({len(t)}, 3), one row per waypoint time"
     if np.shape(msg.hold_currents) != (3,):
         return f"hold_currents: expected 3 values, got shape {np.shape(msg.hold_currents)}"
-    name = "start" if probe else "contact"
     for k, a in (("time", t), (name, pts), ("normal", nrm), ("hold_currents", msg.hold_currents)):
         if not np.all(np.isfinite(np.asarray(a, dtype=float))):
             return f"{k}: expected finite numbers"
@@ -503,4 +489,24 @@ def command_problem(msg, probe: bool) -> str | None:
         return f"max_force: expected > 0 N, got {msg.max_force}"
     if probe and not 0 < float(msg.travel) <= 0.1:
         return f"travel: expected in (0, 0.1] m, got {msg.travel}"
+    return None
+
+
+def command_refusal(msg, limits: Limits) -> str | None:
+    """Why a device with ``limits`` refuses a STROKE or PROBE_STROKE with NAK 2 (PROTOCOL.md §6), or None when it
+    runs it: malformed contents first, then the safety check (:func:`~bayestouch.hardware.safety.check_plan`, a
+    guarded stroke along the midpoints of its approach lines, as ``ProbePlan.stroke_plan``) under the tighter of
+    ``limits`` and the command's max_force, and a probe's threshold in (0, max_force)."""
+    probe = isinstance(msg, pr.ProbeStroke)
+    problem = _layout_problem(msg, probe)
+    if problem is not None:
+        return problem
+    lim = limits._replace(max_force=min(limits.max_force, float(msg.max_force)))
+    contact = np.asarray(msg.start) - 0.5 * float(msg.travel) * np.asarray(msg.normal) if probe else msg.contact
+    try:
+        check_plan(StrokePlan(msg.time, contact, msg.normal, msg.depth, msg.hold_currents), lim)
+    except UnsafePlan as e:
+        return str(e)
+    if probe and not 0 < msg.threshold < lim.max_force:
+        return f"probe plan: threshold {msg.threshold:g} N must be in (0, {lim.max_force:g})"
     return None
