@@ -435,12 +435,14 @@ def smc_moves(particles, walkers: int, seed: int, extra_mode: dict | None = None
     if extra_mode is not None:
         share = MISSED_MODE_SHARE
         chol = np.linalg.cholesky(extra_mode["cov"])
-        near = to_mixture_space(_laplace_draws(extra_mode["theta"], chol, max(4 * d, 256), logp, rng))
+        moved = np.arange(walkers) < round(share * walkers)
+        # one batch of draws: the component is fitted to them, and the moved walkers start at the first of them
+        draws = _laplace_draws(extra_mode["theta"], chol, max(4 * d, 256, int(moved.sum())), logp, rng)
+        near = to_mixture_space(draws)
         centres.append(near.mean(axis=0))
         chols.append(np.linalg.cholesky(ridged(np.cov(near.T))))
         weights = [w * (1 - share) for w in weights] + [share]
-        moved = np.arange(walkers) < round(share * walkers)
-        ws[moved] = _laplace_draws(extra_mode["theta"], chol, int(moved.sum()), logp, rng)
+        ws[moved] = draws[: int(moved.sum())]
     mix = IndependenceMixture(
         np.array(centres), np.array(chols), emcee.moves.DEMove(), MIXTURE_NU, weights, log_columns=cols
     )
