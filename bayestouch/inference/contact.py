@@ -434,14 +434,13 @@ def _log_lik_mixed(th, data: _Data, noise: str, nu: float):
         return jnp.sum(rel.astype(jnp.float64), axis=1) + hom.shape[1] * c
     use = jnp.ones(hom.shape[1]) if data.use is None else data.use
     free = jnp.zeros(hom.shape[1]) if data.free is None else data.free
-    is_contact = ((1.0 - free) * use)[None] > 0
-    contacts = jnp.sum(jnp.where(is_contact, rel, _F32(0)).astype(jnp.float64), axis=1)
+    contact = (1.0 - free) * use  # 1 on the contacts, 0 on free-space and padding columns
+    contacts = jnp.sum(jnp.where(contact[None] > 0, rel, _F32(0)).astype(jnp.float64), axis=1) + jnp.sum(contact) * c
     if data.free is None:
-        return contacts + jnp.sum((1.0 - free) * use) * c
+        return contacts
     is_free = (free * use)[None] > 0
     ft = _free_terms(d, ls.astype(_F32)[:, None], _F32(data.log_miss))
-    free_sum = jnp.sum(jnp.where(is_free, ft, _F32(0)).astype(jnp.float64), axis=1)
-    return contacts + jnp.sum((1.0 - free) * use) * c + free_sum
+    return contacts + jnp.sum(jnp.where(is_free, ft, _F32(0)).astype(jnp.float64), axis=1)
 
 
 _log_lik_terms_jit = jax.jit(_log_lik_terms, static_argnums=(2, 3))
