@@ -29,7 +29,7 @@ import numpy as np
 from bayestouch.errors import BadInput
 from bayestouch.io.files import write_json
 
-__all__ = ["FINGERPRINT_FILE", "RESULT_FILES", "dataset_digest", "fingerprint", "prepare_run_folder"]
+__all__ = ["FINGERPRINT_FILE", "RESULT_FILES", "dataset_digest", "differences", "fingerprint", "prepare_run_folder"]
 
 #: the file holding a run's fingerprint
 FINGERPRINT_FILE = "run.json"
@@ -86,10 +86,12 @@ def fingerprint(level: str, data: Mapping[str, Any], options: Mapping[str, Any])
     }
 
 
-def _differences(old: dict, new: dict) -> list[str]:
+def differences(old: dict, new: dict) -> list[str]:
+    """What differs between a recorded fingerprint ``old`` (as read back from JSON) and ``new``
+    (:func:`fingerprint`), one phrase each: ``"other points"``, ``"seed 0 (now 7)"`` …; empty when they agree."""
     out = []
     if old.get("level") != new["level"]:
-        out.append(f"a {old.get('level')}-level fit, not {new['level']}")
+        out.append(f"a {old.get('level')}-level run, not {new['level']}")
     for k, v in new["data_sha256"].items():
         if old.get("data_sha256", {}).get(k) != v:
             out.append(f"other {k}")
@@ -141,7 +143,7 @@ def prepare_run_folder(out, fp: dict, *, resume: bool, overwrite: bool = False) 
         except (OSError, ValueError):
             old = {}
     if resume and old is not None and (held or (out / "smc.npz").exists()):
-        diff = _differences(old, fp)
+        diff = differences(old, fp)
         if diff:
             raise BadInput(
                 f"--resume: {out} holds a run made with {'; '.join(diff)}; resume it with its own data and "

@@ -32,6 +32,7 @@ from tqdm.auto import tqdm
 
 from bayestouch.errors import BadInput
 from bayestouch.io.files import read_csv_rows, write_csv_rows, write_json
+from bayestouch.io.runfolder import differences, fingerprint
 from bayestouch.params import MODELS
 from bayestouch.planning.loop import ExploreSettings, explore
 from bayestouch.planning.policies import check_policy
@@ -283,7 +284,7 @@ def run_experiment(
     out.mkdir(parents=True, exist_ok=True)
     csv_path = out / "results.csv"
     meta_path = out / "experiment.json"
-    meta = {"seed": int(seed), "budget": int(budget), "settings": dict(settings or {})}
+    meta = fingerprint("experiment", {}, {"seed": int(seed), "budget": int(budget), "settings": dict(settings or {})})
     if csv_path.is_file() and not resume and not overwrite:
         raise BadInput(
             f"--out {out} already holds results.csv; pass --resume to keep its complete trials, --overwrite to "
@@ -294,8 +295,8 @@ def run_experiment(
         old_meta = None
         with contextlib.suppress(OSError, ValueError):
             old_meta = json.loads(meta_path.read_text(encoding="utf-8"))
-        if old_meta is not None and old_meta != json.loads(json.dumps(meta)):
-            diff = [f"{k} {old_meta.get(k)!r} (now {v!r})" for k, v in meta.items() if old_meta.get(k) != v]
+        diff = [] if old_meta is None else differences(old_meta, meta)
+        if diff:
             raise BadInput(
                 f"--resume: {csv_path} was made with {'; '.join(diff)}; resume with the same settings or choose "
                 "another --out"
