@@ -173,6 +173,38 @@ def test_an_unanswered_status_on_a_slow_link_waits_for_the_frames(device, monkey
     assert _matches_model(data, sim.model.out[max(sim.model.out)])
 
 
+@pytest.mark.parametrize("unanswered", [1, 3])
+def test_an_unanswered_status_after_the_frames(device, monkeypatch, unanswered):
+    """The heater check after a stroke's frames arrived: one status request left unanswered by a slow link is asked
+    again and the stroke is kept; three unanswered ones leave the heaters' state unknown, which is a DeviceError
+    that says so (never a stroke reported as fine)."""
+    sim, dev = device(Faults(seed=2))
+    real_status, real_collect = dev.status, dev._collect
+    state = {"collected": False, "failed": 0}
+
+    def collect(sid, T):
+        got = real_collect(sid, T)
+        state["collected"] = got is not None
+        return got
+
+    def status():
+        if state["collected"] and state["failed"] < unanswered:
+            state["failed"] += 1
+            raise DeviceError(f"{dev.url}: no answer to StatusRequest after {dev.retries} tries")
+        return real_status()
+
+    monkeypatch.setattr(dev, "_collect", collect)
+    monkeypatch.setattr(dev, "status", status)
+    plan = make_plan(20)
+    if unanswered < 3:
+        data = dev.run_stroke(plan)
+        assert state["failed"] == unanswered
+        assert _matches_model(data, sim.model.out[max(sim.model.out)])
+    else:
+        with pytest.raises(DeviceError, match="heaters' state is unknown"):
+            dev.run_stroke(plan)
+
+
 def test_inbound_faults_survived(device):
     # the device's decoder rejects damaged commands and the client retries them; 1e-4 per byte on a 1.1 kB
     # command fails ~20 % of tries (8 tries: ~1e-6 of giving up); strokes are repeated until the device has

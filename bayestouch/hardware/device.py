@@ -574,7 +574,7 @@ class FingerDevice:
             if got is None:
                 continue
             dev_t = np.array([x.time for x in got], float)
-            st = self.status()
+            st = self._status_after(sid)
             if st.heater_on and st.state == 0:
                 raise HeaterFault(
                     f"{self.url}: heaters still on after stroke {sid} ended (wire currents "
@@ -582,6 +582,23 @@ class FingerDevice:
                 )
             return got, dev_t, sid
         raise DeviceError(f"{self.url}: stroke lost {self.redo + 1} times (watchdog or disconnects)")
+
+    def _status_after(self, sid: int, tries: int = 3) -> pr.Status:
+        """The status after stroke ``sid`` delivered its frames (the heater check). A slow link may leave one
+        request unanswered after its retries while the answer is still on its way: ``tries`` requests are made
+        before the heaters' state is declared unknown (DeviceError)."""
+        for _ in range(tries - 1):
+            try:
+                return self.status()
+            except DeviceError:
+                pass
+        try:
+            return self.status()
+        except DeviceError as e:
+            raise DeviceError(
+                f"{self.url}: no status after stroke {sid} in {tries} requests; the heaters' state is unknown, "
+                "switch the finger off"
+            ) from e
 
     def _collect(self, sid: int, T: int) -> list[pr.Frame] | None:
         frames: dict[int, pr.Frame] = {}
