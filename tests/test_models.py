@@ -6,6 +6,7 @@ from __future__ import annotations
 import re
 import shutil
 
+import numpy as np
 import pytest
 
 from bayestouch.errors import BadInput
@@ -123,3 +124,18 @@ def test_each_prior_table_refuses_its_own_broken_entry(case, entry, tmp_path):
         with pytest.raises(BadInput, match=re.escape(name)) as e:
             load(tmp_path / name)
         assert entry in str(e.value) and "\n" not in str(e.value), str(e.value)
+
+
+def test_shipped_objects_load_by_name_from_any_folder(tmp_path, monkeypatch):
+    """``load_object("egg")`` reads the shipped egg wherever the caller stands; an unknown name names the known
+    ones."""
+    from bayestouch.scene.objects import OBJECTS_DIR, load_object
+
+    monkeypatch.chdir(tmp_path)
+    by_name, by_path = load_object("egg"), load_object(OBJECTS_DIR / "egg.toml")
+    assert by_name.name == by_path.name == "egg"
+    assert by_name.source.resolve() == by_path.source.resolve()
+    for a, b in zip(by_name.shape, by_path.shape, strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    with pytest.raises(BadInput, match="unknown object 'eggo'.*sphere"):
+        load_object("eggo")

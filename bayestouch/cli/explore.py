@@ -117,10 +117,9 @@ def run_explore(args) -> int:
     received) are written too; without ``--object`` there is no truth and the errors are unknown (NaN)."""
     from bayestouch.io.contacts import save_contact_points
     from bayestouch.io.files import write_json
-    from bayestouch.planning.experiment import resolve_object
     from bayestouch.planning.loop import ExploreSettings, explore
     from bayestouch.planning.policies import check_policy
-    from bayestouch.scene.objects import load_object
+    from bayestouch.scene.objects import load_object, resolve_object
 
     settings = ExploreSettings(**_settings(args))
     check_policy(args.planner)

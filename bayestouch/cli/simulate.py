@@ -28,7 +28,12 @@ def add_parser(sub) -> argparse.ArgumentParser:
         description="Run the physics forward model (SMA wires, auxetic skin, piezotronic taxels, "
         "noise) for random strokes over an object and write a recording (netCDF, SI units).",
     )
-    sp.add_argument("--object", required=True, type=Path, help="object TOML, e.g. models/objects/egg.toml")
+    sp.add_argument(
+        "--object",
+        required=True,
+        type=Path,
+        help="object name (egg, sphere, box, cylinder, ...) or TOML file, e.g. models/objects/egg.toml",
+    )
     sp.add_argument("--strokes", type=positive_int, default=1, help="number of strokes (default 1)")
     sp.add_argument("--seed", type=seed_arg, default=0, help="seed of the strokes and the noise (default 0)")
     sp.add_argument("--out", required=True, type=Path, help="recording to write (.nc)")

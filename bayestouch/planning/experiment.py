@@ -33,10 +33,9 @@ from tqdm.auto import tqdm
 from bayestouch.errors import BadInput
 from bayestouch.io.files import read_csv_rows, write_csv_rows, write_json
 from bayestouch.io.runfolder import differences, fingerprint
-from bayestouch.params import MODELS
 from bayestouch.planning.loop import ExploreSettings, explore
 from bayestouch.planning.policies import check_policy
-from bayestouch.scene.objects import load_object
+from bayestouch.scene.objects import OBJECTS_DIR, load_object, resolve_object
 
 __all__ = [
     "COLUMNS",
@@ -73,21 +72,6 @@ MAX_TRIALS = 100_000
 SCHEDULER_TIMEOUT_S = 10.0
 #: default objects (models/objects/<name>.toml)
 OBJECTS = ("egg", "sphere", "box", "cylinder")
-_MODELS = MODELS / "objects"
-
-
-def resolve_object(name: str) -> Path:
-    """An object name (``egg``: ``models/objects/egg.toml``) or a TOML path → the file; BadInput if missing."""
-    p = Path(name)
-    if p.suffix == ".toml":
-        if not p.is_file():
-            raise BadInput(f"object: no such file {p} (expected a TOML object file like models/objects/egg.toml)")
-        return p
-    q = _MODELS / f"{name}.toml"
-    if not q.is_file():
-        known = ", ".join(sorted(x.stem for x in _MODELS.glob("*.toml")))
-        raise BadInput(f"object: unknown object {name!r}; expected one of {known} or a path to a .toml file")
-    return q
 
 
 def run_trial(task: dict) -> list[dict]:
@@ -274,7 +258,7 @@ def run_experiment(
     if scheduler is not None:
         _connect(scheduler).close()  # before any work or output: an unreachable scheduler is bad input
     paths = {str(o): resolve_object(str(o)) for o in objects}
-    names = {o: p.stem if p.parent == _MODELS else str(o) for o, p in paths.items()}
+    names = {o: p.stem if p.parent == OBJECTS_DIR else str(o) for o, p in paths.items()}
     unknown = set(settings or {}) - set(ExploreSettings._fields)
     if unknown:
         raise BadInput(f"settings: unknown field(s) {sorted(unknown)}; expected {', '.join(ExploreSettings._fields)}")

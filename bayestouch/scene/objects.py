@@ -16,11 +16,13 @@ from bayestouch.backend import jax, jnp, pad_pow2
 from bayestouch.errors import BadInput
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.mesh import nellipsoid_mesh
-from bayestouch.params import read_toml
+from bayestouch.params import MODELS, read_toml
 from bayestouch.scene.surface import Defects, Surface, Texture, defect_height, ffd_displacement
 from bayestouch.scene.surface import height as _surface_height
 
 __all__ = [
+    "OBJECTS_DIR",
+    "resolve_object",
     "Defect",
     "TextureSpec",
     "FFDSpec",
@@ -290,7 +292,26 @@ def object_from_dict(doc: dict, where: str = "object", source: Path | None = Non
     )
 
 
+#: the shipped objects (``egg``, ``sphere``, ``box``, ``cylinder`` ...), by name
+OBJECTS_DIR = MODELS / "objects"
+
+
+def resolve_object(name: str) -> Path:
+    """An object name (``egg``: ``models/objects/egg.toml``) or a TOML path → the file; BadInput if missing."""
+    p = Path(name)
+    if p.suffix == ".toml":
+        if not p.is_file():
+            raise BadInput(f"object: no such file {p} (expected a TOML object file like models/objects/egg.toml)")
+        return p
+    q = OBJECTS_DIR / f"{name}.toml"
+    if not q.is_file():
+        known = ", ".join(sorted(x.stem for x in OBJECTS_DIR.glob("*.toml")))
+        raise BadInput(f"object: unknown object {name!r}; expected one of {known} or a path to a .toml file")
+    return q
+
+
 def load_object(path) -> SceneObject:
-    """Read an object TOML file (metres, radians); a bad file raises :class:`BadInput` naming the field."""
-    p = Path(path)
+    """Read an object TOML file (metres, radians), or a shipped object by name (``"egg"``,
+    :func:`resolve_object`); a bad file raises :class:`BadInput` naming the field."""
+    p = Path(path) if Path(path).suffix == ".toml" else resolve_object(str(path))
     return object_from_dict(read_toml(p, "object file", "models/objects/egg.toml"), str(p), p)
