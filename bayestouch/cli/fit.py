@@ -136,6 +136,15 @@ def add_parser(sub) -> argparse.ArgumentParser:
         default=None,
         help="recording (.nc) only: use every STRIDE-th frame (default 2 with texture, 5 without)",
     )
+    fp.add_argument(
+        "--calibration",
+        type=Path,
+        default=None,
+        metavar="DEVICE.toml",
+        help="recording (.nc) only: the finger's device file from `bayestouch calibrate` (per-taxel gains and "
+        "their errors); without it the gains are unknown and marginalised with the nominal spread of "
+        "models/noise.toml (wider intervals)",
+    )
     fp.add_argument("--quiet", action="store_true", help="no progress bar")
     return fp
 
@@ -177,6 +186,7 @@ def run(args) -> int:
             stop_when_converged=not args.no_early_stop,
             texture=args.texture,
             stride=args.stride,
+            calibration=args.calibration,
         )
     else:
         from bayestouch.inference.run import DEFAULT_BUDGET_S, run_contact_fit
@@ -184,8 +194,10 @@ def run(args) -> int:
 
         if args.size_prior is not None and args.ffd is not None:
             raise BadInput("--size-prior: the FFD-marginalised fit keeps its own prior; use one of --size-prior, --ffd")
-        if args.texture != "auto" or args.stride is not None:
-            raise BadInput("--texture and --stride apply to a recording (.nc), not to contact points (.csv)")
+        if args.texture != "auto" or args.stride is not None or args.calibration is not None:
+            raise BadInput(
+                "--texture, --stride and --calibration apply to a recording (.nc), not to contact points (.csv)"
+            )
 
         cp = load_contact_points(args.points)
         if args.subsample is not None:

@@ -17,7 +17,7 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 from bayestouch import __version__  # noqa: E402
-from bayestouch.cli import demo, device, explore, fit, paper, sbc, simulate, texture_id  # noqa: E402
+from bayestouch.cli import calibrate, demo, device, explore, fit, paper, sbc, simulate, texture_id  # noqa: E402
 from bayestouch.errors import BadInput  # noqa: E402
 
 __all__ = ["main", "build_parser"]
@@ -41,6 +41,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     paper.add_parser(sub).set_defaults(run=paper.run)
     fit.add_parser(sub).set_defaults(run=fit.run)
+    calibrate.add_parser(sub).set_defaults(run=calibrate.run)
     simulate.add_parser(sub).set_defaults(run=simulate.run)
     demo.add_parser(sub).set_defaults(run=demo.run)
     device.add_device_parser(sub).set_defaults(run=device.run_device)

@@ -36,6 +36,13 @@ def add_parser(sub) -> argparse.ArgumentParser:
     )
     sp.add_argument("--strokes", type=positive_int, default=1, help="number of strokes (default 1)")
     sp.add_argument("--seed", type=seed_arg, default=0, help="seed of the strokes and the noise (default 0)")
+    sp.add_argument(
+        "--device-seed",
+        type=seed_arg,
+        default=None,
+        help="which simulated finger (its taxels' fixed-pattern gains); default --seed. Recordings of one finger "
+        "share it, e.g. a calibration and the strokes it serves",
+    )
     sp.add_argument("--out", required=True, type=Path, help="recording to write (.nc)")
     sp.add_argument("--duration", type=float, default=2.0, help="seconds per stroke at 1 cm/s (default 2)")
     sp.add_argument("--rate", type=float, default=50.0, help="taxel frames per second (default 50)")
@@ -93,7 +100,8 @@ def run(args) -> int:
     from bayestouch.scene.strokes import random_strokes
 
     obj = load_object(args.object)
-    vf = load_finger(args.models, seed=args.seed)
+    device_seed = args.seed if args.device_seed is None else args.device_seed
+    vf = load_finger(args.models, seed=device_seed)
     max_current = float(vf.wire.max_current)
     if not all(0 <= c <= max_current for c in currents):
         raise BadInput(f"--currents: wire currents must each be in [0, {max_current:g}] A (amperes), got {currents}")
@@ -116,6 +124,7 @@ def run(args) -> int:
             "object": obj.name,
             "object_file": str(args.object),
             "seed": args.seed,
+            "device_seed": device_seed,
             "mode": args.mode or vf.mode,
             "wire_hold_currents_A": args.currents,
             "software": f"bayestouch {__version__}",

@@ -6,13 +6,15 @@ texture (grating u, v m, log λ log m, orientation rad, log roughness log m; :mo
 One job per module: :mod:`~bayestouch.inference.raw.data` (the recording read into :class:`RawData`),
 :mod:`~bayestouch.inference.raw.likelihood` (prediction, likelihood, prior box, pruning),
 :mod:`~bayestouch.inference.raw.texture` (the grating search and textured start),
-:mod:`~bayestouch.inference.raw.adjustment` (the sandwich adjustment), :mod:`~bayestouch.inference.raw.fit`
-(the start, the posterior model and :func:`run_raw_fit`). The model's derivation and measured figures:
-``docs/raw_model.md``.
+:mod:`~bayestouch.inference.raw.adjustment` (the sandwich adjustment),
+:mod:`~bayestouch.inference.raw.calibrate` (the finger's gains from strokes over a known object),
+:mod:`~bayestouch.inference.raw.fit` (the start, the posterior model and :func:`run_raw_fit`).
+The model's derivation and measured figures: ``docs/raw_model.md``.
 """
 
 from bayestouch.inference.raw.adjustment import ADJUST_BLOCK_S, Adjustment, curvature_adjustment
-from bayestouch.inference.raw.data import RawData, load_raw_data
+from bayestouch.inference.raw.calibrate import calibrate_device
+from bayestouch.inference.raw.data import RawData, host_finger, load_raw_data, nominal_log_gain_sd, unloaded_current
 from bayestouch.inference.raw.fit import (
     BARE_STRIDE,
     DETECT_NATS,
@@ -35,12 +37,15 @@ from bayestouch.inference.raw.likelihood import (
     load_raw_priors,
     make_raw_log_prob,
     predict_log_current,
+    predict_readings,
     prune_clear,
     prune_clearance,
     raw_bounds,
     raw_log_likelihood,
     raw_log_prob,
     raw_log_prob_batch,
+    reading_log_lik,
+    taxel_offsets,
 )
 from bayestouch.inference.raw.texture import (
     TextureStart,
@@ -92,4 +97,11 @@ __all__ = [
     "prune_clear",
     "prune_clearance",
     "PRUNE_MARGIN",
+    "host_finger",
+    "nominal_log_gain_sd",
+    "unloaded_current",
+    "reading_log_lik",
+    "taxel_offsets",
+    "predict_readings",
+    "calibrate_device",
 ]

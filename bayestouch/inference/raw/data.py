@@ -13,6 +13,7 @@ import numpy as np
 
 from bayestouch.backend import jax, jnp
 from bayestouch.errors import BadInput
+from bayestouch.io.device_file import DeviceCalibration
 from bayestouch.io.recording import check_recording, read_recording
 from bayestouch.params import MODELS
 from bayestouch.physics import forward as fw
@@ -20,7 +21,15 @@ from bayestouch.physics import noise as nz
 from bayestouch.physics import taxel as tx
 from bayestouch.physics.virtual import load_finger
 
-__all__ = ["RawData", "open_recording", "load_raw_data", "commanded_points"]
+__all__ = [
+    "RawData",
+    "open_recording",
+    "nominal_log_gain_sd",
+    "host_finger",
+    "unloaded_current",
+    "load_raw_data",
+    "commanded_points",
+]
 
 
 class RawData(NamedTuple):
@@ -52,6 +61,10 @@ class RawData(NamedTuple):
         Flat indices into the F·J penetrating-taxel slots whose distance is evaluated
         (:func:`~bayestouch.inference.raw.likelihood.prune_clear`); the others are taken to be clear of the surface
         (no penetration). None: every slot.
+    gain_sd : (M,) float or None
+        Standard deviation of each selected taxel's remaining log-gain (dimensionless) about the gain divided out of
+        ``log_current``: the likelihood marginalises one offset per taxel with this prior sd
+        (:func:`~bayestouch.inference.raw.likelihood.taxel_offsets`). None: the gains are known exactly.
     """
 
     taxel_position: np.ndarray
@@ -66,6 +79,7 @@ class RawData(NamedTuple):
     dt: float
     mode: str
     active: np.ndarray | None = None
+    gain_sd: np.ndarray | None = None
 
 
 def open_recording(ds_or_path):
@@ -114,6 +128,59 @@ def _need(ds, name, ndim, where):
     return v
 
 
+def nominal_log_gain_sd(finger) -> float:
+    """Spread of the taxels' log-gains that ``models/noise.toml`` states for any device, σ_Φ / V_T (dimensionless;
+    0.78 for σ_Φ = 20 mV at 296 K): what is known of an uncalibrated finger's gains."""
+    return float(finger.noise.barrier_spread / tx.thermal_voltage(finger.noise.temperature))
+
+
+def host_finger(models: Path = MODELS, calibration: DeviceCalibration | None = None):
+    """The finger as a host that has only ``models`` and the device file knows it.
+
+    Parameters
+    ----------
+    models : path
+        Parameter folder (``finger.toml``, ``skin.toml``, ``taxels.toml``, ``noise.toml``).
+    calibration : DeviceCalibration, optional
+        From ``bayestouch calibrate`` (:func:`bayestouch.io.device_file.read_device_file`).
+
+    Returns
+    -------
+    finger : Finger
+        Gains exp(``calibration.log_gain``), or 1 for every taxel without a calibration (never a simulator's
+        fixed pattern).
+    log_gain_sd : (N,) float
+        Remaining sd of each taxel's log-gain: the calibration's standard errors, or
+        :func:`nominal_log_gain_sd` for every taxel.
+    """
+    finger = load_finger(Path(models)).finger
+    n = int(np.asarray(finger.gains).size)
+    if calibration is None:
+        gains, sd = np.ones(n), np.full(n, nominal_log_gain_sd(finger))
+    else:
+        if np.size(calibration.log_gain) != n:
+            raise BadInput(f"calibration: it calibrates {np.size(calibration.log_gain)} taxels, the finger has {n}")
+        gains, sd = np.exp(np.asarray(calibration.log_gain, float)), np.asarray(calibration.log_gain_sd, float)
+    return finger._replace(gains=jnp.asarray(gains).reshape(np.shape(finger.gains))), sd
+
+
+def unloaded_current(finger, temperature, time, stroke_index, mode: str) -> np.ndarray:
+    """Unloaded taxel current (F,) A at the skin ``temperature (F,)`` K through the taxels' response lag, each
+    stroke (``stroke_index (F,)``) starting at steady state, as the reference taxels see it; ``time (F,)`` s."""
+    temperature, time, stroke_index = (np.asarray(a) for a in (temperature, time, stroke_index))
+    nF = temperature.size
+    unloaded = np.asarray(
+        tx.taxel_current(finger.taxels, jnp.zeros((nF, 1)), jnp.asarray(temperature)[:, None], mode=mode)
+    )[:, 0]
+    out = np.empty_like(unloaded)
+    for k in np.unique(stroke_index):
+        sel = np.flatnonzero(stroke_index == k)
+        dts = np.diff(time[sel])
+        dt = float(np.median(dts)) if dts.size else 0.02
+        out[sel] = np.asarray(tx.first_order_lag(unloaded[sel, None], dt, float(finger.taxels.lag)))[:, 0]
+    return out
+
+
 def load_raw_data(
     ds_or_path,
     *,
@@ -123,8 +190,10 @@ def load_raw_data(
     contact_radius: float = 3.2e-3,
     strokes=None,
     finger=None,
+    gain_sd=None,
+    calibration: DeviceCalibration | None = None,
 ):
-    """Read a recording into :class:`RawData` and rebuild its finger.
+    """Read a recording into :class:`RawData` with the finger as a host knows it (:func:`host_finger`).
 
     Parameters
     ----------
@@ -142,7 +211,12 @@ def load_raw_data(
     strokes : sequence of int, optional
         Use only these strokes (default all).
     finger : Finger, optional
-        The device; default ``load_finger(models, seed=int(ds.attrs['seed']))`` (the simulated device's gains).
+        The device, its gains taken as they are; default :func:`host_finger` of ``models`` and ``calibration``.
+        Nothing of the recording but its readings, kinematics and response mode is read (no simulator seed).
+    gain_sd : (N,) float, optional
+        With ``finger``: the remaining sd of each taxel's log-gain (None: the gains are exact).
+    calibration : DeviceCalibration, optional
+        Without ``finger``: the device file of this finger; without either, unit gains with the nominal spread.
 
     Returns
     -------
@@ -170,13 +244,15 @@ def load_raw_data(
     mode = str(ds.attrs.get("mode", "physics"))
     if mode not in tx.MODES:
         raise BadInput(f"{where}: attribute 'mode' is {mode!r}, expected one of {tx.MODES}")
+    if calibration is not None and calibration.mode != mode:
+        raise BadInput(
+            f"calibration: made in the {calibration.mode} taxel mode, the recording {where} is in the {mode} mode"
+        )
     if finger is None:
-        try:
-            seed = int(ds.attrs.get("seed", 0))
-        except ValueError:
-            raise BadInput(f"{where}: attribute 'seed' must be an integer, got {ds.attrs.get('seed')!r}") from None
-        finger = load_finger(Path(models), seed=seed).finger
+        finger, gain_sd = host_finger(Path(models), calibration)
     N = int(np.asarray(finger.reference).size)
+    if gain_sd is not None and (np.size(gain_sd) != N or not np.all(np.asarray(gain_sd, float) > 0)):
+        raise BadInput(f"gain_sd must hold {N} positive numbers (one log-gain sd per taxel)")
     if nT != N:
         raise BadInput(f"{where}: variable 'taxel_current' has {nT} taxels, expected {N} (the finger's array)")
     ref = np.asarray(finger.reference).ravel().astype(bool)
@@ -229,14 +305,7 @@ def load_raw_data(
     # the unloaded current at the skin temperature, through the taxels' response lag exactly as the reference
     # taxels see it (each stroke starts at steady state, as the forward model does); without the lag a warming
     # skin leaves a drift bias of ~1e-3 in ln I over a 1 s stroke, twice the reading noise
-    unloaded_all = np.asarray(
-        tx.taxel_current(finger.taxels, jnp.zeros((nF, 1)), jnp.asarray(temp)[:, None], mode=mode)
-    )[:, 0]
-    lagged = np.empty_like(unloaded_all)
-    for k in np.unique(si):
-        sel = np.flatnonzero(si == k)
-        lagged[sel] = np.asarray(tx.first_order_lag(unloaded_all[sel, None], dt_fine, float(finger.taxels.lag)))[:, 0]
-    unloaded = lagged[frames]
+    unloaded = unloaded_current(finger, temp, t, si, mode)[frames]
     flick = float(nz.flicker_autocovariance(finger.noise, 0.0))
     white = (np.asarray(nz.noise_std(finger.noise, jnp.asarray(meas))) / meas) ** 2
     # median over the reference taxels: one read-out glitch on a reference taxel must not shift every taxel
@@ -259,6 +328,7 @@ def load_raw_data(
         taxels,
         dt_fine * stride,
         mode,
+        gain_sd=None if gain_sd is None else np.asarray(gain_sd, float).ravel()[taxels],
     )
     return data, finger
 

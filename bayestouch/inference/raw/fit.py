@@ -21,7 +21,7 @@ from bayestouch.inference.grating import RawTexture
 from bayestouch.inference.optimize import laplace, laplace_ball, scaled_lbfgs
 from bayestouch.inference.posterior import PosteriorModel, judged_quantities, write_posterior
 from bayestouch.inference.raw.adjustment import Adjustment, curvature_adjustment
-from bayestouch.inference.raw.data import RawData, commanded_points, load_raw_data, open_recording
+from bayestouch.inference.raw.data import RawData, commanded_points, host_finger, load_raw_data, open_recording
 from bayestouch.inference.raw.likelihood import (
     LOG_K_PRIOR_SD,
     RAW_NATURAL_NAMES,
@@ -31,7 +31,7 @@ from bayestouch.inference.raw.likelihood import (
     RAW_TEXTURE_PARAM_NAMES,
     STUDENT_NU,
     make_raw_log_prob,
-    predict_log_current,
+    predict_readings,
     prune_clear,
     prune_clearance,
     raw_bounds,
@@ -42,6 +42,7 @@ from bayestouch.inference.raw.likelihood import (
 from bayestouch.inference.raw.texture import initial_raw_texture
 from bayestouch.inference.run import initial_theta, natural_draws
 from bayestouch.inference.sampler import adaptive_moves, sample
+from bayestouch.io.device_file import DeviceCalibration, read_device_file
 from bayestouch.io.runfolder import dataset_digest, fingerprint, prepare_run_folder
 from bayestouch.params import MODELS
 
@@ -128,7 +129,7 @@ def raw_model(
         )
 
     one = jax.jit(
-        jax.vmap(lambda t: (predict_log_current(t, data, finger, texture), reading_scale(t, data, texture, nu)))
+        jax.vmap(lambda t: (predict_readings(t, data, finger, nu, texture), reading_scale(t, data, texture, nu)))
     )
 
     def predictive(thetas, rng: np.random.Generator):
@@ -149,6 +150,12 @@ def raw_model(
         "amplifier+ADC)/I² + stationary 1/f + local random walk + reference-mean variance; "
         f"times k (sampled, prior log k ~ N(0, {LOG_K_PRIOR_SD:g}))"
         + ("" if texture is None else "; plus roughness² × its Monte-Carlo response variance"),
+        "gains": "known exactly (given with the finger)"
+        if data.gain_sd is None
+        else "each taxel's remaining log-gain marginalised, prior sd "
+        f"{float(np.median(data.gain_sd)):.3g} (median over taxels; "
+        + str((info or {}).get("calibration", "no calibration: unit gains, the nominal spread of models/noise.toml"))
+        + ")",
         "frames_used": int(F),
         "frame_interval_s": float(data.dt),
         "taxels_used": int(M),
@@ -260,6 +267,7 @@ def run_raw_fit(
     adjust: bool = True,
     prune: bool = True,
     overwrite: bool = False,
+    calibration=None,
 ) -> dict:
     """Sample the raw-current posterior of a recording and write the run folder ``out``.
 
@@ -296,6 +304,10 @@ def run_raw_fit(
     adjust : bool
         Widen the posterior to the sandwich covariance (:func:`curvature_adjustment`): the likelihood treats
         correlated readings as independent. ``False`` gives the independence posterior as sampled.
+    calibration : path or DeviceCalibration, optional
+        The finger's device file (``bayestouch calibrate``): its per-taxel gains are divided out and their standard
+        errors marginalised. Without it the gains are unknown (1 ± the nominal spread of ``models/noise.toml``,
+        marginalised per taxel). The recording's simulator seed is never read.
     prune : bool
         Sample without the taxel slots more than :data:`~bayestouch.inference.raw.likelihood.PRUNE_MARGIN` outside
         the start's surface (:func:`prune_clear`), checked on the draws afterwards (``summary.model.pruning``).
@@ -312,6 +324,10 @@ def run_raw_fit(
     t0 = time.perf_counter()
     out = Path(out)
     ds, _ = open_recording(recording)
+    cal, cal_name = calibration, None
+    if calibration is not None and not isinstance(calibration, DeviceCalibration):
+        cal, cal_name = read_device_file(calibration), str(calibration)
+    finger, gain_sd = host_finger(Path(models), cal)
     options = {
         "walkers": int(walkers),
         "seed": int(seed),
@@ -323,6 +339,9 @@ def run_raw_fit(
         "texture": texture,
         "adjust": bool(adjust),
         "prune": bool(prune),
+        "calibration": None
+        if cal is None
+        else {"log_gain": [float(v) for v in cal.log_gain], "log_gain_sd": [float(v) for v in cal.log_gain_sd]},
     }
     prepare_run_folder(
         out, fingerprint("raw", {"recording": dataset_digest(ds)}, options), resume=resume, overwrite=overwrite
@@ -330,7 +349,8 @@ def run_raw_fit(
     priors = cm.load_priors()
     # the bare shape: DE on the commanded contact points, then L-BFGS-B on the raw posterior at the coarse stride
     bare_stride = BARE_STRIDE if stride is None or texture != "off" else int(stride)
-    bare_data, finger = load_raw_data(ds, models=models, stride=bare_stride, radius=radius, strokes=strokes)
+    dev = {"finger": finger, "gain_sd": gain_sd, "calibration": cal}
+    bare_data, _ = load_raw_data(ds, models=models, stride=bare_stride, radius=radius, strokes=strokes, **dev)
     th0 = initial_raw_theta(
         bare_data,
         finger,
@@ -340,24 +360,27 @@ def run_raw_fit(
         raw_bounds(bare_data, priors),
         starts=starts,
     )
-    data, tex, info = bare_data, None, {}
+    data, tex = bare_data, None
+    info = {
+        "calibration": "no calibration: unit gains, the nominal spread of models/noise.toml"
+        if cal is None
+        else f"device file {cal_name or '(given)'}, {cal.info.get('object', 'unknown object')}, mode {cal.mode}"
+    }
     if texture != "off":
         data, _ = load_raw_data(
-            ds, models=models, stride=stride or TEXTURE_STRIDE, radius=radius, strokes=strokes, finger=finger
+            ds, models=models, stride=stride or TEXTURE_STRIDE, radius=radius, strokes=strokes, **dev
         )
         tp = gr.load_texture_priors()
         ts = initial_raw_texture(th0, data, finger, priors, tp, seed=seed)
         planes = ("x-y", "x-z", "y-z")
-        info = {
-            "texture_search": {
-                "candidates": [
-                    {"plane": planes[p], "wavelength_m": lam, "orientation_rad": o, "statistic": st}
-                    for p, lam, o, st in ts.candidates
-                ],
-                "grating_gain_nats": ts.gain,
-                "detect_nats": DETECT_NATS,
-                "requested": texture,
-            }
+        info["texture_search"] = {
+            "candidates": [
+                {"plane": planes[p], "wavelength_m": lam, "orientation_rad": o, "statistic": st}
+                for p, lam, o, st in ts.candidates
+            ],
+            "grating_gain_nats": ts.gain,
+            "detect_nats": DETECT_NATS,
+            "requested": texture,
         }
         if texture == "on" or ts.gain > DETECT_NATS:
             tex, th_start, bounds, nlp = ts.texture, ts.theta, ts.bounds, ts.neg_log_post

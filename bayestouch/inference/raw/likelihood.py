@@ -37,7 +37,9 @@ __all__ = [
     "distance_log_current",
     "predict_log_current",
     "reading_scale",
+    "taxel_offsets",
     "reading_log_lik",
+    "predict_readings",
     "raw_pointwise",
     "raw_log_likelihood",
     "raw_bounds",
@@ -167,13 +169,48 @@ def reading_scale(theta, data: RawData, texture: RawTexture | None, nu: float = 
     return t_scale_factor(nu) * jnp.sqrt(var)
 
 
+def taxel_offsets(residual, variance, gain_sd):
+    """Posterior mean (M,) of each taxel's remaining log-gain δ ~ N(0, ``gain_sd``²) given the residuals
+    ``residual (F, M)`` = ln I − prediction of variances ``variance (F, M)``: Σ_f r/v / (1/s² + Σ_f 1/v)."""
+    w = 1.0 / variance
+    return jnp.sum(w * residual, axis=0) / (1.0 / jnp.asarray(gain_sd) ** 2 + jnp.sum(w, axis=0))
+
+
+def _offset_terms(theta, r, data: RawData, nu, texture):
+    """Residuals less the taxel offsets (F, M), and the per-frame share (F, M) of their marginalisation terms."""
+    var = (reading_scale(theta, data, texture, nu) / t_scale_factor(nu)) ** 2
+    s2 = jnp.asarray(data.gain_sd) ** 2
+    d = taxel_offsets(r, var, data.gain_sd)
+    per_taxel = -0.5 * d * d / s2 - 0.5 * jnp.log1p(s2 * jnp.sum(1.0 / var, axis=0))
+    return r - d, jnp.broadcast_to(per_taxel / r.shape[0], r.shape)
+
+
 def reading_log_lik(theta, pred, data: RawData, nu, texture):
     """Log-likelihood (F, M) of every selected reading given the predicted ln I ``pred (F, M)`` at θ (which supplies
     the noise multiplier k and, with ``texture``, the roughness σ_r): Student-t(``nu``) of scale
-    :func:`reading_scale`; a non-finite residual counts as 1e6."""
+    :func:`reading_scale`; a non-finite residual counts as 1e6.
+
+    With ``data.gain_sd`` each taxel's unknown remaining log-gain δ ~ N(0, s²) is marginalised: the residuals less
+    :func:`taxel_offsets` enter the Student-t, and each taxel adds −δ̂²/(2s²) − ½ log(1 + s² Σ_f 1/v), spread evenly
+    over its frames (exact for Gaussian readings of variance v; ``docs/raw_model.md``)."""
     r = jnp.asarray(data.log_current) - pred
     r = jnp.where(jnp.isfinite(r), r, 1e6)  # overflowed predictions of absurd shapes: finite, hugely unlikely
-    return student_t_logpdf(r, reading_scale(theta, data, texture, nu), nu)
+    scale = reading_scale(theta, data, texture, nu)
+    if data.gain_sd is None:
+        return student_t_logpdf(r, scale, nu)
+    r, extra = _offset_terms(theta, r, data, nu, texture)
+    return student_t_logpdf(r, scale, nu) + extra
+
+
+def predict_readings(theta, data: RawData, finger, nu: float = STUDENT_NU, texture: RawTexture | None = None):
+    """What the corrected readings ``data.log_current`` are compared with at θ: :func:`predict_log_current` plus,
+    with ``data.gain_sd``, each taxel's offset :func:`taxel_offsets` (F, M); pure JAX."""
+    pred = predict_log_current(theta, data, finger, texture)
+    if data.gain_sd is None:
+        return pred
+    var = (reading_scale(theta, data, texture, nu) / t_scale_factor(nu)) ** 2
+    r = jnp.asarray(data.log_current) - pred
+    return pred + taxel_offsets(jnp.where(jnp.isfinite(r), r, 0.0), var, data.gain_sd)
 
 
 def raw_pointwise(theta, data: RawData, finger, nu: float = STUDENT_NU, texture: RawTexture | None = None):

@@ -1,0 +1,66 @@
+"""``bayestouch calibrate``: a finger's device file from strokes over a known object."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from bayestouch.errors import BadInput
+from bayestouch.params import MODELS
+
+__all__ = ["add_parser", "run", "MISFIT_NOISE_SCALE"]
+
+#: residual sd over the modelled read-out sd above which the calibration warns that the object, its pose or the
+#: finger's constants do not fit the readings
+MISFIT_NOISE_SCALE = 3.0
+
+
+def add_parser(sub) -> argparse.ArgumentParser:
+    """Register ``bayestouch calibrate`` on the command's subparsers."""
+    cp = sub.add_parser(
+        "calibrate",
+        help="device file (per-taxel gains and their errors) from strokes over a known object",
+        description="Estimate each taxel's fixed-pattern log-gain, with its standard error from the spread between "
+        "strokes, and the read-out noise's scale, from a recording of strokes over a known object in a known pose "
+        "(at least 2 strokes). Writes a TOML device file for `bayestouch fit REC.nc --calibration DEVICE.toml`.",
+    )
+    cp.add_argument("recording", type=Path, help="recording .nc of strokes over the known object")
+    cp.add_argument(
+        "--object",
+        required=True,
+        help="the touched object: a name (sphere, egg, ...) or a TOML file, in the recording's world frame",
+    )
+    cp.add_argument("--out", required=True, type=Path, help="device file to write (.toml)")
+    cp.add_argument("--models", type=Path, default=MODELS, help="the finger's parameter folder (default models/)")
+    cp.add_argument("--overwrite", action="store_true", help="replace an existing device file")
+    return cp
+
+
+def run(args) -> int:
+    """Run ``bayestouch calibrate`` from parsed arguments (bad input raises BadInput)."""
+    from bayestouch.inference.raw.calibrate import calibrate_device
+    from bayestouch.io.device_file import write_device_file
+    from bayestouch.scene.objects import load_object
+
+    if args.out.suffix != ".toml":
+        raise BadInput(f"--out {args.out}: expected a .toml device file")
+    if args.out.exists() and not args.overwrite:
+        raise BadInput(f"--out {args.out} exists; pass --overwrite to replace it")
+    obj = load_object(args.object)
+    cal = calibrate_device(args.recording, obj, models=args.models, object_name=str(args.object))
+    write_device_file(args.out, cal)
+    print(
+        f"wrote {args.out}: {np.size(cal.log_gain)} taxels from {cal.info['strokes']} stroke(s) over "
+        f"{args.object}, log-gain sd {np.median(cal.log_gain_sd):.2g} (median), noise scale {cal.noise_scale:.2f}"
+    )
+    if cal.noise_scale > MISFIT_NOISE_SCALE:
+        import sys
+
+        print(
+            f"bayestouch calibrate: warning: the residuals are {cal.noise_scale:.1f}x the modelled read-out noise: "
+            "the object, its pose or the finger's constants do not fit these readings; the gains are unreliable",
+            file=sys.stderr,
+        )
+    return 0

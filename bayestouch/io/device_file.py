@@ -1,0 +1,158 @@
+"""The device file: what ``bayestouch calibrate`` learned about one finger, for the fits of its recordings.
+
+A real finger's taxels differ from one another (the ZnO barrier heights scatter, so each taxel's current carries
+its own fixed-pattern gain) and the device sends nothing that says by how much. A calibration on a known object
+estimates each taxel's log-gain with its standard error; a fit given the file (``fit --calibration DEVICE.toml``)
+divides the gains out and marginalises what remains of each taxel's log-gain with that standard error, so the
+device's remaining uncertainty reaches the shape posterior. The file is TOML::
+
+    [device]
+    format = 1
+    taxels = 256
+    mode = "empirical"            # taxel response mode of the calibration recording
+    noise_scale = 1.3             # residual sd / modelled read-out sd at the calibration (dimensionless)
+    object = "sphere"
+    recording = "sha256 of the recording's arrays"
+    strokes = 2
+    frames = 202
+    software = "bayestouch 0.1.0"
+
+    [gains]
+    log_gain = [...]              # ln of each taxel's gain (dimensionless), reference taxels' median 0
+    log_gain_sd = [...]           # its standard error
+
+Log-gains are relative: a common factor of every taxel is the reference row's and cancels in the fit's
+reference-drift correction.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from bayestouch.errors import BadInput
+from bayestouch.io.files import write_text
+from bayestouch.params import read_toml
+
+__all__ = ["DEVICE_FORMAT", "DeviceCalibration", "write_device_file", "read_device_file"]
+
+#: version of the device-file layout written by :func:`write_device_file`
+DEVICE_FORMAT = 1
+_MODES = ("physics", "empirical")
+
+
+class DeviceCalibration(NamedTuple):
+    """One finger's calibration.
+
+    log_gain : (N,) float
+        ln of each taxel's fixed-pattern gain (dimensionless), relative: the reference taxels' median is 0.
+    log_gain_sd : (N,) float
+        Standard error of ``log_gain`` (> 0).
+    noise_scale : float
+        Residual sd over the modelled read-out sd at the calibration (dimensionless, ≥ 0).
+    mode : str
+        Taxel response mode of the calibration recording ("physics" or "empirical").
+    info : dict
+        Provenance: object, recording digest, strokes, frames, software (strings and integers).
+    """
+
+    log_gain: np.ndarray
+    log_gain_sd: np.ndarray
+    noise_scale: float
+    mode: str
+    info: dict
+
+
+def _floats(values) -> str:
+    return "[" + ", ".join(repr(float(v)) for v in values) + "]"
+
+
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        return repr(v)
+    return '"' + str(v).replace("\\", "\\\\").replace('"', '\\"') + '"'
+
+
+def write_device_file(path, cal: DeviceCalibration) -> Path:
+    """Write ``cal`` to ``path`` (TOML, atomically; the module docstring gives the layout)."""
+    head = {
+        "format": DEVICE_FORMAT,
+        "taxels": int(np.size(cal.log_gain)),
+        "mode": cal.mode,
+        "noise_scale": float(cal.noise_scale),
+        **{k: v for k, v in cal.info.items() if isinstance(v, str | int | float) and k not in ("format", "taxels")},
+    }
+    lines = [
+        "# bayestouch device file: per-taxel log-gains of one finger from `bayestouch calibrate` (dimensionless)",
+        "[device]",
+        *(f"{k} = {_toml_value(v)}" for k, v in head.items()),
+        "",
+        "[gains]",
+        f"log_gain = {_floats(cal.log_gain)}",
+        f"log_gain_sd = {_floats(cal.log_gain_sd)}",
+        "",
+    ]
+    return write_text(path, "\n".join(lines))
+
+
+def read_device_file(path, n_taxels: int | None = None) -> DeviceCalibration:
+    """Read a device file written by :func:`write_device_file`.
+
+    Parameters
+    ----------
+    path : path
+    n_taxels : int, optional
+        The finger's taxel count; a file for another array is refused.
+
+    Raises
+    ------
+    BadInput
+        A missing or unreadable file, or a field that is absent or out of range (one line naming it).
+    """
+    p = Path(path)
+    where = f"device file {p}"
+    if not p.is_file():
+        raise BadInput(f"{where}: no such file; expected the TOML written by `bayestouch calibrate`")
+    doc = read_toml(p, "device file", "DEVICE.toml from `bayestouch calibrate`")
+    dev, gains = doc.get("device"), doc.get("gains")
+    if not isinstance(dev, dict) or not isinstance(gains, dict):
+        raise BadInput(f"{where}: expected the tables [device] and [gains] written by `bayestouch calibrate`")
+    if dev.get("format") != DEVICE_FORMAT:
+        raise BadInput(f"{where}: [device] format is {dev.get('format')!r}, expected {DEVICE_FORMAT}")
+    mode = dev.get("mode")
+    if mode not in _MODES:
+        raise BadInput(f"{where}: [device] mode is {mode!r}, expected one of {_MODES}")
+    k = dev.get("noise_scale")
+    if not isinstance(k, int | float) or isinstance(k, bool) or not (math.isfinite(k) and k >= 0):
+        raise BadInput(f"{where}: [device] noise_scale must be a finite number ≥ 0, got {k!r}")
+    arrays = {}
+    for name in ("log_gain", "log_gain_sd"):
+        v = gains.get(name)
+        if (
+            not isinstance(v, list)
+            or not v
+            or not all(isinstance(x, int | float) and not isinstance(x, bool) for x in v)
+        ):
+            raise BadInput(f"{where}: [gains] {name} must be a list of numbers (one per taxel)")
+        a = np.asarray(v, float)
+        if not np.all(np.isfinite(a)):
+            raise BadInput(f"{where}: [gains] {name} holds NaN or infinite values; expected finite numbers")
+        arrays[name] = a
+    lg, sd = arrays["log_gain"], arrays["log_gain_sd"]
+    if sd.shape != lg.shape:
+        raise BadInput(f"{where}: [gains] log_gain_sd has {sd.size} values, expected {lg.size} (one per taxel)")
+    if not np.all(sd > 0):
+        raise BadInput(f"{where}: [gains] log_gain_sd must be positive for every taxel")
+    if np.any(np.abs(lg) > 20):
+        raise BadInput(f"{where}: [gains] log_gain has |values| over 20 (gains beyond e^±20); expected ln of a gain")
+    if n_taxels is not None and lg.size != int(n_taxels):
+        raise BadInput(f"{where}: calibrates {lg.size} taxels, but the finger has {int(n_taxels)}")
+    info = {k: v for k, v in dev.items() if k not in ("mode", "noise_scale")}
+    return DeviceCalibration(lg, sd, float(k), str(mode), info)
