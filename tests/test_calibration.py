@@ -48,29 +48,42 @@ def sphere_cal():
     return calibrate_device(ds, obj), vf
 
 
-def test_marginalised_gain_is_the_exact_gaussian_marginal():
-    """With Gaussian readings (ν → ∞) the per-taxel offset terms are exact: Σ_f of :func:`reading_log_lik` equals
-    log N(r; 0, V + s² 11ᵀ) of each taxel's residual column."""
+def test_marginalised_gain_and_response_are_the_exact_gaussian_marginal():
+    """With Gaussian readings (ν → ∞) the marginalisation is exact: Σ of :func:`reading_log_lik` equals
+    log N(y; base + â Δ, V + blockdiag(s² 11ᵀ) + σ_a² Δ Δᵀ) over all readings, with the offsets alone
+    log N(y; base + Δ, V + blockdiag(s² 11ᵀ)), and with neither log N(y; base + Δ, V)."""
     from types import SimpleNamespace
 
     rng = np.random.default_rng(0)
-    F, M, nu = 40, 5, 1e9
+    F, M, nu = 30, 5, 1e9
     sd = rng.uniform(0.5, 2.0, (F, M)) * 1e-3
     gain_sd = np.array([1e-4, 1e-3, 1e-2, 0.78, 3.0])
-    y = rng.normal(0, 1, (F, M)) * sd + rng.normal(0, 1, M) * gain_sd
-    data = SimpleNamespace(log_current=y, noise_sd=sd, gain_sd=gain_sd)
+    base = rng.normal(-14.0, 0.01, (F, M))
+    delta = np.abs(rng.normal(0, 0.05, (F, M)))
+    a_hat, sa = 1.1, 0.3
+    pred = base + delta  # the model's prediction (response 1); the likelihood scales its Δ by â
+    y = base + 1.3 * delta + rng.normal(0, 1, M) * gain_sd + rng.normal(0, 1, (F, M)) * sd
     theta = np.zeros(11)
     theta[10] = np.log(1.3)
-    got = np.asarray(raw.reading_log_lik(theta, np.zeros((F, M)), data, nu, None)).sum(axis=0)
-    want = [
-        multivariate_normal(np.zeros(F), np.diag((1.3 * sd[:, m]) ** 2) + gain_sd[m] ** 2).logpdf(y[:, m])
-        for m in range(M)
-    ]
-    np.testing.assert_allclose(got, want, rtol=1e-6)
-    # negative control: ignoring the offsets is wrong by many nats where the offset is large
-    plain_data = SimpleNamespace(log_current=y, noise_sd=sd, gain_sd=None)
-    plain = np.asarray(raw.reading_log_lik(theta, np.zeros((F, M)), plain_data, nu, None))
-    assert abs(plain.sum(axis=0)[-1] - want[-1]) > 100
+    V = np.diag((1.3 * sd.ravel()) ** 2)
+    same = np.equal.outer(np.tile(np.arange(M), F), np.tile(np.arange(M), F))
+    S = same * np.outer(np.tile(gain_sd, F), np.tile(gain_sd, F))
+
+    def ll(y=y, **kw):
+        data = SimpleNamespace(log_current=y, noise_sd=sd, baseline=base, response_scale=a_hat, **kw)
+        return float(np.asarray(raw.reading_log_lik(theta, pred, data, nu, None)).sum())
+
+    mean = (base + a_hat * delta).ravel()
+    both = multivariate_normal(mean, V + S + sa**2 * np.outer(delta.ravel(), delta.ravel()))
+    assert ll(gain_sd=gain_sd, response_sd=sa) == pytest.approx(both.logpdf(y.ravel()), rel=1e-6)
+    offsets = multivariate_normal(pred.ravel(), V + S)
+    assert ll(gain_sd=gain_sd, response_sd=None) == pytest.approx(offsets.logpdf(y.ravel()), rel=1e-6)
+    plain = multivariate_normal(pred.ravel(), V)
+    y0 = pred + rng.normal(0, 1, (F, M)) * sd
+    assert ll(y0, gain_sd=None, response_sd=None) == pytest.approx(plain.logpdf(y0.ravel()), rel=1e-6)
+    # negative control: the exact marginals differ from one another by far more than the tolerance
+    assert abs(both.logpdf(y.ravel()) - offsets.logpdf(y.ravel())) > 10
+    assert abs(offsets.logpdf(y.ravel()) - plain.logpdf(y.ravel())) > 100
 
 
 def test_a_raw_fit_reads_no_simulator_seed(tmp_path):

@@ -21,6 +21,14 @@ device's remaining uncertainty reaches the shape posterior. The file is TOML::
     log_gain = [...]              # ln of each taxel's gain (dimensionless), reference taxels' median 0
     log_gain_sd = [...]           # its standard error
 
+    [response]
+    scale = 1.12                  # the taxels' common response to pressure over the models' (Δ ln I factor)
+    scale_sd = 0.004              # its standard error
+
+The response factor multiplies every taxel's Δ ln I (empirical S_p, or the physics mode's load fraction and skin
+modulus, which only act through it); strokes of one constant pressure leave it to its prior, and the file then
+has no ``[response]`` table.
+
 Log-gains are relative: a common factor of every taxel is the reference row's and cancels in the fit's
 reference-drift correction.
 """
@@ -57,6 +65,10 @@ class DeviceCalibration(NamedTuple):
         Taxel response mode of the calibration recording ("physics" or "empirical").
     info : dict
         Provenance: object, recording digest, strokes, frames, software (strings and integers).
+    response_scale : float
+        The taxels' common Δ ln I over the models' (dimensionless, > 0).
+    response_scale_sd : float or None
+        Its standard error; None: not calibrated (the fit keeps its prior).
     """
 
     log_gain: np.ndarray
@@ -64,6 +76,8 @@ class DeviceCalibration(NamedTuple):
     noise_scale: float
     mode: str
     info: dict
+    response_scale: float = 1.0
+    response_scale_sd: float | None = None
 
 
 def _floats(values) -> str:
@@ -99,6 +113,13 @@ def write_device_file(path, cal: DeviceCalibration) -> Path:
         f"log_gain_sd = {_floats(cal.log_gain_sd)}",
         "",
     ]
+    if cal.response_scale_sd is not None:
+        lines += [
+            "[response]",
+            f"scale = {float(cal.response_scale)!r}",
+            f"scale_sd = {float(cal.response_scale_sd)!r}",
+            "",
+        ]
     return write_text(path, "\n".join(lines))
 
 
@@ -154,5 +175,16 @@ def read_device_file(path, n_taxels: int | None = None) -> DeviceCalibration:
         raise BadInput(f"{where}: [gains] log_gain has |values| over 20 (gains beyond e^±20); expected ln of a gain")
     if n_taxels is not None and lg.size != int(n_taxels):
         raise BadInput(f"{where}: calibrates {lg.size} taxels, but the finger has {int(n_taxels)}")
+    resp, scale, scale_sd = doc.get("response"), 1.0, None
+    if resp is not None:
+        if not isinstance(resp, dict):
+            raise BadInput(f"{where}: [response] must be a table with scale and scale_sd")
+        vals = []
+        for name in ("scale", "scale_sd"):
+            v = resp.get(name)
+            if not isinstance(v, int | float) or isinstance(v, bool) or not (math.isfinite(v) and v > 0):
+                raise BadInput(f"{where}: [response] {name} must be a positive finite number, got {v!r}")
+            vals.append(float(v))
+        scale, scale_sd = vals
     info = {k: v for k, v in dev.items() if k not in ("mode", "noise_scale")}
-    return DeviceCalibration(lg, sd, float(k), str(mode), info)
+    return DeviceCalibration(lg, sd, float(k), str(mode), info, scale, scale_sd)

@@ -14,7 +14,14 @@ The model's derivation and measured figures: ``docs/raw_model.md``.
 
 from bayestouch.inference.raw.adjustment import ADJUST_BLOCK_S, Adjustment, curvature_adjustment
 from bayestouch.inference.raw.calibrate import calibrate_device
-from bayestouch.inference.raw.data import RawData, host_finger, load_raw_data, nominal_log_gain_sd, unloaded_current
+from bayestouch.inference.raw.data import (
+    HostDevice,
+    RawData,
+    host_device,
+    load_raw_data,
+    nominal_log_gain_sd,
+    unloaded_current,
+)
 from bayestouch.inference.raw.fit import (
     BARE_STRIDE,
     DETECT_NATS,
@@ -97,7 +104,8 @@ __all__ = [
     "prune_clear",
     "prune_clearance",
     "PRUNE_MARGIN",
-    "host_finger",
+    "HostDevice",
+    "host_device",
     "nominal_log_gain_sd",
     "unloaded_current",
     "reading_log_lik",

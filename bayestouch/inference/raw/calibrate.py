@@ -17,7 +17,14 @@ import numpy as np
 
 from bayestouch.backend import jnp
 from bayestouch.errors import BadInput
-from bayestouch.inference.raw.data import host_finger, load_raw_data, open_recording, unloaded_current
+from bayestouch.inference.raw.data import (
+    host_device,
+    load_raw_data,
+    nominal_log_gain_sd,
+    open_recording,
+    unloaded_current,
+)
+from bayestouch.inference.raw.priors import RESPONSE_SCALE_SD
 from bayestouch.io.device_file import DeviceCalibration
 from bayestouch.io.runfolder import dataset_digest
 from bayestouch.params import MODELS
@@ -25,10 +32,21 @@ from bayestouch.physics import forward as fw
 from bayestouch.physics import noise as nz
 from bayestouch.scene.surface import signed_distance
 
-__all__ = ["CALIBRATION_RADIUS", "calibrate_device", "block_labels"]
+__all__ = [
+    "CALIBRATION_RADIUS",
+    "MIN_RESPONSE_STROKES",
+    "IDENTIFIED_SHARE",
+    "calibrate_device",
+    "block_labels",
+    "response_factor",
+]
 
 #: pad-coordinate radius (m) of the taxels calibrated: every taxel of the array
 CALIBRATION_RADIUS = 1.0
+#: strokes needed for the response factor's standard error (a jackknife over strokes)
+MIN_RESPONSE_STROKES = 3
+#: the response factor counts as calibrated when its standard error is below this share of its prior sd
+IDENTIFIED_SHARE = 0.5
 
 
 def block_labels(stroke_index, pieces: int = 1) -> np.ndarray:
@@ -68,6 +86,49 @@ def _block_estimates(values, blocks) -> tuple[np.ndarray, np.ndarray]:
     return med.mean(axis=0), np.sqrt(var / len(u) * nu / (nu - 2.0))
 
 
+def response_factor(residual, delta, noise_sd, blocks, gain_sd: float) -> tuple[float, float]:
+    """The taxels' common response factor's departure b = a − 1 from 1, and its standard error.
+
+    The readings are modelled as r = b Δ + δ_k + ε with each taxel's offset δ_k ~ N(0, ``gain_sd``²) and ε of sd
+    ``noise_sd``: b̂ is the generalised least-squares estimate with the offsets marginalised (no prior on b). Its
+    error is the larger of the least-squares one (scaled by the residuals' robust sd over the modelled) and the
+    jackknife over blocks (strokes), which carries the correlated noise; with fewer than
+    :data:`MIN_RESPONSE_STROKES` blocks it is infinite (not calibrated).
+
+    Parameters
+    ----------
+    residual, delta, noise_sd : (F, M) float
+        Readings less the prediction at a = 1, the prediction's Δ ln I, the modelled reading sd.
+    blocks : (F,) int
+    gain_sd : float
+
+    Returns
+    -------
+    (float, float)
+    """
+    w = 1.0 / noise_sd**2
+
+    def estimate(keep):
+        wk = w * keep[:, None]
+        A = 1.0 / gain_sd**2 + wk.sum(axis=0)
+
+        def inner(x, z):
+            return float(np.sum((wk * x * z).sum(axis=0) - (wk * x).sum(axis=0) * (wk * z).sum(axis=0) / A))
+
+        dd = inner(delta, delta)
+        return (inner(delta, residual) / dd if dd > 0 else 0.0), dd
+
+    b, dd = estimate(np.ones(len(blocks), bool))
+    u = np.unique(blocks)
+    if len(u) < MIN_RESPONSE_STROKES or not dd > 0:
+        return 0.0, float("inf")
+    k = float(np.median(np.abs(residual - b * delta - np.median(residual - b * delta, axis=0)) / noise_sd) / 0.6745)
+    sd_ls = k / np.sqrt(dd)
+    jack = np.array([estimate(blocks != v)[0] for v in u])
+    sd_jack = float(np.sqrt((len(u) - 1) / len(u) * np.sum((jack - jack.mean()) ** 2)))
+    return float(b), float(max(sd_ls, sd_jack))
+
+
 def calibrate_device(recording, obj, *, models=MODELS, object_name: str | None = None) -> DeviceCalibration:
     """Estimate the finger's per-taxel log-gains from a recording of strokes over the known ``obj``.
 
@@ -88,7 +149,7 @@ def calibrate_device(recording, obj, *, models=MODELS, object_name: str | None =
         Log-gains relative to the reference taxels' median, standard errors, the residual noise scale.
     """
     ds, where = open_recording(recording)
-    finger, _ = host_finger(models)
+    finger = host_device(models).finger
     mode = str(ds.attrs.get("mode", "physics"))
     cur = np.asarray(ds["taxel_current"].values, float)
     temp, t = (np.asarray(ds[v].values, float) for v in ("skin_temperature", "time"))
@@ -122,7 +183,15 @@ def calibrate_device(recording, obj, *, models=MODELS, object_name: str | None =
     r = np.asarray(data.log_current) - np.asarray(pred)
     if not np.all(np.isfinite(r)):
         raise BadInput(f"{where}: the forward model of the object gives no finite currents; is it the touched one?")
-    g, s = _block_estimates(r, block_labels(si[data.frames]))
+    blocks = block_labels(si[data.frames])
+    delta = np.asarray(pred) - np.asarray(data.baseline)  # Δ ln I of the known surface
+    b, b_sd = response_factor(r, delta, np.asarray(data.noise_sd), blocks, nominal_log_gain_sd(finger))
+    identified = b_sd < IDENTIFIED_SHARE * RESPONSE_SCALE_SD
+    if identified:
+        r = r - b * delta
+    g, s = _block_estimates(r, blocks)
+    if identified:  # the response factor's error moves each taxel's offset by its mean Δ ln I
+        s = np.hypot(s, b_sd * delta.mean(axis=0))
     log_gain[data.taxels], log_gain_sd[data.taxels] = g, s
     k = float(np.median(np.abs(r - g) / np.asarray(data.noise_sd)) / 0.6745)
     info = {
@@ -131,4 +200,7 @@ def calibrate_device(recording, obj, *, models=MODELS, object_name: str | None =
         "strokes": int(np.unique(si[data.frames]).size),
         "frames": int(len(data.frames)),
     }
+    if identified:
+        return DeviceCalibration(log_gain, log_gain_sd, k, mode, info, 1.0 + b, b_sd)
+    info["response"] = "not identified by these strokes (record strokes at several depths or over a curved object)"
     return DeviceCalibration(log_gain, log_gain_sd, k, mode, info)

@@ -13,6 +13,7 @@ import numpy as np
 
 from bayestouch.backend import jax, jnp
 from bayestouch.errors import BadInput
+from bayestouch.inference.raw.priors import RESPONSE_SCALE_SD
 from bayestouch.io.device_file import DeviceCalibration
 from bayestouch.io.recording import check_recording, read_recording
 from bayestouch.params import MODELS
@@ -25,7 +26,8 @@ __all__ = [
     "RawData",
     "open_recording",
     "nominal_log_gain_sd",
-    "host_finger",
+    "HostDevice",
+    "host_device",
     "unloaded_current",
     "load_raw_data",
     "commanded_points",
@@ -61,6 +63,13 @@ class RawData(NamedTuple):
         Flat indices into the F·J penetrating-taxel slots whose distance is evaluated
         (:func:`~bayestouch.inference.raw.likelihood.prune_clear`); the others are taken to be clear of the surface
         (no penetration). None: every slot.
+    baseline : (F, M) float or None
+        The model's ln I of the selected taxels at zero pressure (the skin temperature through the lag): Δ ln I of a
+        prediction is measured from it.
+    response_scale : float
+        The taxels' common response factor a on Δ ln I (dimensionless; a calibration's, else 1).
+    response_sd : float or None
+        Prior sd of a, marginalised in the likelihood; None: a is exact.
     gain_sd : (M,) float or None
         Standard deviation of each selected taxel's remaining log-gain (dimensionless) about the gain divided out of
         ``log_current``: the likelihood marginalises one offset per taxel with this prior sd
@@ -80,6 +89,9 @@ class RawData(NamedTuple):
     mode: str
     active: np.ndarray | None = None
     gain_sd: np.ndarray | None = None
+    baseline: np.ndarray | None = None
+    response_scale: float = 1.0
+    response_sd: float | None = None
 
 
 def open_recording(ds_or_path):
@@ -134,7 +146,26 @@ def nominal_log_gain_sd(finger) -> float:
     return float(finger.noise.barrier_spread / tx.thermal_voltage(finger.noise.temperature))
 
 
-def host_finger(models: Path = MODELS, calibration: DeviceCalibration | None = None):
+class HostDevice(NamedTuple):
+    """The finger as a host that has only ``models/`` and the device file knows it (:func:`host_device`).
+
+    finger : Finger
+        The models' constants with the calibrated gains (or 1 for every taxel).
+    log_gain_sd : (N,) float
+        Remaining sd of each taxel's log-gain (dimensionless).
+    response_scale : float
+        The taxels' common response factor on Δ ln I (dimensionless).
+    response_sd : float
+        Its remaining sd.
+    """
+
+    finger: object
+    log_gain_sd: np.ndarray
+    response_scale: float
+    response_sd: float
+
+
+def host_device(models: Path = MODELS, calibration: DeviceCalibration | None = None) -> HostDevice:
     """The finger as a host that has only ``models`` and the device file knows it.
 
     Parameters
@@ -146,22 +177,24 @@ def host_finger(models: Path = MODELS, calibration: DeviceCalibration | None = N
 
     Returns
     -------
-    finger : Finger
-        Gains exp(``calibration.log_gain``), or 1 for every taxel without a calibration (never a simulator's
-        fixed pattern).
-    log_gain_sd : (N,) float
-        Remaining sd of each taxel's log-gain: the calibration's standard errors, or
-        :func:`nominal_log_gain_sd` for every taxel.
+    HostDevice
+        Gains exp(``calibration.log_gain``) with their standard errors, or 1 for every taxel with
+        :func:`nominal_log_gain_sd` (never a simulator's fixed pattern); the response factor and its sd from the
+        calibration, or 1 ± :data:`~bayestouch.inference.raw.priors.RESPONSE_SCALE_SD`.
     """
     finger = load_finger(Path(models)).finger
     n = int(np.asarray(finger.gains).size)
+    scale, scale_sd = 1.0, RESPONSE_SCALE_SD
     if calibration is None:
         gains, sd = np.ones(n), np.full(n, nominal_log_gain_sd(finger))
     else:
         if np.size(calibration.log_gain) != n:
             raise BadInput(f"calibration: it calibrates {np.size(calibration.log_gain)} taxels, the finger has {n}")
         gains, sd = np.exp(np.asarray(calibration.log_gain, float)), np.asarray(calibration.log_gain_sd, float)
-    return finger._replace(gains=jnp.asarray(gains).reshape(np.shape(finger.gains))), sd
+        if calibration.response_scale_sd is not None:
+            scale, scale_sd = float(calibration.response_scale), float(calibration.response_scale_sd)
+    finger = finger._replace(gains=jnp.asarray(gains).reshape(np.shape(finger.gains)))
+    return HostDevice(finger, sd, scale, scale_sd)
 
 
 def unloaded_current(finger, temperature, time, stroke_index, mode: str) -> np.ndarray:
@@ -192,8 +225,9 @@ def load_raw_data(
     finger=None,
     gain_sd=None,
     calibration: DeviceCalibration | None = None,
+    response=None,
 ):
-    """Read a recording into :class:`RawData` with the finger as a host knows it (:func:`host_finger`).
+    """Read a recording into :class:`RawData` with the finger as a host knows it (:func:`host_device`).
 
     Parameters
     ----------
@@ -211,12 +245,15 @@ def load_raw_data(
     strokes : sequence of int, optional
         Use only these strokes (default all).
     finger : Finger, optional
-        The device, its gains taken as they are; default :func:`host_finger` of ``models`` and ``calibration``.
-        Nothing of the recording but its readings, kinematics and response mode is read (no simulator seed).
+        The device, its gains and response taken as they are; default :func:`host_device` of ``models`` and
+        ``calibration``. Nothing of the recording but its readings, kinematics and response mode is read (no
+        simulator seed).
     gain_sd : (N,) float, optional
         With ``finger``: the remaining sd of each taxel's log-gain (None: the gains are exact).
     calibration : DeviceCalibration, optional
         Without ``finger``: the device file of this finger; without either, unit gains with the nominal spread.
+    response : (float, float), optional
+        With ``finger``: the response factor and its sd (None: exactly 1).
 
     Returns
     -------
@@ -249,7 +286,8 @@ def load_raw_data(
             f"calibration: made in the {calibration.mode} taxel mode, the recording {where} is in the {mode} mode"
         )
     if finger is None:
-        finger, gain_sd = host_finger(Path(models), calibration)
+        host = host_device(Path(models), calibration)
+        finger, gain_sd, response = host.finger, host.log_gain_sd, (host.response_scale, host.response_sd)
     N = int(np.asarray(finger.reference).size)
     if gain_sd is not None and (np.size(gain_sd) != N or not np.all(np.asarray(gain_sd, float) > 0)):
         raise BadInput(f"gain_sd must hold {N} positive numbers (one log-gain sd per taxel)")
@@ -330,6 +368,18 @@ def load_raw_data(
         mode,
         gain_sd=None if gain_sd is None else np.asarray(gain_sd, float).ravel()[taxels],
     )
+    baseline = fw.log_current_from_distance(
+        finger,
+        jnp.ones(x.shape[:2]),  # 1 m clear of any surface: zero pressure
+        jnp.asarray(kernel),
+        jnp.asarray(data.temperature),
+        jnp.asarray(start),
+        jnp.asarray(lw),
+        mode,
+    )
+    data = data._replace(baseline=np.asarray(baseline))
+    if response is not None:
+        data = data._replace(response_scale=float(response[0]), response_sd=float(response[1]))
     return data, finger
 
 

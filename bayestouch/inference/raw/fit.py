@@ -21,7 +21,7 @@ from bayestouch.inference.grating import RawTexture
 from bayestouch.inference.optimize import laplace, laplace_ball, scaled_lbfgs
 from bayestouch.inference.posterior import PosteriorModel, judged_quantities, write_posterior
 from bayestouch.inference.raw.adjustment import Adjustment, curvature_adjustment
-from bayestouch.inference.raw.data import RawData, commanded_points, host_finger, load_raw_data, open_recording
+from bayestouch.inference.raw.data import RawData, commanded_points, host_device, load_raw_data, open_recording
 from bayestouch.inference.raw.likelihood import (
     LOG_K_PRIOR_SD,
     RAW_NATURAL_NAMES,
@@ -156,6 +156,10 @@ def raw_model(
         f"{float(np.median(data.gain_sd)):.3g} (median over taxels; "
         + str((info or {}).get("calibration", "no calibration: unit gains, the nominal spread of models/noise.toml"))
         + ")",
+        "response": "exact (the models' constants)"
+        if data.response_sd is None
+        else f"the taxels' common response factor on Δ ln I marginalised, N({data.response_scale:.4g}, "
+        f"{data.response_sd:.3g}²)",
         "frames_used": int(F),
         "frame_interval_s": float(data.dt),
         "taxels_used": int(M),
@@ -327,7 +331,8 @@ def run_raw_fit(
     cal, cal_name = calibration, None
     if calibration is not None and not isinstance(calibration, DeviceCalibration):
         cal, cal_name = read_device_file(calibration), str(calibration)
-    finger, gain_sd = host_finger(Path(models), cal)
+    host = host_device(Path(models), cal)
+    finger = host.finger
     options = {
         "walkers": int(walkers),
         "seed": int(seed),
@@ -341,7 +346,11 @@ def run_raw_fit(
         "prune": bool(prune),
         "calibration": None
         if cal is None
-        else {"log_gain": [float(v) for v in cal.log_gain], "log_gain_sd": [float(v) for v in cal.log_gain_sd]},
+        else {
+            "log_gain": [float(v) for v in cal.log_gain],
+            "log_gain_sd": [float(v) for v in cal.log_gain_sd],
+            "response": [cal.response_scale, cal.response_scale_sd],
+        },
     }
     prepare_run_folder(
         out, fingerprint("raw", {"recording": dataset_digest(ds)}, options), resume=resume, overwrite=overwrite
@@ -349,7 +358,12 @@ def run_raw_fit(
     priors = cm.load_priors()
     # the bare shape: DE on the commanded contact points, then L-BFGS-B on the raw posterior at the coarse stride
     bare_stride = BARE_STRIDE if stride is None or texture != "off" else int(stride)
-    dev = {"finger": finger, "gain_sd": gain_sd, "calibration": cal}
+    dev = {
+        "finger": finger,
+        "gain_sd": host.log_gain_sd,
+        "calibration": cal,
+        "response": (host.response_scale, host.response_sd),
+    }
     bare_data, _ = load_raw_data(ds, models=models, stride=bare_stride, radius=radius, strokes=strokes, **dev)
     th0 = initial_raw_theta(
         bare_data,

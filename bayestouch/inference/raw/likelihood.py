@@ -15,7 +15,13 @@ from bayestouch.inference import grating as gr
 from bayestouch.inference.densities import student_t_logpdf, t_scale_factor
 from bayestouch.inference.grating import RawTexture
 from bayestouch.inference.raw.data import RawData
-from bayestouch.params import MODELS, Spec, build
+from bayestouch.inference.raw.priors import (
+    LOG_K_PRIOR_SD,
+    LOG_K_RANGE,
+    RAW_PRIOR_SPECS,
+    RESPONSE_SCALE_SD,
+    load_raw_priors,
+)
 from bayestouch.physics import forward as fw
 
 __all__ = [
@@ -28,6 +34,7 @@ __all__ = [
     "STUDENT_NU",
     "LOG_K_RANGE",
     "LOG_K_PRIOR_SD",
+    "RESPONSE_SCALE_SD",
     "RAW_OPT_SCALE",
     "slot_distances",
     "PRUNE_MARGIN",
@@ -48,19 +55,6 @@ __all__ = [
     "make_raw_log_prob",
 ]
 
-RAW_PRIOR_SPECS = {
-    "noise_scale_min": Spec("1", 1e-3, 1.0),
-    "noise_scale_max": Spec("1", 1.0, 1e8),
-    "log_noise_scale_sd": Spec("1", 1e-2, 100.0),
-}
-
-
-def load_raw_priors(path=None) -> dict[str, float]:
-    """Read ``[raw_priors]`` of ``models/priors.toml`` (or ``path``): the noise multiplier k's box and log-sd."""
-    return build(dict, MODELS / "priors.toml" if path is None else path, "raw_priors", RAW_PRIOR_SPECS)
-
-
-_RAW_PRIORS = load_raw_priors()
 
 RAW_PARAM_NAMES = ("x_G", "y_G", "z_G", "log_a", "log_b", "log_c", "xi", "psi", "zeta", "log_n", "log_k")
 RAW_NATURAL_NAMES = ("x_G", "y_G", "z_G", "a", "b", "c", "xi", "psi", "zeta", "n", "noise_scale")
@@ -69,10 +63,6 @@ RAW_TEXTURE_PARAM_NAMES = RAW_PARAM_NAMES + gr.TEXTURE_NAMES
 RAW_TEXTURE_NATURAL_NAMES = RAW_NATURAL_NAMES + gr.TEXTURE_NATURAL_NAMES
 #: degrees of freedom of the Student-t reading noise
 STUDENT_NU = 4.0
-#: box of log k (noise-scale multiplier) and the sd of its N(0, ·) prior
-#: (``[raw_priors]`` of ``models/priors.toml``)
-LOG_K_RANGE = (float(np.log(_RAW_PRIORS["noise_scale_min"])), float(np.log(_RAW_PRIORS["noise_scale_max"])))
-LOG_K_PRIOR_SD = float(_RAW_PRIORS["log_noise_scale_sd"])
 
 
 #: variable scales (16,) of the raw optimiser (:func:`bayestouch.inference.optimize.scaled_lbfgs`), in the units of
@@ -176,13 +166,48 @@ def taxel_offsets(residual, variance, gain_sd):
     return jnp.sum(w * residual, axis=0) / (1.0 / jnp.asarray(gain_sd) ** 2 + jnp.sum(w, axis=0))
 
 
-def _offset_terms(theta, r, data: RawData, nu, texture):
-    """Residuals less the taxel offsets (F, M), and the per-frame share (F, M) of their marginalisation terms."""
+def _marginalised(theta, pred, data: RawData, nu, texture):
+    """The nuisance terms of the readings marginalised (Gaussian algebra, exact for Gaussian readings):
+
+    - the taxels' common response factor a ~ N(``data.response_scale``, ``data.response_sd``²) on
+      Δ ln I = prediction − ``data.baseline``, and
+    - each taxel's remaining log-gain δ_k ~ N(0, ``data.gain_sd``²).
+
+    With Σ the per-taxel covariance V + s²11ᵀ and D = Δ ln I, the response is b̂ = DᵀΣ⁻¹r / (1/σ_a² + DᵀΣ⁻¹D)
+    away from its prior mean, then the offsets :func:`taxel_offsets` of r − b̂D. Returns the prediction with both
+    added (F, M) — what the readings are compared with — and the log-determinant and prior terms spread evenly over
+    the readings (F, M)."""
+    y = jnp.asarray(data.log_current)
+    if data.response_sd is not None:
+        pred = data.baseline + data.response_scale * (pred - data.baseline)
+    pred = jnp.where(jnp.isfinite(pred), pred, y - 1e6)  # absurd shapes: finite, hugely unlikely
     var = (reading_scale(theta, data, texture, nu) / t_scale_factor(nu)) ** 2
-    s2 = jnp.asarray(data.gain_sd) ** 2
-    d = taxel_offsets(r, var, data.gain_sd)
-    per_taxel = -0.5 * d * d / s2 - 0.5 * jnp.log1p(s2 * jnp.sum(1.0 / var, axis=0))
-    return r - d, jnp.broadcast_to(per_taxel / r.shape[0], r.shape)
+    w = 1.0 / var
+    F, M = y.shape
+    if data.gain_sd is not None:
+        s2 = jnp.asarray(data.gain_sd) ** 2
+        A = 1.0 / s2 + jnp.sum(w, axis=0)
+
+        def inner(x, z):
+            return jnp.sum(jnp.sum(w * x * z, axis=0) - jnp.sum(w * x, axis=0) * jnp.sum(w * z, axis=0) / A)
+    else:
+
+        def inner(x, z):
+            return jnp.sum(w * x * z)
+
+    spread = jnp.zeros((F, M))
+    if data.response_sd is not None:
+        D = (pred - data.baseline) / data.response_scale
+        sa2 = jnp.asarray(data.response_sd) ** 2
+        DD = inner(D, D)
+        b = inner(D, y - pred) / (1.0 / sa2 + DD)
+        pred = pred + b * D
+        spread = spread + (-0.5 * b * b / sa2 - 0.5 * jnp.log1p(sa2 * DD)) / (F * M)
+    if data.gain_sd is not None:
+        d = taxel_offsets(y - pred, var, data.gain_sd)
+        pred = pred + d
+        spread = spread + (-0.5 * d * d / s2 - 0.5 * jnp.log1p(s2 * jnp.sum(w, axis=0))) / F
+    return pred, spread
 
 
 def reading_log_lik(theta, pred, data: RawData, nu, texture):
@@ -190,27 +215,27 @@ def reading_log_lik(theta, pred, data: RawData, nu, texture):
     the noise multiplier k and, with ``texture``, the roughness σ_r): Student-t(``nu``) of scale
     :func:`reading_scale`; a non-finite residual counts as 1e6.
 
-    With ``data.gain_sd`` each taxel's unknown remaining log-gain δ ~ N(0, s²) is marginalised: the residuals less
-    :func:`taxel_offsets` enter the Student-t, and each taxel adds −δ̂²/(2s²) − ½ log(1 + s² Σ_f 1/v), spread evenly
-    over its frames (exact for Gaussian readings of variance v; ``docs/raw_model.md``)."""
-    r = jnp.asarray(data.log_current) - pred
-    r = jnp.where(jnp.isfinite(r), r, 1e6)  # overflowed predictions of absurd shapes: finite, hugely unlikely
+    With ``data.response_sd`` and ``data.gain_sd`` the taxels' common response factor and each taxel's remaining
+    log-gain are marginalised (:func:`_marginalised`): the residuals less their posterior means enter the
+    Student-t, and the Gaussian marginal's prior and log-determinant terms are added, spread evenly over the
+    readings (exact for Gaussian readings; ``docs/raw_model.md``)."""
     scale = reading_scale(theta, data, texture, nu)
-    if data.gain_sd is None:
+    if data.gain_sd is None and data.response_sd is None:
+        r = jnp.asarray(data.log_current) - pred
+        r = jnp.where(jnp.isfinite(r), r, 1e6)  # overflowed predictions of absurd shapes: finite, hugely unlikely
         return student_t_logpdf(r, scale, nu)
-    r, extra = _offset_terms(theta, r, data, nu, texture)
-    return student_t_logpdf(r, scale, nu) + extra
+    full, extra = _marginalised(theta, pred, data, nu, texture)
+    return student_t_logpdf(jnp.asarray(data.log_current) - full, scale, nu) + extra
 
 
 def predict_readings(theta, data: RawData, finger, nu: float = STUDENT_NU, texture: RawTexture | None = None):
-    """What the corrected readings ``data.log_current`` are compared with at θ: :func:`predict_log_current` plus,
-    with ``data.gain_sd``, each taxel's offset :func:`taxel_offsets` (F, M); pure JAX."""
+    """What the corrected readings ``data.log_current`` are compared with at θ (F, M): :func:`predict_log_current`
+    with, where they are marginalised, the posterior means of the response factor and the taxel offsets added
+    (:func:`_marginalised`); pure JAX."""
     pred = predict_log_current(theta, data, finger, texture)
-    if data.gain_sd is None:
+    if data.gain_sd is None and data.response_sd is None:
         return pred
-    var = (reading_scale(theta, data, texture, nu) / t_scale_factor(nu)) ** 2
-    r = jnp.asarray(data.log_current) - pred
-    return pred + taxel_offsets(jnp.where(jnp.isfinite(r), r, 0.0), var, data.gain_sd)
+    return _marginalised(theta, pred, data, nu, texture)[0]
 
 
 def raw_pointwise(theta, data: RawData, finger, nu: float = STUDENT_NU, texture: RawTexture | None = None):
