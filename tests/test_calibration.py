@@ -51,7 +51,7 @@ def sphere_cal():
 def test_marginalised_gain_and_response_are_the_exact_gaussian_marginal():
     """With Gaussian readings (ν → ∞) the marginalisation is exact: Σ of :func:`reading_log_lik` equals
     log N(y; base + â Δ, V + blockdiag(s² 11ᵀ) + σ_a² Δ Δᵀ) over all readings, with the offsets alone
-    log N(y; base + Δ, V + blockdiag(s² 11ᵀ)), and with neither log N(y; base + Δ, V)."""
+    log N(y; base + â Δ, V + blockdiag(s² 11ᵀ)), and with neither (â fixed) log N(y; base + â Δ, V)."""
     from types import SimpleNamespace
 
     rng = np.random.default_rng(0)
@@ -76,10 +76,10 @@ def test_marginalised_gain_and_response_are_the_exact_gaussian_marginal():
     mean = (base + a_hat * delta).ravel()
     both = multivariate_normal(mean, V + S + sa**2 * np.outer(delta.ravel(), delta.ravel()))
     assert ll(gain_sd=gain_sd, response_sd=sa) == pytest.approx(both.logpdf(y.ravel()), rel=1e-6)
-    offsets = multivariate_normal(pred.ravel(), V + S)
+    offsets = multivariate_normal(mean, V + S)
     assert ll(gain_sd=gain_sd, response_sd=None) == pytest.approx(offsets.logpdf(y.ravel()), rel=1e-6)
-    plain = multivariate_normal(pred.ravel(), V)
-    y0 = pred + rng.normal(0, 1, (F, M)) * sd
+    plain = multivariate_normal(mean, V)
+    y0 = mean.reshape(F, M) + rng.normal(0, 1, (F, M)) * sd
     assert ll(y0, gain_sd=None, response_sd=None) == pytest.approx(plain.logpdf(y0.ravel()), rel=1e-6)
     # negative control: the exact marginals differ from one another by far more than the tolerance
     assert abs(both.logpdf(y.ravel()) - offsets.logpdf(y.ravel())) > 10

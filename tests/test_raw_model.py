@@ -281,7 +281,11 @@ def test_t_scale_factor_is_the_t_fit_to_gaussian_readings():
     # through the likelihood: readings of sd 1.5·s give k ≈ 1.5
     s = 2e-4
     data = SimpleNamespace(
-        log_current=1.5 * s * z.reshape(400, 500), noise_sd=np.full((400, 500), s), gain_sd=None, response_sd=None
+        log_current=1.5 * s * z.reshape(400, 500),
+        noise_sd=np.full((400, 500), s),
+        gain_sd=None,
+        response_sd=None,
+        baseline=None,
     )
     pred = jnp.zeros((400, 500))
     th = np.zeros(11)

@@ -43,11 +43,12 @@ def _record(textured: bool, strokes: int = 4, seed: int = 5):
 def _start(ds):
     """The bare start at stride 5 and the data at the textured stride."""
     priors = cm.load_priors()
-    d5, finger = raw.load_raw_data(ds, stride=raw.BARE_STRIDE)
+    host = raw.host_device()
+    d5, finger = raw.load_raw_data(ds, stride=raw.BARE_STRIDE, device=host)
     th0 = raw.initial_raw_theta(
         d5, finger, raw.data.commanded_points(ds, d5.frames), 0, priors, raw.raw_bounds(d5, priors), starts=2
     )
-    d2, _ = raw.load_raw_data(ds, stride=raw.TEXTURE_STRIDE, finger=finger)
+    d2, _ = raw.load_raw_data(ds, stride=raw.TEXTURE_STRIDE, device=host)
     return th0, d2, finger, priors
 
 
@@ -82,7 +83,7 @@ def test_untextured_egg_has_no_grating_worth_modelling():
     the three-plane search gains far less than the threshold."""
     ds0, _ = _record(False)
     th0, data0, finger0, priors = _start(ds0)
-    gain0 = raw.initial_raw_texture(th0, data0, finger0, priors, gr.load_texture_priors()).gain
+    gain0 = raw.texture_start(th0, data0, finger0, priors, gr.load_texture_priors()).gain
     assert gain0 < raw.DETECT_NATS, gain0
 
 

@@ -46,7 +46,12 @@ def add_parser(sub) -> argparse.ArgumentParser:
     sp.add_argument("--out", required=True, type=Path, help="recording to write (.nc)")
     sp.add_argument("--duration", type=float, default=2.0, help="seconds per stroke at 1 cm/s (default 2)")
     sp.add_argument("--rate", type=float, default=50.0, help="taxel frames per second (default 50)")
-    sp.add_argument("--depth", type=float, default=3e-4, help="pressing depth in metres (default 3e-4)")
+    sp.add_argument(
+        "--depth",
+        default="3e-4",
+        help="pressing depth in metres, or a comma list cycled over the strokes, e.g. 2e-4,3e-4,4e-4 for a "
+        "calibration that identifies the taxels' response (default 3e-4)",
+    )
     sp.add_argument(
         "--force",
         type=float,
@@ -85,6 +90,12 @@ def run(args) -> int:
         ) from None
     if len(currents) != 3:
         raise BadInput(f"--currents must be three numbers in amperes, got {len(currents)}")
+    try:
+        depths = [float(x) for x in str(args.depth).split(",")]
+    except ValueError:
+        raise BadInput(f"--depth must be metres or a comma list of metres like 2e-4,3e-4, got {args.depth!r}") from None
+    if not all(0 < d <= 2e-3 for d in depths):
+        raise BadInput(f"--depth: each pressing depth must be in (0, 2e-3] metres, got {args.depth}")
     frames = args.strokes * int(np.ceil(args.duration * args.rate))
     if frames > MAX_FRAMES:
         raise BadInput(
@@ -105,9 +116,8 @@ def run(args) -> int:
     max_current = float(vf.wire.max_current)
     if not all(0 <= c <= max_current for c in currents):
         raise BadInput(f"--currents: wire currents must each be in [0, {max_current:g}] A (amperes), got {currents}")
-    strokes = random_strokes(
-        obj, args.strokes, seed=args.seed, duration=args.duration, rate=args.rate, depth=args.depth
-    )
+    strokes = random_strokes(obj, args.strokes, seed=args.seed, duration=args.duration, rate=args.rate, depth=depths[0])
+    strokes = [s._replace(depth=depths[i % len(depths)]) for i, s in enumerate(strokes)]
     t0 = time.perf_counter()
     rec = record_strokes(
         obj, strokes, vf, args.seed, hold_currents=currents, mode=args.mode, force=args.force, progress=not args.quiet
@@ -124,7 +134,7 @@ def run(args) -> int:
             "object": obj.name,
             "object_file": str(args.object),
             "seed": args.seed,
-            "device_seed": device_seed,
+            **({} if args.device_seed is None else {"device_seed": device_seed}),
             "mode": args.mode or vf.mode,
             "wire_hold_currents_A": args.currents,
             "software": f"bayestouch {__version__}",

@@ -33,6 +33,7 @@ from bayestouch.inference.raw.fit import (
     misfit_warnings,
     raw_model,
     run_raw_fit,
+    texture_start,
 )
 from bayestouch.inference.raw.likelihood import (
     PRUNE_MARGIN,
@@ -43,6 +44,7 @@ from bayestouch.inference.raw.likelihood import (
     STUDENT_NU,
     load_raw_priors,
     make_raw_log_prob,
+    nuisance_estimates,
     predict_log_current,
     predict_readings,
     prune_clear,
@@ -53,6 +55,7 @@ from bayestouch.inference.raw.likelihood import (
     raw_log_prob_batch,
     reading_log_lik,
     taxel_offsets,
+    with_nuisance_fixed,
 )
 from bayestouch.inference.raw.texture import (
     TextureStart,
@@ -112,4 +115,7 @@ __all__ = [
     "taxel_offsets",
     "predict_readings",
     "calibrate_device",
+    "texture_start",
+    "nuisance_estimates",
+    "with_nuisance_fixed",
 ]

@@ -226,6 +226,7 @@ def load_raw_data(
     gain_sd=None,
     calibration: DeviceCalibration | None = None,
     response=None,
+    device: HostDevice | None = None,
 ):
     """Read a recording into :class:`RawData` with the finger as a host knows it (:func:`host_device`).
 
@@ -254,6 +255,9 @@ def load_raw_data(
         Without ``finger``: the device file of this finger; without either, unit gains with the nominal spread.
     response : (float, float), optional
         With ``finger``: the response factor and its sd (None: exactly 1).
+    device : HostDevice, optional
+        The host's device (:func:`host_device`) to reuse between loads of one recording: its finger, gain sds and
+        response (instead of ``finger``, ``gain_sd`` and ``response``).
 
     Returns
     -------
@@ -285,7 +289,9 @@ def load_raw_data(
         raise BadInput(
             f"calibration: made in the {calibration.mode} taxel mode, the recording {where} is in the {mode} mode"
         )
-    if finger is None:
+    if device is not None:
+        finger, gain_sd, response = device.finger, device.log_gain_sd, (device.response_scale, device.response_sd)
+    elif finger is None:
         host = host_device(Path(models), calibration)
         finger, gain_sd, response = host.finger, host.log_gain_sd, (host.response_scale, host.response_sd)
     N = int(np.asarray(finger.reference).size)

@@ -31,6 +31,7 @@ from bayestouch.inference.raw.likelihood import (
     RAW_TEXTURE_PARAM_NAMES,
     STUDENT_NU,
     make_raw_log_prob,
+    nuisance_estimates,
     predict_readings,
     prune_clear,
     prune_clearance,
@@ -38,6 +39,7 @@ from bayestouch.inference.raw.likelihood import (
     raw_log_prob,
     raw_pointwise,
     reading_scale,
+    with_nuisance_fixed,
 )
 from bayestouch.inference.raw.texture import initial_raw_texture
 from bayestouch.inference.run import initial_theta, natural_draws
@@ -48,6 +50,8 @@ from bayestouch.params import MODELS
 
 __all__ = [
     "initial_raw_theta",
+    "texture_start",
+    "NUISANCE_ROUNDS",
     "raw_model",
     "RAW_PREDICTIVE_DRAWS",
     "MISFIT_K",
@@ -59,6 +63,9 @@ __all__ = [
     "run_raw_fit",
 ]
 
+#: rounds of the start's polish with the marginalised device terms fixed at their posterior means
+#: (:func:`initial_raw_theta`)
+NUISANCE_ROUNDS = 2
 #: draws in a raw fit's posterior predictive group (each replicates all F × M readings)
 RAW_PREDICTIVE_DRAWS = 32
 
@@ -84,16 +91,40 @@ def initial_raw_theta(
     """
     lo, hi = np.asarray(bounds.lower), np.asarray(bounds.upper)
     fn = jax.jit(jax.value_and_grad(lambda t: -raw_log_prob(t, data, finger, bounds, nu)))
+    marginal = data.gain_sd is not None or data.response_sd is not None
     best_th, best_f = None, np.inf
     for k in range(starts):
         th = initial_theta(contact_points, int(seed) * 1000 + k, priors, starts=1)
         th[10] = np.log(30.0)
         th = np.clip(th, lo + 1e-6 * (hi - lo), hi - 1e-6 * (hi - lo))
+        for _ in range(NUISANCE_ROUNDS if marginal else 0):
+            # with the device terms marginalised the log-posterior is rugged (the readings' levels no longer pin
+            # the size): polish first with them fixed at their posterior means at θ, a known device's smooth
+            # landscape, and re-estimate them there
+            fixed = with_nuisance_fixed(data, *nuisance_estimates(th, data, finger, nu))
+            fn_fixed = jax.jit(jax.value_and_grad(lambda t, fixed=fixed: -raw_log_prob(t, fixed, finger, bounds, nu)))
+            th, _ = scaled_lbfgs(fn_fixed, th, lo, hi, RAW_OPT_SCALE[:11])
         th, _ = scaled_lbfgs(fn, th, lo, hi, RAW_OPT_SCALE[:11])
         val = float(fn(jnp.asarray(th))[0])
         if val < best_f:
             best_th, best_f = th, val
     return best_th
+
+
+def texture_start(th0, data: RawData, finger, priors: cm.PriorParams, tp: gr.TexturePriors, seed: int = 0):
+    """:func:`~bayestouch.inference.raw.texture.initial_raw_texture` from the bare start ``th0`` (11,) on the
+    known-device landscape — the marginalised device terms fixed at their posterior means at ``th0``
+    (:func:`~bayestouch.inference.raw.likelihood.with_nuisance_fixed`), where the grating search and its evidence
+    (``gain``, compared with :data:`DETECT_NATS`) behave as with a known device — then the textured start polished
+    with the device terms marginalised again. Returns the :class:`~bayestouch.inference.raw.texture.TextureStart`."""
+    fixed = with_nuisance_fixed(data, *nuisance_estimates(th0, data, finger))
+    ts = initial_raw_texture(th0, fixed, finger, priors, tp, seed=seed)
+    if data.gain_sd is None and data.response_sd is None:
+        return ts
+    fn = jax.jit(jax.value_and_grad(lambda t: -raw_log_prob(t, data, finger, ts.bounds, STUDENT_NU, ts.texture)))
+    lo, hi = np.asarray(ts.bounds.lower), np.asarray(ts.bounds.upper)
+    th, _ = scaled_lbfgs(fn, ts.theta, lo, hi, RAW_OPT_SCALE)
+    return ts._replace(theta=th, neg_log_post=fn)
 
 
 def _natural(flat: np.ndarray) -> np.ndarray:
@@ -237,9 +268,11 @@ def _raw_warnings(summary: dict, textured: bool = False) -> list[str]:
 
 #: log-posterior gain (nats) of the best grating over the bare shape above which texture="auto" models the texture.
 #: The maximum of N independent χ²₂/2 gains is ≈ ln N ≈ 12 nats for the ~10⁵ wave vectors searched; on the
-#: untextured egg, whose residuals are not white (1/f noise, lag approximation), the best grating gains ~25–50;
-#: on the textured egg thousands
-DETECT_NATS = 100.0
+#: untextured egg, whose residuals are not white (1/f noise, lag approximation), the best grating gained ~25–50
+#: with the simulator's own gains, and 160–190 (a sub-millimetre grating of < 1 µm and the roughness variance
+#: taking up misfit) with the gains estimated from the data (4 strokes, tests/test_raw_texture.py); on the
+#: textured egg ~19,000 (4 strokes) and ~33,000 (10 strokes)
+DETECT_NATS = 400.0
 #: frame strides: with the texture modelled (its readings vary within 0.1 s, which the coarse-frame lag does not
 #: follow: robust residual sd 1.3 s at stride 2 and 4.4 s at stride 5 at the truth), and without
 TEXTURE_STRIDE = 2
@@ -358,12 +391,7 @@ def run_raw_fit(
     priors = cm.load_priors()
     # the bare shape: DE on the commanded contact points, then L-BFGS-B on the raw posterior at the coarse stride
     bare_stride = BARE_STRIDE if stride is None or texture != "off" else int(stride)
-    dev = {
-        "finger": finger,
-        "gain_sd": host.log_gain_sd,
-        "calibration": cal,
-        "response": (host.response_scale, host.response_sd),
-    }
+    dev = {"device": host, "calibration": cal}
     bare_data, _ = load_raw_data(ds, models=models, stride=bare_stride, radius=radius, strokes=strokes, **dev)
     th0 = initial_raw_theta(
         bare_data,
@@ -385,7 +413,7 @@ def run_raw_fit(
             ds, models=models, stride=stride or TEXTURE_STRIDE, radius=radius, strokes=strokes, **dev
         )
         tp = gr.load_texture_priors()
-        ts = initial_raw_texture(th0, data, finger, priors, tp, seed=seed)
+        ts = texture_start(th0, data, finger, priors, tp, seed)
         planes = ("x-y", "x-z", "y-z")
         info["texture_search"] = {
             "candidates": [

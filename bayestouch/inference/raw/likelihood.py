@@ -47,6 +47,9 @@ __all__ = [
     "taxel_offsets",
     "reading_log_lik",
     "predict_readings",
+    "response_scaled",
+    "nuisance_estimates",
+    "with_nuisance_fixed",
     "raw_pointwise",
     "raw_log_likelihood",
     "raw_bounds",
@@ -178,8 +181,6 @@ def _marginalised(theta, pred, data: RawData, nu, texture):
     added (F, M) — what the readings are compared with — and the log-determinant and prior terms spread evenly over
     the readings (F, M)."""
     y = jnp.asarray(data.log_current)
-    if data.response_sd is not None:
-        pred = data.baseline + data.response_scale * (pred - data.baseline)
     pred = jnp.where(jnp.isfinite(pred), pred, y - 1e6)  # absurd shapes: finite, hugely unlikely
     var = (reading_scale(theta, data, texture, nu) / t_scale_factor(nu)) ** 2
     w = 1.0 / var
@@ -196,6 +197,7 @@ def _marginalised(theta, pred, data: RawData, nu, texture):
             return jnp.sum(w * x * z)
 
     spread = jnp.zeros((F, M))
+    b = d = jnp.zeros(())
     if data.response_sd is not None:
         D = (pred - data.baseline) / data.response_scale
         sa2 = jnp.asarray(data.response_sd) ** 2
@@ -207,7 +209,35 @@ def _marginalised(theta, pred, data: RawData, nu, texture):
         d = taxel_offsets(y - pred, var, data.gain_sd)
         pred = pred + d
         spread = spread + (-0.5 * d * d / s2 - 0.5 * jnp.log1p(s2 * jnp.sum(w, axis=0))) / F
-    return pred, spread
+    return pred, spread, b, d
+
+
+def response_scaled(pred, data: RawData):
+    """The prediction ``pred (F, M)`` at the data's response factor a: baseline + a (pred − baseline) (``pred``
+    itself when a = 1)."""
+    if data.baseline is None or data.response_scale == 1.0:
+        return pred
+    return data.baseline + data.response_scale * (pred - data.baseline)
+
+
+def nuisance_estimates(theta, data: RawData, finger, nu: float = STUDENT_NU, texture: RawTexture | None = None):
+    """Posterior means at θ of the marginalised device terms: the response factor a (float) and each selected
+    taxel's log-gain offset (M,) (zeros where they are not marginalised)."""
+    pred = response_scaled(predict_log_current(theta, data, finger, texture), data)
+    _, _, b, d = _marginalised(theta, pred, data, nu, texture)
+    M = np.shape(data.log_current)[1]
+    return float(data.response_scale + b), np.broadcast_to(np.asarray(d, float), (M,)).copy()
+
+
+def with_nuisance_fixed(data: RawData, response_scale: float, offsets) -> RawData:
+    """``data`` with the device terms fixed at ``response_scale`` and the taxel ``offsets (M,)`` (divided out of the
+    readings), nothing marginalised: the smooth likelihood of a known device, for the start's first polish."""
+    return data._replace(
+        log_current=np.asarray(data.log_current) - np.asarray(offsets)[None, :],
+        gain_sd=None,
+        response_scale=float(response_scale),
+        response_sd=None,
+    )
 
 
 def reading_log_lik(theta, pred, data: RawData, nu, texture):
@@ -220,11 +250,12 @@ def reading_log_lik(theta, pred, data: RawData, nu, texture):
     Student-t, and the Gaussian marginal's prior and log-determinant terms are added, spread evenly over the
     readings (exact for Gaussian readings; ``docs/raw_model.md``)."""
     scale = reading_scale(theta, data, texture, nu)
+    pred = response_scaled(pred, data)
     if data.gain_sd is None and data.response_sd is None:
         r = jnp.asarray(data.log_current) - pred
         r = jnp.where(jnp.isfinite(r), r, 1e6)  # overflowed predictions of absurd shapes: finite, hugely unlikely
         return student_t_logpdf(r, scale, nu)
-    full, extra = _marginalised(theta, pred, data, nu, texture)
+    full, extra, _, _ = _marginalised(theta, pred, data, nu, texture)
     return student_t_logpdf(jnp.asarray(data.log_current) - full, scale, nu) + extra
 
 
@@ -232,7 +263,7 @@ def predict_readings(theta, data: RawData, finger, nu: float = STUDENT_NU, textu
     """What the corrected readings ``data.log_current`` are compared with at θ (F, M): :func:`predict_log_current`
     with, where they are marginalised, the posterior means of the response factor and the taxel offsets added
     (:func:`_marginalised`); pure JAX."""
-    pred = predict_log_current(theta, data, finger, texture)
+    pred = response_scaled(predict_log_current(theta, data, finger, texture), data)
     if data.gain_sd is None and data.response_sd is None:
         return pred
     return _marginalised(theta, pred, data, nu, texture)[0]

@@ -28,6 +28,7 @@ from bayestouch.inference.raw.likelihood import (
     predict_log_current,
     raw_bounds,
     raw_log_prob,
+    response_scaled,
     slot_distances,
     taxel_offsets,
 )
@@ -60,7 +61,9 @@ def textured_bounds(data: RawData, priors: cm.PriorParams, tp: gr.TexturePriors,
 def _height_jvp(th, hh, data: RawData, finger, texture: RawTexture | None = None):
     """Linear response (F, M) of ln I to a height field ``hh (F, J)`` m at the penetrating taxels, at θ."""
     sdf = slot_distances(th[None], data, texture)[0]
-    return jax.jvp(lambda h: distance_log_current(sdf - h, data, finger), (jnp.zeros_like(sdf),), (hh,))[1]
+    return jax.jvp(
+        lambda h: response_scaled(distance_log_current(sdf - h, data, finger), data), (jnp.zeros_like(sdf),), (hh,)
+    )[1]
 
 
 def search_texture(
@@ -98,7 +101,9 @@ def search_texture(
     @jax.jit
     def pullback(th):  # the prediction, and c = Jᵀψ (F, J)
         sdf0 = slot_distances(th[None], data)[0]
-        pred0, vjp = jax.vjp(lambda h: distance_log_current(sdf0 - h, data, finger), jnp.zeros_like(sdf0))
+        pred0, vjp = jax.vjp(
+            lambda h: response_scaled(distance_log_current(sdf0 - h, data, finger), data), jnp.zeros_like(sdf0)
+        )
         r = jnp.asarray(data.log_current) - pred0
         wgt = 1.0 / (jnp.exp(th[10]) * jnp.asarray(data.noise_sd)) ** 2
         if data.gain_sd is not None:  # the taxels' unknown log-gains take their share of the residuals first
@@ -271,7 +276,7 @@ def initial_raw_texture(
     frames = [plane_theta(theta0, p) for p in range(len(_PLANES))]
     cands = search_texture(theta0, data, finger, tp, nu, count, planes=range(len(_PLANES)))
     zero = RawTexture(ref, np.zeros(np.shape(data.log_current)), tp.amplitude_scale)
-    pred0 = jax.jit(lambda t: predict_log_current(t, data, finger))(jnp.asarray(theta0))
+    pred0 = jax.jit(lambda t: response_scaled(predict_log_current(t, data, finger), data))(jnp.asarray(theta0))
     w2 = 1.0 / (np.exp(theta0[10]) * np.asarray(data.noise_sd)) ** 2
     r2 = np.asarray(data.log_current) - np.asarray(pred0)  # the textured prediction at u = v = 0
     if data.gain_sd is not None:
@@ -280,7 +285,9 @@ def initial_raw_texture(
 
     @jax.jit
     def jac_uv(th):  # ∂ ln I / ∂(u, v) at u = v = 0, (F, M, 2)
-        return jax.jacfwd(lambda uv: predict_log_current(th.at[11:13].set(uv), data, finger, zero))(jnp.zeros(2))
+        return jax.jacfwd(
+            lambda uv: response_scaled(predict_log_current(th.at[11:13].set(uv), data, finger, zero), data)
+        )(jnp.zeros(2))
 
     value = jax.jit(lambda t, b, tex: raw_log_prob(t, data, finger, b, nu, tex))
 
