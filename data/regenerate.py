@@ -34,7 +34,7 @@ def recording(name: str, out: Path) -> Path:
     from bayestouch.cli import main
 
     rel = Path("models") / "objects" / f"{name}.toml"  # relative, so the file's attributes do not name this machine
-    code = main(["simulate", "--object", str(rel), "--out", str(out), *RECORDING_ARGS])
+    code = main(["simulate", "--object", str(rel), "--out", str(out), "--overwrite", *RECORDING_ARGS])
     if code:
         raise SystemExit(f"bayestouch simulate failed for {name} (exit {code})")
     return out

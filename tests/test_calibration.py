@@ -169,7 +169,7 @@ def test_fit_with_a_calibration_of_another_mode_is_refused(sphere_cal):
 
 def test_calibrate_cli(tmp_path):
     """``bayestouch calibrate`` writes a device file, refuses to replace it without --overwrite (exit 2, one line),
-    and ``fit --calibration`` on contact points is refused as such."""
+    as ``simulate`` refuses to replace a recording, and ``fit --calibration`` on contact points is refused."""
     rec = tmp_path / "cal.nc"
     dev = tmp_path / "dev.toml"
 
@@ -196,6 +196,9 @@ def test_calibrate_cli(tmp_path):
         "3",
     )
     assert r.returncode == 0, r.stderr
+    before = rec.read_bytes()
+    r = bt("simulate", "--object", "egg", "--out", str(rec), "--quiet")  # an existing recording is kept
+    assert r.returncode == 2 and "--overwrite" in r.stderr and rec.read_bytes() == before
     r = bt("calibrate", str(rec), "--object", "sphere", "--out", str(dev))
     assert r.returncode == 0 and dev.is_file(), r.stderr
     assert isinstance(read_device_file(dev), DeviceCalibration)

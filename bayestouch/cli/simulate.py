@@ -44,6 +44,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
         "share it, e.g. a calibration and the strokes it serves",
     )
     sp.add_argument("--out", required=True, type=Path, help="recording to write (.nc)")
+    sp.add_argument("--overwrite", action="store_true", help="replace an existing --out recording")
     sp.add_argument("--duration", type=float, default=2.0, help="seconds per stroke at 1 cm/s (default 2)")
     sp.add_argument("--rate", type=float, default=50.0, help="taxel frames per second (default 50)")
     sp.add_argument(
@@ -78,6 +79,8 @@ def run(args) -> int:
         raise BadInput(f"--out {args.out}: expected a netCDF file name ending in .nc")
     if args.out.exists() and args.out.is_dir():
         raise BadInput(f"--out {args.out} is a folder; expected a .nc file name")
+    if args.out.exists() and not args.overwrite:
+        raise BadInput(f"--out {args.out} already exists; pass --overwrite to replace it, or choose another file")
     if not (0 < args.duration <= 600):
         raise BadInput(f"--duration must be in (0, 600] seconds, got {args.duration}")
     if not (1 <= args.rate <= 2000):
