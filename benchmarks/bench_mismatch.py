@@ -43,8 +43,8 @@ from benchmarks.bench_user_sets import wilson_interval
 from benchmarks.harness import RESULTS
 
 #: scenarios (perturbed fingers) and strokes over the egg in each
-SCENARIOS = 24
-STROKES = 5
+SCENARIOS = 12
+STROKES = 10
 CAL_STROKES = 6
 CAL_DEPTHS = (2e-4, 3e-4, 4e-4)
 
