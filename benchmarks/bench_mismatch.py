@@ -34,9 +34,8 @@ import numpy as np
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.inference.raw import calibrate_device, run_raw_fit
 from bayestouch.io.files import write_csv_rows, write_text
-from bayestouch.io.recording import build_dataset
 from bayestouch.params import MODELS
-from bayestouch.physics.virtual import load_finger, record_strokes
+from bayestouch.physics.virtual import load_finger, recording_dataset
 from bayestouch.scene.objects import load_object
 from bayestouch.scene.strokes import random_strokes
 from benchmarks.bench_user_sets import wilson_interval
@@ -85,12 +84,7 @@ def _record(name: str, models: Path, strokes: int, seed: int, device_seed: int, 
     st = random_strokes(obj, strokes, seed=seed, duration=2.0, rate=50.0)
     if depths is not None:
         st = [s._replace(depth=depths[i % len(depths)]) for i, s in enumerate(st)]
-    rec = record_strokes(obj, st, vf, seed, mode="empirical")
-    g = np.asarray(vf.finger.grid).reshape(-1, 2)
-    ds = build_dataset(
-        rec, g[:, 0], g[:, 1], np.asarray(vf.finger.reference).ravel(), [s.depth for s in st], {"mode": "empirical"}
-    )
-    return ds, obj
+    return recording_dataset(obj, st, vf, seed, mode="empirical"), obj
 
 
 def _interval(p: dict, truth: float) -> dict:

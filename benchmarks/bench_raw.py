@@ -22,25 +22,14 @@ EGG = MODELS / "objects" / "egg.toml"
 
 def _recording(mode: str = "empirical", strokes: int = 10, seed: int = 3):
     """The standard scenario, as ``bayestouch simulate --object egg.toml --strokes 10 --seed 3 --mode MODE``."""
-    from bayestouch.io.recording import build_dataset
-    from bayestouch.physics.virtual import load_finger, record_strokes
+    from bayestouch.physics.virtual import load_finger, recording_dataset
     from bayestouch.scene.objects import load_object
     from bayestouch.scene.strokes import random_strokes
 
     obj = load_object(EGG)
     vf = load_finger(MODELS, seed=seed)
     st = random_strokes(obj, strokes, seed=seed)
-    rec = record_strokes(obj, st, vf, seed, mode=mode)
-    g = np.asarray(vf.finger.grid).reshape(-1, 2)
-    ds = build_dataset(
-        rec,
-        g[:, 0],
-        g[:, 1],
-        np.asarray(vf.finger.reference).ravel(),
-        [s.depth for s in st],
-        {"object": "egg", "seed": seed, "mode": mode},
-    )
-    return ds, obj
+    return recording_dataset(obj, st, vf, seed, mode=mode, attrs={"object": "egg", "seed": seed}), obj
 
 
 def _truth(obj):

@@ -16,9 +16,8 @@ from bayestouch.errors import BadInput
 from bayestouch.inference import raw
 from bayestouch.inference.raw.calibrate import calibrate_device
 from bayestouch.io.device_file import DeviceCalibration, read_device_file, write_device_file
-from bayestouch.io.recording import build_dataset
 from bayestouch.params import MODELS
-from bayestouch.physics.virtual import load_finger, record_strokes
+from bayestouch.physics.virtual import load_finger, recording_dataset
 from bayestouch.scene.objects import load_object
 from bayestouch.scene.strokes import random_strokes
 
@@ -28,17 +27,7 @@ def _record(name: str, strokes: int, seed: int, device_seed: int, mode: str = "e
     obj = load_object(name)
     vf = load_finger(MODELS, seed=device_seed)
     st = random_strokes(obj, strokes, seed=seed, duration=2.0, rate=rate)
-    rec = record_strokes(obj, st, vf, seed, mode=mode)
-    g = np.asarray(vf.finger.grid).reshape(-1, 2)
-    ds = build_dataset(
-        rec,
-        g[:, 0],
-        g[:, 1],
-        np.asarray(vf.finger.reference).ravel(),
-        [s.depth for s in st],
-        {"object": name, "seed": seed, "mode": mode},
-    )
-    return ds, obj, vf
+    return recording_dataset(obj, st, vf, seed, mode=mode, attrs={"object": name, "seed": seed}), obj, vf
 
 
 @pytest.fixture(scope="module")

@@ -19,24 +19,14 @@ def _record(mode: str, strokes: int = 6, seed: int = 7, rate: float = 15.0):
     recording's clean currents are the full bare-shape model."""
     import dataclasses
 
-    from bayestouch.io.recording import build_dataset
-    from bayestouch.physics.virtual import load_finger, record_strokes
+    from bayestouch.physics.virtual import load_finger, recording_dataset
     from bayestouch.scene.objects import load_object
     from bayestouch.scene.strokes import random_strokes
 
     obj = dataclasses.replace(load_object(EGG), texture=None)
     vf = load_finger(MODELS, seed=seed)
     st = random_strokes(obj, strokes, seed=seed, duration=2.0, rate=rate)
-    rec = record_strokes(obj, st, vf, seed, mode=mode)
-    g = np.asarray(vf.finger.grid).reshape(-1, 2)
-    return build_dataset(
-        rec,
-        g[:, 0],
-        g[:, 1],
-        np.asarray(vf.finger.reference).ravel(),
-        [s.depth for s in st],
-        {"object": "egg", "seed": seed, "mode": mode},
-    ), obj
+    return recording_dataset(obj, st, vf, seed, mode=mode, attrs={"object": "egg", "seed": seed}), obj
 
 
 @pytest.fixture(scope="module")

@@ -17,8 +17,7 @@ EGG = MODELS / "objects" / "egg.toml"
 
 
 def _record(textured: bool, strokes: int = 4, seed: int = 5):
-    from bayestouch.io.recording import build_dataset
-    from bayestouch.physics.virtual import load_finger, record_strokes
+    from bayestouch.physics.virtual import load_finger, recording_dataset
     from bayestouch.scene.objects import load_object
     from bayestouch.scene.strokes import random_strokes
 
@@ -27,16 +26,7 @@ def _record(textured: bool, strokes: int = 4, seed: int = 5):
         obj = dataclasses.replace(obj, texture=None)
     vf = load_finger(MODELS, seed=seed)
     st = random_strokes(obj, strokes, seed=seed, duration=2.0)
-    rec = record_strokes(obj, st, vf, seed, mode="empirical")
-    g = np.asarray(vf.finger.grid).reshape(-1, 2)
-    ds = build_dataset(
-        rec,
-        g[:, 0],
-        g[:, 1],
-        np.asarray(vf.finger.reference).ravel(),
-        [s.depth for s in st],
-        {"object": "egg", "seed": seed, "mode": "empirical"},
-    )
+    ds = recording_dataset(obj, st, vf, seed, mode="empirical", attrs={"object": "egg", "seed": seed})
     return ds, obj
 
 

@@ -14,13 +14,14 @@ from tqdm.auto import tqdm
 
 from bayestouch.backend import jax
 from bayestouch.errors import BadInput
+from bayestouch.io.recording import build_dataset
 from bayestouch.params import MODELS
 from bayestouch.physics import bending, noise, skin, sma, taxel
 from bayestouch.physics import forward as fw
 from bayestouch.physics.finger import drive
 from bayestouch.physics.forward import make_finger
 
-__all__ = ["VirtualFinger", "load_finger", "record_strokes"]
+__all__ = ["VirtualFinger", "load_finger", "record_strokes", "recording_dataset"]
 
 
 class VirtualFinger(NamedTuple):
@@ -115,3 +116,14 @@ def record_strokes(
         cols["finger_tip_position"].append(dr.tip_position)
         cols["finger_curvature"].append(dr.curvature)
     return {k: np.concatenate(v) for k, v in cols.items()}
+
+
+def recording_dataset(obj, strokes, vf: VirtualFinger, seed: int, *, mode: str | None = None, attrs=None, **kw):
+    """:func:`record_strokes` as a recording (``xarray.Dataset``, :func:`bayestouch.io.recording.build_dataset`):
+    the finger's taxel layout, each stroke's depth (m) and ``attrs`` (the taxel ``mode`` always among them);
+    ``kw`` go to :func:`record_strokes`."""
+    mode = mode or vf.mode
+    rec = record_strokes(obj, strokes, vf, seed, mode=mode, **kw)
+    g = np.asarray(vf.finger.grid).reshape(-1, 2)
+    ref = np.asarray(vf.finger.reference).ravel()
+    return build_dataset(rec, g[:, 0], g[:, 1], ref, [s.depth for s in strokes], {**(attrs or {}), "mode": mode})
