@@ -79,8 +79,6 @@ def run(args) -> int:
         raise BadInput(f"--out {args.out}: expected a netCDF file name ending in .nc")
     if args.out.exists() and args.out.is_dir():
         raise BadInput(f"--out {args.out} is a folder; expected a .nc file name")
-    if args.out.exists() and not args.overwrite:
-        raise BadInput(f"--out {args.out} already exists; pass --overwrite to replace it, or choose another file")
     if not (0 < args.duration <= 600):
         raise BadInput(f"--duration must be in (0, 600] seconds, got {args.duration}")
     if not (1 <= args.rate <= 2000):
@@ -121,6 +119,8 @@ def run(args) -> int:
         raise BadInput(f"--currents: wire currents must each be in [0, {max_current:g}] A (amperes), got {currents}")
     strokes = random_strokes(obj, args.strokes, seed=args.seed, duration=args.duration, rate=args.rate, depth=depths[0])
     strokes = [s._replace(depth=depths[i % len(depths)]) for i, s in enumerate(strokes)]
+    if args.out.exists() and not args.overwrite:
+        raise BadInput(f"--out {args.out} already exists; pass --overwrite to replace it, or choose another file")
     t0 = time.perf_counter()
     rec = record_strokes(
         obj, strokes, vf, args.seed, hold_currents=currents, mode=args.mode, force=args.force, progress=not args.quiet
