@@ -24,11 +24,11 @@ from bayestouch.inference.raw.data import (
     open_recording,
     unloaded_current,
 )
+from bayestouch.inference.raw.likelihood import distance_log_current
 from bayestouch.inference.raw.priors import RESPONSE_SCALE_SD
 from bayestouch.io.device_file import DeviceCalibration
 from bayestouch.io.runfolder import dataset_digest
 from bayestouch.params import MODELS
-from bayestouch.physics import forward as fw
 from bayestouch.physics import noise as nz
 from bayestouch.scene.surface import signed_distance
 
@@ -170,16 +170,7 @@ def calibrate_device(recording, obj, *, models=MODELS, object_name: str | None =
     # the other taxels: residuals of the true surface's prediction with the reference gains divided out
     f1 = finger._replace(gains=jnp.asarray(np.exp(log_gain)).reshape(np.shape(finger.gains)))
     data, _ = load_raw_data(ds, models=models, stride=1, radius=CALIBRATION_RADIUS, finger=f1)
-    sdf = signed_distance(obj.surface(), jnp.asarray(data.taxel_position))
-    pred = fw.log_current_from_distance(
-        f1,
-        sdf,
-        jnp.asarray(data.kernel),
-        jnp.asarray(data.temperature),
-        jnp.asarray(data.start),
-        jnp.asarray(data.lag_weights),
-        data.mode,
-    )
+    pred = distance_log_current(signed_distance(obj.surface(), jnp.asarray(data.taxel_position)), data, f1)
     r = np.asarray(data.log_current) - np.asarray(pred)
     if not np.all(np.isfinite(r)):
         raise BadInput(f"{where}: the forward model of the object gives no finite currents; is it the touched one?")

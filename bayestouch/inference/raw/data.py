@@ -223,9 +223,7 @@ def load_raw_data(
     contact_radius: float = 3.2e-3,
     strokes=None,
     finger=None,
-    gain_sd=None,
     calibration: DeviceCalibration | None = None,
-    response=None,
     device: HostDevice | None = None,
 ):
     """Read a recording into :class:`RawData` with the finger as a host knows it (:func:`host_device`).
@@ -246,18 +244,14 @@ def load_raw_data(
     strokes : sequence of int, optional
         Use only these strokes (default all).
     finger : Finger, optional
-        The device, its gains and response taken as they are; default :func:`host_device` of ``models`` and
-        ``calibration``. Nothing of the recording but its readings, kinematics and response mode is read (no
-        simulator seed).
-    gain_sd : (N,) float, optional
-        With ``finger``: the remaining sd of each taxel's log-gain (None: the gains are exact).
+        A device known exactly: its gains and response taken as they are, nothing marginalised.
     calibration : DeviceCalibration, optional
-        Without ``finger``: the device file of this finger; without either, unit gains with the nominal spread.
-    response : (float, float), optional
-        With ``finger``: the response factor and its sd (None: exactly 1).
+        The device file of this finger (its taxel mode is checked against the recording's); without ``finger`` or
+        ``device`` the host's device is :func:`host_device` of ``models`` and ``calibration``, and without it unit
+        gains with the nominal spread. Nothing of the recording but its readings, kinematics and response mode is
+        read (no simulator seed).
     device : HostDevice, optional
-        The host's device (:func:`host_device`) to reuse between loads of one recording: its finger, gain sds and
-        response (instead of ``finger``, ``gain_sd`` and ``response``).
+        The host's device (:func:`host_device`) to reuse between loads of one recording.
 
     Returns
     -------
@@ -289,14 +283,11 @@ def load_raw_data(
         raise BadInput(
             f"calibration: made in the {calibration.mode} taxel mode, the recording {where} is in the {mode} mode"
         )
+    if device is None and finger is None:
+        device = host_device(Path(models), calibration)
     if device is not None:
-        finger, gain_sd, response = device.finger, device.log_gain_sd, (device.response_scale, device.response_sd)
-    elif finger is None:
-        host = host_device(Path(models), calibration)
-        finger, gain_sd, response = host.finger, host.log_gain_sd, (host.response_scale, host.response_sd)
+        finger = device.finger
     N = int(np.asarray(finger.reference).size)
-    if gain_sd is not None and (np.size(gain_sd) != N or not np.all(np.asarray(gain_sd, float) > 0)):
-        raise BadInput(f"gain_sd must hold {N} positive numbers (one log-gain sd per taxel)")
     if nT != N:
         raise BadInput(f"{where}: variable 'taxel_current' has {nT} taxels, expected {N} (the finger's array)")
     ref = np.asarray(finger.reference).ravel().astype(bool)
@@ -372,7 +363,6 @@ def load_raw_data(
         taxels,
         dt_fine * stride,
         mode,
-        gain_sd=None if gain_sd is None else np.asarray(gain_sd, float).ravel()[taxels],
     )
     baseline = fw.log_current_from_distance(
         finger,
@@ -384,8 +374,12 @@ def load_raw_data(
         mode,
     )
     data = data._replace(baseline=np.asarray(baseline))
-    if response is not None:
-        data = data._replace(response_scale=float(response[0]), response_sd=float(response[1]))
+    if device is not None:
+        data = data._replace(
+            gain_sd=np.asarray(device.log_gain_sd, float).ravel()[taxels],
+            response_scale=float(device.response_scale),
+            response_sd=float(device.response_sd),
+        )
     return data, finger
 
 

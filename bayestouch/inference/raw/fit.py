@@ -92,6 +92,9 @@ def initial_raw_theta(
     lo, hi = np.asarray(bounds.lower), np.asarray(bounds.upper)
     fn = jax.jit(jax.value_and_grad(lambda t: -raw_log_prob(t, data, finger, bounds, nu)))
     marginal = data.gain_sd is not None or data.response_sd is not None
+    fn_fixed = jax.jit(
+        jax.value_and_grad(lambda t, a, d: -raw_log_prob(t, with_nuisance_fixed(data, a, d), finger, bounds, nu))
+    )
     best_th, best_f = None, np.inf
     for k in range(starts):
         th = initial_theta(contact_points, int(seed) * 1000 + k, priors, starts=1)
@@ -101,9 +104,8 @@ def initial_raw_theta(
             # with the device terms marginalised the log-posterior is rugged (the readings' levels no longer pin
             # the size): polish first with them fixed at their posterior means at θ, a known device's smooth
             # landscape, and re-estimate them there
-            fixed = with_nuisance_fixed(data, *nuisance_estimates(th, data, finger, nu))
-            fn_fixed = jax.jit(jax.value_and_grad(lambda t, fixed=fixed: -raw_log_prob(t, fixed, finger, bounds, nu)))
-            th, _ = scaled_lbfgs(fn_fixed, th, lo, hi, RAW_OPT_SCALE[:11])
+            a, d = nuisance_estimates(th, data, finger, nu)
+            th, _ = scaled_lbfgs(partial(fn_fixed, a=a, d=d), th, lo, hi, RAW_OPT_SCALE[:11])
         th, _ = scaled_lbfgs(fn, th, lo, hi, RAW_OPT_SCALE[:11])
         val = float(fn(jnp.asarray(th))[0])
         if val < best_f:

@@ -214,8 +214,8 @@ def _marginalised(theta, pred, data: RawData, nu, texture):
 
 def response_scaled(pred, data: RawData):
     """The prediction ``pred (F, M)`` at the data's response factor a: baseline + a (pred − baseline) (``pred``
-    itself when a = 1)."""
-    if data.baseline is None or data.response_scale == 1.0:
+    itself without a baseline); a may be traced."""
+    if data.baseline is None:
         return pred
     return data.baseline + data.response_scale * (pred - data.baseline)
 
@@ -229,13 +229,14 @@ def nuisance_estimates(theta, data: RawData, finger, nu: float = STUDENT_NU, tex
     return float(data.response_scale + b), np.broadcast_to(np.asarray(d, float), (M,)).copy()
 
 
-def with_nuisance_fixed(data: RawData, response_scale: float, offsets) -> RawData:
+def with_nuisance_fixed(data: RawData, response_scale, offsets) -> RawData:
     """``data`` with the device terms fixed at ``response_scale`` and the taxel ``offsets (M,)`` (divided out of the
-    readings), nothing marginalised: the smooth likelihood of a known device, for the start's first polish."""
+    readings), nothing marginalised: the smooth likelihood of a known device, for the start's first polish. Pure
+    JAX: both may be traced, so one compiled log-density serves every estimate of them."""
     return data._replace(
-        log_current=np.asarray(data.log_current) - np.asarray(offsets)[None, :],
+        log_current=jnp.asarray(data.log_current) - jnp.asarray(offsets)[None, :],
         gain_sd=None,
-        response_scale=float(response_scale),
+        response_scale=response_scale,
         response_sd=None,
     )
 

@@ -30,7 +30,6 @@ from bayestouch.inference.raw.likelihood import (
     raw_log_prob,
     response_scaled,
     slot_distances,
-    taxel_offsets,
 )
 
 __all__ = [
@@ -106,8 +105,6 @@ def search_texture(
         )
         r = jnp.asarray(data.log_current) - pred0
         wgt = 1.0 / (jnp.exp(th[10]) * jnp.asarray(data.noise_sd)) ** 2
-        if data.gain_sd is not None:  # the taxels' unknown log-gains take their share of the residuals first
-            r = r - taxel_offsets(r, 1.0 / wgt, data.gain_sd)
         return vjp((nu + 1.0) * r * wgt / (nu + r * r * wgt))[0], wgt  # ψ = d log t / d prediction
 
     c, wgt = pullback(th)
@@ -244,7 +241,9 @@ def initial_raw_texture(
     seed: int = 0,
     polish: int = 6,
 ):
-    """Textured start from the bare-shape estimate ``theta0`` (11,).
+    """Textured start from the bare-shape estimate ``theta0`` (11,), on ``data`` of a known device (the residuals of
+    the search hold no per-taxel offsets or response factor: with those marginalised, call
+    :func:`bayestouch.inference.raw.fit.texture_start`, which fixes them first).
 
     1. The bare shape is polished on ``data`` (L-BFGS-B, :func:`~bayestouch.inference.optimize.scaled_lbfgs`) and
        put in the canonical frame (:func:`canonical_theta`).
@@ -277,11 +276,8 @@ def initial_raw_texture(
     cands = search_texture(theta0, data, finger, tp, nu, count, planes=range(len(_PLANES)))
     zero = RawTexture(ref, np.zeros(np.shape(data.log_current)), tp.amplitude_scale)
     pred0 = jax.jit(lambda t: response_scaled(predict_log_current(t, data, finger), data))(jnp.asarray(theta0))
-    w2 = 1.0 / (np.exp(theta0[10]) * np.asarray(data.noise_sd)) ** 2
-    r2 = np.asarray(data.log_current) - np.asarray(pred0)  # the textured prediction at u = v = 0
-    if data.gain_sd is not None:
-        r2 = r2 - np.asarray(taxel_offsets(r2, 1.0 / w2, data.gain_sd))
-    w, r = w2.ravel(), r2.ravel()
+    w = (1.0 / (np.exp(theta0[10]) * np.asarray(data.noise_sd)) ** 2).ravel()
+    r = (np.asarray(data.log_current) - np.asarray(pred0)).ravel()  # the textured prediction at u = v = 0
 
     @jax.jit
     def jac_uv(th):  # ∂ ln I / ∂(u, v) at u = v = 0, (F, M, 2)
@@ -304,10 +300,7 @@ def initial_raw_texture(
     for p, lam, o, _ in cands:
         b = textured_bounds(data, priors, tp, o)
         th = np.concatenate([frames[p], [0.0, 0.0, np.log(lam), o, np.log(tp.roughness_min)]])
-        X = np.asarray(jac_uv(jnp.asarray(th)))
-        if data.gain_sd is not None:  # what a taxel offset can absorb is no evidence of a grating
-            X = X - np.stack([np.asarray(taxel_offsets(X[..., i], 1.0 / w2, data.gain_sd)) for i in range(2)], -1)
-        X = X.reshape(-1, 2)
+        X = np.asarray(jac_uv(jnp.asarray(th))).reshape(-1, 2)
         uv = np.linalg.lstsq(X.T @ (w[:, None] * X), X.T @ (w * r), rcond=None)[0]
         th[11:13] = np.clip(uv, np.asarray(b.lower)[11:13], np.asarray(b.upper)[11:13])
         val, th[10] = profile_k(th, b, zero)
