@@ -34,9 +34,9 @@ from bayestouch.inference.patch import patch_posterior
 from bayestouch.inference.run import run_contact_fit
 from bayestouch.io.contacts import save_contact_points
 from bayestouch.io.files import write_json
-from bayestouch.io.recording import build_dataset, read_recording, write_recording
+from bayestouch.io.recording import read_recording, write_recording
 from bayestouch.params import MODELS
-from bayestouch.physics.virtual import load_finger, record_strokes
+from bayestouch.physics.virtual import load_finger, recording_dataset
 from bayestouch.planning.loop import ExploreSettings, explore, truth_of
 from bayestouch.report import figures as rp
 from bayestouch.report.page import Figure, Table, check_in_browser, find_browser, write_report
@@ -269,15 +269,13 @@ def _taxels(obj, res, out: Path, seed: int, sizes: DemoSizes, progress: bool):
     strokes = replay_strokes(obj, res.strokes)
     if not strokes:
         raise RuntimeError("demo: no planned stroke met the object along its path")
-    frames = record_strokes(obj, strokes, vf, seed, mode=TAXEL_MODE, progress=progress)
-    grid = np.asarray(vf.finger.grid)
-    ds = build_dataset(
-        frames,
-        grid[..., 0].ravel(),
-        grid[..., 1].ravel(),
-        np.asarray(vf.finger.reference).ravel(),
-        [s.depth for s in strokes],
-        {
+    ds = recording_dataset(
+        obj,
+        strokes,
+        vf,
+        seed,
+        mode=TAXEL_MODE,
+        attrs={
             "object": obj.name,
             "object_file": str(obj.source or ""),
             "seed": seed,
@@ -287,6 +285,7 @@ def _taxels(obj, res, out: Path, seed: int, sizes: DemoSizes, progress: bool):
             "conventions": "SI units in 'units'",
             "made_by": "bayestouch demo (replayed eig strokes)",
         },
+        progress=progress,
     )
     write_recording(ds, out / "recording.nc")
     recording = read_recording(out / "recording.nc")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -56,8 +57,6 @@ def run(args) -> int:
         f"{args.object}, log-gain sd {np.median(cal.log_gain_sd):.2g} (median), noise scale {cal.noise_scale:.2f}"
     )
     if cal.noise_scale > MISFIT_NOISE_SCALE:
-        import sys
-
         print(
             f"bayestouch calibrate: warning: the residuals are {cal.noise_scale:.1f}x the modelled read-out noise: "
             "the object, its pose or the finger's constants do not fit these readings; the gains are unreliable",

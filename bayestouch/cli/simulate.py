@@ -106,8 +106,8 @@ def run(args) -> int:
     if args.force is not None and not (0 < args.force <= 2.0):
         raise BadInput(f"--force must be in (0, 2] newtons, got {args.force}")
     from bayestouch import __version__
-    from bayestouch.io.recording import build_dataset, write_recording
-    from bayestouch.physics.virtual import load_finger, record_strokes
+    from bayestouch.io.recording import write_recording
+    from bayestouch.physics.virtual import load_finger, recording_dataset
     from bayestouch.scene.objects import load_object
     from bayestouch.scene.strokes import random_strokes
 
@@ -122,18 +122,13 @@ def run(args) -> int:
     if args.out.exists() and not args.overwrite:
         raise BadInput(f"--out {args.out} already exists; pass --overwrite to replace it, or choose another file")
     t0 = time.perf_counter()
-    rec = record_strokes(
-        obj, strokes, vf, args.seed, hold_currents=currents, mode=args.mode, force=args.force, progress=not args.quiet
-    )
-    lay_u = np.asarray(vf.finger.grid[..., 0]).ravel()
-    lay_v = np.asarray(vf.finger.grid[..., 1]).ravel()
-    ds = build_dataset(
-        rec,
-        lay_u,
-        lay_v,
-        np.asarray(vf.finger.reference).ravel(),
-        [s.depth for s in strokes],
-        {
+    ds = recording_dataset(
+        obj,
+        strokes,
+        vf,
+        args.seed,
+        mode=args.mode,
+        attrs={
             "object": obj.name,
             "object_file": str(args.object),
             "seed": args.seed,
@@ -143,11 +138,14 @@ def run(args) -> int:
             "software": f"bayestouch {__version__}",
             "conventions": "SI units in 'units'",
         },
+        hold_currents=currents,
+        force=args.force,
+        progress=not args.quiet,
     )
     write_recording(ds, args.out)
-    f = rec["contact_force"]
+    f = ds["contact_force"].values
     print(
-        f"wrote {args.out}: {len(strokes)} stroke(s), {len(rec['time'])} frames × {len(lay_u)} taxels, "
+        f"wrote {args.out}: {len(strokes)} stroke(s), {ds.sizes['frame']} frames × {ds.sizes['taxel']} taxels, "
         f"contact force {f.min():.3f}–{f.max():.3f} N, in {time.perf_counter() - t0:.1f} s"
     )
     return 0

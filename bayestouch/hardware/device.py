@@ -587,18 +587,15 @@ class FingerDevice:
         """The status after stroke ``sid`` delivered its frames (the heater check). A slow link may leave one
         request unanswered after its retries while the answer is still on its way: ``tries`` requests are made
         before the heaters' state is declared unknown (DeviceError)."""
-        for _ in range(tries - 1):
+        for _ in range(tries):
             try:
                 return self.status()
-            except DeviceError:
-                pass
-        try:
-            return self.status()
-        except DeviceError as e:
-            raise DeviceError(
-                f"{self.url}: no status after stroke {sid} in {tries} requests; the heaters' state is unknown, "
-                "switch the finger off"
-            ) from e
+            except DeviceError as e:
+                last = e
+        raise DeviceError(
+            f"{self.url}: no status after stroke {sid} in {tries} requests; the heaters' state is unknown, "
+            "switch the finger off"
+        ) from last
 
     def _collect(self, sid: int, T: int) -> list[pr.Frame] | None:
         frames: dict[int, pr.Frame] = {}
