@@ -10,6 +10,9 @@ import importlib
 __version__ = "0.1.0"
 
 _API = {
+    "Fit": "bayestouch.api",
+    "fit": "bayestouch.api",
+    "read_spread_mesh": "bayestouch.io.meshes",
     "BadInput": "bayestouch.errors",
     "NEllipsoid": "bayestouch.geometry.nellipsoid",
     "nellipsoid_mesh": "bayestouch.geometry.mesh",

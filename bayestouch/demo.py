@@ -22,7 +22,6 @@ from typing import NamedTuple
 
 import arviz as az
 import numpy as np
-import trimesh
 import xarray as xr
 from tqdm.auto import tqdm
 
@@ -34,6 +33,7 @@ from bayestouch.inference.patch import patch_posterior
 from bayestouch.inference.run import run_contact_fit
 from bayestouch.io.contacts import save_contact_points
 from bayestouch.io.files import write_json
+from bayestouch.io.meshes import read_spread_mesh
 from bayestouch.io.recording import read_recording, write_recording
 from bayestouch.params import MODELS
 from bayestouch.physics.virtual import load_finger, recording_dataset
@@ -510,11 +510,9 @@ def _true_natural(obj) -> dict:
 
 def _read_ply(path: Path):
     """Vertices (V, 3) m, faces (F, 3) and the per-vertex ``spread`` (V,) m of an uncertainty mesh."""
-    m = trimesh.load(str(path), process=False)
-    raw = m.metadata.get("_ply_raw", {}).get("vertex", {}).get("data")
-    names = getattr(getattr(raw, "dtype", None), "names", None) or ()
-    spread = np.asarray(raw["spread"], float).ravel() if "spread" in names else np.zeros(len(m.vertices))
-    return np.asarray(m.vertices), np.asarray(m.faces), spread
+    m = read_spread_mesh(path)
+    spread = m.vertex_attributes.get("spread", np.zeros(len(m.vertices)))
+    return np.asarray(m.vertices), np.asarray(m.faces), np.asarray(spread, float)
 
 
 def _print_table(res, summary: dict, patch: dict, truth, page: Path, check, seconds: float) -> None:

@@ -23,8 +23,10 @@ from bayestouch.errors import BadInput
 
 __all__ = ["Spec", "read_toml", "read_section", "build", "MODELS"]
 
-#: the folder of shipped parameter files
-MODELS = Path(__file__).resolve().parent.parent / "models"
+_HERE = Path(__file__).resolve().parent
+#: the folder of shipped parameter files: ``models/`` at the top of a checkout (an editable install), or the package
+#: data ``bayestouch/models`` of an installed wheel (pyproject maps one onto the other)
+MODELS = _HERE / "models" if (_HERE / "models" / "finger.toml").is_file() else _HERE.parent / "models"
 
 
 class Spec(NamedTuple):

@@ -80,7 +80,7 @@ def _check_posterior_file(out, n_points):
     idata = az.from_netcdf(str(out / "posterior.nc"))
     for g in ("posterior", "log_likelihood", "posterior_predictive", "observed_data"):
         assert g in idata.groups(), g
-    assert idata.log_likelihood["obs"].shape[-1] == n_points
+    assert idata.log_likelihood["points"].shape[-1] == n_points
     obs = idata.observed_data["points"].values
     rep = idata.posterior_predictive["points"].values.reshape(-1, n_points, 3)
     assert obs.shape == (n_points, 3) and np.isfinite(rep).all()
@@ -91,15 +91,16 @@ def _check_posterior_file(out, n_points):
     assert abs(r_rep.mean() / r_obs - 1) < 0.02
     # log-likelihood group = the model's pointwise density at those draws: its sum is finite and near the
     # Student-t optimum (σ ≈ 0.3 mm → log density ≈ −log σ ≈ 8 per point)
-    ll = idata.log_likelihood["obs"].values.sum(axis=-1)
+    ll = idata.log_likelihood["points"].values.sum(axis=-1)
     assert np.isfinite(ll).all() and 5 * n_points < ll.mean() < 9 * n_points
 
 
 def _check_uncertainty_mesh(out, summary):
-    import trimesh
+    from bayestouch.io.meshes import read_spread_mesh
 
-    m = trimesh.load(str(out / "uncertainty_mesh.ply"), process=False)
-    spread = np.asarray(m.metadata["_ply_raw"]["vertex"]["data"]["spread"], float)  # the PLY's vertex property
+    m = read_spread_mesh(out / "uncertainty_mesh.ply")
+    spread = m.vertex_attributes["spread"]  # the PLY's vertex property, loaded as a vertex attribute
+    assert np.array_equal(m.vertex_attributes["quality"], spread)  # and as MeshLab's scalar field
     assert len(spread) == len(m.vertices) and (spread > 0).all()
     colours = np.asarray(m.visual.vertex_colors)
     assert len(np.unique(colours[:, :3], axis=0)) > 10  # coloured by the spread, not one colour
@@ -252,7 +253,7 @@ def test_fit_with_normals_and_outlier_mixture(tmp_path):
     # normals measured with 0.05 rad-ish noise per component: κ ≈ 1/(2·0.05²) = 200, certainly > 50
     assert s["parameters"]["kappa"]["mean"] > 50
     idata = az.from_netcdf(str(out / "posterior.nc"))
-    assert idata.log_likelihood["obs"].shape[-1] == 200
+    assert idata.log_likelihood["points"].shape[-1] == 200
     # the measured normals are data too: observed (normalised) and replicated (unit vMF draws about the model's)
     obs_n = idata.observed_data["normals"].values
     np.testing.assert_allclose(obs_n, measured_n / np.linalg.norm(measured_n, axis=1, keepdims=True), atol=1e-12)

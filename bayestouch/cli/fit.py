@@ -164,6 +164,16 @@ def run(args) -> int:
         raise BadInput(f"{args.points}: no such file (expected a contact points CSV or a recording .nc)")
     if args.ffd_tau is not None and not (0 < args.ffd_tau < 0.1):
         raise BadInput(f"--ffd-tau must be in (0, 0.1) metres, got {args.ffd_tau}")
+    from bayestouch.api import fit
+
+    common = dict(
+        seed=args.seed,
+        walkers=args.walkers,
+        resume=args.resume,
+        overwrite=args.overwrite,
+        progress=not args.quiet,
+        stop_when_converged=not args.no_early_stop,
+    )
     if args.points.suffix == ".nc":
         if args.ffd is not None:
             raise BadInput("--ffd applies to contact points (.csv), not to a recording (.nc)")
@@ -171,25 +181,17 @@ def run(args) -> int:
             raise BadInput(
                 "--size-prior, --init and --subsample apply to contact points (.csv), not to a recording (.nc)"
             )
-        from bayestouch.inference.raw import run_raw_fit
-
-        s = run_raw_fit(
+        s = fit(
             args.points,
             args.out,
-            seed=args.seed,
-            walkers=args.walkers,
-            steps=args.steps or 1500,
-            resume=args.resume,
-            overwrite=args.overwrite,
+            steps=args.steps,
             budget_s=args.budget or None,
-            progress=not args.quiet,
-            stop_when_converged=not args.no_early_stop,
             texture=args.texture,
             stride=args.stride,
             calibration=args.calibration,
-        )
+            **common,
+        ).results
     else:
-        from bayestouch.inference.run import DEFAULT_BUDGET_S, run_contact_fit
         from bayestouch.io.contacts import load_contact_points
 
         if args.size_prior is not None and args.ffd is not None:
@@ -218,27 +220,21 @@ def run(args) -> int:
         if args.nu is not None and (args.noise != "student" or not args.nu > 0):
             raise BadInput(f"--nu must be > 0 and goes with --noise student, got --nu {args.nu} --noise {args.noise}")
         noise, nu = ("student", float("inf")) if args.noise == "gaussian" else (args.noise, args.nu)
-        s = run_contact_fit(
-            cp.points,
+        s = fit(
+            cp,
             args.out,
-            seed=args.seed,
-            walkers=args.walkers,
-            steps=args.steps or 20000,
-            resume=args.resume,
-            overwrite=args.overwrite,
-            budget_s=DEFAULT_BUDGET_S if args.budget is None else (args.budget or None),
-            progress=not args.quiet,
-            normals=None if args.ignore_normals else cp.normals,
+            steps=args.steps,
+            budget_s="auto" if args.budget is None else (args.budget or None),
+            normals=False if args.ignore_normals else None,
             noise=noise,
             nu=nu,
             ffd=args.ffd,
             ffd_tau=args.ffd_tau,
-            stop_when_converged=not args.no_early_stop,
             precision=args.precision,
-            free=cp.free,
             size_prior=args.size_prior,
             init=args.init,
-        )
+            **common,
+        ).results
     d = s["diagnostics"]
     v = s["derived"]["volume_m3"]
     print(

@@ -2,13 +2,18 @@
 and hands its chain (:class:`~bayestouch.inference.sampler.Chain`) to :func:`write_posterior`, which writes
 
 * ``chain.h5`` — the emcee backend (the checkpoint; written by :func:`bayestouch.inference.sampler.sample`);
-* ``posterior.nc`` — ArviZ InferenceData: ``posterior`` (every kept draw, canonicalised natural parameters),
-  ``log_likelihood`` and ``posterior_predictive`` (on thinned draws), ``observed_data``;
+* ``posterior.nc`` — ArviZ InferenceData (:func:`inference_data`): ``posterior`` (every kept draw: the
+  canonicalised natural parameters and the volume, m³), ``sample_stats`` (``lp``, the log-posterior, and
+  ``accepted``, whether the walker moved at that step), ``log_likelihood`` and ``posterior_predictive`` (on thinned
+  draws, keyed and dimensioned like ``observed_data``: ``points`` over ``(point, xyz)``, a recording's
+  ``log_current`` over ``(frame, taxel)``), ``observed_data``, and ``derived`` (area m² and principal moments of
+  inertia m⁵ on :data:`DERIVED_DRAWS` thinned draws: a mesh per draw is too slow for every draw). Every variable
+  has a ``units`` attribute; every group names ``inference_library`` (emcee) and the package version;
 * ``summary.json`` — parameters (mean, sd, q05, q95, R-hat, bulk ESS), derived volume m³, area m² and principal
   inertia m⁵ (eq. 11–13) with intervals, diagnostics (converged or not, and why), the model;
 * ``mean_shape.ply`` — the posterior-mean surface (m); ``uncertainty_mesh.ply`` — the same mesh coloured by the
-  per-vertex posterior spread of the surface along its normal (m, also in the vertex property ``spread`` and
-  summarised in ``summary.json``).
+  per-vertex posterior spread of the surface along its normal (m, also in the vertex properties ``spread`` and
+  ``quality``, :mod:`bayestouch.io.meshes`, and summarised in ``summary.json``).
 
 Shared by the contact level (:mod:`bayestouch.inference.run`) and the raw-current level
 (:mod:`bayestouch.inference.raw`); the patch level summarises with :func:`interval`.
@@ -18,15 +23,18 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from datetime import UTC, datetime
 from functools import partial
 from pathlib import Path
 from typing import NamedTuple
 
 import arviz as az
+import emcee
 import matplotlib
 import numpy as np
 import xarray as xr
 
+from bayestouch import __version__
 from bayestouch.backend import jax, jnp
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.integrals import surface_integrals_batch
@@ -35,6 +43,7 @@ from bayestouch.geometry.rotation import euler_from_matrix
 from bayestouch.geometry.symmetry import rotation_matrices
 from bayestouch.inference.sampler import convergence
 from bayestouch.io.files import atomic_path, write_json
+from bayestouch.io.meshes import write_spread_mesh
 
 __all__ = [
     "ANGLE_NAMES",
@@ -42,6 +51,7 @@ __all__ = [
     "mean_shape_vector",
     "PosteriorModel",
     "write_posterior",
+    "inference_data",
     "interval",
     "uncertainty_spread",
     "vmf_sample",
@@ -72,7 +82,8 @@ class PosteriorModel(NamedTuple):
     shape_vectors : callable
         ``(N, K) natural → (N, 10)`` n-ellipsoid vectors (centre m, axes m, angles rad, n).
     pointwise_log_lik : callable or None
-        ``(N, D) sampled → (N, M)`` log-likelihood of each observation (ArviZ ``log_likelihood`` group).
+        ``(N, D) sampled → {observed name: (N, M)}`` log-likelihood of each observation (ArviZ ``log_likelihood``
+        group, keyed like :attr:`observed`).
     predictive : callable or None
         ``((N, D) sampled, np.random.Generator) → {name: (N, ...) array}`` replicated data.
     observed : dict
@@ -88,6 +99,13 @@ class PosteriorModel(NamedTuple):
     predictive_draws : int, optional
         Draws in the posterior predictive group (default :data:`PREDICTIVE_DRAWS`; fewer where one replicate is
         large, as a recording's readings are).
+    dims : dict, optional
+        ``{observed name: dim names}`` of the observations' axes (e.g. ``{"points": ("point", "xyz")}``); the
+        log-likelihood of an observation uses the leading ones (one value per point, per frame). Default
+        ``name_dim_0`` …
+    units : dict, optional
+        ``{name: unit}`` of :attr:`names` and the observed variables (SI, ``"1"`` for dimensionless), written
+        as each variable's ``units`` attribute.
     """
 
     names: tuple
@@ -100,6 +118,8 @@ class PosteriorModel(NamedTuple):
     refine_mesh: Callable | None = None
     checks: Callable | None = None
     predictive_draws: int | None = None
+    dims: dict | None = None
+    units: dict | None = None
 
 
 def mean_shape_vector(vectors) -> np.ndarray:
@@ -231,10 +251,8 @@ def write_posterior(out: Path, chain, model: PosteriorModel, *, seed: int, t0: f
     kept = chain.kept  # (S, W, D)
     S, W, D = kept.shape
     nat = model.natural(kept.reshape(-1, D)).reshape(S, W, -1)
-    post = xr.Dataset(
-        {name: (("chain", "draw"), np.swapaxes(nat[..., i], 0, 1)) for i, name in enumerate(model.names)},
-        coords={"chain": np.arange(W), "draw": np.arange(S)},
-    )
+    flat = nat.reshape(-1, nat.shape[-1])
+    post = _posterior_group(nat, model)
     ess = az.ess(post, method="bulk")
     rhat = az.rhat(post)
     params = {
@@ -242,44 +260,26 @@ def write_posterior(out: Path, chain, model: PosteriorModel, *, seed: int, t0: f
         for i, name in enumerate(model.names)
     }
     rng = np.random.default_rng(seed)
-    groups = {"posterior": post}
-    rows = _thin_rows(S, max(1, PREDICTIVE_DRAWS // W))
-    sub = kept[rows]  # (s, W, D)
-    flat_sub = np.swapaxes(sub, 0, 1).reshape(-1, D)  # chain-major, matching (chain, draw)
-    coords = {"chain": np.arange(W), "draw": rows}
-    if model.pointwise_log_lik is not None:
-        ll = np.asarray(model.pointwise_log_lik(flat_sub))
-        groups["log_likelihood"] = xr.Dataset(
-            {"obs": (("chain", "draw", "obs_id"), ll.reshape(W, len(rows), -1))}, coords=coords
-        )
-    if model.predictive is not None:
-        prows = rows if model.predictive_draws is None else _thin_rows(S, max(1, model.predictive_draws // W))
-        rep = model.predictive(np.swapaxes(kept[prows], 0, 1).reshape(-1, D), rng)
-        groups["posterior_predictive"] = xr.Dataset(
-            {
-                k: (
-                    ("chain", "draw", *[f"{k}_dim_{j}" for j in range(v.ndim - 1)]),
-                    v.reshape(W, len(prows), *v.shape[1:]),
-                )
-                for k, v in rep.items()
-            },
-            coords={"chain": np.arange(W), "draw": prows},
-        )
-    if model.observed:
-        groups["observed_data"] = xr.Dataset(
-            {k: ([f"{k}_dim_{j}" for j in range(np.ndim(v))], np.asarray(v)) for k, v in model.observed.items()}
-        )
-    idata = az.InferenceData(**groups)
-
-    flat = nat.reshape(-1, nat.shape[-1])
-    draws = flat[rng.choice(len(flat), min(DERIVED_DRAWS, len(flat)), replace=False)]
-    vecs = np.asarray(model.shape_vectors(draws))
+    # derived quantities on thinned draws of every walker (a mesh per draw), in the ``derived`` group too
+    drows = _thin_rows(S, max(1, DERIVED_DRAWS // W))
+    vecs = np.asarray(model.shape_vectors(np.swapaxes(nat[drows], 0, 1).reshape(-1, nat.shape[-1])))
     meshes, tri = _draw_meshes(vecs, 16)
     ints = surface_integrals_batch(meshes, tri)
-    areas = ints.area
+    areas = np.asarray(ints.area)
     inertia = np.linalg.eigvalsh(ints.inertia)[:, ::-1]  # principal moments, largest first
-    # the volume is closed-form for an n-ellipsoid (eq. 11 on the exact surface, not the res-16 mesh)
-    exact_vols = np.asarray(_volumes(jnp.asarray(vecs)))
+    derived = xr.Dataset(
+        {
+            "area": (("chain", "draw"), areas.reshape(W, len(drows)), {"units": "m2"}),
+            "inertia": (
+                ("chain", "draw", "principal"),
+                inertia.reshape(W, len(drows), 3),
+                {"units": "m5", "long_name": "principal second moments of the volume, largest first"},
+            ),
+        },
+        coords={"chain": np.arange(W), "draw": drows, "principal": np.arange(3)},
+    )
+    idata = inference_data(chain, model, post, derived, rng)
+    exact_vols = np.asarray(post["volume"].values).ravel()
 
     mean_nat = flat.mean(axis=0)
     # the mean shape's mesh (nellipsoid_mesh(mean, 32), through the compiled map of the draws' meshes)
@@ -291,14 +291,13 @@ def write_posterior(out: Path, chain, model: PosteriorModel, *, seed: int, t0: f
         verts = np.asarray(model.refine_mesh(mean_nat, verts))
     um = to_trimesh(verts, faces)
     um.visual.vertex_colors = _spread_colours(spread)
-    um.vertex_attributes["spread"] = spread.astype(np.float32)
 
     judged = [p for name, p in params.items() if name not in ANGLE_NAMES]
     diag = convergence([p["r_hat"] for p in judged], [p["ess_bulk"] for p in judged], chain)
     summary = {
         "parameters": params,
         "derived": {
-            "volume_m3": interval(exact_vols),
+            "volume_m3": interval(exact_vols),  # every draw
             # the mesh mean_shape.ply is drawn from (mean_shape_vector): the shape to plot or compare, not the
             # parameters' means, which are averages of canonical labels
             "mean_shape": dict(zip(ne.PARAM_NAMES, map(float, mean_vec), strict=True)),
@@ -321,12 +320,123 @@ def write_posterior(out: Path, chain, model: PosteriorModel, *, seed: int, t0: f
     # every file atomically (a kill leaves each one old or new, never truncated), the summary last
     with atomic_path(out / "mean_shape.ply") as tmp:
         to_trimesh(verts, faces).export(str(tmp))
-    with atomic_path(out / "uncertainty_mesh.ply") as tmp:
-        um.export(str(tmp))
+    write_spread_mesh(out / "uncertainty_mesh.ply", um, spread)
     with atomic_path(out / "posterior.nc") as tmp:
         idata.to_netcdf(str(tmp), compress=False)
     write_json(out / "summary.json", summary)
     return summary
+
+
+def _posterior_group(nat, model: PosteriorModel) -> xr.Dataset:
+    """The ``posterior`` group: natural parameters ``nat (S, W, K)`` and the exact volume of every draw."""
+    S, W, _ = nat.shape
+    units = model.units or {}
+    data = {
+        name: (("chain", "draw"), np.swapaxes(nat[..., i], 0, 1), {"units": units[name]} if name in units else {})
+        for i, name in enumerate(model.names)
+    }
+    vecs = np.asarray(model.shape_vectors(nat.reshape(S * W, -1)))
+    # eq. 11 in closed form for an n-ellipsoid (the FFD lattice's mean displacement is not in it)
+    vol = np.concatenate(
+        [np.asarray(_volumes(jnp.asarray(c))) for c in np.array_split(vecs, max(1, len(vecs) // 20000))]
+    )
+    data["volume"] = (("chain", "draw"), np.swapaxes(vol.reshape(S, W), 0, 1), {"units": "m3"})
+    return xr.Dataset(data, coords={"chain": np.arange(W), "draw": np.arange(S)})
+
+
+def _obs_dims(model: PosteriorModel, name: str, ndim: int) -> list[str]:
+    dims = list((model.dims or {}).get(name, ()))
+    return (dims + [f"{name}_dim_{j}" for j in range(len(dims), ndim)])[:ndim]
+
+
+def _coords(ds: xr.Dataset) -> xr.Dataset:
+    """Index coordinates for every dim of ``ds`` that has none (``xyz`` gets its axis names)."""
+    new = {d: (["x", "y", "z"] if d == "xyz" else np.arange(n)) for d, n in ds.sizes.items() if d not in ds.coords}
+    return ds.assign_coords(new)
+
+
+def _attrs() -> dict:
+    return {
+        "created_at": datetime.now(UTC).isoformat(timespec="seconds"),
+        "inference_library": "emcee",
+        "inference_library_version": emcee.__version__,
+        "arviz_version": az.__version__,
+        "creator": "bayestouch",
+        "creator_version": __version__,
+    }
+
+
+def inference_data(chain, model: PosteriorModel, post: xr.Dataset, derived: xr.Dataset, rng) -> az.InferenceData:
+    """ArviZ InferenceData of a chain (:class:`~bayestouch.inference.sampler.Chain`) as ``posterior.nc`` holds it
+    (the module docstring lists the groups); ``post`` is :func:`_posterior_group`'s, ``derived`` the area and
+    inertia of thinned draws; ``rng`` draws the posterior predictive."""
+    kept = chain.kept
+    S, W, D = kept.shape
+    units = model.units or {}
+    lp = np.swapaxes(np.asarray(chain.log_prob, float), 0, 1)
+    moved = np.full((W, S), np.nan)
+    moved[:, 1:] = np.swapaxes(np.any(kept[1:] != kept[:-1], axis=-1), 0, 1)
+    groups = {
+        "posterior": post,
+        "sample_stats": xr.Dataset(
+            {
+                "lp": (("chain", "draw"), lp, {"units": "nat", "long_name": "log-posterior density"}),
+                "accepted": (
+                    ("chain", "draw"),
+                    moved,
+                    {"units": "1", "long_name": "1 if the walker moved at this step, 0 if not (NaN: first kept)"},
+                ),
+            },
+            coords=post.coords,
+        ),
+    }
+    rows = _thin_rows(S, max(1, PREDICTIVE_DRAWS // W))
+    coords = {"chain": np.arange(W), "draw": rows}
+    if model.pointwise_log_lik is not None:
+        ll = model.pointwise_log_lik(np.swapaxes(kept[rows], 0, 1).reshape(-1, D))  # chain-major
+        groups["log_likelihood"] = _coords(
+            xr.Dataset(
+                {
+                    k: (
+                        ("chain", "draw", *_obs_dims(model, k, np.ndim(v) - 1)),
+                        np.asarray(v).reshape(W, len(rows), *np.shape(v)[1:]),
+                        {"units": "nat"},
+                    )
+                    for k, v in ll.items()
+                },
+                coords=coords,
+            )
+        )
+    if model.predictive is not None:
+        prows = rows if model.predictive_draws is None else _thin_rows(S, max(1, model.predictive_draws // W))
+        rep = model.predictive(np.swapaxes(kept[prows], 0, 1).reshape(-1, D), rng)
+        groups["posterior_predictive"] = _coords(
+            xr.Dataset(
+                {
+                    k: (
+                        ("chain", "draw", *_obs_dims(model, k, v.ndim - 1)),
+                        v.reshape(W, len(prows), *v.shape[1:]),
+                        {"units": units[k]} if k in units else {},
+                    )
+                    for k, v in rep.items()
+                },
+                coords={"chain": np.arange(W), "draw": prows},
+            )
+        )
+    if model.observed:
+        groups["observed_data"] = _coords(
+            xr.Dataset(
+                {
+                    k: (_obs_dims(model, k, np.ndim(v)), np.asarray(v), {"units": units[k]} if k in units else {})
+                    for k, v in model.observed.items()
+                }
+            )
+        )
+    groups["derived"] = derived
+    attrs = _attrs()
+    for g in groups.values():
+        g.attrs.update(attrs)
+    return az.InferenceData(**groups)
 
 
 # module level, data as arguments: one compiled program per number of points, shared by every initial fit

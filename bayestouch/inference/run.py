@@ -96,13 +96,31 @@ MISSED_MODE_SHARE = 0.5
 
 #: summary names (natural units) of the 11 sampled contact-level parameters
 NATURAL_NAMES = ("x_G", "y_G", "z_G", "a", "b", "c", "xi", "psi", "zeta", "n", "sigma")
+#: units of the contact level's natural parameters and data (the ``units`` attributes of ``posterior.nc``)
+CONTACT_UNITS = {
+    **dict.fromkeys(("x_G", "y_G", "z_G", "a", "b", "c", "sigma", "points", "free_points", "radius"), "m"),
+    **dict.fromkeys(("xi", "psi", "zeta"), "rad"),
+    **dict.fromkeys(("n", "kappa", "epsilon", "w_outlier", "w_in", "w_out", "normals"), "1"),
+}
+#: dims of the contact level's observations (ArviZ ``observed_data``, ``posterior_predictive``, ``log_likelihood``).
+#: ``radius`` is each contact's distance from the contacts' centroid (m), the scalar per point that ``az.loo_pit``
+#: and ``az.plot_ppc`` need (the log-likelihood is one value per point, keyed ``points``)
+CONTACT_DIMS = {
+    "points": ("point", "xyz"),
+    "normals": ("point", "xyz"),
+    "free_points": ("free_point", "xyz"),
+    "radius": ("point",),
+}
 
 
 @jax.jit
 @partial(jax.vmap, in_axes=(0, None))
 def _foot_and_normal(theta, pts):
+    """Each point's foot on the surface along the normal, at the likelihood's residual (the first-order distance:
+    ``pts = foot + d · normal``), and the unit normal there; a replicate ``foot + e · normal`` then has residual e."""
     s = cm.shape_of(theta)
-    foot = ne.project_to_surface(s, pts)
+    d = ne.first_order_distance(s, ne.to_local(s, pts))[0]
+    foot = pts - d[:, None] * ne.normals(s, pts)
     return foot, ne.normals(s, foot)
 
 
@@ -500,7 +518,8 @@ def contact_model(
     names = NATURAL_NAMES + tuple(_EXTRA_NATURAL[k][0] for k in sampled[11:])
     lo, hi = np.asarray(points).min(axis=0), np.asarray(points).max(axis=0)
     half_diag = 0.5 * float(np.linalg.norm(hi - lo))
-    lever = np.asarray(points) - np.asarray(points).mean(axis=0)
+    centroid = np.asarray(points).mean(axis=0)
+    lever = np.asarray(points) - centroid
 
     def predictive(thetas, rng):
         foot, nrm = (np.asarray(a) for a in _foot_and_normal(jnp.asarray(thetas[:, :11]), pts))
@@ -525,14 +544,16 @@ def contact_model(
                 rng.random(shape) < w, rng.uniform(-half_diag, half_diag, shape), sigma * rng.standard_normal(shape)
             )
         rep = {"points": foot + e[..., None] * nrm}
+        rep["radius"] = np.linalg.norm(rep["points"] - centroid, axis=-1)
         if normals is not None:  # measured normals: vMF about the draw's normal at its replicated foot point
             rep["normals"] = vmf_sample(nrm, np.exp(thetas[:, sampled.index("log_kappa")])[:, None], rng)
         return rep
 
     def ll(thetas):
-        return cm.pointwise_log_likelihood(
+        terms = cm.pointwise_log_likelihood(
             thetas, points, nu, normals=normals, noise=noise, free=free, free_miss=priors.free_miss
         )
+        return {"points": terms[:, :m], **({"free_points": terms[:, m:]} if n_free else {})}
 
     likelihood = {
         "student": "Gaussian" if np.isinf(nu) else f"Student-t, nu = {nu:g}",
@@ -545,10 +566,12 @@ def contact_model(
         likelihood += f"; {n_free} free-space points"
     if normals is not None:
         likelihood += "; normals: von Mises-Fisher"
-    observed = {"points": np.asarray(points)}
+    observed = {"points": np.asarray(points), "radius": np.linalg.norm(np.asarray(points) - centroid, axis=-1)}
     if normals is not None:
         nn = np.asarray(normals, float)
         observed["normals"] = nn / np.linalg.norm(nn, axis=1, keepdims=True)
+    if n_free:
+        observed["free_points"] = np.asarray(free, float)
     return PosteriorModel(
         names,
         lambda flat: natural_draws(flat, sampled),
@@ -565,6 +588,8 @@ def contact_model(
             "n_free_points": int(n_free),
             "parameters_sampled": list(sampled),
         },
+        dims=CONTACT_DIMS,
+        units=CONTACT_UNITS,
     )
 
 
@@ -594,11 +619,14 @@ def ffd_contact_model(points, dims, tau: float) -> PosteriorModel:
         return ll, pts - resid[:, None] * nrm  # conditional surface points nearest the data
 
     def ll(thetas):
-        return np.asarray(conditional(jnp.asarray(thetas))[0])
+        return {"points": np.asarray(conditional(jnp.asarray(thetas))[0])}
+
+    centroid = np.asarray(points).mean(axis=0)
 
     def predictive(thetas, rng):
         foot = np.asarray(conditional(jnp.asarray(thetas))[1])
-        return {"points": foot + np.exp(thetas[:, 10])[:, None, None] * rng.standard_normal(foot.shape)}
+        rep = foot + np.exp(thetas[:, 10])[:, None, None] * rng.standard_normal(foot.shape)
+        return {"points": rep, "radius": np.linalg.norm(rep - centroid, axis=-1)}
 
     def refine(mean_nat, verts):
         th = jnp.asarray(_theta_of_natural(mean_nat))
@@ -612,7 +640,7 @@ def ffd_contact_model(points, dims, tau: float) -> PosteriorModel:
         lambda nat: nat[:, :10],
         ll,
         predictive,
-        {"points": np.asarray(points)},
+        {"points": np.asarray(points), "radius": np.linalg.norm(np.asarray(points) - centroid, axis=-1)},
         {
             "level": "contact",
             "likelihood": "Gaussian, FFD lattice marginalised",
@@ -622,6 +650,8 @@ def ffd_contact_model(points, dims, tau: float) -> PosteriorModel:
             "parameters_sampled": list(cm.PARAM_NAMES),
         },
         refine,
+        dims=CONTACT_DIMS,
+        units=CONTACT_UNITS,
     )
 
 

@@ -68,6 +68,13 @@ __all__ = [
 NUISANCE_ROUNDS = 2
 #: draws in a raw fit's posterior predictive group (each replicates all F × M readings)
 RAW_PREDICTIVE_DRAWS = 32
+#: units of the raw level's natural parameters and data (``posterior.nc``'s ``units`` attributes; ln I is of I in A)
+RAW_UNITS = {
+    **dict.fromkeys(("x_G", "y_G", "z_G", "a", "b", "c", "amplitude", "wavelength", "roughness"), "m"),
+    **dict.fromkeys(("xi", "psi", "zeta", "orientation", "phase"), "rad"),
+    **dict.fromkeys(("n", "noise_scale"), "1"),
+    "log_current": "ln(A)",
+}
 
 
 def initial_raw_theta(
@@ -157,9 +164,8 @@ def raw_model(
 
     def ll(thetas):
         thetas = adj(thetas)
-        return np.concatenate(
-            [np.asarray(pw(jnp.asarray(c))) for c in np.array_split(thetas, max(1, len(thetas) // 64))]
-        )
+        per_frame = [np.asarray(pw(jnp.asarray(c))) for c in np.array_split(thetas, max(1, len(thetas) // 64))]
+        return {"log_current": np.concatenate(per_frame)}
 
     one = jax.jit(
         jax.vmap(lambda t: (predict_readings(t, data, finger, nu, texture), reading_scale(t, data, texture, nu)))
@@ -219,6 +225,8 @@ def raw_model(
         {**desc, **(info or {})},
         checks=partial(_raw_warnings, textured=texture is not None),
         predictive_draws=RAW_PREDICTIVE_DRAWS,
+        dims={"log_current": ("frame", "taxel")},
+        units=RAW_UNITS,
     )
 
 

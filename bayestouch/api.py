@@ -1,0 +1,344 @@
+"""The notebook API: :func:`fit` returns a :class:`Fit`, an object over a run folder that holds the posterior as ArviZ
+``InferenceData``, its summary as a table with units, its meshes as trimesh objects and a picture.
+
+``bayestouch fit`` is this function on the command line. A fit with no ``out`` folder runs in a temporary folder
+that lives as long as its :class:`Fit` (``fit.save(folder)`` keeps it); :meth:`Fit.load` opens a folder written
+earlier, by the API or the CLI.
+
+Library code logs to ``logging.getLogger("bayestouch")`` and never switches the matplotlib backend: :meth:`Fit.plot`
+draws with whatever backend the notebook uses.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+import weakref
+from pathlib import Path
+
+import numpy as np
+
+from bayestouch.errors import BadInput
+from bayestouch.io.contacts import ContactPoints, load_contact_points
+from bayestouch.io.runfolder import FINGERPRINT_FILE, RESULT_FILES
+
+__all__ = ["Fit", "fit", "RUN_FILES"]
+
+#: files of a run folder that :meth:`Fit.save` copies (those present)
+RUN_FILES = (*RESULT_FILES, "mean_shape.ply", "uncertainty_mesh.ply", "smc.npz", FINGERPRINT_FILE)
+
+#: contact-level options of :func:`fit` (keyword: meaning), passed to
+#: :func:`bayestouch.inference.run.run_contact_fit`
+_CONTACT_OPTIONS = ("noise", "nu", "normals", "free", "ffd", "ffd_tau", "size_prior", "init", "precision")
+#: recording options, passed to :func:`bayestouch.inference.raw.run_raw_fit`
+_RAW_OPTIONS = ("texture", "stride", "calibration")
+
+
+class Fit:
+    """A finished (or budget-stopped) shape fit: the run folder's files as Python objects, loaded on first use.
+
+    Attributes
+    ----------
+    folder : Path
+        The run folder (a temporary one, removed with this object, for ``fit(..., out=None)``).
+    results : dict
+        ``summary.json``: parameters, derived quantities (SI units in their names), diagnostics, model.
+    """
+
+    def __init__(self, folder, *, _temporary: tempfile.TemporaryDirectory | None = None):
+        self.folder = Path(folder)
+        path = self.folder / "summary.json"
+        if not path.is_file():
+            raise BadInput(f"{self.folder}: no summary.json (expected the folder of a finished `bayestouch fit`)")
+        self.results = json.loads(path.read_text())
+        self._temporary = _temporary
+        self._idata = None
+        if _temporary is not None:  # the temporary folder goes with the object
+            weakref.finalize(self, _temporary.cleanup)
+
+    @classmethod
+    def load(cls, folder) -> Fit:
+        """Open the run folder ``folder`` written by :func:`fit` or ``bayestouch fit``."""
+        return cls(folder)
+
+    def __repr__(self) -> str:
+        v = self.results["derived"]["volume_m3"]
+        d = self.results["diagnostics"]
+        state = "converged" if d["converged"] else "NOT converged"
+        if d.get("multimodal"):
+            state += f", MULTIMODAL ({len(d['modes'])} shapes)"
+        return (
+            f"<bayestouch.Fit {self.results['model'].get('level', '?')} level: volume {v['mean'] * 1e6:.3f} ± "
+            f"{v['sd'] * 1e6:.3f} cm³, {state}, {len(self.warnings)} warning(s); {self.folder}>"
+        )
+
+    @property
+    def converged(self) -> bool:
+        """Whether the chain passed its convergence checks (R-hat, bulk ESS, chain length over τ)."""
+        return bool(self.results["diagnostics"]["converged"])
+
+    @property
+    def multimodal(self) -> bool:
+        """Whether the posterior holds separated shapes (``results["diagnostics"]["modes"]`` describes them)."""
+        return bool(self.results["diagnostics"].get("multimodal", False))
+
+    @property
+    def warnings(self) -> list[str]:
+        """The fit's warnings about itself (misfit, prior-dominated axes, …), as on the command line."""
+        return list(self.results["diagnostics"].get("warnings", []))
+
+    @property
+    def idata(self):
+        """The posterior as ArviZ ``InferenceData`` (``posterior.nc``, read into memory on first use)."""
+        if self._idata is None:
+            import arviz as az
+
+            with az.rc_context({"data.load": "eager"}):
+                self._idata = az.from_netcdf(str(self.folder / "posterior.nc"))
+        return self._idata
+
+    def summary(self):
+        """The posterior summary as a ``pandas.DataFrame``: one row per parameter and derived quantity, columns
+        ``mean, sd, q05, q95`` (in the row's SI ``unit``), ``r_hat`` and ``ess_bulk`` (NaN where not computed)."""
+        import pandas as pd
+
+        units = {name: self.idata.posterior[name].attrs.get("units", "") for name in self.idata.posterior.data_vars}
+        rows = {}
+        for name, p in self.results["parameters"].items():
+            rows[name] = {
+                **{k: p[k] for k in ("mean", "sd", "q05", "q95", "r_hat", "ess_bulk")},
+                "unit": units.get(name, ""),
+            }
+        derived = self.results["derived"]
+        for key, label, unit in (("volume_m3", "volume", "m3"), ("area_m2", "area", "m2")):
+            rows[label] = {**{k: derived[key][k] for k in ("mean", "sd", "q05", "q95")}, "unit": unit}
+        for i in range(3):
+            rows[f"inertia[{i}]"] = {
+                **{k: derived["inertia_principal_m5"][k][i] for k in ("mean", "sd", "q05", "q95")},
+                "unit": "m5",
+            }
+        table = pd.DataFrame.from_dict(rows, orient="index")
+        table.index.name = "quantity"
+        return table[["mean", "sd", "q05", "q95", "unit", "r_hat", "ess_bulk"]]
+
+    def mesh(self):
+        """The posterior-mean surface as a ``trimesh.Trimesh`` (metres)."""
+        import trimesh
+
+        return trimesh.load(self.folder / "mean_shape.ply", process=False)
+
+    def uncertainty_mesh(self):
+        """The mean surface coloured by the posterior spread of the surface along its normal; the spread (m) per
+        vertex is in ``vertex_attributes["spread"]``."""
+        from bayestouch.io.meshes import read_spread_mesh
+
+        return read_spread_mesh(self.folder / "uncertainty_mesh.ply")
+
+    def loo(self, **kwargs):
+        """PSIS-LOO (``az.loo``) of the contact or frame log-likelihood, with ``reff = 1``: the log-likelihood
+        group holds thinned, nearly independent draws, not the whole chain that ArviZ would take ``reff`` from."""
+        import arviz as az
+
+        kwargs.setdefault("reff", 1.0)
+        return az.loo(self.idata, **kwargs)
+
+    def loo_pit(self):
+        """LOO-PIT values (``az.loo_pit``) of each contact's distance from the contacts' centroid (``radius``):
+        uniform on [0, 1] when the residual model is right (contact level only)."""
+        import arviz as az
+
+        idata = self.idata
+        if "radius" not in idata.observed_data:
+            raise BadInput("loo_pit: this fit has no per-contact observable (a recording's fit: use loo)")
+        ll = idata.log_likelihood["points"].stack(__sample__=("chain", "draw"))
+        log_weights = az.psislw(-ll, reff=1.0)[0]
+        y_hat = idata.posterior_predictive["radius"].stack(__sample__=("chain", "draw"))
+        return az.loo_pit(y=idata.observed_data["radius"], y_hat=y_hat, log_weights=log_weights)
+
+    def plot(self, *, points=None, figure=None):
+        """The mean surface coloured by its spread (mm) with the contacts, and the volume's posterior.
+
+        Parameters
+        ----------
+        points : (M, 3) float, metres, optional
+            Contacts to draw (default: the observed contacts of a contact-level fit).
+        figure : matplotlib Figure, optional
+            Draw into this figure (default: a new ``pyplot`` figure, shown by the notebook's own backend).
+
+        Returns
+        -------
+        matplotlib Figure
+        """
+        if figure is None:
+            import matplotlib.pyplot as plt
+
+            figure = plt.figure(figsize=(10, 4.5), constrained_layout=True)
+        um = self.uncertainty_mesh()
+        spread = np.asarray(um.vertex_attributes["spread"], float)
+        v = np.asarray(um.vertices) * 1e3
+        ax = figure.add_subplot(1, 2, 1, projection="3d")
+        faces = np.asarray(um.faces)
+        coll = ax.plot_trisurf(v[:, 0], v[:, 1], v[:, 2], triangles=faces, cmap="viridis", linewidth=0, alpha=0.85)
+        coll.set_array(spread[faces].mean(axis=1) * 1e3)
+        figure.colorbar(coll, ax=ax, shrink=0.7, label="surface spread (mm)")
+        if points is None and "points" in self.idata.observed_data:
+            points = self.idata.observed_data["points"].values
+        if points is not None:
+            p = np.asarray(points, float) * 1e3
+            ax.scatter(p[:, 0], p[:, 1], p[:, 2], s=4, color="k", depthshade=False)
+        ax.set(xlabel="x (mm)", ylabel="y (mm)", zlabel="z (mm)", title="mean surface, coloured by spread")
+        ax.set_box_aspect(np.ptp(v, axis=0))
+        ax2 = figure.add_subplot(1, 2, 2)
+        vol = np.asarray(self.idata.posterior["volume"].values).ravel() * 1e6
+        ax2.hist(vol, bins=60, color="C0", alpha=0.8)
+        q05, q95 = np.quantile(vol, [0.05, 0.95])
+        for q in (q05, q95):
+            ax2.axvline(q, color="k", ls="--", lw=0.8)
+        ax2.set(xlabel="volume (cm³)", yticks=[], title=f"volume, 90 % interval {q05:.3f}–{q95:.3f} cm³")
+        if not self.converged:
+            figure.suptitle("NOT CONVERGED: the chain has not passed its checks", color="C3")
+        return figure
+
+    def save(self, folder, *, overwrite: bool = False) -> Path:
+        """Copy the run's files into ``folder`` (created); a folder that holds a run is refused unless
+        ``overwrite``. Returns the folder."""
+        folder = Path(folder)
+        if folder.resolve() == self.folder.resolve():
+            return folder
+        if folder.exists() and not folder.is_dir():
+            raise BadInput(f"save: {folder} exists and is not a folder")
+        if any((folder / f).exists() for f in RESULT_FILES) and not overwrite:
+            raise BadInput(f"save: {folder} already holds a run; pass overwrite=True to replace it")
+        folder.mkdir(parents=True, exist_ok=True)
+        for name in RUN_FILES:
+            src = self.folder / name
+            if src.is_file():
+                tmp = folder / f".{name}.tmp"
+                shutil.copyfile(src, tmp)
+                os.replace(tmp, folder / name)
+        return folder
+
+
+def _contacts(data) -> ContactPoints | None:
+    """``data`` as contact points, or None for a recording (path ending .nc or an xarray Dataset)."""
+    if isinstance(data, ContactPoints):
+        return data
+    if isinstance(data, str | os.PathLike):
+        path = Path(data)
+        if path.suffix == ".nc":
+            return None
+        if not path.is_file():
+            raise BadInput(f"data: {path}: no such file (expected a contact points CSV or a recording .nc)")
+        return load_contact_points(path)
+    if type(data).__name__ == "Dataset":  # an xarray recording
+        return None
+    a = np.asarray(data, dtype=float)
+    if a.ndim != 2 or a.shape[1] != 3 or len(a) < 11:
+        raise BadInput(f"data: expected contact points as an (M, 3) array in metres with M ≥ 11, got shape {a.shape}")
+    if not np.isfinite(a).all():
+        raise BadInput("data: the contact points hold NaN or infinite values (expected finite metres)")
+    return ContactPoints(points=a, source="array")
+
+
+def fit(
+    data,
+    out=None,
+    *,
+    seed: int = 0,
+    walkers: int = 32,
+    steps: int | None = None,
+    budget_s: float | str | None = "auto",
+    resume: bool = False,
+    overwrite: bool = False,
+    progress: bool = True,
+    stop_when_converged: bool = True,
+    **options,
+) -> Fit:
+    """Sample the shape posterior of contact points or of a recording's raw currents.
+
+    Parameters
+    ----------
+    data : (M, 3) float array (metres), :class:`~bayestouch.io.contacts.ContactPoints`, path or xarray Dataset
+        Contact points (an array, a ``ContactPoints`` with optional normals and free-space points, or a CSV as
+        ``bayestouch fit`` reads), or a recording (a ``.nc`` path or the ``xarray.Dataset`` of
+        :func:`bayestouch.read_recording`).
+    out : path, optional
+        Run folder to write (refused when it holds a run, unless ``resume`` or ``overwrite``); default a temporary
+        folder that lives as long as the returned :class:`Fit`.
+    seed : int
+        Seeds every random choice of the fit.
+    walkers, steps : int
+        emcee's ensemble size (even, ≥ 24) and the largest chain length (default 20000 steps for contacts, 1500 for
+        a recording); sampling stops earlier once converged unless ``stop_when_converged=False``.
+    budget_s : float, "auto" or None, seconds
+        Wall-clock budget of the sampling (None: none; "auto": 60 s for contacts, none for a recording). A run
+        stopped by it says so and is not converged; ``resume=True`` continues it.
+    **options
+        Contact level: ``noise``, ``nu``, ``normals`` (False ignores a file's normals), ``free``, ``ffd``,
+        ``ffd_tau`` (m), ``size_prior`` ((min, max) m), ``init``, ``precision``
+        (:func:`bayestouch.inference.run.run_contact_fit`). Recording: ``texture``, ``stride``, ``calibration``
+        (a device file path or :class:`~bayestouch.io.device_file.DeviceCalibration`;
+        :func:`bayestouch.inference.raw.run_raw_fit`).
+
+    Returns
+    -------
+    Fit
+    """
+    if isinstance(walkers, bool) or not isinstance(walkers, int | np.integer) or walkers < 24 or walkers % 2:
+        raise BadInput(f"walkers must be an even integer ≥ 24 (twice the parameters, plus a margin), got {walkers!r}")
+    if budget_s is not None and budget_s != "auto" and not (isinstance(budget_s, int | float) and budget_s > 0):
+        raise BadInput(f"budget_s must be > 0 seconds, 'auto' or None (no budget), got {budget_s!r}")
+    cp = _contacts(data)
+    allowed = _RAW_OPTIONS if cp is None else _CONTACT_OPTIONS
+    unknown = sorted(set(options) - set(allowed))
+    if unknown:
+        level = "a recording" if cp is None else "contact points"
+        raise BadInput(
+            f"fit: unknown option(s) {', '.join(unknown)} for {level} (expected any of {', '.join(allowed)})"
+        )
+    temporary = None
+    if out is None:
+        temporary = tempfile.TemporaryDirectory(prefix="bayestouch-fit-")
+        out = Path(temporary.name)
+    common = dict(
+        seed=int(seed),
+        walkers=int(walkers),
+        resume=resume,
+        overwrite=overwrite,
+        progress=progress,
+        stop_when_converged=stop_when_converged,
+    )
+    try:
+        if cp is None:
+            from bayestouch.inference.raw import run_raw_fit
+
+            run_raw_fit(
+                data, out, steps=steps or 1500, budget_s=None if budget_s == "auto" else budget_s, **common, **options
+            )
+        else:
+            from bayestouch.inference.run import DEFAULT_BUDGET_S, run_contact_fit
+
+            opts = dict(options)
+            normals = opts.pop("normals", None)
+            if normals is None:
+                normals = cp.normals
+            elif normals is False:
+                normals = None
+            free = opts.pop("free", cp.free)
+            run_contact_fit(
+                cp.points,
+                out,
+                steps=steps or 20000,
+                budget_s=DEFAULT_BUDGET_S if budget_s == "auto" else budget_s,
+                normals=normals,
+                free=free,
+                **common,
+                **opts,
+            )
+    except BaseException:
+        if temporary is not None:
+            temporary.cleanup()
+        raise
+    return Fit(out, _temporary=temporary)
