@@ -160,3 +160,36 @@ def test_bad_input_names_the_argument(points, tmp_path):
         bt.fit(tmp_path / "missing.csv")
     with pytest.raises(BadInput, match="no summary.json"):
         bt.Fit.load(tmp_path)
+
+
+def test_library_figures_leave_the_users_backend_alone(tmp_path):
+    """A notebook's backend survives the library's figures (trace, pair and experiment plots, all written to files
+    without pyplot), and no figure is left open in pyplot: run in a fresh interpreter whose backend is set to
+    matplotlib's ``template`` first."""
+    import subprocess
+    import sys
+
+    script = f"""
+import matplotlib
+matplotlib.use("template")
+import matplotlib.pyplot as plt
+import numpy as np, arviz as az
+from pathlib import Path
+from bayestouch.report import figures as rp
+from bayestouch.planning.experiment import plot_results
+out = Path({str(tmp_path)!r})
+rng = np.random.default_rng(0)
+idata = az.from_dict(posterior={{k: rng.normal(size=(4, 50)) for k in ("a", "b", "n")}})
+rp.plot_trace(out, idata, ["a", "b"])
+rp.plot_pair(out, idata, ["a", "b", "n"])
+rows = [dict(planner=p, object="egg", trial=t, stroke=s, chamfer=rng.random(), volume_error=rng.random())
+        for p in ("eig", "random") for t in range(2) for s in range(3)]
+plot_results(rows, out / "err.png")
+assert matplotlib.get_backend() == "template", matplotlib.get_backend()
+assert plt.get_fignums() == [], plt.get_fignums()
+print("ok")
+"""
+    r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr[-2000:]
+    for name in ("trace.png", "pair.png", "err.png"):
+        assert (tmp_path / name).read_bytes()[:4] == b"\x89PNG"

@@ -248,20 +248,17 @@ def _explore_device(obj, args, port: str, out: Path, kw: dict):
 
 
 def _plot_explore(res, obj, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     import numpy as np
 
     from bayestouch.backend import jnp
     from bayestouch.geometry import nellipsoid as ne
     from bayestouch.geometry.mesh import nellipsoid_mesh
     from bayestouch.planning.loop import point_estimate
+    from bayestouch.report import canvas
 
     est = point_estimate(res.shape_vectors)["estimate"]
     v, _ = nellipsoid_mesh(ne.from_vector(jnp.asarray(est)), 24)
-    fig = plt.figure(figsize=(10, 4.5), constrained_layout=True)
+    fig = canvas.figure(figsize=(10, 4.5), constrained_layout=True)
     ax = fig.add_subplot(1, 2, 1, projection="3d")
     ax.scatter(*(1e3 * v.T), s=2, alpha=0.35, color="grey", label="estimate")
     k0 = 0
@@ -287,7 +284,6 @@ def _plot_explore(res, obj, path: Path) -> None:
     ax2.legend()
     fig.suptitle(f"explore {obj.name if obj is not None else 'on a finger'}: points and the posterior estimate")
     fig.savefig(path, dpi=100)
-    plt.close(fig)
 
 
 def run_experiment(args) -> int:

@@ -509,14 +509,11 @@ def de_moves():
 
 
 def plot_ranks(result: SBCResult, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from bayestouch.report import canvas
 
     L, N = result.draws.shape[1], result.ranks.shape[0]
     nb = result.n_bins
-    fig, axs = plt.subplots(3, 3, figsize=(10, 8), constrained_layout=True)
+    fig, axs = canvas.subplots(3, 3, figsize=(10, 8), constrained_layout=True)
     edges = np.arange(nb + 1) * (L + 1) / nb
     lo, hi = binom.ppf([0.005, 0.995], N, 1 / nb)  # 99 % band of one bin's count under uniform ranks
     for ax, q in zip(axs.ravel(), range(len(result.names)), strict=True):
@@ -526,4 +523,3 @@ def plot_ranks(result: SBCResult, path: Path) -> None:
         ax.set_xlim(0, L + 1)
     fig.suptitle(f"SBC ranks, {N} data sets, {L} draws (grey: 99 % band per bin)")
     fig.savefig(path, dpi=100)
-    plt.close(fig)

@@ -417,14 +417,12 @@ def gap_closed(rows, metric: str = "chamfer", stroke: int | None = None) -> floa
 def plot_results(rows, path) -> Path:
     """Median and 25–75 % band of the Chamfer distance and the volume error against strokes, one line per
     planner (over objects and trials); written to ``path`` (PNG)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from matplotlib.ticker import MaxNLocator
 
+    from bayestouch.report import canvas
+
     df = _as_table(rows)
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4), constrained_layout=True)
+    fig, axes = canvas.subplots(1, 2, figsize=(10, 4), constrained_layout=True)
     for ax, metric, label in (
         (axes[0], "chamfer", "Chamfer distance / mean semi-axis"),
         (axes[1], "volume_error", "volume error |V/V_true - 1|"),
@@ -441,5 +439,4 @@ def plot_results(rows, path) -> Path:
     fig.suptitle("exploration: error against strokes (median, 25-75 % band)")
     path = Path(path)
     fig.savefig(path, dpi=100)
-    plt.close(fig)
     return path

@@ -353,14 +353,11 @@ def plot_accuracy(summary: dict, path) -> Path:
     -------
     Path
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from bayestouch.report import canvas
 
     acc = summary["accuracy_vs_strokes"]
     s = np.arange(1, len(acc) + 1)
-    fig, ax = plt.subplots(figsize=(5, 3.5))
+    fig, ax = canvas.subplots(figsize=(5, 3.5))
     ax.plot(s, acc, "o-", label=f"{summary['textures']} textures, {summary['trials']} trials")
     ax.axhline(0.95, color="k", ls="--", lw=0.8, label="target 95 %")
     ax.axvline(summary["median_strokes_to_decision"], color="C1", ls=":", label="median strokes to decision")
@@ -371,7 +368,6 @@ def plot_accuracy(summary: dict, path) -> Path:
     fig.tight_layout()
     path = Path(path)
     fig.savefig(path, dpi=120)
-    plt.close(fig)
     return path
 
 

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from bayestouch.geometry import nellipsoid as ne
+from bayestouch.report import canvas
 
 __all__ = [
     "plot_table2",
@@ -17,15 +18,6 @@ __all__ = [
     "plot_trace",
     "plot_pair",
 ]
-
-
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def plot_table2(rows: list[dict], out) -> Path:
@@ -42,9 +34,8 @@ def plot_table2(rows: list[dict], out) -> Path:
     -------
     Path of the figure.
     """
-    plt = _pyplot()
     eps_levels = sorted({r["epsilon"] for r in rows})
-    fig, axes = plt.subplots(len(eps_levels), 2, figsize=(11, 4.2 * len(eps_levels)), squeeze=False)
+    fig, axes = canvas.subplots(len(eps_levels), 2, figsize=(11, 4.2 * len(eps_levels)), squeeze=False)
     for i, eps in enumerate(eps_levels):
         sub = [r for r in rows if r["epsilon"] == eps]
         sizes = [r["ffd_size"] for r in sub]
@@ -84,15 +75,12 @@ def plot_table2(rows: list[dict], out) -> Path:
     fig.tight_layout()
     path = Path(out) / "table2.png"
     fig.savefig(path, dpi=120)
-    plt.close(fig)
     return path
 
 
 def _save(fig, out, name: str) -> Path:
-    plt = _pyplot()
     path = Path(out) / name
     fig.savefig(path, dpi=100)
-    plt.close(fig)
     return path
 
 
@@ -124,13 +112,12 @@ def plot_shape(out, truth, mean_mesh, spread, points, draws, *, name: str = "sha
     """
     import matplotlib as mpl
 
-    plt = _pyplot()
     mv, mf = (np.asarray(a) for a in mean_mesh)
     points = np.asarray(points).reshape(-1, 3)
     face_spread = 1e3 * np.asarray(spread)[mf].mean(axis=1)
     norm = mpl.colors.Normalize(vmin=0.0, vmax=max(float(face_spread.max()), 1e-6))
     cmap = mpl.colormaps["viridis"]
-    fig = plt.figure(figsize=(15, 4.6), constrained_layout=True)
+    fig = canvas.figure(figsize=(15, 4.6), constrained_layout=True)
     gs = fig.add_gridspec(1, 4, width_ratios=[1.3, 1, 1, 1])
     ax = fig.add_subplot(gs[0, 0], projection="3d")
     surf = ax.plot_trisurf(*(1e3 * mv.T), triangles=mf, linewidth=0, antialiased=False, shade=False)
@@ -206,9 +193,8 @@ def plot_errors(out, records, *, true_volume: float | None = None, name: str = "
         :class:`bayestouch.planning.loop.StrokeRecord` of each stroke (stroke 0 is the scout).
     true_volume : float, m³, optional
     """
-    plt = _pyplot()
     k = np.array([r.stroke for r in records])
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4), constrained_layout=True)
+    fig, (a1, a2) = canvas.subplots(1, 2, figsize=(11, 4), constrained_layout=True)
     a1.plot(k, [r.chamfer for r in records], "o-", label="Chamfer / mean semi-axis")
     a1.plot(k, [r.volume_error for r in records], "s-", label="|V̂/V − 1|")
     a1.set_yscale("log")
@@ -242,7 +228,6 @@ def plot_taxel_frames(out, recording, *, gains=None, max_strokes: int = 6, name:
     max_strokes : int
         Strokes shown (the first ones).
     """
-    plt = _pyplot()
     cur = np.asarray(recording["taxel_current"].values)
     force = np.asarray(recording["contact_force"].values)
     stroke = np.asarray(recording["stroke_index"].values)
@@ -255,7 +240,8 @@ def plot_taxel_frames(out, recording, *, gains=None, max_strokes: int = 6, name:
     frames = [np.flatnonzero(stroke == s)[int(np.argmax(force[stroke == s]))] for s in ids]
     images = [logs[f] - np.median(logs[f, ref] if ref.any() else logs[f]) for f in frames]
     hi = max(float(np.quantile(np.abs(np.concatenate(images)), 0.995)), 1e-6)
-    fig, axes = plt.subplots(1, len(ids), figsize=(2.5 * len(ids) + 1.2, 2.9), squeeze=False, constrained_layout=True)
+    size = (2.5 * len(ids) + 1.2, 2.9)
+    fig, axes = canvas.subplots(1, len(ids), figsize=size, squeeze=False, constrained_layout=True)
     im = None
     for ax, s, f, d in zip(axes[0], ids, frames, images, strict=True):
         im = ax.tripcolor(u, v, d, shading="gouraud", cmap="RdBu_r", vmin=-hi, vmax=hi)
@@ -277,12 +263,11 @@ def plot_patch_posterior(out, post, *, draws: int = 40, name: str = "contact_pat
     post : PatchPosterior
         :func:`bayestouch.inference.patch.patch_posterior`'s result.
     """
-    plt = _pyplot()
     d = post.draws
     rng = np.random.default_rng(0)
     idx = rng.choice(len(d["a"]), size=min(draws, len(d["a"])), replace=False)
     t = np.linspace(0, 2 * np.pi, 200)
-    fig, axes = plt.subplots(1, 4, figsize=(14, 3.4), constrained_layout=True)
+    fig, axes = canvas.subplots(1, 4, figsize=(14, 3.4), constrained_layout=True)
     ax = axes[0]
     for i in idx:
         a, b, n, phi = d["a"][i], d["b"][i], d["n"][i], d["angle"][i]
@@ -315,10 +300,9 @@ def plot_trace(out, idata, var_names, *, max_chains: int = 32, name: str = "trac
     walker's chain (right) and the pooled marginal (left), with R-hat in the title."""
     import arviz as az  # imports matplotlib.pyplot: loaded with matplotlib, on first plot
 
-    plt = _pyplot()
     post = idata.posterior
     rhat = az.rhat(post[list(var_names)])
-    fig, axes = plt.subplots(
+    fig, axes = canvas.subplots(
         len(var_names),
         2,
         figsize=(11, 1.7 * len(var_names)),
@@ -340,13 +324,12 @@ def plot_trace(out, idata, var_names, *, max_chains: int = 32, name: str = "trac
 
 def plot_pair(out, idata, var_names, *, max_points: int = 3000, name: str = "pair.png") -> Path:
     """Pair plot of ``var_names`` (thinned scatter and marginals), from the ``posterior`` group of ``idata``."""
-    plt = _pyplot()
     post = idata.posterior
     cols = [np.asarray(post[v].values).ravel() for v in var_names]
     rng = np.random.default_rng(0)
     idx = rng.choice(len(cols[0]), size=min(max_points, len(cols[0])), replace=False)
     k = len(var_names)
-    fig, axes = plt.subplots(k, k, figsize=(2.1 * k, 2.1 * k), constrained_layout=True)
+    fig, axes = canvas.subplots(k, k, figsize=(2.1 * k, 2.1 * k), constrained_layout=True)
     for i in range(k):
         for j in range(k):
             ax = axes[i, j]
