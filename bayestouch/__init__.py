@@ -1,6 +1,16 @@
 """bayestouch: probabilistic inference for tactile shape and texture sensing.
 
-The public API is imported lazily (``import bayestouch`` stays quick; JAX loads on first use).
+The public API is imported lazily (``import bayestouch`` stays quick; JAX loads on first use). The first use of a
+fitting, geometry or physics function turns on JAX's float64 mode for the whole process (the likelihoods need it;
+:mod:`bayestouch.backend`). Messages go to ``logging.getLogger("bayestouch")``; figures never touch pyplot's backend.
+
+In a notebook::
+
+    import bayestouch as bt
+    fit = bt.fit(points)            # (M, 3) metres, a CSV path or a recording
+    fit.idata                       # ArviZ InferenceData: posterior (with volume), sample_stats, log_likelihood, …
+    fit.summary()                   # pandas DataFrame with units
+    fit.plot(); fit.uncertainty_mesh()
 """
 
 from __future__ import annotations

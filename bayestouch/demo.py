@@ -15,7 +15,7 @@
 
 from __future__ import annotations
 
-import sys
+import logging
 import time
 from pathlib import Path
 from typing import NamedTuple
@@ -45,6 +45,8 @@ from bayestouch.scene.raycast import CONTACT, true_ray_distances
 from bayestouch.scene.strokes import stroke_from_path
 
 __all__ = ["DemoSizes", "FULL", "QUICK", "run_demo", "replay_strokes"]
+
+_log = logging.getLogger(__name__)
 
 DEFAULT_OBJECT = MODELS / "objects" / "egg.toml"
 #: taxel response of the replay: the empirical mode (Δ ln I = S_p p, device-like sensitivity). The physics mode's
@@ -171,7 +173,8 @@ def run_demo(
     object_path : path-like
         The object TOML.
     progress : bool
-        Progress bars on stderr.
+        Progress bars on stderr and the four stages' messages logged (``logging.getLogger("bayestouch.demo")``,
+        INFO).
     check_browser : bool
         Load ``report.html`` in headless Chromium when one is installed and say whether every image rendered.
 
@@ -179,7 +182,8 @@ def run_demo(
     -------
     dict
         ``strokes`` (per-stroke rows), ``summary`` (the final posterior's summary.json), ``patch`` (the patch
-        posterior's summary), ``report`` (path), ``browser`` (the check, or None), ``seconds``.
+        posterior's summary), ``report`` (path), ``browser`` (the check, or None), ``seconds``, ``table`` (the
+        result as text, which ``bayestouch demo`` prints).
     """
     t_start = time.perf_counter()
     if not isinstance(seed, int) or seed < 0:
@@ -191,7 +195,7 @@ def run_demo(
     (out / "strokes").mkdir(exist_ok=True)
     obj = load_object(object_path)
     truth = truth_of(obj)
-    say = (lambda msg: print(msg, file=sys.stderr)) if progress else (lambda msg: None)
+    say = _log.info if progress else (lambda msg: None)
 
     # 1. explore
     say(f"[1/4] exploring {obj.name} with the eig planner: scout + {sizes.budget} strokes")
@@ -253,8 +257,8 @@ def run_demo(
             "browser_check": None if check is None else check._asdict(),
         },
     )
-    _print_table(res, summary, patch_summary, truth, page, check, seconds)
     return {
+        "table": _table(res, summary, patch_summary, truth, page, check, seconds),
         "strokes": rows,
         "summary": summary,
         "patch": patch_summary,
@@ -282,7 +286,6 @@ def _taxels(obj, res, out: Path, seed: int, sizes: DemoSizes, progress: bool):
             "mode": TAXEL_MODE,
             "wire_hold_currents_A": "0.15,0.05,0.05",
             "software": f"bayestouch {__version__}",
-            "conventions": "SI units in 'units'",
             "made_by": "bayestouch demo (replayed eig strokes)",
         },
         progress=progress,
@@ -515,20 +518,24 @@ def _read_ply(path: Path):
     return np.asarray(m.vertices), np.asarray(m.faces), np.asarray(spread, float)
 
 
-def _print_table(res, summary: dict, patch: dict, truth, page: Path, check, seconds: float) -> None:
-    print(f"{'stroke':>6} {'points':>6} {'EIG':>7} {'chamfer':>8} {'vol.err':>8} {'vol.sd cm3':>10}")
+def _table(res, summary: dict, patch: dict, truth, page: Path, check, seconds: float) -> str:
+    """The demo's result as text: errors per stroke, the final posterior, the patch, the report."""
+    lines = [f"{'stroke':>6} {'points':>6} {'EIG':>7} {'chamfer':>8} {'vol.err':>8} {'vol.sd cm3':>10}"]
     for r in res.records:
-        print(
+        lines.append(
             f"{r.stroke:>6} {r.n_points:>6} {_fmt(r.eig):>7} {r.chamfer:>8.4f} {r.volume_error:>8.4f} "
             f"{1e6 * r.volume_sd:>10.4f}"
         )
     d, v = summary["diagnostics"], summary["derived"]["volume_m3"]
-    print(
+    lines.append(
         f"posterior: volume {1e6 * v['mean']:.3f} cm3 [{1e6 * v['q05']:.3f}, {1e6 * v['q95']:.3f}] "
         f"(truth {1e6 * truth.volume:.3f}); {'converged' if d['converged'] else 'NOT converged'} "
         f"(max R-hat {d['max_r_hat']:.4f}, min ESS {d['min_ess_bulk']:.0f})"
     )
     pa = patch["parameters"]
-    print(f"contact patch: a {1e3 * pa['a']['mean']:.2f} mm, b {1e3 * pa['b']['mean']:.2f} mm, n {pa['n']['mean']:.2f}")
+    lines.append(
+        f"contact patch: a {1e3 * pa['a']['mean']:.2f} mm, b {1e3 * pa['b']['mean']:.2f} mm, n {pa['n']['mean']:.2f}"
+    )
     seen = "" if check is None else f"; browser: {check.images_ok}/{check.images_total} images render"
-    print(f"report: {page}{seen}; {seconds:.0f} s")
+    lines.append(f"report: {page}{seen}; {seconds:.0f} s")
+    return "\n".join(lines)

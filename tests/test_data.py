@@ -10,7 +10,7 @@ import pytest
 
 from bayestouch.io.contacts import load_contact_points
 from bayestouch.io.files import read_csv_rows
-from bayestouch.io.recording import UNITS, read_recording
+from bayestouch.io.recording import COORDINATES, UNITS, read_recording
 
 ROOT = Path(__file__).parent.parent
 DATA = ROOT / "data"
@@ -144,8 +144,8 @@ def test_recording_regenerates(tmp_path, monkeypatch):
     monkeypatch.chdir(ROOT)
     new = read_recording(mod.recording("box", tmp_path / "box.nc"))
     old = read_recording(DATA / "recordings" / "box.nc")
-    assert new.attrs == old.attrs and set(new.data_vars) == set(old.data_vars)
-    for v in old.data_vars:
+    assert new.attrs == old.attrs and set(new.data_vars) == set(old.data_vars) and set(new.coords) == set(old.coords)
+    for v in [*old.data_vars, *COORDINATES]:
         np.testing.assert_allclose(new[v].values, old[v].values, rtol=1e-9, atol=0, err_msg=v)
     # negative control: the sphere's recording (same seed, so the same noise) is not the box's
     sph = read_recording(DATA / "recordings" / "sphere.nc")

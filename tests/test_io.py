@@ -552,3 +552,30 @@ def test_a_damaged_recording_is_refused_before_a_fit(tmp_path, name, index, valu
     for source in (bad, tmp_path / "bad.nc"):
         with pytest.raises(BadInput, match=f"'{name}'.*{needle}"):
             open_recording(source)
+
+
+def test_recording_coordinates_and_cf_conventions(tmp_path):
+    """time and stroke_index are coordinates along frame, taxel_u/v along taxel, the global attribute is CF's
+    Conventions; a file written when they were variables reads the same, with the same identity (a run folder's
+    fingerprint of the recording does not change)."""
+    from bayestouch.io.recording import CONVENTIONS, build_dataset, read_recording, write_recording
+    from bayestouch.io.runfolder import dataset_digest
+
+    F, M = 6, 4
+    frames = {
+        "time": np.arange(F) * 0.04,
+        "stroke_index": np.repeat([0, 1], 3),
+        "taxel_current": np.full((F, M), 1e-7),
+    }
+    ds = build_dataset(frames, np.linspace(0, 1e-3, M), np.zeros(M), np.zeros(M), [3e-4, 3e-4], {"object": "egg"})
+    assert set(ds.coords) >= {"time", "stroke_index", "taxel_u", "taxel_v"}
+    assert "time" not in ds.data_vars and ds.attrs["Conventions"] == CONVENTIONS == "CF-1.10"
+    line = ds.taxel_current.isel(taxel=0)
+    assert np.array_equal(line["time"].values, frames["time"])  # what .plot(x="time") draws against
+    new = read_recording(write_recording(ds, tmp_path / "new.nc"))
+    assert "time" in new.coords and new.attrs["object"] == "egg"
+    old = ds.reset_coords(["time", "stroke_index", "taxel_u", "taxel_v"])  # the layout of earlier files
+    assert "time" in old.data_vars
+    back = read_recording(write_recording(old, tmp_path / "old.nc"))
+    assert "time" in back.coords and "taxel_u" in back.coords
+    assert dataset_digest(back) == dataset_digest(new) == dataset_digest(ds)

@@ -33,5 +33,6 @@ def run(args) -> int:
     :class:`~bayestouch.errors.BadInput`)."""
     from bayestouch.demo import FULL, QUICK, run_demo
 
-    run_demo(args.out, seed=args.seed, sizes=QUICK if args.quick else FULL, progress=not args.quiet)
+    result = run_demo(args.out, seed=args.seed, sizes=QUICK if args.quick else FULL, progress=not args.quiet)
+    print(result["table"])
     return 0

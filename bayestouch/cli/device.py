@@ -320,7 +320,6 @@ def _run(args) -> int:
         "seed": args.seed,
         "wire_hold_currents_A": args.currents,
         "software": f"bayestouch {__version__}",
-        "conventions": "SI units in 'units'",
         "object": "unknown (device)" if args.stroke_file else f"device; strokes planned on {args.object}",
     }
     dev = FingerDevice(args.port, timeout=args.timeout, journal=journal, limits=limits)

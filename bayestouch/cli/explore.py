@@ -221,7 +221,6 @@ def _explore_device(obj, args, port: str, out: Path, kw: dict):
         "seed": args.seed,
         "planner": args.planner,
         "software": f"bayestouch {__version__}",
-        "conventions": "SI units in 'units'",
         "object": f"device; truth {obj.name}" if obj is not None else "unknown (device)",
     }
     dev = FingerDevice(port, timeout=args.timeout, journal=journal)

@@ -7,6 +7,7 @@ Set ``BAYESTOUCH_DEBUG=1`` to see tracebacks of internal errors.
 from __future__ import annotations
 
 import argparse
+import logging
 import os
 import sys
 
@@ -53,6 +54,28 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+class _StderrHandler(logging.StreamHandler):
+    """A handler writing to the ``sys.stderr`` of the moment (pytest and notebooks replace it)."""
+
+    @property
+    def stream(self):
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, value):
+        pass
+
+
+def _log_to_stderr() -> None:
+    """The command line shows the library's INFO messages (``logging.getLogger("bayestouch")``) on stderr, once."""
+    logger = logging.getLogger("bayestouch")
+    if not any(isinstance(h, _StderrHandler) for h in logger.handlers):
+        handler = _StderrHandler()
+        handler.setFormatter(logging.Formatter("%(message)s"))
+        logger.addHandler(handler)
+    logger.setLevel(logging.INFO)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the ``bayestouch`` command with ``argv`` (default ``sys.argv[1:]``); returns the exit code.
 
@@ -69,6 +92,7 @@ def main(argv: list[str] | None = None) -> int:
     from bayestouch.backend import enable_compilation_cache
 
     enable_compilation_cache()
+    _log_to_stderr()
     try:
         return args.run(args)
     except BadInput as e:

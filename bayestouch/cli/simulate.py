@@ -136,7 +136,6 @@ def run(args) -> int:
             "mode": args.mode or vf.mode,
             "wire_hold_currents_A": args.currents,
             "software": f"bayestouch {__version__}",
-            "conventions": "SI units in 'units'",
         },
         hold_currents=currents,
         force=args.force,

@@ -7,6 +7,7 @@ p-values and 90 % coverage. The method, the prior and the measured results: ``do
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -42,6 +43,8 @@ __all__ = [
     "uniformity_pvalues",
     "sbc",
 ]
+
+_log = logging.getLogger(__name__)
 
 #: generating (= inference) prior, uniform in θ on these ranges (``docs/sbc.md``)
 GEN_PRIOR = {
@@ -466,10 +469,12 @@ def sbc(
             accs.append(info["acceptance"])
             short += info["short"]
         if progress:
-            print(
-                f"[sbc] {len(truths)}/{n_datasets} data sets, median tau_max {np.median(taus):.0f} steps, "
-                f"{time.perf_counter() - t0:.0f} s",
-                flush=True,
+            _log.info(
+                "[sbc] %d/%d data sets, median tau_max %.0f steps, %.0f s",
+                len(truths),
+                n_datasets,
+                np.median(taus),
+                time.perf_counter() - t0,
             )
     truths, draws = np.array(truths), np.array(draws)
     ranks = ranks_of(truths, draws)

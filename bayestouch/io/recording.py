@@ -1,11 +1,14 @@
 """Recordings: simulated (or measured) strokes as netCDF files via xarray, with units on every variable.
 
-Layout: dimension ``frame`` (all strokes one after another), ``taxel``, ``wire``, ``xyz``, ``stroke``.
-Variables (SI units in the ``units`` attribute): ``time`` s, ``stroke_index``, ``taxel_current`` A
+Layout: dimension ``frame`` (all strokes one after another), ``taxel``, ``wire``, ``xyz``, ``stroke``; the
+coordinates ``time`` s and ``stroke_index`` along ``frame`` and ``taxel_u``/``taxel_v`` m (pad coordinates) along
+``taxel`` (so ``ds.taxel_current.isel(taxel=0).plot(x="time")`` has a time axis), with CF's global
+``Conventions``. Files written before these were coordinates are read the same way (:func:`read_recording`).
+Variables (SI units in the ``units`` attribute, UDUNITS spelling): ``taxel_current`` A
 (measured), ``taxel_current_clean`` A (noise-free, simulations only), ``pressure`` Pa, ``contact_force`` N,
 ``contact_point`` m, ``contact_normal`` 1, ``wire_current`` A, ``wire_temperature`` K,
-``skin_temperature`` K, ``finger_tip_position`` m (finger-base frame), ``finger_curvature`` 1/m,
-``taxel_u``/``taxel_v`` m (pad coordinates), ``taxel_reference`` (1 = unloaded reference taxel),
+``skin_temperature`` K, ``finger_tip_position`` m (finger-base frame), ``finger_curvature`` m-1,
+``taxel_reference`` (1 = unloaded reference taxel),
 ``stroke_depth`` m.
 """
 
@@ -20,7 +23,22 @@ import xarray as xr
 
 from bayestouch.errors import BadInput
 
-__all__ = ["UNITS", "PHYSICAL_RANGES", "build_dataset", "write_recording", "read_recording", "check_recording"]
+__all__ = [
+    "UNITS",
+    "PHYSICAL_RANGES",
+    "COORDINATES",
+    "CONVENTIONS",
+    "build_dataset",
+    "with_coordinates",
+    "write_recording",
+    "read_recording",
+    "check_recording",
+]
+
+#: variables stored as coordinates (along ``frame`` and ``taxel``)
+COORDINATES = ("time", "stroke_index", "taxel_u", "taxel_v")
+#: the CF version the files follow (global attribute ``Conventions``)
+CONVENTIONS = "CF-1.10"
 
 UNITS = {
     "time": "s",
@@ -37,7 +55,7 @@ UNITS = {
     "wire_temperature": "K",
     "skin_temperature": "K",
     "finger_tip_position": "m",
-    "finger_curvature": "1/m",
+    "finger_curvature": "m-1",
     "taxel_u": "m",
     "taxel_v": "m",
     "taxel_reference": "1",
@@ -94,7 +112,13 @@ def build_dataset(frames: dict[str, np.ndarray], taxel_u, taxel_v, reference, de
         ("stroke",), np.asarray(depths, float), {"units": "m", "long_name": DESCRIPTIONS["stroke_depth"]}
     )
     coords = {"xyz": ["x", "y", "z"], "wire": [1, 2, 3], "uv": ["u_x", "u_y"]}
-    return xr.Dataset(data, coords=coords, attrs={k: str(v) for k, v in attrs.items()})
+    ds = xr.Dataset(data, coords=coords, attrs={"Conventions": CONVENTIONS, **{k: str(v) for k, v in attrs.items()}})
+    return with_coordinates(ds)
+
+
+def with_coordinates(ds):
+    """``ds`` with the :data:`COORDINATES` it holds as coordinates (files written when they were variables)."""
+    return ds.set_coords([k for k in COORDINATES if k in ds.data_vars])
 
 
 def write_recording(ds, path) -> Path:
@@ -116,7 +140,7 @@ def write_recording(ds, path) -> Path:
 def read_recording(path):
     """Open a recording (``xarray.Dataset``, loaded into memory)."""
     with xr.open_dataset(path, engine="h5netcdf") as ds:
-        return ds.load()
+        return with_coordinates(ds.load())
 
 
 #: the physically possible range of each recorded quantity (SI units): a value outside, or a non-finite one, is a

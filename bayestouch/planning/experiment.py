@@ -20,8 +20,8 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import multiprocessing as mp
-import sys
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
@@ -49,6 +49,8 @@ __all__ = [
     "run_tasks",
     "wilson_interval",
 ]
+
+_log = logging.getLogger(__name__)
 
 #: the columns of results.csv
 COLUMNS = (
@@ -313,7 +315,7 @@ def run_experiment(
         for p in planners
         if (names[o], p, t) not in done
     ]
-    log = log or (lambda msg: print(msg, file=sys.stderr))
+    log = log or _log.info
     log(
         f"experiment: {len(tasks)} trial(s) to run, {len(done)} kept from {csv_path}"
         if done
