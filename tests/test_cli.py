@@ -114,3 +114,26 @@ def test_out_below_a_file_exits_2(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert "blocker" in err and "\n" not in err and "internal error" not in err
     assert blocker.read_text() == "a file, not a folder"
+
+
+def test_one_meaning_per_flag_and_every_option_has_help():
+    """--budget is seconds only in fit; explore and experiment count strokes with --strokes (--budget kept as its
+    alias); every command that shows progress is silenced by --quiet; every option of every command has help."""
+    from bayestouch.cli.main import build_parser
+
+    parser = build_parser()
+    subs = next(a for a in parser._actions if a.dest == "command").choices
+    for name, sp in subs.items():
+        for action in sp._actions:
+            if action.option_strings and action.dest != "help":
+                assert action.help, f"{name} {action.option_strings[0]} has no help"
+        if sp.description is None:
+            assert name == "device", f"{name} has no description"
+    for name in ("explore", "experiment"):
+        args = subs[name].parse_args(["--strokes", "3", "--out", "x"])
+        assert args.budget == 3 and subs[name].parse_args(["--budget", "4", "--out", "x"]).budget == 4
+        assert "seconds" not in next(a for a in subs[name]._actions if a.dest == "budget").help.split(";")[0]
+    assert "seconds" in next(a for a in subs["fit"]._actions if a.dest == "budget").help
+    for name in ("fit", "simulate", "demo", "texture-id", "sbc"):
+        assert any("--quiet" in a.option_strings for a in subs[name]._actions), name
+    assert subs["texture-id"].parse_args(["--no-progress", "--out", "x"]).no_progress  # the old spelling works

@@ -381,3 +381,43 @@ def test_cost_aware_eig_prefers_information_per_second():
     args = build_parser().parse_args(["explore", "--object", "egg", "--out", "x", "--per-second"])
     assert _settings(args)["per_second"] is True
     assert "per_second" not in _settings(build_parser().parse_args(["explore", "--object", "egg", "--out", "x"]))
+
+
+def test_experiment_tasks_carry_the_object_not_a_path(tmp_path, monkeypatch):
+    """A Dask worker on another machine has none of the client's files: each task holds the object itself, which
+    survives pickling and the deletion of the file it was read from."""
+    import pickle
+    import shutil
+
+    from bayestouch.planning import experiment as ex
+    from bayestouch.scene.objects import OBJECTS_DIR, load_object
+
+    mine = tmp_path / "my_sphere.toml"
+    shutil.copy(OBJECTS_DIR / "sphere.toml", mine)
+    tasks = []
+
+    def fake(task):  # records the task, returns one row of the right columns
+        tasks.append(task)
+        return [{**dict.fromkeys(COLUMNS, 0), "object": task["object"], "planner": task["planner"]}]
+
+    monkeypatch.setattr(ex, "run_trial", fake)
+    run_experiment(
+        tmp_path / "exp",
+        planners=("random",),
+        objects=(str(mine),),
+        trials=1,
+        budget=1,
+        seed=0,
+        workers=1,
+        settings=SMALL,
+        log=lambda m: None,
+        plot=False,
+    )
+    (task,) = tasks
+    assert not any(
+        isinstance(v, str) and "/" in v and v.endswith(".toml") for v in task.values() if v != task["object"]
+    )
+    mine.unlink()
+    sent = pickle.loads(pickle.dumps(task))
+    ref = load_object(OBJECTS_DIR / "sphere.toml")
+    assert np.allclose(np.asarray(sent["scene_object"].shape.axes), np.asarray(ref.shape.axes))

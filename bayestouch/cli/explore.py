@@ -15,7 +15,15 @@ __all__ = ["add_planning_parsers", "run_explore", "run_experiment"]
 
 
 def _common(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--budget", type=int, default=5, help="planned strokes after the scout stroke 0 (default 5)")
+    p.add_argument(
+        "--strokes",
+        "--budget",
+        dest="budget",
+        type=int,
+        default=5,
+        help="planned strokes after the scout stroke 0 (default 5); --budget is the same (older command lines; "
+        "in fit, --budget is seconds)",
+    )
     p.add_argument("--seed", type=seed_arg, default=0, help="base seed (default 0)")
     p.add_argument("--candidates", type=int, default=64, help="candidate strokes per decision (default 64)")
     p.add_argument("--draws", type=int, default=1000, help="posterior draws the planner uses (default 1000)")
@@ -90,7 +98,7 @@ def _settings(args) -> dict:
         if getattr(args, name) < 1:
             raise BadInput(f"--{name} must be a positive integer, got {getattr(args, name)}")
     if args.budget < 1:
-        raise BadInput(f"--budget must be an integer number of strokes ≥ 1, got {args.budget}")
+        raise BadInput(f"--strokes (--budget) must be an integer number of strokes ≥ 1, got {args.budget}")
     out = {"candidates": args.candidates, "draws": args.draws, "steps": args.steps}
     if getattr(args, "per_second", False):
         out["per_second"] = True

@@ -31,7 +31,10 @@ def add_parser(sub) -> argparse.ArgumentParser:
         "uncertainty_mesh.ply and the resumable chain.h5.",
     )
     fp.add_argument(
-        "points", type=Path, help="contact points CSV (x,y,z in metres; optional nx,ny,nz,force) or a recording .nc"
+        "points",
+        type=Path,
+        metavar="DATA",
+        help="contact points CSV (x,y,z in metres; optional nx,ny,nz,force) or a recording .nc",
     )
     fp.add_argument("--out", required=True, type=Path, help="output folder")
     fp.add_argument("--seed", type=seed_arg, default=0, help="seed of the initial fit, walkers and emcee (default 0)")

@@ -44,6 +44,7 @@ def add_sbc_parser(sub) -> argparse.ArgumentParser:
         help="emcee moves: the adaptive sampler of bayestouch fit (default), the engine's default_moves, or "
         "differential evolution only",
     )
+    ap.add_argument("--quiet", action="store_true", help="no progress messages")
     return ap
 
 
@@ -59,7 +60,7 @@ def run_sbc(a) -> int:
         walkers=a.walkers,
         steps=a.steps,
         n_draws=a.draws,
-        progress=True,
+        progress=not a.quiet,
         area_term=a.area_term and not a.no_area_term,
         likelihood_power=a.likelihood_power,
         moves=de_moves if a.moves == "de" else None,

@@ -32,7 +32,9 @@ def add_texture_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--mode", default="empirical", choices=("empirical", "physics"), help="taxel response mode")
     p.add_argument("--library", default=str(LIBRARY), help="texture library TOML (default models/textures.toml)")
     p.add_argument("--full", action="store_true", help="keep stroking after a decision (up to --max-strokes)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument(
+        "--quiet", "--no-progress", dest="no_progress", action="store_true", help="no progress bar (or --no-progress)"
+    )
     return p
 
 

@@ -77,8 +77,9 @@ OBJECTS = ("egg", "sphere", "box", "cylinder")
 
 
 def run_trial(task: dict) -> list[dict]:
-    """Run one (object, planner, trial) and return its rows (a top-level function: picklable for pools)."""
-    obj = load_object(task["path"])
+    """Run one (object, planner, trial) and return its rows (a top-level function: picklable for pools). The task
+    carries the :class:`~bayestouch.scene.objects.SceneObject` itself (``scene_object``), not a file path."""
+    obj = task["scene_object"]
     settings = ExploreSettings(**task.get("settings", {}))
     res = explore(obj, task["planner"], task["budget"], seed=task["seed"], settings=settings)
     return [
@@ -260,6 +261,8 @@ def run_experiment(
     if scheduler is not None:
         _connect(scheduler).close()  # before any work or output: an unreachable scheduler is bad input
     paths = {str(o): resolve_object(str(o)) for o in objects}
+    # the objects themselves travel with the tasks: a Dask worker on another machine has no such path
+    loaded = {o: load_object(p) for o, p in paths.items()}
     names = {o: p.stem if p.parent == OBJECTS_DIR else str(o) for o, p in paths.items()}
     unknown = set(settings or {}) - set(ExploreSettings._fields)
     if unknown:
@@ -303,7 +306,7 @@ def run_experiment(
     tasks = [
         {
             "object": names[o],
-            "path": str(paths[o]),
+            "scene_object": loaded[o],
             "planner": p,
             "trial": t,
             "budget": int(budget),
