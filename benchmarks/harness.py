@@ -77,6 +77,10 @@ def run(names: list[str] | None = None) -> dict[str, list[dict]]:
     table = _markdown(info)
     write_text(RESULTS / "README.md", table)
     print(table)
+    from benchmarks.readme import missing, update_readme
+
+    changed = update_readme()
+    print(f"[bench] README.md {'updated' if changed else 'unchanged'}; rows without results: {missing() or 'none'}")
     return {}
 
 

@@ -1,0 +1,171 @@
+"""The README's table of measured figures, rendered from the committed results in ``benchmarks/results/``.
+
+Every number in that table is formatted here from a result file, never typed: ``make bench`` (the harness) and
+``python -m benchmarks.readme`` rewrite the block between :data:`BEGIN` and :data:`END` in README.md, and
+``tests/test_readme.py`` checks that the README holds exactly what the committed results render to. A row whose
+result file is missing is left out (and named by :func:`missing`), so the README never quotes a figure that
+cannot be checked.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+RESULTS = HERE / "results"
+README = HERE.parent / "README.md"
+BEGIN = "<!-- measured:begin (rendered by benchmarks/readme.py from benchmarks/results; do not edit) -->"
+END = "<!-- measured:end -->"
+
+__all__ = ["BEGIN", "END", "ROWS", "render", "missing", "update_readme"]
+
+
+def _load(results: Path, name: str):
+    path = results / name
+    return json.loads(path.read_text()) if path.is_file() else None
+
+
+def _entry(doc: dict, metric_prefix: str) -> dict:
+    return next(r for r in doc["results"] if r["metric"].startswith(metric_prefix))
+
+
+def _ci(c, digits: int = 2) -> str:
+    return f"[{c[0]:.{digits}f}, {c[1]:.{digits}f}]"
+
+
+def _pct(x: float, digits: int = 1) -> str:
+    return f"{100 * x:.{digits}f} %"
+
+
+def _raw(results: Path):
+    doc = _load(results, "bench_raw.json")
+    if doc is None:
+        return None
+    on = _entry(
+        doc, "raw-current posterior, standard scenario (egg, 10 strokes, seed 3, empirical), end to end, texture=auto"
+    )
+    off = _entry(
+        doc, "raw-current posterior, standard scenario (egg, 10 strokes, seed 3, empirical), end to end, texture=off"
+    )
+    z = on["volume_rel_error"] / on["volume_rel_sd"]
+    return (
+        "Raw-current posterior, standard scenario (egg, 10 strokes), texture sampled, the finger's gains and "
+        "response unknown to the fit (marginalised)",
+        f"{on['value']:.0f} s end to end ({on['steps']} steps, R-hat {on['max_r_hat']:.3f}, min bulk ESS "
+        f"{on['min_ess_bulk']:.0f}); {off['value']:.0f} s with `--texture off`. Volume "
+        f"{_pct(on['volume_rel_error'], 3)} off, posterior sd {_pct(on['volume_rel_sd'], 3)} (z {z:.1f})",
+        "`bench_raw` (`benchmarks/results/bench_raw.json`)",
+    )
+
+
+def _mismatch(results: Path):
+    d = _load(results, "mismatch.json")
+    if d is None:
+        return None
+    n, v = d["scenarios"], d["volume"]
+    return (
+        f"Raw-current posteriors when the finger is not the simulator ({n} fingers with S_p, lag, fixed-pattern "
+        "spread, 1/f and drift drawn within their stated uncertainty; calibrated from 6 strokes over the sphere at "
+        "3 depths; the textured egg from 10 strokes)",
+        f"90 % volume intervals hold the truth in {v['covered']}/{n} {_ci(v['coverage_wilson95'])} (median \\|z\\| "
+        f"{v['median_abs_z']:.1f}); wavelength {d['wavelength']['covered']}/{n}, amplitude "
+        f"{d['amplitude']['covered']}/{n}, orientation {d['orientation']['covered']}/{n}; {d['converged']}/{n} "
+        f"converged; fit {d['fit_seconds_median']:.0f} s median, calibration {d['calibration_seconds_median']:.1f} s",
+        "`bench_mismatch` (`benchmarks/results/mismatch.json`)",
+    )
+
+
+def _user_sets(results: Path):
+    d = _load(results, "user_sets.json")
+    if d is None:
+        return None
+    b, s, g = d["bayestouch"], d["sage"], d["gpis"]
+    vc, ac = b["volume_coverage_90"], b["axis_interval_coverage_90"]
+    vci = [100 * c for c in b["volume_error"]["ci95"]]
+    return (
+        f"Users'-like touch data ({d['sets']} sets: n 2–6, axes 12–40 mm, random rotations, 61–100 contacts on 4–6 "
+        "strokes within caps of 100–180°, 0–15 % contacts displaced 3–10 mm in or out, free-space positions; "
+        "default fit, 60 s budget)",
+        f"median volume error {_pct(b['volume_error']['median'])} {_ci(vci, 1)}"
+        f" % (95 % bootstrap CI), Chamfer {b['chamfer_ratio']['median']:.3f} of the mean semi-axis "
+        f"{_ci(b['chamfer_ratio']['ci95'], 3)}; sage-superquadric {_pct(s['volume_error']['median'], 0)}, "
+        f"{s['chamfer_ratio']['median']:.2f}; thin-plate GPIS {_pct(g['volume_error']['median'], 0)}, "
+        f"{g['chamfer_ratio']['median']:.2f}. 90 % volume intervals hold the truth in {vc['k']}/{vc['n']} "
+        f"{_ci(vc['wilson95'])}, semi-axis intervals {ac['k']}/{ac['n']} {_ci(ac['wilson95'])}; "
+        f"{b['off_by_more_than_3_sd']}/{b['sets']} off by more than 3 sds; {b['converged']}/{b['sets']} converged "
+        f"(the others say so). Median {b['seconds']['median']:.0f} s a set, 95th percentile "
+        f"{b['seconds']['p95']:.0f} s",
+        "`bench_user_sets` (`benchmarks/results/user_sets.json`)",
+    )
+
+
+def _sparse(results: Path):
+    doc = _load(results, "bench_sparse.json")
+    if doc is None:
+        return None
+    rows = {r["metric"]: r for r in doc["results"]}
+    text = "; ".join(f"{m}: {r['value']:.4g} {r['unit']}".rstrip() for m, r in rows.items())
+    return ("Sparse data (2–5 strokes, 35–100 points, 0.3 mm noise, some sets with outliers)", text, "`bench_sparse`")
+
+
+def _inference(results: Path):
+    doc = _load(results, "bench_inference.json")
+    if doc is None:
+        return None
+    text = "; ".join(f"{r['metric']}: {r['value']:,.0f} {r['unit']}" for r in doc["results"])
+    return ("Contact-level log-probability throughput", text, "`bench_inference`")
+
+
+#: the table's rows, in order: each renders ``(what, figure, benchmark)`` from the results folder, or None
+ROWS: tuple[Callable[[Path], tuple[str, str, str] | None], ...] = (
+    _inference,
+    _raw,
+    _mismatch,
+    _user_sets,
+    _sparse,
+)
+_FILES = {
+    _inference: "bench_inference.json",
+    _raw: "bench_raw.json",
+    _mismatch: "mismatch.json",
+    _user_sets: "user_sets.json",
+    _sparse: "bench_sparse.json",
+}
+
+
+def missing(results: Path = RESULTS) -> list[str]:
+    """Result files a row needs that ``results`` lacks (their rows are left out of the table)."""
+    return [_FILES[row] for row in ROWS if not (results / _FILES[row]).is_file()]
+
+
+def render(results: Path = RESULTS) -> str:
+    """The block (markers included) the README must hold for the results in ``results``."""
+    lines = [BEGIN, "| What | Figure | Benchmark |", "|---|---|---|"]
+    for row in ROWS:
+        cells = row(results)
+        if cells is not None:
+            lines.append("| " + " | ".join(cells) + " |")
+    lines.append(END)
+    return "\n".join(lines)
+
+
+def update_readme(readme: Path = README, results: Path = RESULTS) -> bool:
+    """Rewrite the measured block of ``readme`` from ``results``; returns whether the file changed."""
+    text = readme.read_text(encoding="utf-8")
+    if BEGIN not in text or END not in text:
+        raise SystemExit(f"{readme}: no measured block ({BEGIN} … {END})")
+    head, rest = text.split(BEGIN, 1)
+    _, tail = rest.split(END, 1)
+    new = head + render(results) + tail
+    if new != text:
+        readme.write_text(new, encoding="utf-8")
+    return new != text
+
+
+if __name__ == "__main__":
+    changed = update_readme()
+    print(f"README.md {'updated' if changed else 'already agrees'}; rows without results: {missing() or 'none'}")
+    sys.exit(0)
