@@ -22,6 +22,8 @@ __version__ = "0.1.0"
 _API = {
     "Fit": "bayestouch.api",
     "fit": "bayestouch.api",
+    "simulate": "bayestouch.api",
+    "calibrate": "bayestouch.api",
     "read_spread_mesh": "bayestouch.io.meshes",
     "BadInput": "bayestouch.errors",
     "NEllipsoid": "bayestouch.geometry.nellipsoid",

@@ -1,5 +1,8 @@
-"""The notebook API: :func:`fit` returns a :class:`Fit`, an object over a run folder that holds the posterior as ArviZ
-``InferenceData``, its summary as a table with units, its meshes as trimesh objects and a picture.
+"""The notebook API, one verb per job: :func:`fit` returns a :class:`Fit`, an object over a run folder that holds the
+posterior as ArviZ ``InferenceData``, its summary as a table with units, its meshes as trimesh objects and a picture;
+:func:`simulate` returns a recording (``xarray.Dataset``); :func:`calibrate` a device file's contents;
+:func:`bayestouch.explore` (in :mod:`bayestouch.planning.loop`) an exploration's record. The commands
+``bayestouch fit``, ``simulate`` and ``calibrate`` call these.
 
 ``bayestouch fit`` is this function on the command line. A fit with no ``out`` folder runs in a temporary folder
 that lives as long as its :class:`Fit` (``fit.save(folder)`` keeps it); :meth:`Fit.load` opens a folder written
@@ -23,8 +26,9 @@ import numpy as np
 from bayestouch.errors import BadInput
 from bayestouch.io.contacts import ContactPoints, load_contact_points
 from bayestouch.io.runfolder import FINGERPRINT_FILE, RESULT_FILES
+from bayestouch.params import MODELS
 
-__all__ = ["Fit", "fit", "RUN_FILES"]
+__all__ = ["Fit", "fit", "simulate", "calibrate", "RUN_FILES"]
 
 #: files of a run folder that :meth:`Fit.save` copies (those present)
 RUN_FILES = (*RESULT_FILES, "mean_shape.ply", "uncertainty_mesh.ply", "smc.npz", FINGERPRINT_FILE)
@@ -342,3 +346,132 @@ def fit(
             temporary.cleanup()
         raise
     return Fit(out, _temporary=temporary)
+
+
+def simulate(
+    obj="egg",
+    *,
+    strokes: int = 1,
+    seed: int = 0,
+    device_seed: int | None = None,
+    duration: float = 2.0,
+    rate: float = 50.0,
+    depth=3e-4,
+    mode: str | None = None,
+    hold_currents=(0.15, 0.05, 0.05),
+    force: float | None = None,
+    models=MODELS,
+    progress: bool = False,
+    out=None,
+    overwrite: bool = False,
+):
+    """Record random strokes of the virtual finger over an object.
+
+    Parameters
+    ----------
+    obj : str, path or SceneObject
+        A shipped object's name (``"egg"``), a TOML file, or an object.
+    strokes : int
+        Number of strokes (each ``duration`` s at 1 cm/s, ``rate`` frames/s).
+    seed : int
+        Seeds the strokes and the noise; ``device_seed`` (default ``seed``) picks the simulated finger (its
+        fixed-pattern gains).
+    depth : float or sequence of float, metres
+        Pressing depth, or one per stroke in turn (several depths let a calibration identify the response).
+    mode : {"physics", "empirical"}, optional
+        Taxel response (default ``models/taxels.toml``).
+    hold_currents : (3,) float, amperes
+        Hold currents of the three wires.
+    force : float, newtons, optional
+        Press to this normal force instead of a depth.
+    out : path, optional
+        Also write the recording there (netCDF; an existing file is refused unless ``overwrite``).
+
+    Returns
+    -------
+    xarray.Dataset
+        The recording (:mod:`bayestouch.io.recording`).
+    """
+    from bayestouch import __version__
+    from bayestouch.io.recording import write_recording
+    from bayestouch.physics.virtual import load_finger, recording_dataset
+    from bayestouch.scene.objects import SceneObject, load_object
+    from bayestouch.scene.strokes import random_strokes
+
+    depths = [float(d) for d in np.atleast_1d(np.asarray(depth, dtype=float))]
+    if not depths or not all(0 < d <= 2e-3 for d in depths):
+        raise BadInput(f"depth: each pressing depth must be in (0, 2e-3] metres, got {depth!r}")
+    if not isinstance(strokes, int | np.integer) or strokes < 1:
+        raise BadInput(f"strokes: expected an integer ≥ 1, got {strokes!r}")
+    if force is not None and not (0 < force <= 2.0):
+        raise BadInput(f"force: expected newtons in (0, 2], got {force!r}")
+    currents = [float(c) for c in hold_currents]
+    if len(currents) != 3:
+        raise BadInput(f"hold_currents: expected the three wires' currents in amperes, got {len(currents)} values")
+    if out is not None and Path(out).exists() and not overwrite:
+        raise BadInput(f"out: {out} already exists; pass overwrite=True (--overwrite) to replace it")
+    scene = obj if isinstance(obj, SceneObject) else load_object(obj)
+    finger_seed = seed if device_seed is None else device_seed
+    vf = load_finger(models, seed=finger_seed)
+    max_current = float(vf.wire.max_current)
+    if not all(0 <= c <= max_current for c in currents):
+        raise BadInput(f"hold_currents: wire currents must each be in [0, {max_current:g}] A (amperes), got {currents}")
+    plan = random_strokes(scene, strokes, seed=seed, duration=duration, rate=rate, depth=depths[0])
+    plan = [s._replace(depth=depths[i % len(depths)]) for i, s in enumerate(plan)]
+    ds = recording_dataset(
+        scene,
+        plan,
+        vf,
+        seed,
+        mode=mode,
+        attrs={
+            "object": scene.name,
+            "object_file": str(obj) if isinstance(obj, str | os.PathLike) else scene.name,
+            "seed": seed,
+            **({} if device_seed is None else {"device_seed": finger_seed}),
+            "mode": mode or vf.mode,
+            "wire_hold_currents_A": ",".join(f"{c:g}" for c in currents),
+            "software": f"bayestouch {__version__}",
+        },
+        hold_currents=currents,
+        force=force,
+        progress=progress,
+    )
+    if out is not None:
+        write_recording(ds, out)
+    return ds
+
+
+def calibrate(recording, obj, *, models=MODELS, out=None, overwrite: bool = False):
+    """Estimate the finger's per-taxel log-gains, their standard errors, the common response factor and the read-out
+    noise scale from strokes over a known object (:func:`bayestouch.inference.raw.calibrate.calibrate_device`).
+
+    Parameters
+    ----------
+    recording : path or xarray.Dataset
+        Strokes over ``obj`` (at least 2; several depths identify the response factor).
+    obj : str, path or SceneObject
+        The touched object in the recording's world frame: a shipped name, a TOML file or an object.
+    out : path, optional
+        Also write the device file (TOML) there, for ``fit(recording, calibration=...)``; an existing file is
+        refused unless ``overwrite``.
+
+    Returns
+    -------
+    DeviceCalibration
+    """
+    from bayestouch.inference.raw.calibrate import calibrate_device
+    from bayestouch.io.device_file import write_device_file
+    from bayestouch.scene.objects import SceneObject, load_object
+
+    if out is not None:
+        out = Path(out)
+        if out.suffix != ".toml":
+            raise BadInput(f"out: {out}: expected a .toml device file")
+        if out.exists() and not overwrite:
+            raise BadInput(f"out: {out} exists; pass overwrite=True (--overwrite) to replace it")
+    scene = obj if isinstance(obj, SceneObject) else load_object(obj)
+    cal = calibrate_device(recording, scene, models=models, object_name=str(obj) if isinstance(obj, str) else None)
+    if out is not None:
+        write_device_file(out, cal)
+    return cal

@@ -193,3 +193,43 @@ print("ok")
     assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr[-2000:]
     for name in ("trace.png", "pair.png", "err.png"):
         assert (tmp_path / name).read_bytes()[:4] == b"\x89PNG"
+
+
+def test_simulate_and_calibrate_verbs_match_the_commands(tmp_path):
+    """bt.simulate returns the recording `bayestouch simulate` writes (same arguments, same data); bt.calibrate
+    the device file `bayestouch calibrate` writes."""
+    from bayestouch.cli import main
+    from bayestouch.io.device_file import read_device_file
+    from bayestouch.io.recording import read_recording
+
+    kw = dict(strokes=2, seed=5, duration=0.5, rate=20.0, depth=[2e-4, 4e-4], mode="empirical")
+    ds = bt.simulate("sphere", **kw, out=tmp_path / "api.nc")
+    assert ds.sizes["stroke"] == 2 and "time" in ds.coords and ds.attrs["Conventions"] == "CF-1.10"
+    assert np.allclose(ds["stroke_depth"].values, [2e-4, 4e-4])
+    args = ["--strokes", "2", "--seed", "5", "--duration", "0.5", "--rate", "20", "--depth", "2e-4,4e-4"]
+    assert (
+        main(
+            [
+                "simulate",
+                "--object",
+                "sphere",
+                *args,
+                "--mode",
+                "empirical",
+                "--out",
+                str(tmp_path / "cli.nc"),
+                "--quiet",
+            ]
+        )
+        == 0
+    )
+    cli = read_recording(tmp_path / "cli.nc")
+    for v in ("taxel_current", "contact_force", "time"):
+        np.testing.assert_array_equal(cli[v].values, ds[v].values)
+    with pytest.raises(BadInput, match="already exists"):
+        bt.simulate("sphere", **kw, out=tmp_path / "api.nc")
+    with pytest.raises(BadInput, match="depth"):
+        bt.simulate("sphere", depth=0.01)
+    cal = bt.calibrate(ds, "sphere", out=tmp_path / "finger.toml")
+    assert np.shape(cal.log_gain) == (ds.sizes["taxel"],) and np.all(np.isfinite(cal.log_gain_sd))
+    np.testing.assert_allclose(read_device_file(tmp_path / "finger.toml").log_gain, cal.log_gain, rtol=1e-6)

@@ -49,3 +49,13 @@ def test_update_rewrites_only_the_block(tmp_path):
     readme.write_text("no block", encoding="utf-8")
     with pytest.raises(SystemExit, match="no measured block"):
         rd.update_readme(readme, rd.RESULTS)
+
+
+def test_readme_pictures_and_links_exist():
+    """Every picture and every repository path the README links to is in the repository."""
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    targets = re.findall(r"\]\(([^)#\s]+)\)", text)
+    assert any(t.endswith(".png") for t in targets)
+    for t in targets:
+        if "://" not in t:
+            assert (ROOT / t).exists(), t

@@ -41,17 +41,13 @@ def add_parser(sub) -> argparse.ArgumentParser:
 
 def run(args) -> int:
     """Run ``bayestouch calibrate`` from parsed arguments (bad input raises BadInput)."""
-    from bayestouch.inference.raw.calibrate import calibrate_device
-    from bayestouch.io.device_file import write_device_file
-    from bayestouch.scene.objects import load_object
+    from bayestouch.api import calibrate
 
     if args.out.suffix != ".toml":
         raise BadInput(f"--out {args.out}: expected a .toml device file")
     if args.out.exists() and not args.overwrite:
         raise BadInput(f"--out {args.out} exists; pass --overwrite to replace it")
-    obj = load_object(args.object)
-    cal = calibrate_device(args.recording, obj, models=args.models, object_name=str(args.object))
-    write_device_file(args.out, cal)
+    cal = calibrate(args.recording, args.object, models=args.models, out=args.out, overwrite=args.overwrite)
     print(
         f"wrote {args.out}: {np.size(cal.log_gain)} taxels from {cal.info['strokes']} stroke(s) over "
         f"{args.object}, log-gain sd {np.median(cal.log_gain_sd):.2g} (median), noise scale {cal.noise_scale:.2f}"

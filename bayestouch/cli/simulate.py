@@ -105,46 +105,31 @@ def run(args) -> int:
         )
     if args.force is not None and not (0 < args.force <= 2.0):
         raise BadInput(f"--force must be in (0, 2] newtons, got {args.force}")
-    from bayestouch import __version__
-    from bayestouch.io.recording import write_recording
-    from bayestouch.physics.virtual import load_finger, recording_dataset
-    from bayestouch.scene.objects import load_object
-    from bayestouch.scene.strokes import random_strokes
-
-    obj = load_object(args.object)
-    device_seed = args.seed if args.device_seed is None else args.device_seed
-    vf = load_finger(args.models, seed=device_seed)
-    max_current = float(vf.wire.max_current)
-    if not all(0 <= c <= max_current for c in currents):
-        raise BadInput(f"--currents: wire currents must each be in [0, {max_current:g}] A (amperes), got {currents}")
-    strokes = random_strokes(obj, args.strokes, seed=args.seed, duration=args.duration, rate=args.rate, depth=depths[0])
-    strokes = [s._replace(depth=depths[i % len(depths)]) for i, s in enumerate(strokes)]
     if args.out.exists() and not args.overwrite:
         raise BadInput(f"--out {args.out} already exists; pass --overwrite to replace it, or choose another file")
+    from bayestouch.api import simulate
+
     t0 = time.perf_counter()
-    ds = recording_dataset(
-        obj,
-        strokes,
-        vf,
-        args.seed,
+    ds = simulate(
+        args.object,
+        strokes=args.strokes,
+        seed=args.seed,
+        device_seed=args.device_seed,
+        duration=args.duration,
+        rate=args.rate,
+        depth=depths,
         mode=args.mode,
-        attrs={
-            "object": obj.name,
-            "object_file": str(args.object),
-            "seed": args.seed,
-            **({} if args.device_seed is None else {"device_seed": device_seed}),
-            "mode": args.mode or vf.mode,
-            "wire_hold_currents_A": args.currents,
-            "software": f"bayestouch {__version__}",
-        },
         hold_currents=currents,
         force=args.force,
+        models=args.models,
         progress=not args.quiet,
+        out=args.out,
+        overwrite=args.overwrite,
     )
-    write_recording(ds, args.out)
+    n_strokes = int(ds.sizes["stroke"])
     f = ds["contact_force"].values
     print(
-        f"wrote {args.out}: {len(strokes)} stroke(s), {ds.sizes['frame']} frames × {ds.sizes['taxel']} taxels, "
+        f"wrote {args.out}: {n_strokes} stroke(s), {ds.sizes['frame']} frames × {ds.sizes['taxel']} taxels, "
         f"contact force {f.min():.3f}–{f.max():.3f} N, in {time.perf_counter() - t0:.1f} s"
     )
     return 0
