@@ -408,14 +408,14 @@ def simulate(
     currents = [float(c) for c in hold_currents]
     if len(currents) != 3:
         raise BadInput(f"hold_currents: expected the three wires' currents in amperes, got {len(currents)} values")
-    if out is not None and Path(out).exists() and not overwrite:
-        raise BadInput(f"out: {out} already exists; pass overwrite=True (--overwrite) to replace it")
     scene = obj if isinstance(obj, SceneObject) else load_object(obj)
     finger_seed = seed if device_seed is None else device_seed
     vf = load_finger(models, seed=finger_seed)
     max_current = float(vf.wire.max_current)
     if not all(0 <= c <= max_current for c in currents):
         raise BadInput(f"hold_currents: wire currents must each be in [0, {max_current:g}] A (amperes), got {currents}")
+    if out is not None and Path(out).exists() and not overwrite:  # after every check of the arguments
+        raise BadInput(f"out: {out} already exists; pass overwrite=True (--overwrite) to replace it")
     plan = random_strokes(scene, strokes, seed=seed, duration=duration, rate=rate, depth=depths[0])
     plan = [s._replace(depth=depths[i % len(depths)]) for i, s in enumerate(plan)]
     ds = recording_dataset(

@@ -106,9 +106,26 @@ def _sparse(results: Path):
     doc = _load(results, "bench_sparse.json")
     if doc is None:
         return None
-    rows = {r["metric"]: r for r in doc["results"]}
-    text = "; ".join(f"{m}: {r['value']:.4g} {r['unit']}".rstrip() for m, r in rows.items())
-    return ("Sparse data (2–5 strokes, 35–100 points, 0.3 mm noise, some sets with outliers)", text, "`bench_sparse`")
+
+    def val(metric: str, method: str) -> float:
+        return next(r["value"] for r in doc["results"] if r["metric"] == metric and r.get("method") == method)
+
+    parts = []
+    for cap in (180, 100):
+        vol, ch = f"median volume error (cap {cap}°)", f"median Chamfer / mean semi-axis (cap {cap}°)"
+        sets = next(r["sets"] for r in doc["results"] if r["metric"] == vol)
+        parts.append(
+            f"strokes within a {cap}° cap ({_pct(val(f'median coverage (cap {cap}°)', 'data'), 0)} of the surface "
+            f"reached, {sets} sets): median volume error {_pct(val(vol, 'bayestouch'))}, Chamfer "
+            f"{val(ch, 'bayestouch'):.3f} of the mean semi-axis; sage-superquadric "
+            f"{_pct(val(vol, 'sage-superquadric'))}, {val(ch, 'sage-superquadric'):.3f}"
+        )
+    secs = val("seconds per set (median)", "bayestouch")
+    return (
+        "Sparse data (35–100 points, 2–5 strokes, 0.3 mm noise, 3 of 10 sets with 15 % outliers)",
+        "; ".join(parts) + f". Median {secs:.0f} s a set",
+        "`bench_sparse` (`benchmarks/results/bench_sparse.json`)",
+    )
 
 
 def _inference(results: Path):

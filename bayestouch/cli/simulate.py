@@ -105,9 +105,7 @@ def run(args) -> int:
         )
     if args.force is not None and not (0 < args.force <= 2.0):
         raise BadInput(f"--force must be in (0, 2] newtons, got {args.force}")
-    if args.out.exists() and not args.overwrite:
-        raise BadInput(f"--out {args.out} already exists; pass --overwrite to replace it, or choose another file")
-    from bayestouch.api import simulate
+    from bayestouch.api import simulate  # checks --out last: an existing recording is refused after bad arguments
 
     t0 = time.perf_counter()
     ds = simulate(
