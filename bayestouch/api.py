@@ -370,7 +370,8 @@ def simulate(
     Parameters
     ----------
     obj : str, path or SceneObject
-        A shipped object's name (``"egg"``), a TOML file, or an object.
+        An object's name (``"egg"``: from ``models/objects`` when that folder has it, else the shipped one), a TOML
+        file, or an object.
     strokes : int
         Number of strokes (each ``duration`` s at 1 cm/s, ``rate`` frames/s).
     seed : int
@@ -408,7 +409,7 @@ def simulate(
     currents = [float(c) for c in hold_currents]
     if len(currents) != 3:
         raise BadInput(f"hold_currents: expected the three wires' currents in amperes, got {len(currents)} values")
-    scene = obj if isinstance(obj, SceneObject) else load_object(obj)
+    scene = obj if isinstance(obj, SceneObject) else load_object(obj, models)
     finger_seed = seed if device_seed is None else device_seed
     vf = load_finger(models, seed=finger_seed)
     max_current = float(vf.wire.max_current)
@@ -470,7 +471,7 @@ def calibrate(recording, obj, *, models=MODELS, out=None, overwrite: bool = Fals
             raise BadInput(f"out: {out}: expected a .toml device file")
         if out.exists() and not overwrite:
             raise BadInput(f"out: {out} exists; pass overwrite=True (--overwrite) to replace it")
-    scene = obj if isinstance(obj, SceneObject) else load_object(obj)
+    scene = obj if isinstance(obj, SceneObject) else load_object(obj, models)
     cal = calibrate_device(recording, scene, models=models, object_name=str(obj) if isinstance(obj, str) else None)
     if out is not None:
         write_device_file(out, cal)

@@ -131,3 +131,27 @@ def test_public_api_resolves_lazily():
         assert getattr(bayestouch, name) is not None
     with pytest.raises(AttributeError):
         bayestouch.no_such_thing  # noqa: B018
+
+
+def test_object_names_resolve_in_a_users_models_folder_first(tmp_path):
+    """``egg`` is the shipped egg, unless the parameter folder given has its own objects/egg.toml; a name in neither
+    is one line naming both folders' objects."""
+    import shutil
+
+    from bayestouch.errors import BadInput
+    from bayestouch.scene.objects import OBJECTS_DIR, load_object, resolve_object
+
+    assert resolve_object("egg") == OBJECTS_DIR / "egg.toml"
+    assert resolve_object("egg", tmp_path) == OBJECTS_DIR / "egg.toml"  # the user's folder has none
+    (tmp_path / "objects").mkdir()
+    text = (OBJECTS_DIR / "sphere.toml").read_text()
+    (tmp_path / "objects" / "egg.toml").write_text(text)  # the user's "egg" is a sphere
+    shutil.copy(OBJECTS_DIR / "box.toml", tmp_path / "objects" / "crate.toml")
+    assert resolve_object("egg", tmp_path) == tmp_path / "objects" / "egg.toml"
+    mine, shipped = load_object("egg", tmp_path), load_object("egg")
+    sphere = load_object("sphere")
+    assert np.allclose(np.asarray(mine.shape.axes), np.asarray(sphere.shape.axes))
+    assert not np.allclose(np.asarray(shipped.shape.axes), np.asarray(sphere.shape.axes))
+    assert resolve_object("crate", tmp_path).name == "crate.toml"
+    with pytest.raises(BadInput, match="unknown object 'teapot'.*crate.*egg"):
+        resolve_object("teapot", tmp_path)

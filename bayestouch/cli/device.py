@@ -227,9 +227,10 @@ def _simulate(args) -> int:
 
         if args.model == "synthetic":
             # guarded strokes (bayestouch explore --port) find the object; the frames come from the fast model
-            sim.model = GuardedModel(load_object(args.object), SyntheticModel(seed=args.seed), seed=args.seed)
+            obj = load_object(args.object, args.models)
+            sim.model = GuardedModel(obj, SyntheticModel(seed=args.seed), seed=args.seed)
         else:
-            sim.model = ForwardModel(load_object(args.object), args.models, seed=args.seed)
+            sim.model = ForwardModel(load_object(args.object, args.models), args.models, seed=args.seed)
             threading.Thread(target=_warm_up, args=(sim.model, args), daemon=True).start()
         sim.start()
         print(f"serving {args.model} model, speed {args.speed:g}× (Ctrl-C to stop)", file=sys.stderr, flush=True)

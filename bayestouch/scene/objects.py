@@ -296,22 +296,29 @@ def object_from_dict(doc: dict, where: str = "object", source: Path | None = Non
 OBJECTS_DIR = MODELS / "objects"
 
 
-def resolve_object(name: str) -> Path:
-    """An object name (``egg``: ``models/objects/egg.toml``) or a TOML path → the file; BadInput if missing."""
+def resolve_object(name: str, models=None) -> Path:
+    """An object name or a TOML path → the file; BadInput if missing.
+
+    A name (``egg``) is ``objects/egg.toml`` of the parameter folder ``models`` when that folder has it (a user's
+    folder overrides), else the shipped ``models/objects/egg.toml``.
+    """
     p = Path(name)
     if p.suffix == ".toml":
         if not p.is_file():
             raise BadInput(f"object: no such file {p} (expected a TOML object file like models/objects/egg.toml)")
         return p
-    q = OBJECTS_DIR / f"{name}.toml"
-    if not q.is_file():
-        known = ", ".join(sorted(x.stem for x in OBJECTS_DIR.glob("*.toml")))
-        raise BadInput(f"object: unknown object {name!r}; expected one of {known} or a path to a .toml file")
-    return q
+    folders = [Path(models) / "objects"] if models is not None else []
+    for folder in [*folders, OBJECTS_DIR]:
+        q = folder / f"{name}.toml"
+        if q.is_file():
+            return q
+    known = sorted({x.stem for folder in [*folders, OBJECTS_DIR] for x in folder.glob("*.toml")})
+    raise BadInput(f"object: unknown object {name!r}; expected one of {', '.join(known)} or a path to a .toml file")
 
 
-def load_object(path) -> SceneObject:
-    """Read an object TOML file (metres, radians), or a shipped object by name (``"egg"``,
-    :func:`resolve_object`); a bad file raises :class:`BadInput` naming the field."""
-    p = Path(path) if Path(path).suffix == ".toml" else resolve_object(str(path))
+def load_object(path, models=None) -> SceneObject:
+    """Read an object TOML file (metres, radians), or an object by name (``"egg"``: from ``models/objects`` when
+    that parameter folder has it, else the shipped one; :func:`resolve_object`); a bad file raises
+    :class:`BadInput` naming the field."""
+    p = Path(path) if Path(path).suffix == ".toml" else resolve_object(str(path), models)
     return object_from_dict(read_toml(p, "object file", "models/objects/egg.toml"), str(p), p)
