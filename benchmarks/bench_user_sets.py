@@ -1,6 +1,6 @@
 """Shape posteriors on data like users' touch data (issue "Shape posteriors that hold up on real touch data"):
 sparse, one-sided, contaminated contact sets; bayestouch's default contact-level fit against the least-squares
-superquadric peer ``sage-superquadric`` and a Gaussian-process implicit surface (:mod:`benchmarks.gpis`).
+superquadric peer ``sage-superquadric`` and a Gaussian-process implicit surface (:mod:`bayestouch.inference.gpis`).
 
 Data (:func:`make_user_set`; every length in metres, every angle in radians unless the name says degrees). Each
 set is drawn from ``np.random.default_rng(seed)``, split with ``Generator.spawn`` into independent streams for the
@@ -41,7 +41,7 @@ Methods: **bayestouch** through its default contact-level path
 the polished optimum, then emcee, 32 walkers, outlier noise model, the 60 s budget, free-space positions given)
 into a temporary run folder, point estimate the summary's posterior-mean shape (``derived.mean_shape``, the shape
 of ``mean_shape.ply``), volume the summary's posterior-mean volume; **sage** its default
-single-superquadric fit (:func:`benchmarks.bench_sparse.fit_sage`); **gpis** :func:`benchmarks.gpis.fit_gpis`.
+single-superquadric fit (:func:`benchmarks.bench_sparse.fit_sage`); **gpis** :func:`bayestouch.inference.gpis.fit_gpis`.
 
 Metrics per set and method: volume error |V̂/V − 1| (closed forms for the truth and the superquadric, the mesh
 volume for GPIS, the posterior-mean volume for bayestouch); symmetric Chamfer distance between the surfaces by
@@ -661,7 +661,7 @@ def fit_set(d: UserSet, method: str, index: int = 0, steps: int | None = None) -
             row["seconds"] = sq["seconds"]
             row.update(shape_metrics(sq["mesh"], sq["volume"], d.truth, seed=index))
         else:
-            from benchmarks.gpis import fit_gpis
+            from bayestouch.inference.gpis import fit_gpis
 
             t0 = time.perf_counter()
             g = fit_gpis(d.points)

@@ -421,3 +421,34 @@ def test_experiment_tasks_carry_the_object_not_a_path(tmp_path, monkeypatch):
     sent = pickle.loads(pickle.dumps(task))
     ref = load_object(OBJECTS_DIR / "sphere.toml")
     assert np.allclose(np.asarray(sent["scene_object"].shape.axes), np.asarray(ref.shape.axes))
+
+
+@pytest.mark.slow
+def test_experiment_through_the_virtual_finger_with_the_gpis_planner(tmp_path):
+    """--prober finger: every stroke is a guarded stroke on a virtual finger over the serial protocol; its
+    contacts carry the pad's pose error (0.3 mm per coordinate), so they lie near, not on, the true sphere; the
+    gpis planner chooses among the candidates once the scout has touched enough. The prober is part of the
+    experiment's key: a resume in the ray world is refused."""
+    from bayestouch.io.files import read_csv_rows
+
+    kw = dict(
+        planners=("gpis", "random"),
+        objects=("sphere",),
+        trials=1,
+        budget=1,
+        seed=2,
+        workers=1,
+        settings=SMALL,
+        log=lambda m: None,
+        plot=False,
+    )
+    res = run_experiment(tmp_path, prober="finger", **kw)
+    rows = read_csv_rows(tmp_path / "results.csv")
+    assert res["ran"] == 2 and {r["planner"] for r in rows} == {"gpis", "random"}
+    last = {r["planner"]: r for r in rows if r["stroke"] == "1"}
+    assert all(float(r["chamfer"]) < 0.1 for r in last.values())  # the sphere is found through the finger
+    assert float(last["gpis"]["decision_s"]) > 0  # the GPIS was conditioned and scored the candidates
+    with pytest.raises(BadInput, match="prober"):
+        run_experiment(tmp_path, resume=True, **kw)
+    with pytest.raises(BadInput, match="prober: expected one of rays, finger"):
+        run_experiment(tmp_path / "x", prober="laser", **kw)

@@ -1,5 +1,5 @@
 """Users'-like touch data (benchmarks/bench_user_sets.py): the generator's distributions and guarantees, the GPIS
-baseline (benchmarks/gpis.py) and the summary statistics."""
+baseline (bayestouch/inference/gpis.py) and the summary statistics."""
 
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ from scipy import stats
 from bayestouch.backend import jax, jnp
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.rotation import euler_from_matrix, rotation_matrix
+from bayestouch.inference import gpis
 from benchmarks import bench_user_sets as us
-from benchmarks import gpis
 
 SEEDS = range(24)
 
@@ -259,3 +259,20 @@ def test_gpis_exterior_cage_closes_the_surface_on_sparse_strokes():
     assert not caged.touches_box and abs(caged.volume / v_true - 1) < 0.4
     # documented failure of the normal offsets alone: the solid escapes between the strokes to the grid box
     assert bare.touches_box and bare.volume > 3 * v_true
+
+
+def test_gpis_predict_matches_the_mean_and_has_zero_variance_at_the_data():
+    """condition/predict: the mean equals gp_mean on the same training set; the latent variance is ≈ σ² at a
+    training point (the nugget) and grows away from the data, up to R³ far out."""
+    rng = np.random.default_rng(3)
+    d = rng.normal(size=(60, 3))
+    pts = 0.02 * d / np.linalg.norm(d, axis=1, keepdims=True)
+    gp = gpis.condition(pts, noise_m=1e-4)
+    q = np.concatenate([pts[:5], [[0.0, 0.0, 0.0], [0.04, 0.04, 0.04]]])  # the box (cage) is ±0.047 m
+    mean, var = gpis.predict(gp, q)
+    np.testing.assert_allclose(mean, gpis.gp_mean(gp.X, gp.y, q, gp.R, 1e-4), rtol=1e-8, atol=1e-12)
+    assert np.all(np.abs(mean[:5]) < 1e-4) and mean[5] < 0  # on the surface; inside at the centre
+    assert np.all(var[:5] < 1e-3 * gp.R**3) and var[5] > 10 * var[:5].max()
+    # farther from the contacts (a corner of the box, 0.05 m from them against the centre's 0.02 m): more
+    # uncertain, and never above the prior variance R³
+    assert var[6] <= gp.R**3 and var[6] > var[5]

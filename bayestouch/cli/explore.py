@@ -63,7 +63,9 @@ def add_planning_parsers(subparsers) -> tuple[argparse.ArgumentParser, argparse.
         help="nominal centre of the object (the fixture), metres; required with --port and no --object",
     )
     ep.add_argument("--timeout", type=float, default=0.3, help="with --port: seconds to wait for an answer (0.3)")
-    ep.add_argument("--planner", default="eig", help="eig, random, coverage or oracle (default eig)")
+    ep.add_argument(
+        "--planner", default="eig", help="eig, random, coverage, gpis (GPIS max-variance) or oracle (default eig)"
+    )
     ep.add_argument(
         "--target-volume-sd",
         type=float,
@@ -78,7 +80,19 @@ def add_planning_parsers(subparsers) -> tuple[argparse.ArgumentParser, argparse.
         description="Run objects x planners x trials of the exploration loop and write "
         "DIR/results.csv and DIR/error_vs_strokes.png.",
     )
-    xp.add_argument("--planners", default="eig,random,oracle", help="comma-separated (default eig,random,oracle)")
+    xp.add_argument(
+        "--planners",
+        default="eig,random,oracle",
+        help="comma-separated, of eig, random, coverage, gpis (touch where a GPIS surface is most uncertain) and "
+        "oracle (default eig,random,oracle)",
+    )
+    xp.add_argument(
+        "--prober",
+        choices=("rays", "finger"),
+        default="rays",
+        help="how strokes are measured: rays on the simulated object (default), or guarded strokes on a virtual "
+        "finger over the serial protocol (force threshold, pad pose error)",
+    )
     xp.add_argument("--objects", default="egg,sphere,box,cylinder", help="comma-separated names or TOML files")
     xp.add_argument("--trials", type=int, default=3, help="seeded trials per object and planner (default 3)")
     xp.add_argument("--workers", type=int, default=2, help="processes (default 2; 1 runs in this process)")
@@ -310,6 +324,7 @@ def run_experiment(args) -> int:
         budget=args.budget,
         seed=args.seed,
         workers=args.workers,
+        prober=args.prober,
         scheduler=args.scheduler,
         resume=args.resume,
         overwrite=args.overwrite,

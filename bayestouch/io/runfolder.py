@@ -101,6 +101,8 @@ def differences(old: dict, new: dict) -> list[str]:
             out.append(f"{k} {old_opt[k]!r} (now {v!r})")
         elif k not in old_opt:
             out.append(f"no {k} option (now {v!r})")
+    for k in old_opt.keys() - new["options"].keys():  # an option the run had that this one does not
+        out.append(f"{k} {old_opt[k]!r} (now none)")
     return out
 
 

@@ -27,12 +27,14 @@ from bayestouch.inference.freespace import Free
 from bayestouch.io.recording import write_recording
 from bayestouch.planning.candidates import Strokes
 
-__all__ = ["DeviceProber", "PROBE_THRESHOLD", "probe_points"]
+__all__ = ["DeviceProber", "VirtualFingerProber", "PROBE_THRESHOLD", "POSE_SD", "probe_points"]
 
 #: contact force that counts as the touch, newtons (a fifth of the smallest planned force, 0.1 N)
 PROBE_THRESHOLD = 0.02
 #: wire hold currents of the planned strokes, amperes (those of ``bayestouch device run``)
 HOLD_CURRENTS = (0.15, 0.05, 0.05)
+#: pose-estimate error of the virtual finger's pad, metres per coordinate (:class:`VirtualFingerProber`)
+POSE_SD = 3e-4
 
 
 def probe_points(data: ProbeData, threshold_depth: float) -> tuple[np.ndarray, Free]:
@@ -149,3 +151,45 @@ class DeviceProber:
             **self.attrs,
         }
         return build_recording(self.strokes, self.device.info, attrs)
+
+
+class VirtualFingerProber:
+    """A prober that runs every stroke on an in-process virtual finger over the serial protocol: a
+    :class:`~bayestouch.hardware.simulator.VirtualDevice` serving guarded strokes on the true object
+    (:class:`~bayestouch.hardware.frame_models.GuardedModel`: the contact where the force crosses the threshold,
+    reported with the pad's pose-estimate error ``pose_sd``; frames from the fast synthetic model) on a
+    pseudo-terminal, a :class:`~bayestouch.hardware.device.FingerDevice` client and a :class:`DeviceProber`. What
+    ``bayestouch experiment --prober finger`` runs each trial through. A context manager (the device and its thread
+    are closed on exit).
+
+    Parameters
+    ----------
+    obj : SceneObject
+        The true object.
+    seed : int
+        Seeds the pose errors.
+    pose_sd : float, metres
+    """
+
+    def __init__(self, obj, *, seed: int = 0, pose_sd: float = POSE_SD):
+        self.obj, self.seed, self.pose_sd = obj, int(seed), float(pose_sd)
+        self._sim = self._dev = self._prober = None
+
+    def __enter__(self) -> DeviceProber:
+        from bayestouch.hardware.frame_models import GuardedModel
+        from bayestouch.hardware.simulator import VirtualDevice
+
+        self._sim = VirtualDevice(GuardedModel(self.obj, pose_sd=self.pose_sd, seed=self.seed), speed=0.0).start()
+        try:
+            self._dev = FingerDevice(self._sim.port, timeout=0.5).open()
+        except BaseException:
+            self._sim.close(timeout=5.0)
+            raise
+        self._prober = DeviceProber(self._dev)
+        return self._prober
+
+    def __exit__(self, *exc) -> None:
+        if self._dev is not None:
+            self._dev.close()
+        if self._sim is not None:
+            self._sim.close(timeout=5.0)

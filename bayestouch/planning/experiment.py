@@ -33,6 +33,7 @@ from tqdm.auto import tqdm
 from bayestouch.errors import BadInput
 from bayestouch.io.files import read_csv_rows, write_csv_rows, write_json
 from bayestouch.io.runfolder import differences, fingerprint
+from bayestouch.planning.device_prober import VirtualFingerProber
 from bayestouch.planning.loop import ExploreSettings, explore
 from bayestouch.planning.policies import check_policy
 from bayestouch.scene.objects import OBJECTS_DIR, load_object, resolve_object
@@ -68,6 +69,10 @@ COLUMNS = (
     "decision_s",
     "seed",
 )
+#: how a trial's strokes are measured: ``rays`` on the simulated object (the planner's own ray world, noise along
+#: the ray), ``finger`` as guarded strokes on a virtual finger over the serial protocol
+#: (:class:`~bayestouch.planning.device_prober.VirtualFingerProber`)
+PROBERS = ("rays", "finger")
 #: most trials of one experiment (each is seconds to minutes of work and a task object in memory)
 MAX_TRIALS = 100_000
 #: seconds to wait for a Dask scheduler to answer
@@ -81,7 +86,11 @@ def run_trial(task: dict) -> list[dict]:
     carries the :class:`~bayestouch.scene.objects.SceneObject` itself (``scene_object``), not a file path."""
     obj = task["scene_object"]
     settings = ExploreSettings(**task.get("settings", {}))
-    res = explore(obj, task["planner"], task["budget"], seed=task["seed"], settings=settings)
+    if task.get("prober", "rays") == "finger":
+        with VirtualFingerProber(obj, seed=task["seed"]) as prober:
+            res = explore(obj, task["planner"], task["budget"], seed=task["seed"], settings=settings, prober=prober)
+    else:
+        res = explore(obj, task["planner"], task["budget"], seed=task["seed"], settings=settings)
     return [
         {
             "planner": task["planner"],
@@ -208,6 +217,7 @@ def run_experiment(
     resume: bool = False,
     overwrite: bool = False,
     settings: dict | None = None,
+    prober: str = "rays",
     plot: bool = True,
     log=None,
 ) -> dict:
@@ -234,6 +244,8 @@ def run_experiment(
         Replace an existing ``results.csv``, which is otherwise refused.
     settings : dict, optional
         Fields of :class:`~bayestouch.planning.loop.ExploreSettings`.
+    prober : {"rays", "finger"}
+        How strokes are measured (:data:`PROBERS`); part of the experiment's key (a resume with another is refused).
 
     Returns
     -------
@@ -273,7 +285,12 @@ def run_experiment(
     out.mkdir(parents=True, exist_ok=True)
     csv_path = out / "results.csv"
     meta_path = out / "experiment.json"
-    meta = fingerprint("experiment", {}, {"seed": int(seed), "budget": int(budget), "settings": dict(settings or {})})
+    if prober not in PROBERS:
+        raise BadInput(f"prober: expected one of {', '.join(PROBERS)}, got {prober!r}")
+    options = {"seed": int(seed), "budget": int(budget), "settings": dict(settings or {})}
+    if prober != "rays":  # the key of earlier experiments (all in the ray world) stays as it was
+        options["prober"] = prober
+    meta = fingerprint("experiment", {}, options)
     if csv_path.is_file() and not resume and not overwrite:
         raise BadInput(
             f"--out {out} already holds results.csv; pass --resume to keep its complete trials, --overwrite to "
@@ -312,6 +329,7 @@ def run_experiment(
             "budget": int(budget),
             "seed": _trial_seed(seed, t),
             "settings": dict(settings or {}),
+            "prober": prober,
         }
         for t in range(trials)
         for o in paths

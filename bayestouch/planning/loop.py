@@ -277,7 +277,7 @@ def explore(
     obj : SceneObject or None
         The true object (:func:`bayestouch.scene.objects.load_object`); None with a ``prober`` that touches a
         real object (no truth: NaN errors; the ``oracle`` policy needs it).
-    policy : {"eig", "random", "coverage", "oracle"}
+    policy : {"eig", "random", "coverage", "gpis", "oracle"}
     budget : int
         Planned strokes after the scout (≥ 1).
     seed : int
@@ -323,7 +323,7 @@ def explore(
     if prober is None:
         prober = RayProber(obj, s.noise_sd)
     priors = cm.load_priors()
-    pol_id = 1 + ("eig", "random", "coverage", "oracle").index(policy)
+    pol_id = 1 + ("eig", "random", "coverage", "oracle", "gpis").index(policy)  # appended: earlier ids unchanged
     rng_common = np.random.default_rng([seed, 0])
     rng = np.random.default_rng([seed, pol_id])
     records: list[StrokeRecord] = []

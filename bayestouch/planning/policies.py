@@ -1,4 +1,4 @@
-"""Stroke-choice policies: ``eig`` (the planner), and the baselines ``random``, ``coverage`` and ``oracle``.
+"""Stroke-choice policies: ``eig`` (the planner), and the baselines ``random``, ``coverage``, ``gpis`` and ``oracle``.
 
 ``eig``
     Highest expected information gain of the whole stroke (:func:`bayestouch.planning.eig.decide`), with the PCE
@@ -7,6 +7,12 @@
     A uniformly random candidate.
 ``coverage``
     The candidate whose path lies farthest from everything touched so far.
+``gpis``
+    The field's standard baseline (Yi et al. 2016, "Active tactile object exploration with Gaussian processes",
+    IROS; Driess et al. 2017, "Active learning with query paths for tactile object shape exploration", IROS): a
+    Gaussian-process implicit surface conditioned on the contacts so far (:mod:`bayestouch.inference.gpis`), and
+    the candidate whose rays meet it where it is most uncertain (:func:`gpis_scores`). It uses the contacts only,
+    not the n-ellipsoid posterior.
 ``oracle``
     Knows the truth (a reference for reports, not a planner): one-step lookahead (:func:`oracle_scores`).
 
@@ -26,14 +32,19 @@ from bayestouch.backend import jax, jnp
 from bayestouch.errors import BadInput
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.mesh import sample_mesh
+from bayestouch.inference import gpis
 from bayestouch.planning import eig as eig_mod
 from bayestouch.planning.candidates import Strokes
 from bayestouch.planning.signal import predict_signals
 from bayestouch.scene.raycast import true_ray_distances
 
-__all__ = ["POLICIES", "Decision", "choose", "check_policy", "oracle_scores"]
+__all__ = ["POLICIES", "Decision", "choose", "check_policy", "gpis_scores", "oracle_scores"]
 
-POLICIES = ("eig", "random", "coverage", "oracle")
+POLICIES = ("eig", "random", "coverage", "gpis", "oracle")
+#: points along each ray at which the gpis policy looks for the GPIS surface
+GPIS_RAY_POINTS = 32
+#: contacts the gpis policy needs to condition a GPIS (with fewer it chooses at random)
+GPIS_MIN_CONTACTS = 10
 
 
 class Decision(NamedTuple):
@@ -70,7 +81,7 @@ def choose(
 
     Parameters
     ----------
-    policy : {"eig", "random", "coverage", "oracle"}
+    policy : {"eig", "random", "coverage", "gpis", "oracle"}
     strokes : Strokes
         C candidates.
     shape_vectors : (N, 10) float
@@ -79,7 +90,7 @@ def choose(
         Contact noise along the ray.
     rng : np.random.Generator
     touched : (M, 3) float, metres
-        Contact points so far (``coverage``).
+        Contact points so far (``coverage``, ``gpis``).
     obj : SceneObject
         The truth (``oracle`` only).
     volumes : (N,) float, m³, optional
@@ -104,6 +115,11 @@ def choose(
         d, _ = cKDTree(np.asarray(touched)).query(strokes.path.reshape(-1, 3))
         score = d.reshape(C, -1).mean(axis=1)
         return Decision(int(np.argmax(score)), score, None, time.perf_counter() - t0)
+    if policy == "gpis":
+        if touched is None or len(touched) < GPIS_MIN_CONTACTS:
+            return Decision(int(rng.integers(C)), None, None, time.perf_counter() - t0)
+        score = gpis_scores(strokes, touched)
+        return Decision(int(np.argmax(score)), score, None, time.perf_counter() - t0)
     t_init = 0.5 * strokes.t_max if standoff is None else standoff
     sig = predict_signals(
         shape_vectors, strokes.starts, strokes.dirs, strokes.t_max, t_init=t_init, iters=6, single=True
@@ -118,6 +134,32 @@ def choose(
         raise BadInput("oracle: the oracle planner needs the true object (simulation only)")
     score = oracle_scores(obj, strokes, shape_vectors, sig, noise_sd)
     return Decision(int(np.argmin(score)), score, eig_mod.eig_gaussian(sig, noise_sd), time.perf_counter() - t0)
+
+
+def gpis_scores(strokes: Strokes, touched) -> np.ndarray:
+    """The gpis policy's score (C,) m² of each candidate: the mean over its rays of the GPIS's posterior variance
+    where the ray first enters the GPIS mean's solid (the predicted contact), or, for a ray that never does, where
+    it comes closest (smallest |mean|). Ray points are clamped to the GP's box, outside which the thin-plate
+    covariance is not one. Higher is more uncertain.
+
+    Parameters
+    ----------
+    strokes : Strokes
+        C candidates of T rays.
+    touched : (M, 3) float, metres
+        Contacts so far (M ≥ 2).
+    """
+    gp = gpis.condition(np.asarray(touched, dtype=float))
+    t = np.linspace(0.0, float(strokes.t_max), GPIS_RAY_POINTS)
+    q = strokes.starts[:, :, None, :] + t[None, None, :, None] * strokes.dirs[:, :, None, :]  # (C, T, K, 3)
+    q = np.clip(q, gp.lower, gp.upper)
+    C, T, K, _ = q.shape
+    mean = gpis.predict_mean(gp, q.reshape(-1, 3)).reshape(C, T, K)
+    inside = mean <= 0.0
+    at = np.where(inside.any(axis=2), np.argmax(inside, axis=2), np.argmin(np.abs(mean), axis=2))  # (C, T)
+    chosen = np.take_along_axis(q, at[:, :, None, None], axis=2)[:, :, 0, :]  # (C, T, 3)
+    _, var = gpis.predict(gp, chosen.reshape(-1, 3))
+    return var.reshape(C, T).mean(axis=1)
 
 
 @jax.jit

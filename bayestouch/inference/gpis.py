@@ -1,4 +1,6 @@
-"""A Gaussian-process implicit surface (GPIS) baseline for shape from sparse contact points.
+"""A Gaussian-process implicit surface (GPIS): the field's standard non-parametric shape from contact points, used as
+a baseline (``benchmarks/bench_user_sets.py``) and by the planner's ``gpis`` policy (touch where the surface is most
+uncertain, :mod:`bayestouch.planning.policies`).
 
 Williams & Fitzgibbon (2007), "Gaussian process implicit surfaces", Gaussian Processes in Practice workshop,
 Bletchley Park: an implicit function f : ℝ³ → ℝ is given a Gaussian-process prior with the three-dimensional
@@ -45,7 +47,10 @@ How the baseline is set up here (:func:`fit_gpis`):
   :attr:`GPISFit.touches_box` says when that happened (the estimate is then the solid clipped by the box).
 * **Surface and volume.** ``skimage.measure.marching_cubes`` at level 0, triangles oriented outward; the
   volume is the mesh's (``trimesh``), the sum over all closed components (spurious blobs included: they are
-  part of the estimate).
+  part of the estimate). scikit-image is needed for :func:`fit_gpis` only (imported there).
+* **Mean and variance anywhere** (:func:`condition`, :func:`predict`): the same training set and cage, the
+  LU factors of K kept; the latent field's posterior variance is R³ − k(q, X) K⁻¹ k(X, q) (m², with the
+  covariance's implicit amplitude of 1 m⁻¹ as above).
 
 All lengths are metres.
 """
@@ -57,6 +62,10 @@ from typing import NamedTuple
 import numpy as np
 
 __all__ = [
+    "GPIS",
+    "condition",
+    "predict",
+    "predict_mean",
     "thin_plate_covariance",
     "contact_normals",
     "training_set",
@@ -257,6 +266,99 @@ def gp_mean(X, y, query, R: float | None = None, noise_m: float = 0.0) -> np.nda
     return out
 
 
+class GPIS(NamedTuple):
+    """A GPIS conditioned on contacts (:func:`condition`).
+
+    Attributes
+    ----------
+    X : (N, 3) float, metres
+        Training inputs (contacts, their inside and outside offsets, the exterior cage).
+    y : (N,) float, metres
+        Targets.
+    R : float, metres
+        The covariance's scale.
+    lu : tuple
+        LU factorisation of K + σ² I (``scipy.linalg.lu_factor``; K is positive definite in exact arithmetic but
+        too ill-conditioned for a Cholesky factor at small nuggets).
+    alpha : (N,) float
+        (K + σ² I)⁻¹ y.
+    lower, upper : (3,) float, metres
+        The box the cage lies on.
+    """
+
+    X: np.ndarray
+    y: np.ndarray
+    R: float
+    lu: tuple
+    alpha: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+
+
+def condition(
+    points,
+    *,
+    offset: float = OFFSET_M,
+    margin: float = MARGIN,
+    neighbours: int = NEIGHBOURS,
+    noise_m: float = NOISE_M,
+    exterior: int = EXTERIOR_PER_EDGE,
+    normals=None,
+) -> GPIS:
+    """Condition the thin-plate GP on contact points (M ≥ 2, metres): the training set of :func:`fit_gpis`
+    (contacts, normal offsets, the cage on a box of side (1 + 2 ``margin``) × the data's extent) and its Cholesky
+    factorisation."""
+    from scipy.linalg import lu_factor, lu_solve
+    from scipy.spatial import cKDTree
+
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(p) < 2:
+        raise ValueError(f"condition: need at least 2 contact points, got {len(p)}")
+    if exterior == 1 or exterior < 0:
+        raise ValueError(f"condition: exterior must be 0 or at least 2 points per edge, got {exterior}")
+    nrm = contact_normals(p, neighbours) if normals is None else np.asarray(normals, dtype=np.float64)
+    nrm = nrm / np.linalg.norm(nrm, axis=1, keepdims=True)
+    X, y = training_set(p, nrm, offset)
+    lo, hi = X.min(axis=0), X.max(axis=0)
+    side = (1.0 + 2.0 * margin) * float((hi - lo).max())
+    lo = 0.5 * (lo + hi) - 0.5 * side
+    hi = lo + side
+    if exterior:
+        cage = exterior_cage(lo, hi, exterior)
+        X = np.concatenate([X, cage])
+        y = np.concatenate([y, cKDTree(p).query(cage)[0]])
+    R = float(_pairwise(X, X).max())
+    K = thin_plate_covariance(_pairwise(X, X), R) + noise_m**2 * np.eye(len(X))
+    lu = lu_factor(K)
+    return GPIS(X, y, R, lu, lu_solve(lu, y), lo, hi)
+
+
+def predict_mean(gp: GPIS, query) -> np.ndarray:
+    """Posterior mean (Q,) m of the latent field at ``query (Q, 3)`` metres (:func:`gp_mean` with ``gp``'s
+    weights, no new solve)."""
+    q = np.asarray(query, dtype=np.float64).reshape(-1, 3)
+    out = np.empty(len(q))
+    for i in range(0, len(q), _BLOCK // 4):
+        b = q[i : i + _BLOCK // 4]
+        out[i : i + len(b)] = thin_plate_covariance(_pairwise(b, gp.X), gp.R) @ gp.alpha
+    return out
+
+
+def predict(gp: GPIS, query) -> tuple[np.ndarray, np.ndarray]:
+    """Posterior mean (Q,) m and variance (Q,) m² of the latent field at ``query (Q, 3)`` metres."""
+    from scipy.linalg import lu_solve
+
+    q = np.asarray(query, dtype=np.float64).reshape(-1, 3)
+    mean, var = np.empty(len(q)), np.empty(len(q))
+    for i in range(0, len(q), _BLOCK // 4):
+        b = q[i : i + _BLOCK // 4]
+        k = thin_plate_covariance(_pairwise(b, gp.X), gp.R)  # (B, N)
+        mean[i : i + len(b)] = k @ gp.alpha
+        v = lu_solve(gp.lu, k.T)  # (N, B)
+        var[i : i + len(b)] = np.maximum(gp.R**3 - np.sum(k.T * v, axis=0), 0.0)
+    return mean, var
+
+
 def fit_gpis(
     points,
     *,
@@ -303,7 +405,6 @@ def fit_gpis(
         On fewer than 2 points, a resolution below 8 or ``exterior`` 1.
     """
     import trimesh
-    from scipy.spatial import cKDTree
     from skimage.measure import marching_cubes
 
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
@@ -315,17 +416,9 @@ def fit_gpis(
         raise ValueError(f"fit_gpis: exterior must be 0 or at least 2 points per edge, got {exterior}")
     nrm = contact_normals(p, neighbours) if normals is None else np.asarray(normals, dtype=np.float64)
     nrm = nrm / np.linalg.norm(nrm, axis=1, keepdims=True)
-    X, y = training_set(p, nrm, offset)
-
-    lo, hi = X.min(axis=0), X.max(axis=0)
-    side = (1.0 + 2.0 * margin) * float((hi - lo).max())
-    lo = 0.5 * (lo + hi) - 0.5 * side
-    hi = lo + side
-    if exterior:
-        cage = exterior_cage(lo, hi, exterior)
-        X = np.concatenate([X, cage])
-        y = np.concatenate([y, cKDTree(p).query(cage)[0]])
-    R = float(_pairwise(X, X).max())
+    gp = condition(p, offset=offset, margin=margin, noise_m=noise_m, exterior=exterior, normals=nrm)
+    X, y, R, lo, hi = gp.X, gp.y, gp.R, gp.lower, gp.upper
+    side = float((hi - lo)[0])
     h = side / (resolution - 1)
     axis = lo[:, None] + h * np.arange(resolution)[None, :]
     grid = np.stack(np.meshgrid(*axis, indexing="ij"), axis=-1).reshape(-1, 3)
