@@ -6,12 +6,13 @@ and gpis, ``BAYESTOUCH_PLANNERS_TRIALS`` paired trials per object (default 10: t
 scout, seed and initial fit), ``BAYESTOUCH_PLANNERS_BUDGET`` planned strokes (default 8), default loop settings, 2
 worker processes.
 
-For each trial and planner: the first stroke after which the Chamfer distance (point estimate against the true
-surface, over the true mean semi-axis) is ≤ :data:`TARGET`; a trial that never gets there within the budget counts
-as budget + 1 (censored, so medians are lower bounds on the true need where many are censored; the count is
-reported). Reported: the median strokes per planner with a bootstrap 95 % interval over trials (resampling whole
+For each trial, planner and target of :data:`TARGETS`: the first stroke after which the Chamfer distance (point
+estimate against the true surface, over the true mean semi-axis) is ≤ the target; a trial that never gets there
+within the budget counts as budget + 1 (censored, so medians are lower bounds on the true need where many are
+censored; the count is reported). Reported: the median strokes per planner with a bootstrap 95 % interval over trials (resampling whole
 paired trials), the paired ratios eig/random and eig/gpis of the per-object means, and the median decision time
-(plan) per stroke. The rows are written to ``benchmarks/results/planners_finger.csv``.
+(plan) per stroke, and the Chamfer distance after the last stroke. The rows are written to
+``benchmarks/results/planners_finger.csv``; :func:`summarise` turns them into the results again.
 
 Run: ``OMP_NUM_THREADS=1 python -m benchmarks bench_planners``.
 """
@@ -26,20 +27,21 @@ from pathlib import Path
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
-#: Chamfer distance over the true mean semi-axis that counts as "shape found"
-TARGET = 0.02
+#: Chamfer distances over the true mean semi-axis that count as "shape found": the issue's 0.02, and 0.005 (the
+#: standard objects reach 0.02 within the scout and the first stroke, whatever the planner)
+TARGETS = (0.02, 0.005)
 PLANNERS = ("eig", "random", "gpis")
 OBJECTS = ("egg", "box")
 
 
-def strokes_to_target(rows, budget: int) -> dict:
+def strokes_to_target(rows, budget: int, target: float) -> dict:
     """``{(object, planner, trial): strokes}`` — the first stroke (1 = the first planned one, 0 = the scout) whose
-    Chamfer distance is ≤ :data:`TARGET`; ``budget + 1`` when none is."""
+    Chamfer distance is ≤ ``target``; ``budget + 1`` when none is."""
     out: dict = {}
     for r in rows:
         key = (r["object"], r["planner"], int(r["trial"]))
         out.setdefault(key, budget + 1)
-        if float(r["chamfer"]) <= TARGET:
+        if float(r["chamfer"]) <= target:
             out[key] = min(out[key], int(r["stroke"]))
     return out
 
@@ -71,40 +73,68 @@ def bench_planners_finger() -> list[dict]:
         )
         rows = read_csv_rows(Path(tmp) / "results.csv")
         shutil.copy(Path(tmp) / "results.csv", HERE / "results" / "planners_finger.csv")
-    need = strokes_to_target(rows, budget)
+    return summarise(rows, trials, budget)
+
+
+def summarise(rows, trials: int, budget: int) -> list[dict]:
+    """The benchmark's result rows from an experiment's ``results.csv`` rows (module docstring)."""
     rng = np.random.default_rng(0)
     out = []
-    for obj in OBJECTS:
-        per = {p: np.array([need[(obj, p, t)] for t in range(trials) if (obj, p, t) in need]) for p in PLANNERS}
-        for p in PLANNERS:
-            v = per[p]
-            out.append(
-                {
-                    "metric": f"strokes to Chamfer <= {TARGET} ({obj}, {p})",
-                    "value": float(np.median(v)),
-                    "unit": "strokes",
-                    "ci95": _bootstrap_median(v.astype(float), rng),
-                    "mean": float(v.mean()),
-                    "censored": int(np.sum(v > budget)),
-                    "trials": int(len(v)),
-                    "budget": budget,
-                    "prober": "finger",
-                }
-            )
-        for other in ("random", "gpis"):
-            a, b = per["eig"].astype(float), per[other].astype(float)
-            idx = rng.integers(len(a), size=(4000, len(a)))
-            ratios = a[idx].mean(axis=1) / b[idx].mean(axis=1)
-            out.append(
-                {
-                    "metric": f"eig / {other} mean strokes to Chamfer <= {TARGET} ({obj})",
-                    "value": float(a.mean() / b.mean()),
-                    "unit": "1",
-                    "ci95": [float(np.quantile(ratios, 0.025)), float(np.quantile(ratios, 0.975))],
-                    "trials": int(len(a)),
-                    "paired": True,
-                }
-            )
+    for target in TARGETS:
+        need = strokes_to_target(rows, budget, target)
+        for obj in OBJECTS:
+            per = {p: np.array([need[(obj, p, t)] for t in range(trials) if (obj, p, t) in need]) for p in PLANNERS}
+            for p in PLANNERS:
+                v = per[p]
+                out.append(
+                    {
+                        "metric": f"strokes to Chamfer <= {target} ({obj}, {p})",
+                        "value": float(np.median(v)),
+                        "unit": "strokes",
+                        "ci95": _bootstrap_median(v.astype(float), rng),
+                        "mean": float(v.mean()),
+                        "censored": int(np.sum(v > budget)),
+                        "trials": int(len(v)),
+                        "budget": budget,
+                        "prober": "finger",
+                    }
+                )
+            for other in ("random", "gpis"):
+                a, b = per["eig"].astype(float), per[other].astype(float)
+                idx = rng.integers(len(a), size=(4000, len(a)))
+                ratios = a[idx].mean(axis=1) / np.maximum(b[idx].mean(axis=1), 1e-9)
+                out.append(
+                    {
+                        "metric": f"eig / {other} mean strokes to Chamfer <= {target} ({obj})",
+                        "value": float(a.mean() / max(b.mean(), 1e-9)),
+                        "unit": "1",
+                        "ci95": [float(np.quantile(ratios, 0.025)), float(np.quantile(ratios, 0.975))],
+                        "trials": int(len(a)),
+                        "paired": True,
+                    }
+                )
+        for obj in OBJECTS:
+            last = {
+                p: np.array(
+                    [
+                        float(r["chamfer"])
+                        for r in rows
+                        if r["object"] == obj and r["planner"] == p and int(r["stroke"]) == budget
+                    ]
+                )
+                for p in PLANNERS
+            }
+            for p in PLANNERS:
+                if target == TARGETS[0] and len(last[p]):
+                    out.append(
+                        {
+                            "metric": f"Chamfer after {budget} strokes, median ({obj}, {p})",
+                            "value": float(np.median(last[p])),
+                            "unit": "1",
+                            "ci95": _bootstrap_median(last[p], rng),
+                            "trials": int(len(last[p])),
+                        }
+                    )
     decision = [float(r["decision_s"]) for r in rows if int(r["stroke"]) > 0 and r["decision_s"] not in ("", "nan")]
     for p in PLANNERS:
         d = [float(r["decision_s"]) for r in rows if r["planner"] == p and int(r["stroke"]) > 0]

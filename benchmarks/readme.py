@@ -144,6 +144,33 @@ def _inference(results: Path):
     )
 
 
+def _planners(results: Path):
+    doc = _load(results, "bench_planners.json")
+    if doc is None:
+        return None
+    r = {e["metric"]: e for e in doc["results"]}
+    parts = []
+    for obj in ("egg", "box"):
+        med = {p: r[f"strokes to Chamfer <= 0.005 ({obj}, {p})"] for p in ("eig", "random", "gpis")}
+        ratio = {o: r[f"eig / {o} mean strokes to Chamfer <= 0.005 ({obj})"] for o in ("random", "gpis")}
+        parts.append(
+            f"{obj}: eig {med['eig']['value']:g}, random {med['random']['value']:g} ({med['random']['censored']} "
+            f"never), gpis {med['gpis']['value']:g} strokes; eig/random {ratio['random']['value']:.2f} "
+            f"{_ci(ratio['random']['ci95'])}, eig/gpis {ratio['gpis']['value']:.2f} {_ci(ratio['gpis']['ci95'])}"
+        )
+    n = r["strokes to Chamfer <= 0.005 (egg, eig)"]["trials"]
+    box02 = r["eig / random mean strokes to Chamfer <= 0.02 (box)"]
+    return (
+        f"Planners through the virtual finger (guarded strokes over the protocol, pad pose error 0.3 mm; {n} paired "
+        "trials per object, 8 planned strokes): median strokes to a Chamfer distance of 0.005 of the mean semi-axis",
+        "; ".join(parts)
+        + f". To 0.02 the egg needs only the scout whatever the planner; on the box eig/random {box02['value']:.2f} "
+        f"{_ci(box02['ci95'])}. Decision per stroke: eig {r['decision time per stroke, median (eig)']['value']:.2f} s,"
+        f" gpis {r['decision time per stroke, median (gpis)']['value']:.2f} s (median)",
+        "`bench_planners` (`benchmarks/results/bench_planners.json`)",
+    )
+
+
 #: the table's rows, in order: each renders ``(what, figure, benchmark)`` from the results folder, or None
 ROWS: tuple[Callable[[Path], tuple[str, str, str] | None], ...] = (
     _inference,
@@ -151,6 +178,7 @@ ROWS: tuple[Callable[[Path], tuple[str, str, str] | None], ...] = (
     _mismatch,
     _user_sets,
     _sparse,
+    _planners,
 )
 _FILES = {
     _inference: "bench_inference.json",
@@ -158,6 +186,7 @@ _FILES = {
     _mismatch: "mismatch.json",
     _user_sets: "user_sets.json",
     _sparse: "bench_sparse.json",
+    _planners: "bench_planners.json",
 }
 
 

@@ -306,7 +306,7 @@ def condition(
     normals=None,
 ) -> GPIS:
     """Condition the thin-plate GP on contact points (M ≥ 2, metres): the training set of :func:`fit_gpis`
-    (contacts, normal offsets, the cage on a box of side (1 + 2 ``margin``) × the data's extent) and its Cholesky
+    (contacts, normal offsets, the cage on a box of side (1 + 2 ``margin``) × the data's extent) and its LU
     factorisation."""
     from scipy.linalg import lu_factor, lu_solve
     from scipy.spatial import cKDTree
