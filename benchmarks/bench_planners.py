@@ -9,9 +9,9 @@ worker processes.
 For each trial, planner and target of :data:`TARGETS`: the first stroke after which the Chamfer distance (point
 estimate against the true surface, over the true mean semi-axis) is ≤ the target; a trial that never gets there
 within the budget counts as budget + 1 (censored, so medians are lower bounds on the true need where many are
-censored; the count is reported). Reported: the median strokes per planner with a bootstrap 95 % interval over trials (resampling whole
-paired trials), the paired ratios eig/random and eig/gpis of the per-object means, and the median decision time
-(plan) per stroke, and the Chamfer distance after the last stroke. The rows are written to
+censored; the count is reported). Reported: the median strokes per planner with a bootstrap 95 % interval over
+trials (resampling whole paired trials), the paired ratios eig/random and eig/gpis of the per-object means, the
+median decision time (plan) per stroke, and the Chamfer distance after the last stroke. The rows are written to
 ``benchmarks/results/planners_finger.csv``; :func:`summarise` turns them into the results again.
 
 Run: ``OMP_NUM_THREADS=1 python -m benchmarks bench_planners``.
