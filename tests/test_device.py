@@ -569,3 +569,24 @@ def test_frames_with_impossible_contents_are_rejected_never_recorded(tmp_path):
     finally:
         dev.close()
         sim.close()
+
+
+def test_cli_run_with_a_stuck_heater_keeps_the_stroke_it_completed(device, tmp_path, capsys):
+    """A finger whose wires stay powered after the first stroke: `device run` stops there (no second stroke is
+    sent to a finger that is still heating), says so in one line with exit 1 (a device fault, not bad input), and
+    the first stroke, complete, is in the .nc, marked incomplete (before, the .nc was not written: the stroke
+    survived only in the journal)."""
+    from bayestouch.cli.device import run_device
+    from bayestouch.io.recording import read_recording
+
+    sim, dev = device(Faults(stuck_heater=True))
+    dev.close()
+    f = _stroke_file(tmp_path / "strokes.json", [make_plan(30), make_plan(20)])
+    out = tmp_path / "dev.nc"
+    argv = ["device", "run", "--port", str(tmp_path / "finger"), "--stroke-file", str(f), "--out", str(out)]
+    assert run_device(_parser().parse_args([*argv, "--quiet"])) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "heaters still on" in err[0] and "1 complete stroke(s) written" in err[0]
+    ds = read_recording(out)
+    assert ds.attrs["incomplete"] == "true" and ds["taxel_current"].shape[0] == 30
+    assert len(sim.model.out) == 1  # the second stroke was never sent

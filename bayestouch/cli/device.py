@@ -303,7 +303,7 @@ def _run(args) -> int:
         except BadInput as e:
             raise type(e)(f"stroke {i}: {e}") from None
     from bayestouch import __version__
-    from bayestouch.hardware.device import DeviceError, FingerDevice, build_recording
+    from bayestouch.hardware.device import DeviceError, FingerDevice, HeaterFault, build_recording
     from bayestouch.io.recording import write_recording
 
     if args.out.exists() and not args.overwrite:
@@ -333,6 +333,8 @@ def _run(args) -> int:
             info = dev.info
     except (DeviceError, BadInput) as e:
         # a fault, or a stroke refused by the device's own limits after good ones: the good strokes are kept
+        if isinstance(e, HeaterFault) and e.data is not None:
+            done.append(e.data)  # complete: the heaters stayed on after it, so no further stroke was sent
         if done:
             write_recording(build_recording(done, dev.info, {**attrs, "incomplete": "true"}), args.out)
         print(

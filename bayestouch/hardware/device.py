@@ -54,7 +54,16 @@ class DeviceError(RuntimeError):
 
 
 class HeaterFault(DeviceError):
-    """The device reports its heaters on although no stroke runs (stuck heater)."""
+    """The device reports its heaters on although no stroke runs (stuck heater).
+
+    The stroke itself was complete: ``data`` holds it (:class:`StrokeData` from :meth:`FingerDevice.run_stroke`,
+    :class:`ProbeData` from :meth:`FingerDevice.run_probe`; None where the fault was raised before the stroke's
+    frames became one), so a caller keeps it while it stops stroking."""
+
+    def __init__(self, message: str, frames=None):
+        super().__init__(message)
+        self.frames = frames  # (frames, device times, stroke id) as _run collected them
+        self.data = None
 
 
 class _Disconnected(Exception):
@@ -478,7 +487,8 @@ class FingerDevice:
         UnsafePlan
             Before anything is sent, if the plan breaks a limit (or the device refuses it).
         HeaterFault
-            The heaters stayed on after the stroke (the stroke's data are journaled first).
+            The heaters stayed on after the stroke (the stroke's data are journaled first, and are the exception's
+            ``data``).
         DeviceError
             The device aborted for over-force or fault, or stayed silent past the retries.
         """
@@ -495,7 +505,12 @@ class FingerDevice:
                 np.asarray(plan.normal, float),
             )
 
-        got, dev_t, sid = self._run(command, len(plan.time))
+        try:
+            got, dev_t, sid = self._run(command, len(plan.time))
+        except HeaterFault as e:  # the stroke is complete: it goes with the fault
+            got, dev_t, sid = e.frames
+            e.data = StrokeData(plan, _frames_to_arrays(got)[0], dev_t, sid)
+            raise
         return StrokeData(plan, _frames_to_arrays(got)[0], dev_t, sid)
 
     def run_probe(self, plan: ProbePlan) -> ProbeData:
@@ -578,7 +593,8 @@ class FingerDevice:
             if st.heater_on and st.state == 0:
                 raise HeaterFault(
                     f"{self.url}: heaters still on after stroke {sid} ended (wire currents "
-                    f"{np.round(st.wire_current, 4).tolist()} A); switch the finger off"
+                    f"{np.round(st.wire_current, 4).tolist()} A); switch the finger off",
+                    frames=(got, dev_t, sid),
                 )
             return got, dev_t, sid
         raise DeviceError(f"{self.url}: stroke lost {self.redo + 1} times (watchdog or disconnects)")
