@@ -210,3 +210,30 @@ def test_explore_port_bad_inputs_are_one_line(tmp_path, capsys):
         assert main(["explore", *extra, "--out", str(tmp_path / "o")]) == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and field in err
+
+
+def test_a_stuck_heater_keeps_the_guarded_stroke_it_completed(tmp_path):
+    """A finger whose wires stay powered after a guarded stroke: the prober raises the heater fault (the
+    exploration stops) but keeps the complete stroke, its points and its frames, in the recording it writes (before,
+    the stroke was in the journal only)."""
+    from bayestouch.hardware.device import HeaterFault
+    from bayestouch.hardware.simulator import Faults
+    from bayestouch.io.recording import read_recording
+
+    cands = make_candidates(_sphere([0.0, 0.0, 0.0], 0.03), 2, points=T, seed=0, standoff=0.025)
+    sim = VirtualDevice(GuardedModel(_ball(), pose_sd=POSE_SD, seed=1), speed=0.0, faults=Faults(stuck_heater=True))
+    sim.start()
+    dev = FingerDevice(sim.port, journal=tmp_path / "j.journal", timeout=0.5).open()
+    try:
+        prober = DeviceProber(dev, recording=tmp_path / "rec.nc")
+        with pytest.raises(HeaterFault, match="heaters still on") as e:
+            prober.probe(select(cands, 0))
+        assert e.value.data is not None and len(e.value.data.probe) == T
+        assert len(prober.strokes) == 1
+        ds = read_recording(tmp_path / "rec.nc")
+        assert ds.sizes["frame"] == T
+        hit = e.value.data.probe == 0
+        assert hit.any() and np.all(np.abs(np.linalg.norm(ds["contact_point"].values[hit], axis=1) - R) < 5 * POSE_SD)
+    finally:
+        dev.close()
+        sim.close(timeout=5.0)

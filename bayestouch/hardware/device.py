@@ -521,6 +521,8 @@ class FingerDevice:
         UnsafePlan
             Before anything is sent, if ``plan.stroke_plan()`` breaks a limit, the threshold is not in
             (0, max_force) N or the travel not in (0, 0.1] m (or the device refuses it).
+        HeaterFault
+            As :meth:`run_stroke` (the complete guarded stroke is the exception's ``data``).
         DeviceError
             As :meth:`run_stroke`; also when the device does not know guarded strokes (a revision 1.0 device
             drops the unknown command: no answer).
@@ -546,8 +548,24 @@ class FingerDevice:
                 float(plan.threshold),
             )
 
+        def probe_data(got, dev_t, sid) -> ProbeData:
+            if not all(isinstance(f, pr.ProbeFrame) for f in got):
+                raise DeviceError(f"{self.url}: guarded stroke {sid} answered with plain frames")
+            return ProbeData(
+                plan,
+                _frames_to_arrays(got)[0],
+                dev_t,
+                sid,
+                np.array([f.probe for f in got], int),
+                np.array([f.travel for f in got], float),
+                np.stack([np.asarray(f.position, float).reshape(3) for f in got]),
+            )
+
         try:
             got, dev_t, sid = self._run(command, len(plan.time))
+        except HeaterFault as e:  # the guarded stroke is complete: it goes with the fault
+            e.data = probe_data(*e.frames)
+            raise
         except DeviceError as e:
             if "no answer to ProbeStroke" in str(e):
                 fw = self.info.firmware if self.info else "?"
@@ -555,18 +573,7 @@ class FingerDevice:
                     f"{self.url}: the device ({fw}) does not answer guarded strokes (protocol revision 1.1)"
                 ) from None
             raise
-        if not all(isinstance(f, pr.ProbeFrame) for f in got):
-            raise DeviceError(f"{self.url}: guarded stroke {sid} answered with plain frames")
-        frames, _ = _frames_to_arrays(got)
-        return ProbeData(
-            plan,
-            frames,
-            dev_t,
-            sid,
-            np.array([f.probe for f in got], int),
-            np.array([f.travel for f in got], float),
-            np.stack([np.asarray(f.position, float).reshape(3) for f in got]),
-        )
+        return probe_data(got, dev_t, sid)
 
     def _run(self, command, T: int):
         """Send the stroke command ``command(stroke_id)`` and collect its T frames (redone with a new id when the

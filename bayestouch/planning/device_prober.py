@@ -15,6 +15,7 @@ import numpy as np
 
 from bayestouch.hardware.device import (
     FingerDevice,
+    HeaterFault,
     ProbeData,
     ProbePlan,
     StrokeData,
@@ -126,6 +127,14 @@ class DeviceProber:
         except UnsafePlan as e:
             self.refused.append(str(e))
             raise
+        except HeaterFault as e:  # the stroke is complete: kept (and written) before the fault stops the loop
+            if e.data is not None:
+                self._keep(plan, e.data)
+            raise
+        return self._keep(plan, data)
+
+    def _keep(self, plan: ProbePlan, data: ProbeData) -> tuple[np.ndarray, Free]:
+        """Record one guarded stroke (and rewrite the recording); its contact points and free-space observations."""
         pts, free = probe_points(data, self.threshold_depth)
         est = data.position - self.threshold_depth * (-plan.normal) * (data.probe == 0)[:, None]
         self.probes.append(data)
