@@ -243,10 +243,15 @@ def gp_mean(X, y, query, R: float | None = None, noise_m: float = 0.0) -> np.nda
     """
     X = np.asarray(X, dtype=np.float64)
     y = np.asarray(y, dtype=np.float64)
+    D = _pairwise(X, X)
+    R = float(D.max()) if R is None else float(R)
+    K = thin_plate_covariance(D, R) + noise_m**2 * np.eye(len(X))
+    return _mean_at(X, np.linalg.solve(K, y), R, query)
+
+
+def _mean_at(X: np.ndarray, alpha: np.ndarray, R: float, query) -> np.ndarray:
+    """k(Q, X) α (Q,) at ``query (Q, 3)`` metres, in blocks of :data:`_BLOCK` queries."""
     q = np.asarray(query, dtype=np.float64).reshape(-1, 3)
-    R = float(_pairwise(X, X).max()) if R is None else float(R)
-    K = thin_plate_covariance(_pairwise(X, X), R) + noise_m**2 * np.eye(len(X))
-    alpha = np.linalg.solve(K, y)
     # k(Q, X) α = 2 Σ_j α_j r_j³ − 3R Σ_j α_j r_j² + R³ Σ_j α_j, and Σ_j α_j r_j² = |q|² Σα + Σ α|x|² − 2 q·Σ α x
     # is closed-form: only the r³ term needs the distances (two element-wise passes per block)
     sa, sax2, sax = alpha.sum(), alpha @ np.sum(X * X, axis=1), alpha @ X
@@ -284,6 +289,8 @@ class GPIS(NamedTuple):
         (K + σ² I)⁻¹ y.
     lower, upper : (3,) float, metres
         The box the cage lies on.
+    normals : (M, 3) float
+        The unit normals of the off-surface training points.
     """
 
     X: np.ndarray
@@ -293,6 +300,7 @@ class GPIS(NamedTuple):
     alpha: np.ndarray
     lower: np.ndarray
     upper: np.ndarray
+    normals: np.ndarray
 
 
 def condition(
@@ -313,9 +321,9 @@ def condition(
 
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     if len(p) < 2:
-        raise ValueError(f"condition: need at least 2 contact points, got {len(p)}")
+        raise ValueError(f"GPIS: need at least 2 contact points, got {len(p)}")
     if exterior == 1 or exterior < 0:
-        raise ValueError(f"condition: exterior must be 0 or at least 2 points per edge, got {exterior}")
+        raise ValueError(f"GPIS: exterior must be 0 or at least 2 points per edge, got {exterior}")
     nrm = contact_normals(p, neighbours) if normals is None else np.asarray(normals, dtype=np.float64)
     nrm = nrm / np.linalg.norm(nrm, axis=1, keepdims=True)
     X, y = training_set(p, nrm, offset)
@@ -327,21 +335,16 @@ def condition(
         cage = exterior_cage(lo, hi, exterior)
         X = np.concatenate([X, cage])
         y = np.concatenate([y, cKDTree(p).query(cage)[0]])
-    R = float(_pairwise(X, X).max())
-    K = thin_plate_covariance(_pairwise(X, X), R) + noise_m**2 * np.eye(len(X))
-    lu = lu_factor(K)
-    return GPIS(X, y, R, lu, lu_solve(lu, y), lo, hi)
+    D = _pairwise(X, X)
+    R = float(D.max())
+    lu = lu_factor(thin_plate_covariance(D, R) + noise_m**2 * np.eye(len(X)))
+    return GPIS(X, y, R, lu, lu_solve(lu, y), lo, hi, nrm)
 
 
 def predict_mean(gp: GPIS, query) -> np.ndarray:
-    """Posterior mean (Q,) m of the latent field at ``query (Q, 3)`` metres (:func:`gp_mean` with ``gp``'s
-    weights, no new solve)."""
-    q = np.asarray(query, dtype=np.float64).reshape(-1, 3)
-    out = np.empty(len(q))
-    for i in range(0, len(q), _BLOCK // 4):
-        b = q[i : i + _BLOCK // 4]
-        out[i : i + len(b)] = thin_plate_covariance(_pairwise(b, gp.X), gp.R) @ gp.alpha
-    return out
+    """Posterior mean (Q,) m of the latent field at ``query (Q, 3)`` metres (as :func:`gp_mean`, with ``gp``'s
+    weights: no new solve)."""
+    return _mean_at(gp.X, gp.alpha, gp.R, query)
 
 
 def predict(gp: GPIS, query) -> tuple[np.ndarray, np.ndarray]:
@@ -407,23 +410,18 @@ def fit_gpis(
     import trimesh
     from skimage.measure import marching_cubes
 
-    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    if len(p) < 2:
-        raise ValueError(f"fit_gpis: need at least 2 contact points, got {len(p)}")
     if resolution < 8:
         raise ValueError(f"fit_gpis: resolution must be at least 8, got {resolution}")
-    if exterior == 1 or exterior < 0:
-        raise ValueError(f"fit_gpis: exterior must be 0 or at least 2 points per edge, got {exterior}")
-    nrm = contact_normals(p, neighbours) if normals is None else np.asarray(normals, dtype=np.float64)
-    nrm = nrm / np.linalg.norm(nrm, axis=1, keepdims=True)
-    gp = condition(p, offset=offset, margin=margin, noise_m=noise_m, exterior=exterior, normals=nrm)
-    X, y, R, lo, hi = gp.X, gp.y, gp.R, gp.lower, gp.upper
+    gp = condition(
+        points, offset=offset, margin=margin, neighbours=neighbours, noise_m=noise_m, exterior=exterior, normals=normals
+    )
+    nrm, R, lo, hi = gp.normals, gp.R, gp.lower, gp.upper
     side = float((hi - lo)[0])
     h = side / (resolution - 1)
     axis = lo[:, None] + h * np.arange(resolution)[None, :]
     grid = np.stack(np.meshgrid(*axis, indexing="ij"), axis=-1).reshape(-1, 3)
     shape = (resolution,) * 3
-    f = gp_mean(X, y, grid, R, noise_m).reshape(shape)
+    f = predict_mean(gp, grid).reshape(shape)
 
     inner = f[1:-1, 1:-1, 1:-1]
     border = np.ones(shape, bool)
