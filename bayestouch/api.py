@@ -24,14 +24,12 @@ from pathlib import Path
 import numpy as np
 
 from bayestouch.errors import BadInput
-from bayestouch.io.contacts import ContactPoints, load_contact_points
-from bayestouch.io.runfolder import FINGERPRINT_FILE, RESULT_FILES
+from bayestouch.io.contacts import N_ELLIPSOID_PARAMS, ContactPoints, load_contact_points
+from bayestouch.io.files import atomic_path
+from bayestouch.io.runfolder import OUTPUTS, RESULT_FILES
 from bayestouch.params import MODELS
 
-__all__ = ["Fit", "fit", "simulate", "calibrate", "RUN_FILES"]
-
-#: files of a run folder that :meth:`Fit.save` copies (those present)
-RUN_FILES = (*RESULT_FILES, "mean_shape.ply", "uncertainty_mesh.ply", "smc.npz", FINGERPRINT_FILE)
+__all__ = ["Fit", "fit", "simulate", "calibrate"]
 
 #: contact-level options of :func:`fit` (keyword: meaning), passed to
 #: :func:`bayestouch.inference.run.run_contact_fit`
@@ -215,13 +213,12 @@ class Fit:
             raise BadInput(f"save: {folder} exists and is not a folder")
         if any((folder / f).exists() for f in RESULT_FILES) and not overwrite:
             raise BadInput(f"save: {folder} already holds a run; pass overwrite=True to replace it")
-        folder.mkdir(parents=True, exist_ok=True)
-        for name in RUN_FILES:
+        # each file atomically, the summary last (a kill leaves no new summary beside old results)
+        for name in sorted(OUTPUTS, key=lambda n: n == "summary.json"):
             src = self.folder / name
             if src.is_file():
-                tmp = folder / f".{name}.tmp"
-                shutil.copyfile(src, tmp)
-                os.replace(tmp, folder / name)
+                with atomic_path(folder / name) as tmp:
+                    shutil.copyfile(src, tmp)
         return folder
 
 
@@ -239,8 +236,11 @@ def _contacts(data) -> ContactPoints | None:
     if type(data).__name__ == "Dataset":  # an xarray recording
         return None
     a = np.asarray(data, dtype=float)
-    if a.ndim != 2 or a.shape[1] != 3 or len(a) < 11:
-        raise BadInput(f"data: expected contact points as an (M, 3) array in metres with M ≥ 11, got shape {a.shape}")
+    if a.ndim != 2 or a.shape[1] != 3 or len(a) < N_ELLIPSOID_PARAMS:
+        raise BadInput(
+            f"data: expected contact points as an (M, 3) array in metres with M ≥ {N_ELLIPSOID_PARAMS} (as many as "
+            f"the n-ellipsoid's parameters, the least a contact file holds), got shape {a.shape}"
+        )
     if not np.isfinite(a).all():
         raise BadInput("data: the contact points hold NaN or infinite values (expected finite metres)")
     return ContactPoints(points=a, source="array")

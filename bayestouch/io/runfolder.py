@@ -29,14 +29,23 @@ import numpy as np
 from bayestouch.errors import BadInput
 from bayestouch.io.files import write_json
 
-__all__ = ["FINGERPRINT_FILE", "RESULT_FILES", "dataset_digest", "differences", "fingerprint", "prepare_run_folder"]
+__all__ = [
+    "FINGERPRINT_FILE",
+    "OUTPUTS",
+    "RESULT_FILES",
+    "dataset_digest",
+    "differences",
+    "fingerprint",
+    "prepare_run_folder",
+]
 
 #: the file holding a run's fingerprint
 FINGERPRINT_FILE = "run.json"
 #: files whose presence means the folder holds a run (finished or resumable)
 RESULT_FILES = ("summary.json", "chain.h5", "posterior.nc")
-#: outputs of a fit that ``overwrite`` removes before the new run starts
-_OUTPUTS = (*RESULT_FILES, "mean_shape.ply", "uncertainty_mesh.ply", "smc.npz", FINGERPRINT_FILE)
+#: every file of a fit's run folder: what ``overwrite`` removes before the new run starts, what
+#: :meth:`bayestouch.api.Fit.save` copies
+OUTPUTS = (*RESULT_FILES, "mean_shape.ply", "uncertainty_mesh.ply", "smc.npz", FINGERPRINT_FILE)
 
 
 def _digest(value) -> str | None:
@@ -157,7 +166,7 @@ def prepare_run_folder(out, fp: dict, *, resume: bool, overwrite: bool = False) 
                 f"--out {out} already holds a run ({', '.join(held)}); pass --resume to continue it, --overwrite to "
                 "replace it, or choose another folder"
             )
-        for name in _OUTPUTS:
+        for name in OUTPUTS:
             with contextlib.suppress(FileNotFoundError):
                 (out / name).unlink()
     out.mkdir(parents=True, exist_ok=True)
