@@ -332,7 +332,7 @@ def _posterior_group(nat, model: PosteriorModel) -> xr.Dataset:
     S, W, _ = nat.shape
     units = model.units or {}
     data = {
-        name: (("chain", "draw"), np.swapaxes(nat[..., i], 0, 1), {"units": units[name]} if name in units else {})
+        name: (("chain", "draw"), np.swapaxes(nat[..., i], 0, 1), _unit(units, name))
         for i, name in enumerate(model.names)
     }
     vecs = np.asarray(model.shape_vectors(nat.reshape(S * W, -1)))
@@ -342,6 +342,11 @@ def _posterior_group(nat, model: PosteriorModel) -> xr.Dataset:
     )
     data["volume"] = (("chain", "draw"), np.swapaxes(vol.reshape(S, W), 0, 1), {"units": "m3"})
     return xr.Dataset(data, coords={"chain": np.arange(W), "draw": np.arange(S)})
+
+
+def _unit(units: dict, name: str) -> dict:
+    """The attributes of variable ``name``: its ``units`` when the level states one."""
+    return {"units": units[name]} if name in units else {}
 
 
 def _obs_dims(model: PosteriorModel, name: str, ndim: int) -> list[str]:
@@ -416,7 +421,7 @@ def inference_data(chain, model: PosteriorModel, post: xr.Dataset, derived: xr.D
                     k: (
                         ("chain", "draw", *_obs_dims(model, k, v.ndim - 1)),
                         v.reshape(W, len(prows), *v.shape[1:]),
-                        {"units": units[k]} if k in units else {},
+                        _unit(units, k),
                     )
                     for k, v in rep.items()
                 },
@@ -427,7 +432,7 @@ def inference_data(chain, model: PosteriorModel, post: xr.Dataset, derived: xr.D
         groups["observed_data"] = _coords(
             xr.Dataset(
                 {
-                    k: (_obs_dims(model, k, np.ndim(v)), np.asarray(v), {"units": units[k]} if k in units else {})
+                    k: (_obs_dims(model, k, np.ndim(v)), np.asarray(v), _unit(units, k))
                     for k, v in model.observed.items()
                 }
             )

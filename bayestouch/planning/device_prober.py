@@ -182,7 +182,7 @@ class VirtualFingerProber:
 
     def __init__(self, obj, *, seed: int = 0, pose_sd: float = POSE_SD):
         self.obj, self.seed, self.pose_sd = obj, int(seed), float(pose_sd)
-        self._sim = self._dev = self._prober = None
+        self._sim = self._dev = None
 
     def __enter__(self) -> DeviceProber:
         from bayestouch.hardware.frame_models import GuardedModel
@@ -194,8 +194,7 @@ class VirtualFingerProber:
         except BaseException:
             self._sim.close(timeout=5.0)
             raise
-        self._prober = DeviceProber(self._dev)
-        return self._prober
+        return DeviceProber(self._dev)
 
     def __exit__(self, *exc) -> None:
         if self._dev is not None:
