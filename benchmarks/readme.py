@@ -23,11 +23,6 @@ END = "<!-- measured:end -->"
 __all__ = ["BEGIN", "END", "ROWS", "render", "missing", "update_readme"]
 
 
-def _load(results: Path, name: str):
-    path = results / name
-    return json.loads(path.read_text()) if path.is_file() else None
-
-
 def _entry(doc: dict, metric_prefix: str) -> dict:
     return next(r for r in doc["results"] if r["metric"].startswith(metric_prefix))
 
@@ -40,10 +35,7 @@ def _pct(x: float, digits: int = 1) -> str:
     return f"{100 * x:.{digits}f} %"
 
 
-def _raw(results: Path):
-    doc = _load(results, "bench_raw.json")
-    if doc is None:
-        return None
+def _raw(doc: dict) -> tuple[str, str, str]:
     on = _entry(
         doc, "raw-current posterior, standard scenario (egg, 10 strokes, seed 3, empirical), end to end, texture=auto"
     )
@@ -61,10 +53,7 @@ def _raw(results: Path):
     )
 
 
-def _mismatch(results: Path):
-    d = _load(results, "mismatch.json")
-    if d is None:
-        return None
+def _mismatch(d: dict) -> tuple[str, str, str]:
     n, v = d["scenarios"], d["volume"]
     return (
         f"Raw-current posteriors when the finger is not the simulator ({n} fingers with S_p, lag, fixed-pattern "
@@ -78,10 +67,7 @@ def _mismatch(results: Path):
     )
 
 
-def _user_sets(results: Path):
-    d = _load(results, "user_sets.json")
-    if d is None:
-        return None
+def _user_sets(d: dict) -> tuple[str, str, str]:
     b, s, g = d["bayestouch"], d["sage"], d["gpis"]
     vc, ac = b["volume_coverage_90"], b["axis_interval_coverage_90"]
     vci = [100 * c for c in b["volume_error"]["ci95"]]
@@ -102,10 +88,7 @@ def _user_sets(results: Path):
     )
 
 
-def _sparse(results: Path):
-    doc = _load(results, "bench_sparse.json")
-    if doc is None:
-        return None
+def _sparse(doc: dict) -> tuple[str, str, str]:
 
     def val(metric: str, method: str) -> float:
         return next(r["value"] for r in doc["results"] if r["metric"] == metric and r.get("method") == method)
@@ -128,10 +111,7 @@ def _sparse(results: Path):
     )
 
 
-def _inference(results: Path):
-    doc = _load(results, "bench_inference.json")
-    if doc is None:
-        return None
+def _inference(doc: dict) -> tuple[str, str, str]:
     mixed = _entry(doc, "contact log-probability evaluations/s, mixed precision")
     f64 = _entry(doc, "contact log-probability evaluations/s, float64")
     ref = _entry(doc, "reference jit(vmap)")
@@ -144,10 +124,7 @@ def _inference(results: Path):
     )
 
 
-def _planners(results: Path):
-    doc = _load(results, "bench_planners.json")
-    if doc is None:
-        return None
+def _planners(doc: dict) -> tuple[str, str, str]:
     r = {e["metric"]: e for e in doc["results"]}
     parts = []
     for obj in ("egg", "box"):
@@ -171,37 +148,29 @@ def _planners(results: Path):
     )
 
 
-#: the table's rows, in order: each renders ``(what, figure, benchmark)`` from the results folder, or None
-ROWS: tuple[Callable[[Path], tuple[str, str, str] | None], ...] = (
-    _inference,
-    _raw,
-    _mismatch,
-    _user_sets,
-    _sparse,
-    _planners,
+#: the table's rows, in order: each ``(result file, render)``; ``render`` turns the file's JSON into
+#: ``(what, figure, benchmark)``
+ROWS: tuple[tuple[str, Callable[[dict], tuple[str, str, str]]], ...] = (
+    ("bench_inference.json", _inference),
+    ("bench_raw.json", _raw),
+    ("mismatch.json", _mismatch),
+    ("user_sets.json", _user_sets),
+    ("bench_sparse.json", _sparse),
+    ("bench_planners.json", _planners),
 )
-_FILES = {
-    _inference: "bench_inference.json",
-    _raw: "bench_raw.json",
-    _mismatch: "mismatch.json",
-    _user_sets: "user_sets.json",
-    _sparse: "bench_sparse.json",
-    _planners: "bench_planners.json",
-}
 
 
 def missing(results: Path = RESULTS) -> list[str]:
     """Result files a row needs that ``results`` lacks (their rows are left out of the table)."""
-    return [_FILES[row] for row in ROWS if not (results / _FILES[row]).is_file()]
+    return [name for name, _ in ROWS if not (results / name).is_file()]
 
 
 def render(results: Path = RESULTS) -> str:
     """The block (markers included) the README must hold for the results in ``results``."""
     lines = [BEGIN, "| What | Figure | Benchmark |", "|---|---|---|"]
-    for row in ROWS:
-        cells = row(results)
-        if cells is not None:
-            lines.append("| " + " | ".join(cells) + " |")
+    for name, row in ROWS:
+        if (results / name).is_file():
+            lines.append("| " + " | ".join(row(json.loads((results / name).read_text()))) + " |")
     lines.append(END)
     return "\n".join(lines)
 
