@@ -113,31 +113,23 @@ def summarise(rows, trials: int, budget: int) -> list[dict]:
                         "paired": True,
                     }
                 )
-        for obj in OBJECTS:
-            last = {
-                p: np.array(
-                    [
-                        float(r["chamfer"])
-                        for r in rows
-                        if r["object"] == obj and r["planner"] == p and int(r["stroke"]) == budget
-                    ]
+    for obj in OBJECTS:
+        for p in PLANNERS:
+            mine = [r for r in rows if r["object"] == obj and r["planner"] == p]
+            last = np.array([float(r["chamfer"]) for r in mine if int(r["stroke"]) == budget])
+            if len(last):
+                out.append(
+                    {
+                        "metric": f"Chamfer after {budget} strokes, median ({obj}, {p})",
+                        "value": float(np.median(last)),
+                        "unit": "1",
+                        "ci95": _bootstrap_median(last, rng),
+                        "trials": int(len(last)),
+                    }
                 )
-                for p in PLANNERS
-            }
-            for p in PLANNERS:
-                if target == TARGETS[0] and len(last[p]):
-                    out.append(
-                        {
-                            "metric": f"Chamfer after {budget} strokes, median ({obj}, {p})",
-                            "value": float(np.median(last[p])),
-                            "unit": "1",
-                            "ci95": _bootstrap_median(last[p], rng),
-                            "trials": int(len(last[p])),
-                        }
-                    )
-    decision = [float(r["decision_s"]) for r in rows if int(r["stroke"]) > 0 and r["decision_s"] not in ("", "nan")]
     for p in PLANNERS:
         d = [float(r["decision_s"]) for r in rows if r["planner"] == p and int(r["stroke"]) > 0]
         out.append({"metric": f"decision time per stroke, median ({p})", "value": float(np.median(d)), "unit": "s"})
-    out.append({"metric": "planned strokes run", "value": float(len(decision)), "unit": "strokes"})
+    planned = sum(int(r["stroke"]) > 0 for r in rows)
+    out.append({"metric": "planned strokes run", "value": float(planned), "unit": "strokes"})
     return out
