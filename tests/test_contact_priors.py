@@ -21,14 +21,31 @@ def _theta(r=0.02, n=2.0, sigma=3e-4, w_in=0.05, w_out=0.02):
 
 
 def test_outlier_density_integrates_to_one_and_separates_the_sides():
-    # per-point density over the signed distance d: (1 − w_in − w_out) N(0, σ²) + w_in/D (d < 0) + w_out/D (d > 0)
-    D, sigma, w_in, w_out = 0.05, 3e-4, 0.1, 0.03
-    d = np.linspace(-D, D, 400001)
-    terms = np.exp(np.asarray(cm._outlier_terms(jnp.asarray(d), np.log(sigma), w_in, w_out, -np.log(D))))
-    assert abs(np.trapezoid(terms, d) - 1.0) < 1e-4
-    # far inside the density is w_in/D, far outside w_out/D: the two events are told apart
-    assert terms[1000] == pytest.approx(w_in / D, rel=1e-9)
-    assert terms[-1000] == pytest.approx(w_out / D, rel=1e-9)
+    # per-point density over the signed distance d: (1 − w_in − w_out) N(0, σ²) + w_in h(d) (d < 0) + w_out h(d)
+    # (d > 0), h half-Cauchy of scale s on each side
+    s, sigma, w_in, w_out = 5e-3, 3e-4, 0.1, 0.03
+    log_u, inv = np.log(2.0 / (np.pi * s)), 1.0 / s
+
+    def density(d):
+        return np.exp(np.asarray(cm._outlier_terms(jnp.asarray(d), np.log(sigma), w_in, w_out, log_u, inv)))
+
+    # over ±L the heavy tails hold (w_in + w_out)(1 − (2/π) atan(L/s)) outside: the integral inside is exactly that
+    L = 0.5
+    d = np.concatenate(
+        [np.linspace(-L, -0.01, 200001), np.linspace(-0.01, 0.01, 400001)[1:], np.linspace(0.01, L, 200001)[1:]]
+    )
+    inside = np.trapezoid(density(d), d)
+    expect = 1.0 - (w_in + w_out) * (1.0 - 2.0 / np.pi * np.arctan(L / s))
+    assert inside == pytest.approx(expect, abs=1e-5)
+    # far inside the density is w_in h(d), far outside w_out h(d): the two events are told apart
+    for x, w in ((-0.02, w_in), (0.02, w_out)):
+        assert density(np.array([x]))[0] == pytest.approx(w * 2.0 / (np.pi * s * (1 + (x / s) ** 2)), rel=1e-9)
+    # the half-Cauchy itself is normalised on (0, ∞): ∫ h = ∫_0^1 h(s tan(πu/2)) s (π/2) sec²(πu/2) du
+    u = np.linspace(0.0, 1.0 - 1e-9, 200001)
+    x = s * np.tan(0.5 * np.pi * u)
+    jac = s * 0.5 * np.pi / np.cos(0.5 * np.pi * u) ** 2
+    h = np.exp(np.asarray(cm.outlier_log_density(jnp.asarray(x), log_u, inv)))
+    assert np.trapezoid(h * jac, u) == pytest.approx(1.0, abs=1e-6)
 
 
 def test_outlier_model_mixed_matches_float64():

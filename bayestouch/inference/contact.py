@@ -43,6 +43,8 @@ __all__ = [
     "make_log_prob",
     "padded_size",
     "pointwise_log_likelihood",
+    "outlier_log_density",
+    "OUTLIER_SCALE",
     "principal_frame",
     "PrincipalFrame",
 ]
@@ -70,9 +72,12 @@ PRIOR_SPECS = {
     "size_min": Spec("m", 1e-4, 10.0),
     "size_max": Spec("m", 1e-4, 10.0),
     "free_miss": Spec("1", 1e-9, 0.5),
+    "outlier_scale": Spec("m", 1e-6, 1.0),
 }
 
 _TINY = 1e-300
+#: default scale (m) of the outlier model's half-Cauchy displacement: ``models/priors.toml`` outlier_scale
+OUTLIER_SCALE = 5e-3
 _LOG_2PI = float(np.log(2 * np.pi))
 
 
@@ -95,6 +100,7 @@ class PriorParams(NamedTuple):
     size_min: float
     size_max: float
     free_miss: float
+    outlier_scale: float
 
 
 def load_priors(path=None) -> PriorParams:
@@ -231,10 +237,13 @@ class _Data(NamedTuple):
     hom: jnp.ndarray  # (4, M + K): x, y, z, 1
     normals: jnp.ndarray | None  # (3, M + K) unit measured normals (zeros on free-space rows)
     lever2: jnp.ndarray | None  # (3, M + K): (x_k − o_k)², m², for the multiplicative noise
-    log_u: jnp.ndarray | None  # log of the outlier density: 1/(2D) ("mixture"), 1/D per side ("outlier"), log(1/m)
+    log_u: (
+        jnp.ndarray | None
+    )  # log outlier density: 1/(2D) ("mixture"); 2/(π s) at 0 ("outlier", half-Cauchy); log(1/m)
     free: jnp.ndarray | None  # (M + K,) 1 on free-space rows, 0 on contacts; None without free-space points
     log_miss: float = -np.inf  # log of the probability that a free-space point is mislabelled (priors free_miss)
     use: jnp.ndarray | None = None  # (M + K + P,) 1 on data, 0 on the P padding columns; None without padding
+    out_inv: float = 0.0  # 1/s, 1/m: the half-Cauchy outlier displacement's inverse scale ("outlier")
 
 
 def padded_size(count: int) -> int:
@@ -248,7 +257,14 @@ def padded_size(count: int) -> int:
 
 
 def _prepare(
-    points, normals=None, noise: str = "student", origin=None, free=None, free_miss: float = 1e-3, pad: bool = False
+    points,
+    normals=None,
+    noise: str = "student",
+    origin=None,
+    free=None,
+    free_miss: float = 1e-3,
+    pad: bool = False,
+    outlier_scale: float = OUTLIER_SCALE,
 ) -> _Data:
     p = jnp.asarray(points, dtype=jnp.float64)
     m = p.shape[0]
@@ -264,14 +280,20 @@ def _prepare(
     if normals is not None:
         nrm = jnp.concatenate([jnp.asarray(normals, dtype=jnp.float64).T, jnp.zeros((3, k + extra))], axis=1)
     lever2 = log_u = None
+    out_inv = 0.0
     if noise == "multiplicative":
         o = jnp.mean(p, axis=0) if origin is None else jnp.asarray(origin, dtype=jnp.float64)
         lever2 = ((allp - o) ** 2).T
-    elif noise in ("mixture", "outlier"):
+    elif noise == "mixture":
         diag = jnp.sqrt(jnp.sum((jnp.max(p, axis=0) - jnp.min(p, axis=0)) ** 2))
-        log_u = -jnp.log((2.0 if noise == "mixture" else 1.0) * jnp.maximum(diag, 1e-9))
+        log_u = -jnp.log(2.0 * jnp.maximum(diag, 1e-9))
+    elif noise == "outlier":
+        if not (np.isfinite(outlier_scale) and outlier_scale > 0):
+            raise BadInput(f"outlier_scale: expected a positive length in metres, got {outlier_scale!r}")
+        log_u = jnp.asarray(np.log(2.0 / (np.pi * outlier_scale)))
+        out_inv = 1.0 / float(outlier_scale)
     mask = None if k == 0 else jnp.concatenate([jnp.zeros(m), jnp.ones(k), jnp.zeros(extra)])
-    return _Data(hom, nrm, lever2, log_u, mask, float(np.log(free_miss)), use)
+    return _Data(hom, nrm, lever2, log_u, mask, float(np.log(free_miss)), use, out_inv)
 
 
 class PrincipalFrame(NamedTuple):
@@ -321,13 +343,24 @@ def _student_const(nu: float) -> float:
     return float(gammaln((nu + 1) / 2) - gammaln(nu / 2) - 0.5 * np.log(nu * np.pi))
 
 
-def _outlier_terms(d, ls, w_in, w_out, log_u):
+def outlier_log_density(d, log_u, inv_scale):
+    """Log-density (1/m) of a displaced contact at signed distance ``d`` (m) on its side of the surface:
+    half-Cauchy of scale s, log(2/(π s)) − log(1 + (d/s)²), with ``log_u`` = log(2/(π s)) and ``inv_scale`` = 1/s
+    (any float dtype). Heavy-tailed, so a contact displaced centimetres is still an outlier rather than a reason
+    to move the surface; its scale (``models/priors.toml`` outlier_scale) puts the mass at the millimetres by which
+    real contacts are displaced, where a density uniform over the data's extent was ~10× too thin and let a
+    wrong surface through a few displaced contacts win."""
+    x = d * inv_scale
+    return log_u - jnp.log1p(x * x)
+
+
+def _outlier_terms(d, ls, w_in, w_out, log_u, inv_scale):
     """Per-point log-likelihood of the two-sided outlier model (any float dtype): Gaussian core of sd e^ls, and
     contacts displaced into the solid (d < 0, fraction w_in) or out into free space (d > 0, fraction w_out), each
-    uniform over a length D on its side (log_u = −log D)."""
+    half-Cauchy on its side (:func:`outlier_log_density`)."""
     log_core = -0.5 * d * d * jnp.exp(-2.0 * ls) - ls - 0.5 * _LOG_2PI
     log_w = jnp.log(jnp.maximum(jnp.where(d > 0, w_out, w_in), _TINY_W))
-    return jnp.logaddexp(jnp.log1p(-(w_in + w_out)) + log_core, log_w + log_u)
+    return jnp.logaddexp(jnp.log1p(-(w_in + w_out)) + log_core, log_w + outlier_log_density(d, log_u, inv_scale))
 
 
 def _free_terms(d, ls, log_miss):
@@ -363,7 +396,7 @@ def _log_lik_terms(th, data: _Data, noise: str, nu: float):
         var = jnp.exp(2.0 * ls) + eps2 / 3.0 * jnp.sum(nw * nw * data.lever2[None], axis=1)
         out = ll - 0.5 * (d * d / var + jnp.log(var)) - 0.5 * _LOG_2PI
     elif noise == "outlier":
-        out = ll + _outlier_terms(d, ls, th[:, k][:, None], th[:, k + 1][:, None], data.log_u)
+        out = ll + _outlier_terms(d, ls, th[:, k][:, None], th[:, k + 1][:, None], data.log_u, data.out_inv)
     else:
         w = th[:, k][:, None]
         log_n = -0.5 * d * d * jnp.exp(-2.0 * ls) - ls - 0.5 * _LOG_2PI
@@ -423,7 +456,8 @@ def _log_lik_mixed(th, data: _Data, noise: str, nu: float):
         c = -(ls + 0.5 * _LOG_2PI)  # (W,) float64
         w_in, w_out = th[:, 11].astype(_F32)[:, None], th[:, 12].astype(_F32)[:, None]
         log_w = jnp.log(jnp.maximum(jnp.where(d > 0, w_out, w_in), _F32(_TINY_W)))
-        rel = jnp.logaddexp(jnp.log1p(-(w_in + w_out)) - 0.5 * z * z, log_w + (data.log_u - c).astype(_F32)[:, None])
+        log_o = outlier_log_density(d, (data.log_u - c).astype(_F32)[:, None], _F32(data.out_inv))
+        rel = jnp.logaddexp(jnp.log1p(-(w_in + w_out)) - 0.5 * z * z, log_w + log_o)
     elif np.isinf(nu):
         c = -(ls + 0.5 * _LOG_2PI)
         rel = -0.5 * z * z
@@ -456,11 +490,14 @@ def pointwise_log_likelihood(
     origin=None,
     free=None,
     free_miss: float = 1e-3,
+    outlier_scale: float = OUTLIER_SCALE,
 ) -> np.ndarray:
     """Log-likelihood of each observation (W, M + K) for walkers ``thetas (W, D)``: the M contact points, then the
     K free-space points (NumPy edge; the ArviZ ``log_likelihood`` group). Arguments as :func:`log_prob_batch`;
     the sum over observations is the log-likelihood that :func:`make_log_prob` samples."""
-    data = _prepare(points, normals, _check_noise(noise), origin, _free_or_none(free), free_miss)
+    data = _prepare(
+        points, normals, _check_noise(noise), origin, _free_or_none(free), free_miss, outlier_scale=outlier_scale
+    )
     return np.asarray(_log_lik_terms_jit(jnp.asarray(thetas, dtype=jnp.float64), data, noise, float(nu)))
 
 
@@ -581,6 +618,7 @@ def log_prob_batch(
     origin=None,
     free=None,
     free_miss: float = 1e-3,
+    outlier_scale: float = OUTLIER_SCALE,
 ):
     """Log-posterior (unnormalised) of a batch of walkers, pure JAX.
 
@@ -602,13 +640,18 @@ def log_prob_batch(
         Free-space points: finger positions that touched nothing (outside the object).
     free_miss : float
         Probability that a free-space point is mislabelled (``models/priors.toml`` free_miss).
+    outlier_scale : float, metres
+        Scale of the half-Cauchy displacement of the outlier model's displaced contacts (``models/priors.toml``
+        outlier_scale; :func:`outlier_log_density`).
 
     Returns
     -------
     (W,) float
         −inf outside the prior, never NaN.
     """
-    data = _prepare(points, normals, _check_noise(noise), origin, _free_or_none(free), free_miss)
+    data = _prepare(
+        points, normals, _check_noise(noise), origin, _free_or_none(free), free_miss, outlier_scale=outlier_scale
+    )
     return _log_prob_batch(jnp.asarray(thetas), data, bounds, noise, float(nu))
 
 
@@ -700,7 +743,7 @@ def make_log_prob(
     fr = _free_or_none(free)
     if fr is not None and not np.all(np.isfinite(fr)):
         raise BadInput("free: free-space points must be finite (K, 3) metres")
-    data = _prepare(p, nrm, noise, origin, fr, priors.free_miss, pad=True)
+    data = _prepare(p, nrm, noise, origin, fr, priors.free_miss, pad=True, outlier_scale=priors.outlier_scale)
     bounds = bounds_for(p, priors, nrm is not None, noise)
     dim = len(bounds.lower)
 

@@ -462,7 +462,7 @@ def smc_moves(particles, walkers: int, seed: int, extra_mode: dict | None = None
         weights = [w * (1 - share) for w in weights] + [share]
         ws[moved] = draws[: int(moved.sum())]
     mix = IndependenceMixture(
-        np.array(centres), np.array(chols), emcee.moves.DEMove(), MIXTURE_NU, weights, log_columns=cols
+        np.array(centres), np.array(chols), emcee.moves.DEMove(), MIXTURE_NU, weights, log_columns=cols, adaptive=True
     )
     rest = 1.0 - MIXTURE_SHARE
     if walkers < 2 * d:  # too few walkers for red-blue moves: a random walk with the particles' covariance instead
@@ -507,9 +507,9 @@ def contact_model(
     each point (:func:`~bayestouch.inference.contact.pointwise_log_likelihood`); replicated points are surface points
     of each draw displaced along the normal by noise of the model's scale (Student-t or Gaussian σ; σ_i for the
     multiplicative model; the mixture's outliers are drawn uniformly along the normal within the data's extent, the
-    two-sided outlier model's uniformly within the data's diagonal on their side, inwards with probability w_in and
-    outwards with w_out); free-space points (``free``) count in the pointwise log-likelihood after the contacts;
-    with measured ``normals``, replicated normals are von Mises–Fisher (κ of the draw) about the draw's normal
+    two-sided outlier model's half-Cauchy (scale ``priors.outlier_scale``) on their side, inwards with probability
+    w_in and outwards with w_out); free-space points (``free``) count in the pointwise log-likelihood after the
+    contacts; with measured ``normals``, replicated normals are von Mises–Fisher (κ of the draw) about the draw's normal
     (:func:`~bayestouch.inference.posterior.vmf_sample`), and the observed group holds the normalised measured
     normals too."""
     pts = jnp.asarray(points, dtype=jnp.float64)
@@ -536,8 +536,10 @@ def contact_model(
             w_out = thetas[:, sampled.index("w_out")][:, None]
             u = rng.random(shape)
             e = sigma * rng.standard_normal(shape)
-            e = np.where(u < w_in, -rng.uniform(0, 2 * half_diag, shape), e)
-            e = np.where((u >= w_in) & (u < w_in + w_out), rng.uniform(0, 2 * half_diag, shape), e)
+            # displaced contacts: half-Cauchy of scale outlier_scale on their side (cm.outlier_log_density)
+            far = priors.outlier_scale * np.tan(0.5 * np.pi * rng.random(shape))
+            e = np.where(u < w_in, -far, e)
+            e = np.where((u >= w_in) & (u < w_in + w_out), far, e)
         else:
             w = thetas[:, sampled.index("w_outlier")][:, None]
             e = np.where(
@@ -551,7 +553,14 @@ def contact_model(
 
     def ll(thetas):
         terms = cm.pointwise_log_likelihood(
-            thetas, points, nu, normals=normals, noise=noise, free=free, free_miss=priors.free_miss
+            thetas,
+            points,
+            nu,
+            normals=normals,
+            noise=noise,
+            free=free,
+            free_miss=priors.free_miss,
+            outlier_scale=priors.outlier_scale,
         )
         return {"points": terms[:, :m], **({"free_points": terms[:, m:]} if n_free else {})}
 

@@ -20,6 +20,7 @@ from emcee.state import State
 from scipy.stats import chi2
 
 from bayestouch.errors import BadInput
+from bayestouch.inference.modes import gaussian_mixture
 
 __all__ = [
     "Chain",
@@ -55,6 +56,11 @@ CHECK_STEPS_PER_TAU = 10.0
 #: first step at which an adaptive run (``sample(..., adapt=True)``) fits its independence proposal; later fits at
 #: twice, four times … that step
 ADAPT_FIRST = 100
+#: an adaptive :class:`IndependenceMixture`'s refits: the given mixture's share, the most draws EM reads and the
+#: most components it tries
+DEFENSIVE_SHARE = 0.2
+REFIT_DRAWS = 2000
+REFIT_COMPONENTS = 4
 
 
 class Chain(NamedTuple):
@@ -207,12 +213,20 @@ class IndependenceT:
 
 
 class IndependenceMixture(IndependenceT):
-    """Independence Metropolis–Hastings with a fixed mixture of multivariate t components as the proposal: a
-    kernel density estimate of earlier posterior draws (e.g. the particles of a tempered SMC run,
+    """Independence Metropolis–Hastings with a mixture of multivariate t components as the proposal: a kernel
+    density estimate of earlier posterior draws (e.g. the particles of a tempered SMC run,
     :mod:`bayestouch.inference.smc`), each component centred on a draw with the scale of its neighbourhood, so a
     posterior with several separated modes or a curved ridge is proposed from where its mass is and walkers jump
-    between modes in one step. The mixture is fixed: the move leaves π invariant (Tierney 1994, sect. 2.3.3) and
-    :func:`sample`'s refits do not replace it.
+    between modes in one step. For a fixed mixture the move leaves π invariant (Tierney 1994, sect. 2.3.3).
+
+    An ``adaptive`` mixture is refitted by :func:`sample` at its adaptation steps (:meth:`refit`): a Gaussian
+    mixture fitted to the chain's own recent draws takes ``1 − defensive`` of the weight and the mixture given here
+    keeps ``defensive`` (a defensive mixture, Hesterberg 1995, Technometrics 37:185), so a mode the start found and
+    the chain has not visited stays one proposal away. A refit is kept only when it matches the chain's draws
+    better than the mixture in force (:meth:`IndependenceT.weight_spread`). A mixture fitted to particles of the
+    wrong shape (a Laplace component for a curved ridge, an SMC run that found another mode) is thus replaced by
+    one of the posterior's shape as the chain learns it; the kernel changes finitely often, so the chain's law
+    converges to π as a fixed kernel's would (as for :class:`IndependenceT`'s refits).
 
     Parameters
     ----------
@@ -230,28 +244,90 @@ class IndependenceMixture(IndependenceT):
         Coordinates that are positive (e.g. outlier fractions near 0): the mixture lives in the space where they
         are logarithms (``centres`` and ``chols`` there), so a proposal never leaves their support and a mass
         piled near 0 is a Gaussian in log space; the density carries the Jacobian Π 1/x_j.
+    adaptive : bool
+        Refit to the chain's draws at :func:`sample`'s adaptation steps (default: fixed).
+    defensive : float
+        Weight the given mixture keeps in an adaptive refit, in (0, 1).
     """
 
-    def __init__(self, centres, chols, fallback, nu: float = 10.0, weights=None, log_columns=()):
+    def __init__(
+        self,
+        centres,
+        chols,
+        fallback,
+        nu: float = 10.0,
+        weights=None,
+        log_columns=(),
+        *,
+        adaptive: bool = False,
+        defensive: float = DEFENSIVE_SHARE,
+    ):
         super().__init__(fallback, nu)
+        if not 0.0 < float(defensive) < 1.0:
+            raise ValueError(f"defensive: expected a weight in (0, 1), got {defensive!r}")
         self.log_columns = np.asarray(log_columns, int)
-        self.centres = np.asarray(centres, float)
-        self.chols = np.asarray(chols, float)
-        w = np.ones(len(self.centres)) if weights is None else np.asarray(weights, float)
-        if w.shape != (len(self.centres),) or not np.all(w >= 0) or not w.sum() > 0:
-            raise ValueError(f"weights: expected {len(self.centres)} non-negative numbers, not all 0")
-        self.weights = w / w.sum()
+        self.adaptive = bool(adaptive)
+        self.defensive = float(defensive)
+        centres = np.asarray(centres, float)
+        w = np.ones(len(centres)) if weights is None else np.asarray(weights, float)
+        if w.shape != (len(centres),) or not np.all(w >= 0) or not w.sum() > 0:
+            raise ValueError(f"weights: expected {len(centres)} non-negative numbers, not all 0")
+        self._base = (centres, np.asarray(chols, float), w / w.sum())
+        self.reset()
+
+    def _use(self, centres, chols, weights) -> None:
+        self.centres, self.chols, self.weights = centres, chols, weights
         self.mean = self.centres.mean(axis=0)  # marks the move as fitted
         self._invs = np.linalg.inv(self.chols)
         with np.errstate(divide="ignore"):
             self._log_w = np.log(self.weights)
         self._log_det = np.sum(np.log(np.abs(np.diagonal(self.chols, axis1=1, axis2=2))), axis=1) - self._log_w
 
-    def fit(self, draws) -> None:  # fixed: refits leave the mixture as it is
+    def reset(self) -> None:
+        """Put the mixture given at construction back in force (a resumed run replays its refits from it)."""
+        self._use(*self._base)
+
+    def fit(self, draws) -> None:  # the single-t refit of IndependenceT does not apply; see refit
         return None
 
     def set(self, mean, cov) -> None:
         return None
+
+    def refit(self, draws, log_prob, rng: np.random.Generator) -> bool:
+        """Refit an ``adaptive`` mixture to posterior draws ``draws (n, D)`` with log-densities ``log_prob (n,)``:
+        a Gaussian mixture (EM, components by BIC; :func:`bayestouch.inference.modes.gaussian_mixture`) on at most
+        :data:`REFIT_DRAWS` of them (chosen with ``rng``), in the mixture's coordinates, beside the defensive share
+        of the given mixture. Replaces the mixture in force only when its log importance weights over ``draws``
+        spread less; returns whether it did (always False for a fixed mixture)."""
+        if not self.adaptive:
+            return False
+        x = np.asarray(draws, float)
+        lp = np.asarray(log_prob, float)
+        ok = np.isfinite(lp) & np.all(x[:, self.log_columns] > 0, axis=1)
+        x, lp = x[ok], lp[ok]
+        if len(x) <= 2 * (x.shape[1] + 1):
+            return False
+        if len(x) > REFIT_DRAWS:
+            keep = rng.choice(len(x), REFIT_DRAWS, replace=False)
+            x, lp = x[keep], lp[keep]
+        y = x.copy()
+        y[:, self.log_columns] = np.log(y[:, self.log_columns])
+        w, mu, cov = gaussian_mixture(y, rng, max_components=REFIT_COMPONENTS)
+        diag = np.arange(cov.shape[1])
+        cov[:, diag, diag] += 1e-10 * cov[:, diag, diag] + 1e-300  # keeps each Cholesky factor defined
+        base_c, base_l, base_w = self._base
+        cand = (
+            np.concatenate([mu, base_c]),
+            np.concatenate([np.linalg.cholesky(cov), base_l]),
+            np.concatenate([(1.0 - self.defensive) * w, self.defensive * base_w]),
+        )
+        now = self.weight_spread(x, lp)
+        old = (self.centres, self.chols, self.weights)
+        self._use(*cand)
+        if self.weight_spread(x, lp) < now:
+            return True
+        self._use(*old)
+        return False
 
     def draw(self, random, count: int) -> np.ndarray:
         j = random.choice(len(self.centres), size=count, p=self.weights)
@@ -634,9 +710,10 @@ def sample(
         Checkpoint interval.
     adapt : bool
         Sample with :func:`adaptive_moves` (unless ``moves`` are given, which must then hold an
-        :class:`IndependenceT`; an :class:`IndependenceMixture` is fixed from step 0 and never refitted): at
-        steps 100, 200, 400, … (:func:`adaptation_steps`) the independence proposal is
-        refitted to the draws of the second half of the chain before that step. Each stage's kernel leaves the
+        :class:`IndependenceT`; an :class:`IndependenceMixture` is in force from step 0, and refitted only when it
+        is ``adaptive``): at steps 100, 200, 400, … (:func:`adaptation_steps`) the independence proposal is
+        refitted to the draws of the second half of the chain before that step (an adaptive mixture by
+        :meth:`IndependenceMixture.refit`, seeded by ``(seed, step)``). Each stage's kernel leaves the
         target invariant and the kernel changes finitely often, so the chain's law converges to the target as a
         fixed kernel's would; the proposal at every step is a function of the stored chain, so a resumed run uses
         the kernel the uninterrupted run would have. τ and burn-in are taken after the first adaptation
@@ -687,36 +764,45 @@ def sample(
         raise ValueError("adapt=True needs an IndependenceT among the moves")
     check_every = (50 if adapt else 250) if check_every is None else int(check_every)
 
-    def refit(upto: int) -> None:
-        """Set the independence proposal as the uninterrupted run had it after step ``upto``: replay the adaptation
-        steps ≤ ``upto`` in order, each fitting the draws of the second half of the chain before it when they look
-        stationary (:func:`_stationary`). Without a given ``proposal`` the last such fit is in force (none: the move
-        stays differential evolution); with one, a fit replaces the proposal in force only when its log weights
-        over those draws spread less."""
-        if proposal is not None:
-            indep.set(*proposal)
-        steps_ = adaptation_steps(upto)
-        if not steps_:
+    def adapt_to(a: int, lp, chain) -> None:
+        """Adaptation step ``a``: fit the draws of the second half of the chain before it, when they look stationary
+        (:func:`_stationary`). Without a given ``proposal`` the fit is put in force (none yet: the move stays
+        differential evolution); with one, or for an adaptive mixture, it replaces the proposal in force only when
+        its log weights over those draws spread less."""
+        if not _stationary(lp[a // 2 : a]):
             return
-        lp, chain = backend.get_log_prob(), backend.get_chain()
-        for a in steps_:
-            if not _stationary(lp[a // 2 : a]):
-                continue
-            x, lx = chain[a // 2 : a].reshape(-1, ndim), lp[a // 2 : a].ravel()
-            if proposal is None:
-                indep.fit(x)
-                continue
+        x, lx = chain[a // 2 : a].reshape(-1, ndim), lp[a // 2 : a].ravel()
+        if mixture:
+            indep.refit(x, lx, np.random.default_rng([seed, a]))
+        elif proposal is None:
+            indep.fit(x)
+        else:
             cand = IndependenceT(None, indep.nu)
             cand.fit(x)
             if cand.weight_spread(x, lx) < indep.weight_spread(x, lx):
                 indep.fit(x)
 
+    def replay(upto: int) -> None:
+        """Set the independence proposal as the uninterrupted run had it after step ``upto``: from the proposal it
+        started with, the adaptation steps ≤ ``upto`` in order (a resumed run; a running one adapts step by
+        step)."""
+        if proposal is not None:
+            indep.set(*proposal)
+        if mixture:
+            indep.reset()
+        steps_ = adaptation_steps(upto)
+        if steps_:
+            lp, chain = backend.get_log_prob(), backend.get_chain()
+            for a in steps_:
+                adapt_to(a, lp, chain)
+
+    mixture = isinstance(indep, IndependenceMixture)
     if proposal is not None and indep is None:
         raise ValueError("a proposal needs adapt=True")
     # where the kept draws' kernel begins: the first adaptation, or step 0 when a proposal is given or fixed
     skip_to = 0 if proposal is not None or isinstance(indep, IndependenceMixture) else ADAPT_FIRST
     if indep is not None:
-        refit(backend.iteration)
+        replay(backend.iteration)
 
     def halves(thetas):
         """The whole ensemble (emcee's first evaluation, whole-ensemble moves) in the red-blue moves' half batches,
@@ -757,7 +843,7 @@ def sample(
                     break
                 if first + i in adapt_at:
                     flush()
-                    refit(first + i)
+                    adapt_to(first + i, backend.get_log_prob(), backend.get_chain())
                 if stop_when_converged and first + i >= next_check:
                     next_check = _next_check(first + i, check_every)
                     flush()
