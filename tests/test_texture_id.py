@@ -11,7 +11,7 @@ from bayestouch.cli import main as cli_main
 from bayestouch.errors import BadInput
 from bayestouch.inference import texture_posterior as tp
 from bayestouch.inference.densities import student_t_logpdf
-from bayestouch.physics.plate_strokes import known_finger
+from bayestouch.inference.raw import host_device
 from bayestouch.physics.virtual import load_finger
 from bayestouch.planning import texture_id as ti
 from bayestouch.planning.eig import eig_pairwise
@@ -88,7 +88,8 @@ def test_noise_free_truth_is_the_maximum(lib, vf):
     for k in (0, 4):
         data, tangent, shift = ti.record_stroke(small.object(k), spec, vf, rng, st)
         assert shift == 0.0
-        ll = tp.texture_log_likelihood(surfs, data, known_finger(vf, st.noise), grid, tangent)
+        assert data.gain_sd is not None  # read as a host reads it: the gains unknown, marginalised
+        ll = tp.texture_log_likelihood(surfs, data, host_device().finger, grid, tangent)
         best = float(np.asarray(student_t_logpdf(0.0, 1.0, 4.0))) * np.size(data.log_current)  # whitened, unit scale
         assert ll[k, g0] == pytest.approx(best, abs=1e-4)
         assert np.unravel_index(np.argmax(ll), ll.shape) == (k, g0)
@@ -106,7 +107,7 @@ def test_whitened_noise_is_independent_over_frames(lib, vf):
     st = ti.IdSettings(shift_range=0.0, temperature_sd=0.0)
     rng = np.random.default_rng(21)
     spec = tx.random_stroke_spec(small.base, rng)
-    data, _, _ = ti.record_stroke(small.object(2), spec, vf, rng, st)
+    data, _, _ = ti.record_stroke(small.object(2), spec, vf, rng, st, ti.exact_device(vf, st))  # the noise model
     mu = tp.texture_means(small.surfaces(), data, vf.finger)[2].reshape(np.shape(data.log_current))
     z = (np.asarray(data.log_current) - mu) / np.asarray(data.noise_sd)
     z = z[:, np.all(np.abs(z) < 6, axis=0)]
@@ -222,3 +223,31 @@ def test_cli_bad_input(tmp_path, capsys):
     assert cli_main(["texture-id", "--trials", "1", "--out", str(afile)]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "--out" in err and "not a folder" in err
+
+
+def test_identifier_never_reads_the_simulated_gains(lib):
+    """No inverse crime: the same strokes over one texture by two simulated fingers whose fixed-pattern gains differ
+    (seeds 0 and 1), read as a host reads them (unit gains, each taxel's offset marginalised): the evidence for every
+    texture agrees to a fraction of a nat, and the truth wins. Negative control: the same readings scored with the
+    unit gains taken as exact (no offsets marginalised) move the evidence by hundreds of nats between the two fingers
+    and pick a wrong texture."""
+    small = lib.subset(5)
+    surfs = small.surfaces()
+    st = ti.IdSettings(shift_range=0.0, temperature_sd=0.0)
+    host = host_device()
+    evidence, exact = [], []
+    for finger_seed in (0, 1):
+        vf_s = load_finger(seed=finger_seed)
+        rng = np.random.default_rng(5)
+        spec = tx.random_stroke_spec(small.base, rng)
+        data, tangent, _ = ti.record_stroke(small.object(3), spec, vf_s, rng, st, host)
+        ll = tp.texture_log_likelihood(surfs, data, host.finger, st.shifts(), tangent)
+        evidence.append(tp.stroke_evidence(ll))
+        ll0 = tp.texture_log_likelihood(surfs, data._replace(gain_sd=None), host.finger, st.shifts(), tangent)
+        exact.append(tp.stroke_evidence(ll0))
+    e0, e1 = (e - e.max() for e in evidence)
+    assert np.argmax(e0) == 3 and np.argmax(e1) == 3
+    assert np.max(np.abs(e0 - e1)) < 0.5 * np.sort(-e0)[1]  # the runner-up's gap dwarfs what the gains move
+    x0, x1 = (e - e.max() for e in exact)
+    assert np.max(np.abs(x0 - x1)) > 100.0
+    assert np.argmax(x0) != 3 or np.argmax(x1) != 3

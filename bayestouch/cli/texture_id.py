@@ -33,6 +33,15 @@ def add_texture_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--library", default=str(LIBRARY), help="texture library TOML (default models/textures.toml)")
     p.add_argument("--full", action="store_true", help="keep stroking after a decision (up to --max-strokes)")
     p.add_argument(
+        "--calibration",
+        type=Path,
+        default=None,
+        metavar="DEVICE.toml",
+        help="the identifier's device file from `bayestouch calibrate` (per-taxel gains and their errors, in "
+        "--mode's taxel mode); without it the gains are unknown and marginalised with the nominal spread of "
+        "models/noise.toml. The simulated finger's own gains are never read",
+    )
+    p.add_argument(
         "--quiet", "--no-progress", dest="no_progress", action="store_true", help="no progress bar (or --no-progress)"
     )
     return p
@@ -41,9 +50,11 @@ def add_texture_parser(sub) -> argparse.ArgumentParser:
 def run_texture_id(args) -> int:
     """Run the experiment from parsed arguments; :class:`~bayestouch.errors.BadInput` propagates (the caller prints
     one line)."""
+    from bayestouch.io.device_file import read_device_file
     from bayestouch.planning.texture_id import IdSettings, run_experiment
 
     check_out(Path(args.out))
+    calibration = None if args.calibration is None else read_device_file(args.calibration)
     s = run_experiment(
         args.out,
         textures=args.textures,
@@ -55,6 +66,7 @@ def run_texture_id(args) -> int:
         library=args.library,
         stop_at_decision=not args.full,
         progress=not args.no_progress,
+        calibration=calibration,
     )
     keys = ("trials", "accuracy_at_decision", "accuracy_95ci", "median_strokes_to_decision", "decided_fraction")
     print(json.dumps({k: s[k] for k in keys}))

@@ -14,7 +14,7 @@ from scipy.special import logsumexp
 
 from bayestouch.backend import jax, jnp
 from bayestouch.inference.densities import student_t_logpdf
-from bayestouch.inference.raw import RawData, load_raw_data
+from bayestouch.inference.raw import HostDevice, RawData, load_raw_data
 from bayestouch.io.recording import build_dataset
 from bayestouch.physics import forward as fw
 from bayestouch.physics import noise as nz
@@ -24,6 +24,7 @@ __all__ = [
     "read_stroke",
     "frame_whitener",
     "texture_log_likelihood",
+    "offset_projection",
     "texture_means",
     "stroke_evidence",
     "update_posterior",
@@ -31,15 +32,27 @@ __all__ = [
 ]
 
 
-def read_stroke(frames: dict, finger, mode: str, *, radius: float, contact_radius: float) -> RawData:
+def read_stroke(
+    frames: dict,
+    finger,
+    mode: str,
+    *,
+    radius: float,
+    contact_radius: float,
+    device: HostDevice | None = None,
+) -> RawData:
     """Read one recorded stroke as the identifier does: every frame (``stride=1``, the forward model's exact lag).
 
     Parameters
     ----------
     frames : dict of str → array
         One stroke's frames (:class:`bayestouch.physics.plate_strokes.PlateRecording` ``.frames``).
-    finger : Finger
-        The device as the identifier knows it (its grid, reference row and gains).
+    finger : Finger or None
+        A device known exactly (its gains taken as they are: simulator checks only); None with ``device``.
+    device : HostDevice, optional
+        The device as a host knows it (:func:`bayestouch.inference.raw.host_device`: the models' constants, the
+        gains of a device file or unit gains with their spread); the data then carry each taxel's remaining
+        log-gain sd, which :func:`texture_log_likelihood` marginalises.
     mode : {"empirical", "physics"}
         Taxel response mode.
     radius, contact_radius : float, metres
@@ -50,16 +63,19 @@ def read_stroke(frames: dict, finger, mode: str, *, radius: float, contact_radiu
     RawData
         Corrected ln I and its noise sd at the commanded (known) taxel positions.
     """
-    grid = np.asarray(finger.grid).reshape(-1, 2)
+    if (finger is None) == (device is None):
+        raise ValueError("read_stroke: give either finger (known exactly) or device (as a host knows it)")
+    known = device.finger if finger is None else finger
+    grid = np.asarray(known.grid).reshape(-1, 2)
     ds = build_dataset(
         frames,
         grid[:, 0],
         grid[:, 1],
-        np.asarray(finger.reference).ravel(),
+        np.asarray(known.reference).ravel(),
         [float(frames["pressing_depth"][0])],
-        {"mode": mode, "seed": 0},
+        {"mode": mode},
     )
-    data, _ = load_raw_data(ds, stride=1, radius=radius, contact_radius=contact_radius, finger=finger)
+    data, _ = load_raw_data(ds, stride=1, radius=radius, contact_radius=contact_radius, finger=finger, device=device)
     return data
 
 
@@ -117,14 +133,32 @@ def _predict(surf: Surface, x, data_arrays, finger, mode: str):
     return fw.log_current_from_distance(finger, signed_distance(surf, x), kernel, temp, start, lw, mode)
 
 
-def _ll_grid(surfs: Surface, x, arrays, y, sd, whiten, shifts, tangent, finger, mode, nu):
+def offset_projection(z, u, precision):
+    """Whitened standardised residuals ``z (F, M)`` with each taxel's unknown log-gain offset δ_m ~ N(0, 1/
+    ``precision_m``) taken out, and the offsets' prior term (any array module).
+
+    A taxel whose gain is not known reads ln I + δ_m in every frame; whitened and standardised, the offset adds
+    δ_m u_m, u = L⁻¹(1/sd) (F, M). For Gaussian readings the offset's posterior mean is
+    δ̂_m = u_mᵀ z_m / (precision_m + u_mᵀ u_m) and the marginal likelihood is that of z_m − δ̂_m u_m times
+    exp(−½ precision_m δ̂_m²), up to a factor of the data alone (log(1 + u_mᵀu_m/precision_m), the same for every
+    hypothesis). Returns (z − δ̂ u (F, M), −½ Σ_m precision_m δ̂_m²)."""
+    delta = jnp.sum(u * z, axis=0) / (precision + jnp.sum(u * u, axis=0))
+    return z - delta[None] * u, -0.5 * jnp.sum(precision * delta * delta)
+
+
+def _ll_grid(surfs: Surface, x, arrays, y, sd, whiten, shifts, tangent, finger, mode, nu, gain_prec):
+    u = whiten @ (1.0 / sd)
+
     def one_texture(tex):
         surf = surfs._replace(texture=tex)
 
         def one_shift(o):
             pred = _predict(surf, x + o * tangent, arrays, finger, mode)
-            z = jnp.where(jnp.isfinite(pred), (y - pred) / sd, 1e6)
-            return jnp.sum(student_t_logpdf(whiten @ z, 1.0, nu))
+            z = whiten @ jnp.where(jnp.isfinite(pred), (y - pred) / sd, 1e6)
+            if gain_prec is None:
+                return jnp.sum(student_t_logpdf(z, 1.0, nu))
+            z, prior = offset_projection(z, u, gain_prec)
+            return jnp.sum(student_t_logpdf(z, 1.0, nu)) + prior
 
         return jax.vmap(one_shift)(shifts)
 
@@ -152,8 +186,11 @@ def texture_log_likelihood(
     surfs : Surface
         :meth:`bayestouch.scene.textures.TextureLibrary.surfaces` (texture fields with a leading axis K).
     data : RawData
-        From :func:`read_stroke` (commanded taxel positions, corrected ln I, its sd).
+        From :func:`read_stroke` (commanded taxel positions, corrected ln I, its sd). When it carries each taxel's
+        remaining log-gain sd (``data.gain_sd``: read with a host's device), the per-taxel offsets are taken out
+        (:func:`offset_projection`), so no hypothesis is scored with gains the host does not know.
     finger : Finger
+        The device the predictions use (a host's: its gains do not enter the predicted ln I).
     shifts : (G,) float, metres
         Shifts of the pad along the stroke.
     tangent : (3,) float
@@ -186,6 +223,7 @@ def texture_log_likelihood(
         finger,
         data.mode,
         float(nu),
+        None if data.gain_sd is None else jnp.asarray(1.0 / np.asarray(data.gain_sd, float) ** 2),
     )
     return np.asarray(out)
 

@@ -22,7 +22,7 @@ import numpy as np
 
 from bayestouch.backend import jax
 from bayestouch.errors import BadInput
-from bayestouch.inference.raw import RawData
+from bayestouch.inference.raw import HostDevice, RawData, host_device
 from bayestouch.inference.texture_posterior import (
     read_stroke,
     stroke_evidence,
@@ -30,8 +30,9 @@ from bayestouch.inference.texture_posterior import (
     texture_means,
     update_posterior,
 )
+from bayestouch.io.device_file import DeviceCalibration
 from bayestouch.io.files import write_text
-from bayestouch.physics.plate_strokes import known_finger, record_plate_stroke
+from bayestouch.physics.plate_strokes import record_plate_stroke
 from bayestouch.physics.virtual import VirtualFinger, load_finger
 from bayestouch.planning.eig import eig_pairwise
 from bayestouch.planning.experiment import ResultsFile, run_tasks, wilson_interval
@@ -43,6 +44,7 @@ __all__ = [
     "COLUMNS",
     "IdSettings",
     "record_stroke",
+    "exact_device",
     "run_trial",
     "run_experiment",
     "summarise",
@@ -124,7 +126,12 @@ class IdSettings:
 
 
 def record_stroke(
-    obj: SceneObject, spec: StrokeSpec, vf: VirtualFinger, rng: np.random.Generator, settings: IdSettings
+    obj: SceneObject,
+    spec: StrokeSpec,
+    vf: VirtualFinger,
+    rng: np.random.Generator,
+    settings: IdSettings,
+    device: HostDevice | None = None,
 ) -> tuple[RawData, np.ndarray, float]:
     """Simulate one stroke over the textured ``obj`` with the truth's nuisances, and read it as the identifier does.
 
@@ -135,7 +142,12 @@ def record_stroke(
     spec : StrokeSpec
         The commanded stroke.
     vf : VirtualFinger
-        :func:`bayestouch.physics.virtual.load_finger`; with ``settings.noise`` False its gains are taken as 1.
+        The simulated truth (:func:`bayestouch.physics.virtual.load_finger`); with ``settings.noise`` False its
+        gains are taken as 1.
+    device : HostDevice, optional
+        The identifier's device (:func:`bayestouch.inference.raw.host_device`; default the models' constants with
+        unit gains and their nominal spread): nothing of ``vf`` reaches the reading but its readings. A simulator
+        check that needs the truth's own gains reads with ``device=exact_device(vf, settings)``.
     rng : numpy Generator
         Draws the shift, the temperature offset and the noise key
         (:func:`~bayestouch.physics.plate_strokes.record_plate_stroke`).
@@ -160,16 +172,31 @@ def record_stroke(
         mode=settings.mode,
         noise=settings.noise,
     )
-    finger = known_finger(vf, settings.noise)
+    device = host_device() if device is None else device
+    exact = device.response_sd is None and np.all(np.asarray(device.log_gain_sd) == 0)
     data = read_stroke(
-        rec.frames, finger, settings.mode, radius=settings.radius, contact_radius=settings.contact_radius
+        rec.frames,
+        device.finger if exact else None,
+        settings.mode,
+        radius=settings.radius,
+        contact_radius=settings.contact_radius,
+        device=None if exact else device,
     )
     return data, rec.tangent, rec.shift
 
 
-def _choose_eig(lib: TextureLibrary, surfs: Surface, vf, settings: IdSettings, rng, log_post):
+def exact_device(vf: VirtualFinger, settings: IdSettings) -> HostDevice:
+    """The simulated finger known exactly (its own gains, nothing marginalised): for checks of the simulator and
+    the noise model only — an identifier never has it. Unit gains when ``settings.noise`` is off (the truth then
+    has none)."""
+    f = vf.finger if settings.noise else vf.finger._replace(gains=jax.numpy.ones_like(vf.finger.gains))
+    return HostDevice(f, np.zeros(int(np.asarray(f.gains).size)), 1.0, None)
+
+
+def _choose_eig(lib: TextureLibrary, surfs: Surface, vf, settings: IdSettings, rng, log_post, device: HostDevice):
     """The candidate stroke with the largest :func:`~bayestouch.planning.eig.eig_pairwise` under the current
-    posterior: μ_k the noise-free prediction at zero shift of the textures holding 99.9 % of the mass."""
+    posterior: μ_k the noise-free prediction at zero shift (``device``'s, with ``vf`` noise-free and of unit
+    gains as the simulator of the candidates' kinematics) of the textures holding 99.9 % of the mass."""
     post = np.exp(log_post)
     order = np.argsort(post)[::-1]
     keep = order[: int(np.searchsorted(np.cumsum(post[order]), 0.999) + 1)]
@@ -177,14 +204,13 @@ def _choose_eig(lib: TextureLibrary, surfs: Surface, vf, settings: IdSettings, r
         keep = order[:2]
     sub = surfs._replace(texture=jax.tree.map(lambda a: a[keep], surfs.texture))
     clean = replace(settings, noise=False, temperature_sd=0.0, shift_range=0.0)
-    finger = known_finger(vf, clean.noise)
     best, best_spec = -np.inf, None
     for _ in range(settings.candidates):
         spec = random_stroke_spec(
             lib.base, rng, speed=float(rng.choice(settings.speeds)), depth=float(rng.choice(settings.depths))
         )
-        data, _, _ = record_stroke(lib.base, spec, vf, np.random.default_rng(0), clean)
-        mu = texture_means(sub, data, finger)
+        data, _, _ = record_stroke(lib.base, spec, vf, np.random.default_rng(0), clean, exact_device(vf, clean))
+        mu = texture_means(sub, data, device.finger)
         sd = settings.noise_scale * np.asarray(data.noise_sd).ravel()
         val = eig_pairwise(post[keep] / post[keep].sum(), mu, sd)
         if val > best:
@@ -204,6 +230,7 @@ def run_trial(
     policy: str = "random",
     stop_at_decision: bool = True,
     surfs: Surface | None = None,
+    device: HostDevice | None = None,
 ) -> list[dict]:
     """Identify texture ``true_k`` stroke by stroke; one row per stroke (:data:`COLUMNS`).
 
@@ -226,6 +253,9 @@ def run_trial(
     stop_at_decision : bool
     surfs : Surface, optional
         ``lib.surfaces()`` (computed when not given).
+    device : HostDevice, optional
+        The identifier's device (:func:`bayestouch.inference.raw.host_device`, the default: the models'
+        constants, unit gains and their nominal spread, marginalised). ``vf`` is only the simulated truth.
 
     Returns
     -------
@@ -239,21 +269,21 @@ def run_trial(
     surfs = lib.surfaces() if surfs is None else surfs
     rng = np.random.default_rng((int(seed), int(true_k), int(trial)))
     obj = lib.object(true_k)
-    finger = known_finger(vf, settings.noise)
+    device = host_device() if device is None else device
     shifts = settings.shifts()
     log_post = np.full(len(lib), -np.log(len(lib)))
     rows, decided = [], False
     for s in range(1, max_strokes + 1):
         t0 = time.perf_counter()
         if policy == "eig" and s > 1:
-            spec, _ = _choose_eig(lib, surfs, vf, settings, rng, log_post)
+            spec, _ = _choose_eig(lib, surfs, vf, settings, rng, log_post, device)
         else:
             spec = random_stroke_spec(lib.base, rng, speed=settings.speed, depth=settings.depth)
-        data, tangent, shift = record_stroke(obj, spec, vf, rng, settings)
+        data, tangent, shift = record_stroke(obj, spec, vf, rng, settings, device)
         ll = texture_log_likelihood(
             surfs,
             data,
-            finger,
+            device.finger,
             shifts,
             tangent,
             nu=settings.nu,
@@ -383,6 +413,7 @@ def run_experiment(
     library=LIBRARY,
     stop_at_decision: bool = True,
     progress: bool = True,
+    calibration: DeviceCalibration | None = None,
 ) -> dict:
     """Every one of the first ``textures`` library entries is the truth in ``trials`` trials.
 
@@ -402,6 +433,10 @@ def run_experiment(
         End each trial at its decision (False: stroke on to ``max_strokes``).
     progress : bool
         Show a progress bar over the trials.
+    calibration : DeviceCalibration, optional
+        The identifier's device file (``bayestouch calibrate``; its taxel mode must be ``settings.mode``); without
+        it the identifier knows the models' constants with unit gains and their nominal spread. The simulated
+        finger's own gains (drawn from ``seed``) are never read.
 
     Returns
     -------
@@ -414,7 +449,10 @@ def run_experiment(
     settings = settings.check()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    if calibration is not None and calibration.mode != settings.mode:
+        raise BadInput(f"--calibration: made in the {calibration.mode} taxel mode, not --mode {settings.mode}")
     vf = load_finger(seed=int(seed))
+    device = host_device(calibration=calibration)
     surfs = lib.surfaces()
     t0 = time.perf_counter()
     results = ResultsFile(out / "results.csv", COLUMNS)
@@ -433,6 +471,7 @@ def run_experiment(
             policy=policy,
             stop_at_decision=stop_at_decision,
             surfs=surfs,
+            device=device,
         )
 
     run_tasks(tasks, one, results.add, progress="texture trials" if progress else None)
@@ -443,6 +482,10 @@ def run_experiment(
             "seed": int(seed),
             "seconds": time.perf_counter() - t0,
             "library": [str(n) for n in lib.names],
+            # what the identifier knew of the finger (never the simulated finger's own gains)
+            "device": "nominal: models/ constants, unit gains marginalised with their nominal spread"
+            if calibration is None
+            else f"device file: gains and their errors of a {calibration.mode}-mode calibration",
             "settings": {k: (list(v) if isinstance(v, tuple) else v) for k, v in settings.__dict__.items()},
         }
     )
