@@ -92,6 +92,7 @@ TABLE = [
     ("texture-id --textures 99 --out {tmp}/o", "--textures"),
     ("texture-id --trials 0 --out {tmp}/o", "--trials"),
     ("texture-id --library {tmp}/broken.toml --out {tmp}/o", "broken.toml"),
+    ("texture-id --calibration {tmp}/no_device.toml --out {tmp}/o", "no_device.toml"),
     ("nonsense", "nonsense"),
     # an output path that is a file already: refused, and the file is kept
     ("fit {tmp}/good.csv --out {tmp}/keep.txt", "keep.txt"),
