@@ -1,6 +1,5 @@
-"""Sampling efficiency of the contact-level posterior (issue 4's targets): effective samples per second of emcee
-(the project's engine and settings) against numpyro's NUTS on the same log-density and data, and the time to a
-converged contact-level posterior for 1000 points (target < 10 s), with its diagnostics."""
+"""Time to a converged contact-level posterior for 1000 points (target < 10 s), with its diagnostics. (The sampler
+comparison with NUTS is :mod:`benchmarks.bench_samplers`: compiled contestants, several chains, one ESS estimator.)"""
 
 from __future__ import annotations
 
@@ -10,7 +9,6 @@ from pathlib import Path
 
 import numpy as np
 
-from bayestouch.inference.contact import make_log_prob
 from bayestouch.inference.sbc import simulate_points
 
 # a tilted, unequal-axes n-ellipsoid (centre m, log axes, Euler angles rad, log n, log σ) and 1000 points
@@ -20,106 +18,6 @@ N_POINTS = 1000
 
 def _points():
     return simulate_points(THETA, N_POINTS, np.random.default_rng(0))
-
-
-def _min_ess(chain) -> float:
-    """Smallest ESS over parameters: draws / integrated autocorrelation time (chain (S, W, D))."""
-    from emcee.autocorr import integrated_time
-
-    return float(np.min(chain.shape[0] * chain.shape[1] / integrated_time(chain, tol=0)))
-
-
-def bench_emcee_vs_nuts():
-    from bayestouch.inference.nuts import nuts_contact
-    from bayestouch.inference.run import start_ball
-    from bayestouch.inference.sampler import sample
-
-    pts = _points()
-    logp, bounds = make_log_prob(pts)
-    logp(THETA[None])  # compile outside the timing
-    walkers, steps = 32, 4000  # run_contact_fit's defaults
-    with tempfile.TemporaryDirectory() as tmp:
-        ch = sample(
-            logp,
-            start_ball(THETA, bounds, walkers, np.random.default_rng(0)),
-            Path(tmp) / "c.h5",
-            walkers=walkers,
-            ndim=11,
-            seed=0,
-            steps=steps,
-            progress=False,
-        )
-    ess_e = _min_ess(ch.kept)
-    logp(THETA[None].repeat(walkers // 2, axis=0))  # the half-ensemble batch, compiled outside the timing
-    with tempfile.TemporaryDirectory() as tmp:
-        ad = sample(
-            logp,
-            start_ball(THETA, bounds, walkers, np.random.default_rng(0)),
-            Path(tmp) / "a.h5",
-            walkers=walkers,
-            ndim=11,
-            seed=0,
-            steps=1000,
-            progress=False,
-            adapt=True,
-        )
-    ess_a = _min_ess(ad.kept)
-    t = time.perf_counter()
-    out = nuts_contact(pts, seed=0, num_warmup=500, num_samples=1000, init=THETA)
-    t_nuts = time.perf_counter() - t
-    ess_n = _min_ess(np.swapaxes(out["theta"], 0, 1))
-    common = {
-        "points": N_POINTS,
-        "start": "truth (both samplers)",
-        "ess_method": "min over the 11 parameters, draws / integrated autocorrelation time",
-    }
-    return [
-        {
-            "metric": "emcee min ESS/s",
-            "value": ess_e / ch.seconds,
-            "unit": "1/s",
-            "walkers": walkers,
-            "steps": steps,
-            "burn": ch.burn,
-            "ess": round(ess_e),
-            "seconds": round(ch.seconds, 1),
-            "moves": "default_moves (DE + snooker)",
-            "backend": "HDF5 checkpoint, written in batches at most every second",
-            **common,
-        },
-        {
-            "metric": "NUTS min ESS/s",
-            "value": ess_n / t_nuts,
-            "unit": "1/s",
-            "warmup": 500,
-            "samples": 1000,
-            "ess": round(ess_n),
-            "seconds": round(t_nuts, 1),
-            "divergences": int(out["diverging"].sum()),
-            "timing": "includes JIT compilation",
-            **common,
-        },
-        {
-            "metric": "emcee min ESS/s, adaptive moves (run_contact_fit's sampler)",
-            "value": ess_a / ad.seconds,
-            "unit": "1/s",
-            "walkers": walkers,
-            "steps": 1000,
-            "burn": ad.burn,
-            "ess": round(ess_a),
-            "seconds": round(ad.seconds, 1),
-            "autocorr_time_max": round(ad.tau_max, 1),
-            "moves": "adaptive_moves (t independence proposal refitted at steps 100, 200, 400, 800 + DE + snooker)",
-            **common,
-        },
-        {
-            "metric": "emcee / NUTS ESS/s, adaptive moves",
-            "value": (ess_a / ad.seconds) / (ess_n / t_nuts),
-            "unit": "1",
-            "target": 1,
-        },
-        {"metric": "emcee / NUTS ESS/s", "value": (ess_e / ch.seconds) / (ess_n / t_nuts), "unit": "1", "target": 1},
-    ]
 
 
 def _cli_fit(csv: Path, out: Path, cache: str) -> tuple[dict, float]:
