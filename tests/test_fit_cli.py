@@ -85,10 +85,12 @@ def _check_posterior_file(out, n_points):
     rep = idata.posterior_predictive["points"].values.reshape(-1, n_points, 3)
     assert obs.shape == (n_points, 3) and np.isfinite(rep).all()
     # a posterior-predictive check with a known answer: the data were drawn from the model, so the spread of the
-    # replicated points about their own centroid matches the observed one to within the draws' scatter (2 %)
-    r_obs = np.linalg.norm(obs - obs.mean(axis=0), axis=1).mean()
-    r_rep = np.linalg.norm(rep - rep.mean(axis=1, keepdims=True), axis=2).mean(axis=1)
-    assert abs(r_rep.mean() / r_obs - 1) < 0.02
+    # replicated points about their own median point matches the observed one to within the draws' scatter (2 %).
+    # Medians: the outlier model's displaced contacts are half-Cauchy (a replicate may hold one metres away), and
+    # one such point moves a mean radius by ~10 %
+    r_obs = np.median(np.linalg.norm(obs - np.median(obs, axis=0), axis=1))
+    r_rep = np.median(np.linalg.norm(rep - np.median(rep, axis=1, keepdims=True), axis=2), axis=1)
+    assert abs(np.median(r_rep) / r_obs - 1) < 0.02
     # log-likelihood group = the model's pointwise density at those draws: its sum is finite and near the
     # Student-t optimum (σ ≈ 0.3 mm → log density ≈ −log σ ≈ 8 per point)
     ll = idata.log_likelihood["points"].values.sum(axis=-1)
