@@ -75,7 +75,15 @@ def read_stroke(
         [float(frames["pressing_depth"][0])],
         {"mode": mode},
     )
-    data, _ = load_raw_data(ds, stride=1, radius=radius, contact_radius=contact_radius, finger=finger, device=device)
+    data, _ = load_raw_data(
+        ds,
+        stride=1,
+        radius=radius,
+        contact_radius=contact_radius,
+        finger=finger,
+        device=device,
+        demean_reference=device is not None,
+    )
     return data
 
 

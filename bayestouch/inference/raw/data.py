@@ -225,6 +225,7 @@ def load_raw_data(
     finger=None,
     calibration: DeviceCalibration | None = None,
     device: HostDevice | None = None,
+    demean_reference: bool = False,
 ):
     """Read a recording into :class:`RawData` with the finger as a host knows it (:func:`host_device`).
 
@@ -252,6 +253,12 @@ def load_raw_data(
         read (no simulator seed).
     device : HostDevice, optional
         The host's device (:func:`host_device`) to reuse between loads of one recording.
+    demean_reference : bool
+        Take each reference taxel's mean over the frames out before the per-frame median ĉ (for gains not known
+        exactly: each reference taxel then reads its own log-gain offset, ~0.8 against a reading noise of ~1e-3, so
+        the median is one and the same taxel in every frame, with one taxel's noise instead of the π/2 · σ²/n the
+        reading variance assumes). The constant this leaves in ĉ is one more per-taxel offset, which the texture
+        identifier marginalises (:func:`bayestouch.inference.texture_posterior.read_stroke` sets it).
 
     Returns
     -------
@@ -344,7 +351,10 @@ def load_raw_data(
     flick = float(nz.flicker_autocovariance(finger.noise, 0.0))
     white = (np.asarray(nz.noise_std(finger.noise, jnp.asarray(meas))) / meas) ** 2
     # median over the reference taxels: one read-out glitch on a reference taxel must not shift every taxel
-    c_hat = np.median(lnI[:, ref] - np.log(unloaded)[:, None], axis=1)
+    ref_dev = lnI[:, ref] - np.log(unloaded)[:, None]
+    if demean_reference:
+        ref_dev = ref_dev - ref_dev.mean(axis=0)
+    c_hat = np.median(ref_dev, axis=1)
     s_ref = 0.5 * np.pi * (np.mean(white[:, ref], axis=1) + flick) / ref.sum()  # variance of a median: π/2 · σ²/n
     t_first = {k: t[np.flatnonzero(si == k)[0]] for k in np.unique(si[frames])}
     t_in = t[frames] - np.array([t_first[k] for k in si[frames]])
