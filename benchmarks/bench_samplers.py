@@ -51,6 +51,7 @@ import time
 import numpy as np
 
 from bayestouch.backend import jax, jnp
+from bayestouch.geometry import nellipsoid as ne
 from bayestouch.inference import contact as cm
 from bayestouch.inference.nuts import from_unconstrained, make_potential, to_unconstrained
 from bayestouch.inference.run import initial_theta, natural_draws, start_ball
@@ -68,6 +69,8 @@ WARMUP = 500
 DRAWS = 1000
 WALKERS = 32
 EMCEE_STEPS = 3000
+#: closed-form volumes (m³, eq. 11) of natural draws' first 10 columns
+_volumes = jax.jit(jax.vmap(lambda v: ne.volume(ne.from_vector(v))))
 #: quantities judged: canonical a, b, c, n, σ (columns of natural_draws) and the volume
 JUDGED = ("a", "b", "c", "n", "sigma", "volume")
 
@@ -87,16 +90,9 @@ def judged(theta) -> np.ndarray:
     """θ draws (..., 11) → the judged quantities (..., 6): canonical a ≥ b ≥ c (m), n, σ (m), volume (m³)."""
     th = np.asarray(theta, float)
     nat = natural_draws(th.reshape(-1, th.shape[-1]))
-    out = np.column_stack([nat[:, 3], nat[:, 4], nat[:, 5], nat[:, 9], nat[:, 10], _volume(nat)])
+    vol = np.asarray(_volumes(jnp.asarray(nat[:, :10])))
+    out = np.column_stack([nat[:, 3], nat[:, 4], nat[:, 5], nat[:, 9], nat[:, 10], vol])
     return out.reshape(*th.shape[:-1], len(JUDGED))
-
-
-def _volume(nat) -> np.ndarray:
-    """Volume (N,) m³ of natural draws (N, ≥ 10): 8abc Γ(1 + 1/n)³ / Γ(1 + 3/n)."""
-    from scipy.special import gammaln
-
-    n = nat[:, 9]
-    return 8 * nat[:, 3] * nat[:, 4] * nat[:, 5] * np.exp(3 * gammaln(1 + 1 / n) - gammaln(1 + 3 / n))
 
 
 def ess_summary(draws) -> dict:

@@ -107,7 +107,7 @@ def test_whitened_noise_is_independent_over_frames(lib, vf):
     st = ti.IdSettings(shift_range=0.0, temperature_sd=0.0)
     rng = np.random.default_rng(21)
     spec = tx.random_stroke_spec(small.base, rng)
-    data, _, _ = ti.record_stroke(small.object(2), spec, vf, rng, st, ti.exact_device(vf, st))  # the noise model
+    data, _, _ = ti.record_stroke(small.object(2), spec, vf, rng, st, finger=vf.finger)  # the noise model
     mu = tp.texture_means(small.surfaces(), data, vf.finger)[2].reshape(np.shape(data.log_current))
     z = (np.asarray(data.log_current) - mu) / np.asarray(data.noise_sd)
     z = z[:, np.all(np.abs(z) < 6, axis=0)]

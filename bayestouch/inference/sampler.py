@@ -763,6 +763,7 @@ def sample(
     if adapt and indep is None:
         raise ValueError("adapt=True needs an IndependenceT among the moves")
     check_every = (50 if adapt else 250) if check_every is None else int(check_every)
+    mixture = isinstance(indep, IndependenceMixture)
 
     def adapt_to(a: int, lp, chain) -> None:
         """Adaptation step ``a``: fit the draws of the second half of the chain before it, when they look stationary
@@ -796,11 +797,10 @@ def sample(
             for a in steps_:
                 adapt_to(a, lp, chain)
 
-    mixture = isinstance(indep, IndependenceMixture)
     if proposal is not None and indep is None:
         raise ValueError("a proposal needs adapt=True")
-    # where the kept draws' kernel begins: the first adaptation, or step 0 when a proposal is given or fixed
-    skip_to = 0 if proposal is not None or isinstance(indep, IndependenceMixture) else ADAPT_FIRST
+    # where the kept draws' kernel begins: the first adaptation, or step 0 when a proposal or a mixture is given
+    skip_to = 0 if proposal is not None or mixture else ADAPT_FIRST
     if indep is not None:
         replay(backend.iteration)
 

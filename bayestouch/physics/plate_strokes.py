@@ -58,7 +58,8 @@ def nominal_skin_temperature(vf: VirtualFinger, n: int, dt: float) -> np.ndarray
 
 
 def known_finger(vf: VirtualFinger, noise: bool = True):
-    """The device as the identifier knows it: ``vf.finger``, with unit fixed-pattern gains when ``noise`` is off."""
+    """The simulated finger itself: ``vf.finger``, with unit fixed-pattern gains when ``noise`` is off (the truth's
+    device; an identifier reads with a host's device, :func:`bayestouch.inference.raw.host_device`)."""
     f = vf.finger
     return f if noise else f._replace(gains=jnp.ones_like(f.gains))
 

@@ -32,7 +32,7 @@ from bayestouch.inference.texture_posterior import (
 )
 from bayestouch.io.device_file import DeviceCalibration
 from bayestouch.io.files import write_text
-from bayestouch.physics.plate_strokes import record_plate_stroke
+from bayestouch.physics.plate_strokes import known_finger, record_plate_stroke
 from bayestouch.physics.virtual import VirtualFinger, load_finger
 from bayestouch.planning.eig import eig_pairwise
 from bayestouch.planning.experiment import ResultsFile, run_tasks, wilson_interval
@@ -44,7 +44,6 @@ __all__ = [
     "COLUMNS",
     "IdSettings",
     "record_stroke",
-    "exact_device",
     "run_trial",
     "run_experiment",
     "summarise",
@@ -132,6 +131,8 @@ def record_stroke(
     rng: np.random.Generator,
     settings: IdSettings,
     device: HostDevice | None = None,
+    *,
+    finger=None,
 ) -> tuple[RawData, np.ndarray, float]:
     """Simulate one stroke over the textured ``obj`` with the truth's nuisances, and read it as the identifier does.
 
@@ -146,8 +147,11 @@ def record_stroke(
         gains are taken as 1.
     device : HostDevice, optional
         The identifier's device (:func:`bayestouch.inference.raw.host_device`; default the models' constants with
-        unit gains and their nominal spread): nothing of ``vf`` reaches the reading but its readings. A simulator
-        check that needs the truth's own gains reads with ``device=exact_device(vf, settings)``.
+        unit gains and their nominal spread): nothing of ``vf`` reaches the reading but its readings.
+    finger : Finger, optional
+        Read with this device known exactly instead (its gains taken as they are): for checks of the simulator
+        and the noise model only, e.g. :func:`~bayestouch.physics.plate_strokes.known_finger` of ``vf`` — an
+        identifier never has it.
     rng : numpy Generator
         Draws the shift, the temperature offset and the noise key
         (:func:`~bayestouch.physics.plate_strokes.record_plate_stroke`).
@@ -172,25 +176,17 @@ def record_stroke(
         mode=settings.mode,
         noise=settings.noise,
     )
-    device = host_device() if device is None else device
-    exact = device.response_sd is None and np.all(np.asarray(device.log_gain_sd) == 0)
+    if finger is None and device is None:
+        device = host_device()
     data = read_stroke(
         rec.frames,
-        device.finger if exact else None,
+        finger,
         settings.mode,
         radius=settings.radius,
         contact_radius=settings.contact_radius,
-        device=None if exact else device,
+        device=device,
     )
     return data, rec.tangent, rec.shift
-
-
-def exact_device(vf: VirtualFinger, settings: IdSettings) -> HostDevice:
-    """The simulated finger known exactly (its own gains, nothing marginalised): for checks of the simulator and
-    the noise model only — an identifier never has it. Unit gains when ``settings.noise`` is off (the truth then
-    has none)."""
-    f = vf.finger if settings.noise else vf.finger._replace(gains=jax.numpy.ones_like(vf.finger.gains))
-    return HostDevice(f, np.zeros(int(np.asarray(f.gains).size)), 1.0, None)
 
 
 def _choose_eig(lib: TextureLibrary, surfs: Surface, vf, settings: IdSettings, rng, log_post, device: HostDevice):
@@ -204,12 +200,13 @@ def _choose_eig(lib: TextureLibrary, surfs: Surface, vf, settings: IdSettings, r
         keep = order[:2]
     sub = surfs._replace(texture=jax.tree.map(lambda a: a[keep], surfs.texture))
     clean = replace(settings, noise=False, temperature_sd=0.0, shift_range=0.0)
+    quiet = known_finger(vf, clean.noise)  # noise-free, unit gains: only the candidates' kinematics
     best, best_spec = -np.inf, None
     for _ in range(settings.candidates):
         spec = random_stroke_spec(
             lib.base, rng, speed=float(rng.choice(settings.speeds)), depth=float(rng.choice(settings.depths))
         )
-        data, _, _ = record_stroke(lib.base, spec, vf, np.random.default_rng(0), clean, exact_device(vf, clean))
+        data, _, _ = record_stroke(lib.base, spec, vf, np.random.default_rng(0), clean, finger=quiet)
         mu = texture_means(sub, data, device.finger)
         sd = settings.noise_scale * np.asarray(data.noise_sd).ravel()
         val = eig_pairwise(post[keep] / post[keep].sum(), mu, sd)
