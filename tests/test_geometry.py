@@ -253,3 +253,15 @@ def test_closest_points_on_mesh(rng):
     for i in range(5):
         q = mesh._closest_on_triangles(np.repeat(p[i : i + 1], len(f), 0), tri[:, 0], tri[:, 1], tri[:, 2])
         assert d[i] == pytest.approx(np.linalg.norm(q - p[i], axis=1).min(), rel=1e-12)
+
+
+def test_closest_points_on_degenerate_triangles(rng):
+    """A mesh from booleans holds triangles with two equal corners (a zero-length edge) or three collinear ones:
+    their closest points are points of the segment they collapse to, never NaN (were NaN: 0/0 in an edge test)."""
+    a = np.array([0.0, 0.0, 0.0])
+    c = np.array([1.0, 0.0, 0.0])
+    p = rng.normal(size=(200, 3))
+    for tri in ((a, a, c), (a, c, c), (a, 0.5 * (a + c), c), (c, a, a)):
+        q = mesh.closest_points(np.array(tri), np.array([[0, 1, 2]]), p)[0]
+        seg = np.clip(p[:, 0], 0.0, 1.0)[:, None] * c  # closest point of the segment a–c
+        np.testing.assert_allclose(q, seg, atol=1e-12)

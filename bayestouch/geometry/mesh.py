@@ -160,14 +160,18 @@ def _closest_on_triangles(p, a, b, c):
         w = np.where(denom != 0, vc / denom, 0.0)
         out = a + ab * v[:, None] + ac * w[:, None]
         # edge regions
-        vab = d1 / (d1 - d3)
-        e_ab = (vc <= 0) & (d1 >= 0) & (d3 <= 0)
+        # a degenerate triangle (two equal corners: booleans and scans produce them) has a zero-length edge, whose
+        # denominator (its squared length: d1 − d3 = |ab|², d2 − d6 = |ac|², the bc one |bc|²) is 0: that edge's
+        # region is skipped, the others hold the closest point, never NaN
+        vab = np.where(d1 != d3, d1 / (d1 - d3), 0.0)
+        e_ab = (vc <= 0) & (d1 >= 0) & (d3 <= 0) & (d1 != d3)
         out = np.where(e_ab[:, None], a + ab * vab[:, None], out)
-        wac = d2 / (d2 - d6)
-        e_ac = (vb <= 0) & (d2 >= 0) & (d6 <= 0)
+        wac = np.where(d2 != d6, d2 / (d2 - d6), 0.0)
+        e_ac = (vb <= 0) & (d2 >= 0) & (d6 <= 0) & (d2 != d6)
         out = np.where(e_ac[:, None], a + ac * wac[:, None], out)
-        wbc = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-        e_bc = (va <= 0) & ((d4 - d3) >= 0) & ((d5 - d6) >= 0)
+        den_bc = (d4 - d3) + (d5 - d6)
+        wbc = np.where(den_bc != 0, (d4 - d3) / den_bc, 0.0)
+        e_bc = (va <= 0) & ((d4 - d3) >= 0) & ((d5 - d6) >= 0) & (den_bc != 0)
         out = np.where(e_bc[:, None], b + (c - b) * wbc[:, None], out)
     # vertex regions
     out = np.where(((d1 <= 0) & (d2 <= 0))[:, None], a, out)
