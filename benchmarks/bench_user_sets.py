@@ -190,7 +190,7 @@ class UserSet(NamedTuple):
     outlier_fraction: float
 
 
-def _unit(v: np.ndarray) -> np.ndarray:
+def unit(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
@@ -208,7 +208,7 @@ def random_rotations(rng: np.random.Generator, count: int) -> np.ndarray:
     (count, 3, 3) float
         Proper rotations; column j is the rotated j-th axis.
     """
-    w, x, y, z = _unit(rng.normal(size=(int(count), 4))).T
+    w, x, y, z = unit(rng.normal(size=(int(count), 4))).T
     return np.stack(
         [
             np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], axis=-1),
@@ -244,7 +244,7 @@ def radial_surface_point(s: ne.NEllipsoid, directions):
     return ne.surface_point(s, ne.unit_nsphere(q / s.axes, s.n))
 
 
-def _stroke_counts(m: int, arcs: np.ndarray) -> np.ndarray:
+def stroke_counts(m: int, arcs: np.ndarray) -> np.ndarray:
     """Contacts per stroke ∝ its arc length (largest remainders), each ≥ 2."""
     share = m * arcs / arcs.sum()
     counts = np.floor(share).astype(int)
@@ -255,7 +255,7 @@ def _stroke_counts(m: int, arcs: np.ndarray) -> np.ndarray:
     return counts
 
 
-def _stroke_directions(rng: np.random.Generator, h: np.ndarray, cap: float, arc: float, count: int) -> np.ndarray:
+def stroke_directions(rng: np.random.Generator, h: np.ndarray, cap: float, arc: float, count: int) -> np.ndarray:
     """Unit directions (count, 3) along one great-circle arc of length ``arc`` (rad) lying in the cap of half-angle
     ``cap`` (rad) about ``h``: both ends, and one contact in each equal step of the arc in between."""
     u = np.linspace(-arc / 2, arc / 2, count)
@@ -264,13 +264,13 @@ def _stroke_directions(rng: np.random.Generator, h: np.ndarray, cap: float, arc:
     for _ in range(MAX_REDRAWS):
         # midpoint uniform by area in the cap: cos t uniform in [cos cap, 1]
         t = math.acos(1.0 - rng.uniform() * (1.0 - math.cos(cap)))
-        side = _unit(np.cross(h, rng.normal(size=3)))
+        side = unit(np.cross(h, rng.normal(size=3)))
         mid = h * math.cos(t) + side * math.sin(t)
-        heading = _unit(np.cross(mid, rng.normal(size=3)))  # uniform unit tangent at mid
+        heading = unit(np.cross(mid, rng.normal(size=3)))  # uniform unit tangent at mid
         d = mid[None, :] * np.cos(u)[:, None] + heading[None, :] * np.sin(u)[:, None]
         if np.min(d @ h) >= math.cos(cap) - 1e-12:
             return d
-    raise RuntimeError("_stroke_directions: no stroke fits in the cap")
+    raise RuntimeError("stroke_directions: no stroke fits in the cap")
 
 
 def _check_range(name: str, value: float, lo: float, hi: float) -> float:
@@ -343,16 +343,16 @@ def make_user_set(
     m = int(r_strokes.integers(POINTS_RANGE[0], POINTS_RANGE[1] + 1))
     k = int(r_strokes.integers(STROKES_RANGE[0], STROKES_RANGE[1] + 1))
     cap = r_strokes.uniform(*CAP_RANGE_DEG)
-    h = _unit(r_strokes.normal(size=3))
+    h = unit(r_strokes.normal(size=3))
     m = m if n_points is None else int(_check_range("n_points", n_points, *POINTS_ALLOWED))
     k = k if strokes is None else int(_check_range("strokes", strokes, 1, 20))
     cap = cap if cap_deg is None else _check_range("cap_deg", cap_deg, 60.0, 180.0)
     if 2 * k > m:
         raise ValueError(f"make_user_set: {k} strokes need at least {2 * k} contacts, got {m}")
     arcs = r_strokes.uniform(*ARC_RANGE_RAD, k)
-    counts = _stroke_counts(m, arcs)
+    counts = stroke_counts(m, arcs)
     dirs = np.concatenate(
-        [_stroke_directions(r_strokes, h, math.radians(cap), a, c) for a, c in zip(arcs, counts, strict=True)]
+        [stroke_directions(r_strokes, h, math.radians(cap), a, c) for a, c in zip(arcs, counts, strict=True)]
     )
     stroke = np.repeat(np.arange(k), counts)
     coverage = float((1.0 - np.min(dirs @ h)) / 2.0)
@@ -385,7 +385,7 @@ def make_user_set(
     # ---- free space along the approach of every stroke
     first = np.concatenate([[0], np.cumsum(counts)[:-1]])
     tilt = r_free.uniform(0.0, FREE_TILT_MAX_RAD, k)
-    side = _unit(np.cross(nrm[first], r_free.normal(size=(k, 3))))
+    side = unit(np.cross(nrm[first], r_free.normal(size=(k, 3))))
     along = nrm[first] * np.cos(tilt)[:, None] + side * np.sin(tilt)[:, None]
     dist = np.linspace(*FREE_RANGE_M, FREE_PER_STROKE)
     ideal = (surf[first][:, None, :] + dist[None, :, None] * along[:, None, :]).reshape(-1, 3)

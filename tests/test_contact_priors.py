@@ -27,7 +27,7 @@ def test_outlier_density_integrates_to_one_and_separates_the_sides():
     log_u, inv = np.log(2.0 / (np.pi * s)), 1.0 / s
 
     def density(d):
-        return np.exp(np.asarray(cm._outlier_terms(jnp.asarray(d), np.log(sigma), w_in, w_out, log_u, inv)))
+        return np.exp(np.asarray(cm.outlier_terms(jnp.asarray(d), np.log(sigma), w_in, w_out, log_u, inv)))
 
     # over ±L the heavy tails hold (w_in + w_out)(1 − (2/π) atan(L/s)) outside: the integral inside is exactly that
     L = 0.5

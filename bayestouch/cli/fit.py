@@ -148,8 +148,84 @@ def add_parser(sub) -> argparse.ArgumentParser:
         "their errors); without it the gains are unknown and marginalised with the nominal spread of "
         "models/noise.toml (wider intervals)",
     )
+    fp.add_argument(
+        "--parts",
+        default=None,
+        metavar="auto|K",
+        help="contact level: fit the object as a union of K n-ellipsoids (1-4; a head and a body, a mug and its "
+        "handle), or auto: K = 1 ... --max-parts chosen by the tempered-SMC evidence; writes occupancy.npz (the "
+        "posterior probability that a point is inside the object) besides summary.json, posterior.nc, "
+        "mean_shape.ply, uncertainty_mesh.ply",
+    )
+    fp.add_argument(
+        "--max-parts",
+        type=positive_int,
+        default=None,
+        help="with --parts auto: the largest number of parts considered (default 2; each costs an SMC run)",
+    )
     fp.add_argument("--quiet", action="store_true", help="no progress bar")
     return fp
+
+
+def _run_parts(args) -> int:
+    """``bayestouch fit DATA --parts …``: the union-of-parts fit (:mod:`bayestouch.inference.parts_run`)."""
+    from bayestouch.inference.parts import MAX_PARTS
+    from bayestouch.inference.parts_run import DEFAULT_MAX_PARTS, run_parts_fit
+    from bayestouch.io.contacts import load_contact_points
+
+    if args.points.suffix == ".nc":
+        raise BadInput("--parts applies to contact points (.csv), not to a recording (.nc)")
+    clash = [
+        flag
+        for flag, used in (
+            ("--ffd", args.ffd is not None),
+            ("--noise", args.noise not in ("auto", "outlier")),
+            ("--nu", args.nu is not None),
+            ("--init", args.init != "auto"),
+            ("--size-prior", args.size_prior is not None),
+            ("--precision", args.precision != "auto"),
+            ("--texture/--stride/--calibration", args.texture != "auto" or args.stride or args.calibration),
+        )
+        if used
+    ]
+    if clash:
+        raise BadInput(f"--parts: the parts fit has its own model (outlier noise, SMC start); drop {', '.join(clash)}")
+    parts = args.parts.strip().lower()
+    if parts != "auto" and not (parts.isdigit() and 1 <= int(parts) <= MAX_PARTS):
+        raise BadInput(f"--parts: expected auto or a number of parts 1 to {MAX_PARTS}, got {args.parts!r}")
+    if args.max_parts is not None and (parts != "auto" or args.max_parts > MAX_PARTS):
+        raise BadInput(f"--max-parts goes with --parts auto and is at most {MAX_PARTS}, got {args.max_parts}")
+    cp = load_contact_points(args.points)
+    if len(cp.points) > MAX_CONTACTS:
+        raise BadInput(f"{args.points}: {len(cp.points)} contacts; a parts fit takes at most {MAX_CONTACTS}")
+    if cp.normals is not None and not args.ignore_normals:
+        print("bayestouch fit: note: --parts does not use the file's normals (nx, ny, nz)", file=sys.stderr)
+    s = run_parts_fit(
+        cp.points,
+        args.out,
+        parts=parts if parts == "auto" else int(parts),
+        max_parts=args.max_parts or DEFAULT_MAX_PARTS,
+        seed=args.seed,
+        walkers=None if args.walkers == 32 else args.walkers,
+        steps=args.steps or 20000,
+        budget_s=60.0 if args.budget is None else (args.budget or None),
+        free=cp.free,
+        progress=not args.quiet,
+        resume=args.resume,
+        overwrite=args.overwrite,
+    )
+    d, v, mc = s["diagnostics"], s["derived"]["volume_m3"], s["model"]["model_choice"]
+    probs = ", ".join(f"P(K={k}) {p:.2f}" for k, p in mc["posterior_probability"].items())
+    print(
+        f"wrote {args.out}/summary.json, posterior.nc, occupancy.npz, mean_shape.ply, uncertainty_mesh.ply: "
+        f"{s['model']['parts']} part(s) ({probs}); volume {v['mean'] * 1e6:.3f} ± {v['sd'] * 1e6:.3f} cm³ "
+        f"(90 % {v['q05'] * 1e6:.3f}–{v['q95'] * 1e6:.3f}), max R-hat {d['max_r_hat']:.3f}, "
+        f"min ESS {d['min_ess_bulk']:.0f}, {'converged' if d['converged'] else 'NOT converged'}"
+        f"{' (stopped by --budget)' if d.get('stopped_by_budget') else ''} ({d['seconds']:.1f} s)"
+    )
+    for w in d.get("warnings", []):
+        print(f"bayestouch fit: warning: {w}", file=sys.stderr)
+    return 0
 
 
 def run(args) -> int:
@@ -167,6 +243,10 @@ def run(args) -> int:
         raise BadInput(f"{args.points}: no such file (expected a contact points CSV or a recording .nc)")
     if args.ffd_tau is not None and not (0 < args.ffd_tau < 0.1):
         raise BadInput(f"--ffd-tau must be in (0, 0.1) metres, got {args.ffd_tau}")
+    if args.parts is not None:
+        return _run_parts(args)
+    if args.max_parts is not None:
+        raise BadInput("--max-parts goes with --parts auto")
     from bayestouch.api import fit
 
     common = dict(

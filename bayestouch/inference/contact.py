@@ -44,6 +44,8 @@ __all__ = [
     "padded_size",
     "pointwise_log_likelihood",
     "outlier_log_density",
+    "outlier_terms",
+    "free_space_terms",
     "OUTLIER_SCALE",
     "principal_frame",
     "PrincipalFrame",
@@ -354,7 +356,7 @@ def outlier_log_density(d, log_u, inv_scale):
     return log_u - jnp.log1p(x * x)
 
 
-def _outlier_terms(d, ls, w_in, w_out, log_u, inv_scale):
+def outlier_terms(d, ls, w_in, w_out, log_u, inv_scale):
     """Per-point log-likelihood of the two-sided outlier model (any float dtype): Gaussian core of sd e^ls, and
     contacts displaced into the solid (d < 0, fraction w_in) or out into free space (d > 0, fraction w_out), each
     half-Cauchy on its side (:func:`outlier_log_density`)."""
@@ -363,7 +365,7 @@ def _outlier_terms(d, ls, w_in, w_out, log_u, inv_scale):
     return jnp.logaddexp(jnp.log1p(-(w_in + w_out)) + log_core, log_w + outlier_log_density(d, log_u, inv_scale))
 
 
-def _free_terms(d, ls, log_miss):
+def free_space_terms(d, ls, log_miss):
     """Log-probability that a finger position with first-order distance ``d`` (m) lies outside the object:
     Φ(d/σ), floored by the probability ``e^log_miss`` that the position is mislabelled."""
     return jnp.logaddexp(log_miss, jnp.log1p(-jnp.exp(log_miss)) + log_ndtr(d * jnp.exp(-ls)))
@@ -396,7 +398,7 @@ def _log_lik_terms(th, data: _Data, noise: str, nu: float):
         var = jnp.exp(2.0 * ls) + eps2 / 3.0 * jnp.sum(nw * nw * data.lever2[None], axis=1)
         out = ll - 0.5 * (d * d / var + jnp.log(var)) - 0.5 * _LOG_2PI
     elif noise == "outlier":
-        out = ll + _outlier_terms(d, ls, th[:, k][:, None], th[:, k + 1][:, None], data.log_u, data.out_inv)
+        out = ll + outlier_terms(d, ls, th[:, k][:, None], th[:, k + 1][:, None], data.log_u, data.out_inv)
     else:
         w = th[:, k][:, None]
         log_n = -0.5 * d * d * jnp.exp(-2.0 * ls) - ls - 0.5 * _LOG_2PI
@@ -404,7 +406,7 @@ def _log_lik_terms(th, data: _Data, noise: str, nu: float):
         out = ll + jnp.logaddexp(jnp.log1p(-w) + log_n, log_w + data.log_u)
     if data.free is None:
         return out
-    return jnp.where(data.free[None] > 0, _free_terms(d, ls, data.log_miss), out)
+    return jnp.where(data.free[None] > 0, free_space_terms(d, ls, data.log_miss), out)
 
 
 def _log_lik_batch(th, data: _Data, noise: str, nu: float):
@@ -473,7 +475,7 @@ def _log_lik_mixed(th, data: _Data, noise: str, nu: float):
     if data.free is None:
         return contacts
     is_free = (free * use)[None] > 0
-    ft = _free_terms(d, ls.astype(_F32)[:, None], _F32(data.log_miss))
+    ft = free_space_terms(d, ls.astype(_F32)[:, None], _F32(data.log_miss))
     return contacts + jnp.sum(jnp.where(is_free, ft, _F32(0)).astype(jnp.float64), axis=1)
 
 

@@ -45,7 +45,15 @@ FINGERPRINT_FILE = "run.json"
 RESULT_FILES = ("summary.json", "chain.h5", "posterior.nc")
 #: every file of a fit's run folder: what ``overwrite`` removes before the new run starts, what
 #: :meth:`bayestouch.api.Fit.save` copies
-OUTPUTS = (*RESULT_FILES, "mean_shape.ply", "uncertainty_mesh.ply", "smc.npz", FINGERPRINT_FILE)
+OUTPUTS = (
+    *RESULT_FILES,
+    "mean_shape.ply",
+    "uncertainty_mesh.ply",
+    "smc.npz",
+    "occupancy.npz",
+    *(f"smc_parts{k}.npz" for k in range(1, 5)),
+    FINGERPRINT_FILE,
+)
 
 
 def _digest(value) -> str | None:

@@ -1,0 +1,473 @@
+"""A fit of an object made of parts (:mod:`bayestouch.inference.parts`): the number of parts chosen by the
+evidence, the chosen union sampled, and a run folder whose summaries mean something for any shape.
+
+1. **Evidence per K.** A tempered SMC from the (connected-parts) prior for each candidate K
+   (:func:`bayestouch.inference.smc.tempered_smc`, :data:`PARTS_PARTICLES` particles, HMC moves) estimates log Z_K;
+   the smallest K within :data:`CHOICE_NATS` of the best is chosen (a Bayes factor below e^2.3 ≈ 10, "strong" on
+   Jeffreys' scale, does not buy a part). The posterior probabilities of the K's (uniform prior over them) are
+   reported; a chosen K with probability below :data:`CHOICE_CONFIDENT` is a warning.
+2. **Chain.** emcee from the chosen K's particles, parts ordered by volume and each part aligned to one alias,
+   with the independence mixture fitted to them (:func:`bayestouch.inference.run.smc_moves`); stopped on
+   convergence of the monitored quantities (each part's volume and exponent in volume order, σ) or the budget.
+3. **Summaries** (:func:`write_parts_outputs`) on thinned draws: the union's volume (quasi-Monte Carlo inside each
+   draw's bounding box: :data:`VOLUME_POINTS` Sobol points, relative error ~1 %), its extent along the world axes
+   and its principal second moments (m⁵), with 90 % intervals; every part's centre, semi-axes, exponent and volume
+   in volume order; the occupancy grid (:mod:`bayestouch.io.occupancy`); the mean surface (the 0.5 level set of
+   the occupancy, ``mean_shape.ply``) and its per-vertex spread (sd over draws of the distance to each draw's
+   union, metres, ``uncertainty_mesh.ply``); ``posterior.nc`` with every kept draw.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import arviz as az
+import numpy as np
+import xarray as xr
+from scipy.stats import qmc
+
+from bayestouch.backend import jnp
+from bayestouch.errors import BadInput
+from bayestouch.geometry.mesh import to_trimesh
+from bayestouch.geometry.rotation import rotation_matrix
+from bayestouch.geometry.symmetry import align_batch
+from bayestouch.inference import contact as cm
+from bayestouch.inference import parts as pm
+from bayestouch.inference.posterior import interval
+from bayestouch.inference.sampler import convergence, sample
+from bayestouch.inference.smc import tempered_smc
+from bayestouch.io.files import atomic_path, write_json
+from bayestouch.io.meshes import write_spread_mesh
+from bayestouch.io.occupancy import OCCUPANCY_FILE, Occupancy, write_occupancy
+from bayestouch.io.runfolder import fingerprint, prepare_run_folder
+
+__all__ = [
+    "run_parts_fit",
+    "choose_parts",
+    "write_parts_outputs",
+    "union_summaries",
+    "PARTS_PARTICLES",
+    "CHOICE_NATS",
+    "CHOICE_CONFIDENT",
+    "DEFAULT_MAX_PARTS",
+    "VOLUME_POINTS",
+    "OCCUPANCY_RES",
+    "SUMMARY_DRAWS",
+]
+
+#: particles of each K's tempered SMC
+PARTS_PARTICLES = 1024
+#: a larger K is chosen only when its log-evidence beats every smaller K's by this many nats
+CHOICE_NATS = 2.3
+#: a chosen K with posterior probability below this is reported as an uncertain model choice
+CHOICE_CONFIDENT = 0.9
+#: the largest K that ``parts="auto"`` considers
+DEFAULT_MAX_PARTS = 2
+#: Sobol points per draw of the union's volume, extent and moments
+VOLUME_POINTS = 8192
+#: grid points per axis of the occupancy grid
+OCCUPANCY_RES = 40
+#: thinned draws the summaries and the occupancy grid are computed on
+SUMMARY_DRAWS = 400
+#: share of the budget the SMC stages may take together
+SMC_SHARE = 0.6
+#: fewest chain steps, whatever the budget
+MIN_CHAIN_STEPS = 200
+_NAMES = ("x_G", "y_G", "z_G", "a", "b", "c", "xi", "psi", "zeta", "n")
+
+
+def choose_parts(log_evidence: dict[int, float], nats: float = CHOICE_NATS) -> tuple[int, dict[int, float]]:
+    """The chosen number of parts and the posterior probability of each K (uniform prior over the K's).
+
+    Parameters
+    ----------
+    log_evidence : {K: log Z_K}, nats
+    nats : float
+        A larger K is chosen only when it beats every smaller K by this much.
+    """
+    ks = sorted(log_evidence)
+    z = np.array([log_evidence[k] for k in ks], float)
+    prob = np.exp(z - np.max(z))
+    prob /= prob.sum()
+    best = max(z)
+    chosen = min(k for k in ks if log_evidence[k] >= best - nats)
+    return chosen, {k: float(p) for k, p in zip(ks, prob, strict=True)}
+
+
+def _aligned(particles, log_post, k: int) -> np.ndarray:
+    """Particles (N, 10 K + 3) in volume order, each part rewritten as the alias nearest the best particle's."""
+    x = pm.canonical_order(particles, k)
+    ref = x[int(np.nanargmax(log_post))]
+    for j in range(k):
+        sl = slice(10 * j, 10 * j + 10)
+        x[:, sl] = align_batch(x[:, sl], ref[sl])
+    return x
+
+
+def _monitor(k: int):
+    """Chain draws (N, 10 K + 3) → each part's volume and log n in volume order, and log σ (label-free)."""
+
+    def monitor(draws):
+        c = pm.canonical_order(draws, k)
+        vols = pm.part_volumes(c, k)
+        return np.column_stack([np.log(vols), c[:, [10 * j + 9 for j in range(k)]], c[:, 10 * k]])
+
+    return monitor
+
+
+def _boxes(theta, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Axis-aligned boxes (N, 3) lo, hi (m) holding each draw's union: per part centre ± |R| a (n ≥ 1)."""
+    lo, hi = [], []
+    for j in range(k):
+        p = theta[:, 10 * j : 10 * j + 10]
+        R = np.asarray(jnp.vectorize(rotation_matrix, signature="(3)->(3,3)")(jnp.asarray(p[:, 6:9])))
+        half = np.einsum("nij,nj->ni", np.abs(R), np.exp(p[:, 3:6]))
+        lo.append(p[:, :3] - half)
+        hi.append(p[:, :3] + half)
+    return np.min(lo, axis=0), np.max(hi, axis=0)
+
+
+def union_summaries(theta, k: int, seed: int = 0, points: int = VOLUME_POINTS) -> dict:
+    """Volume (N,) m³, extent lo/hi (N, 3) m, centre of volume (N, 3) m and principal second moments (N, 3) m⁵ of
+    the union of each draw θ (N, 10 K + 3), by ``points`` scrambled Sobol points in each draw's bounding box."""
+    th = np.asarray(theta, float)
+    lo, hi = _boxes(th, k)
+    u = qmc.Sobol(3, scramble=True, seed=np.random.default_rng([seed, 0x50B])).random(points)
+    vol, ext_lo, ext_hi, com, mom = [], [], [], [], []
+    for i in range(len(th)):
+        pts = lo[i] + u * (hi[i] - lo[i])
+        inside = pm.inside_union(th[i : i + 1], k, pts)[0]
+        box = float(np.prod(hi[i] - lo[i]))
+        v = box * inside.mean()
+        vol.append(v)
+        q = pts[inside] if inside.any() else pts[:1]
+        ext_lo.append(q.min(axis=0))
+        ext_hi.append(q.max(axis=0))
+        c = q.mean(axis=0)
+        com.append(c)
+        C = v * np.cov((q - c).T, bias=True) if len(q) > 1 else np.zeros((3, 3))
+        mom.append(np.linalg.eigvalsh(C)[::-1])
+    return {
+        "volume": np.array(vol),
+        "extent_lo": np.array(ext_lo),
+        "extent_hi": np.array(ext_hi),
+        "centre": np.array(com),
+        "moments": np.array(mom),
+    }
+
+
+def _occupancy(theta, k: int, res: int = OCCUPANCY_RES, chunk: int = 20) -> Occupancy:
+    lo, hi = _boxes(theta, k)
+    a, b = np.quantile(lo, 0.01, axis=0), np.quantile(hi, 0.99, axis=0)
+    pad = 0.05 * (b - a)
+    axes = [np.linspace(a[i] - pad[i], b[i] + pad[i], res) for i in range(3)]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    count = np.zeros(len(grid))
+    for s in range(0, len(theta), chunk):
+        count += pm.inside_union(theta[s : s + chunk], k, grid).sum(axis=0)
+    return Occupancy(*axes, (count / len(theta)).reshape(res, res, res), int(len(theta)))
+
+
+def _mean_surface(occ: Occupancy, theta, k: int):
+    """Vertices (V, 3) m, faces (F, 3) of the occupancy's 0.5 level set, and the per-vertex spread (V,) m."""
+    from skimage.measure import marching_cubes
+
+    h = np.array([occ.x[1] - occ.x[0], occ.y[1] - occ.y[0], occ.z[1] - occ.z[0]])
+    if not (occ.probability.max() > 0.5 > occ.probability.min()):
+        return None, None, None
+    verts, faces, _, _ = marching_cubes(occ.probability, level=0.5, spacing=tuple(h))
+    verts = verts + np.array([occ.x[0], occ.y[0], occ.z[0]])
+    faces = faces[:, ::-1]  # marching cubes orients towards increasing values (inwards here): flip outwards
+    hom = jnp.asarray(np.concatenate([verts.T, np.ones((1, len(verts)))]))
+    d = np.asarray(pm.union_distance(jnp.asarray(theta[:200]), hom, k))  # (draws, V)
+    return verts, faces, d.std(axis=0, ddof=1)
+
+
+def _parts_dataset(c, k: int, S: int, W: int) -> xr.Dataset:
+    """Every kept draw, parts in volume order, natural units: (chain = walker, draw = step, part …)."""
+    nat = c.reshape(S, W, -1).swapaxes(0, 1)  # (W, S, D)
+    parts = nat[..., : 10 * k].reshape(W, S, k, 10)
+    dims3 = ("chain", "draw", "part", "xyz")
+    ds = xr.Dataset(
+        {
+            "centre": (dims3, parts[..., 0:3], {"units": "m"}),
+            "semi_axes": (dims3, np.exp(parts[..., 3:6]), {"units": "m"}),
+            "euler_angles": (dims3, parts[..., 6:9], {"units": "rad"}),
+            "n": (("chain", "draw", "part"), np.exp(parts[..., 9]), {"units": "1"}),
+            "sigma": (("chain", "draw"), np.exp(nat[..., 10 * k]), {"units": "m"}),
+            "w_in": (("chain", "draw"), nat[..., 10 * k + 1], {"units": "1"}),
+            "w_out": (("chain", "draw"), nat[..., 10 * k + 2], {"units": "1"}),
+        },
+        coords={"chain": np.arange(W), "draw": np.arange(S), "part": np.arange(k), "xyz": ["x", "y", "z"]},
+    )
+    return ds
+
+
+def write_parts_outputs(out: Path, chain, k: int, points, *, seed: int, t0: float, info: dict, priors) -> dict:
+    """Summarise a parts chain and write ``summary.json``, ``posterior.nc``, ``occupancy.npz``, ``mean_shape.ply``
+    and ``uncertainty_mesh.ply`` to ``out`` (every file atomically, the summary last). Returns the summary."""
+    out = Path(out)
+    S, W, D = chain.kept.shape
+    flat = chain.kept.reshape(-1, D)
+    c = pm.canonical_order(flat, k)
+    for j in range(k):
+        sl = slice(10 * j, 10 * j + 10)
+        c[:, sl] = cm.wrap_angles(c[:, sl])
+    post = _parts_dataset(c, k, S, W)
+
+    mon = _monitor(k)(flat).reshape(S, W, -1).swapaxes(0, 1)
+    mds = xr.Dataset({f"q{i}": (("chain", "draw"), mon[..., i]) for i in range(mon.shape[-1])})
+    rhat, ess = az.rhat(mds), az.ess(mds, method="bulk")
+    diag = convergence([float(rhat[v]) for v in mds], [float(ess[v]) for v in mds], chain)
+
+    rng = np.random.default_rng([seed, 0x7A2])
+    thin = c[rng.choice(len(c), min(SUMMARY_DRAWS, len(c)), replace=False)]
+    u = union_summaries(thin, k, seed)
+    occ = _occupancy(thin, k)
+    verts, faces, spread = _mean_surface(occ, thin, k)
+
+    vols = pm.part_volumes(c, k)
+    parts = []
+    for j in range(k):
+        p = c[:, 10 * j : 10 * j + 10]
+        nat = np.column_stack([p[:, :3], np.exp(p[:, 3:6]), p[:, 6:9], np.exp(p[:, 9])])
+        axes = np.sort(nat[:, 3:6], axis=1)[:, ::-1]
+        parts.append(
+            {
+                "centre_m": [interval(nat[:, i]) for i in range(3)],
+                **{name: interval(axes[:, i]) for i, name in enumerate(("a", "b", "c"))},
+                "n": interval(nat[:, 9]),
+                "volume_m3": interval(vols[:, j]),
+            }
+        )
+    warnings = []
+    if not diag["converged"]:
+        warnings.append(
+            f"not converged (largest R-hat {diag['max_r_hat']:.3f}, smallest bulk ESS {diag['min_ess_bulk']:.0f}"
+            f"{', stopped by the budget' if diag['stopped_by_budget'] else ''}): the intervals are not reliable"
+        )
+    choice = info["model_choice"]
+    if choice["posterior_probability"][str(k)] < CHOICE_CONFIDENT:
+        warnings.append(
+            f"uncertain number of parts: P(K = {k}) = {choice['posterior_probability'][str(k)]:.2f} "
+            f"(log-evidences {choice['log_evidence']})"
+        )
+    if not all(choice["smc_complete"].values()):
+        warnings.append("a tempered SMC stopped before the posterior (budget): its evidence is not an estimate")
+    if any(max(p[a]["q95"] for a in "abc") > 0.5 * priors.axis_max for p in parts):
+        warnings.append("a part's semi-axis runs to the prior box: the data do not bound it")
+    if verts is None:
+        warnings.append("no mean surface: the occupancy never crosses 0.5 on the grid")
+
+    sigma = np.exp(c[:, 10 * k])
+    summary = {
+        "parameters": {
+            "parts": parts,
+            "sigma": interval(sigma),
+            "w_in": interval(c[:, 10 * k + 1]),
+            "w_out": interval(c[:, 10 * k + 2]),
+        },
+        "derived": {
+            "volume_m3": interval(u["volume"]),
+            "extent_lo_m": [interval(u["extent_lo"][:, i]) for i in range(3)],
+            "extent_hi_m": [interval(u["extent_hi"][:, i]) for i in range(3)],
+            "centre_of_volume_m": [interval(u["centre"][:, i]) for i in range(3)],
+            "second_moments_principal_m5": [interval(u["moments"][:, i]) for i in range(3)],
+            "surface_spread_m": None
+            if spread is None
+            else {"mean": float(spread.mean()), "max": float(spread.max()), "q95": float(np.quantile(spread, 0.95))},
+            "summary_draws": int(len(thin)),
+        },
+        "diagnostics": {**diag, "seconds": time.perf_counter() - t0, "warnings": warnings},
+        "model": {**info, "seed": seed},
+        "files": ["summary.json", "posterior.nc", "chain.h5", OCCUPANCY_FILE]
+        + ([] if verts is None else ["mean_shape.ply", "uncertainty_mesh.ply"]),
+    }
+    idata = az.InferenceData(
+        posterior=post,
+        observed_data=xr.Dataset({"points": (("point", "xyz"), np.asarray(points, float), {"units": "m"})}),
+    )
+    write_occupancy(out / OCCUPANCY_FILE, occ)
+    if verts is not None:
+        with atomic_path(out / "mean_shape.ply") as tmp:
+            to_trimesh(verts, faces).export(str(tmp))
+        write_spread_mesh(out / "uncertainty_mesh.ply", to_trimesh(verts, faces), spread)
+    with atomic_path(out / "posterior.nc") as tmp:
+        idata.to_netcdf(str(tmp), compress=False)
+    write_json(out / "summary.json", summary)
+    return summary
+
+
+def _smc(f, prior, k: int, seed: int, path: Path, budget_s, progress: bool) -> dict:
+    if path.exists():
+        with np.load(path) as z:
+            return {key: (z[key] if z[key].ndim else z[key].item()) for key in z.files}
+
+    def log_lik(x):
+        with np.errstate(invalid="ignore"):
+            return f(x) - f.log_prior(x)
+
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=1000, desc=f"tempering, {k} part{'s' if k > 1 else ''}", unit="‰β", leave=False)
+
+    def tick(beta, stage):
+        if bar is not None:
+            bar.update(int(1000 * beta) - bar.n)
+
+    try:
+        r = tempered_smc(
+            log_lik,
+            f.log_prior,
+            lambda count, g: pm.sample_prior(prior, count, g),
+            np.random.default_rng([seed, 0x9A7, k]),
+            particles=PARTS_PARTICLES,
+            ess_target=0.8,
+            gradients=f.parts,
+            max_steps=10,
+            budget_s=budget_s,
+            progress=tick,
+        )
+    finally:
+        if bar is not None:
+            bar.close()
+    res = {
+        "particles": r.particles,
+        "log_lik": r.log_lik,
+        "log_prior": r.log_prior,
+        "log_evidence": r.log_evidence,
+        "betas": r.betas,
+        "complete": bool(r.complete),
+        "seconds": float(r.seconds),
+    }
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        np.savez(fh, **res)
+    return res
+
+
+def run_parts_fit(
+    points,
+    out,
+    *,
+    parts="auto",
+    max_parts: int = DEFAULT_MAX_PARTS,
+    seed: int = 0,
+    walkers: int | None = None,
+    steps: int = 20000,
+    budget_s: float | None = 60.0,
+    free=None,
+    priors: cm.PriorParams | None = None,
+    progress: bool = True,
+    resume: bool = False,
+    overwrite: bool = False,
+) -> dict:
+    """Fit contacts ``points (M, 3)`` m as a union of parts and write the run folder ``out`` (module docstring).
+
+    Parameters
+    ----------
+    parts : "auto" or int
+        The number of parts K, or ``"auto"``: K = 1 … ``max_parts`` by the evidence.
+    max_parts : int
+        Largest K considered by ``"auto"`` (1 … :data:`bayestouch.inference.parts.MAX_PARTS`).
+    seed : int
+    walkers : int, optional
+        Ensemble size (default max(32, 2 D + 2) for D = 10 K + 3 parameters).
+    steps : int
+        Largest number of chain steps.
+    budget_s : float, seconds, optional
+        Wall-clock budget of the whole fit: the SMC stages share :data:`SMC_SHARE` of it, the chain stops when it
+        is spent (after at least :data:`MIN_CHAIN_STEPS` steps).
+    free : (K_f, 3) float, metres, optional
+        Free-space finger positions.
+    priors : PriorParams, optional
+    resume, overwrite : bool
+        As :func:`bayestouch.inference.run.run_contact_fit` (a resume must match data and options).
+
+    Returns
+    -------
+    dict
+        The summary written to ``summary.json``.
+    """
+    from bayestouch.inference.run import smc_moves
+
+    t0 = time.perf_counter()
+    out = Path(out)
+    priors = priors or cm.load_priors()
+    if parts == "auto":
+        max_parts = int(max_parts)
+        if not 1 <= max_parts <= pm.MAX_PARTS:
+            raise BadInput(f"max_parts: expected 1 to {pm.MAX_PARTS}, got {max_parts}")
+        candidates = list(range(1, max_parts + 1))
+    else:
+        try:
+            k = int(parts)
+        except (TypeError, ValueError):
+            raise BadInput(f"parts: expected 'auto' or a number of parts 1 to {pm.MAX_PARTS}, got {parts!r}") from None
+        if not 1 <= k <= pm.MAX_PARTS or str(k) != str(parts).strip():
+            raise BadInput(f"parts: expected 'auto' or a number of parts 1 to {pm.MAX_PARTS}, got {parts!r}")
+        candidates = [k]
+    free = None if free is None or len(np.asarray(free).reshape(-1, 3)) == 0 else np.asarray(free, float)
+    options = {
+        "parts": str(parts),
+        "candidates": candidates,
+        "seed": int(seed),
+        "walkers": walkers,
+        "priors": {key: float(v) for key, v in priors._asdict().items()},
+    }
+    fp = fingerprint("parts", {"points": points, "free-space points": free}, options)
+    prepare_run_folder(out, fp, resume=resume, overwrite=overwrite)
+
+    share = None if budget_s is None else SMC_SHARE * budget_s / len(candidates)
+    runs, models = {}, {}
+    for k in candidates:
+        f, prior = pm.make_parts_log_prob(points, k, priors, free)
+        path = out / f"smc_parts{k}.npz"
+        if not resume:
+            path.unlink(missing_ok=True)
+        runs[k] = _smc(f, prior, k, seed, path, share, progress)
+        models[k] = f
+    log_z = {k: float(r["log_evidence"]) for k, r in runs.items()}
+    k, prob = choose_parts(log_z)
+    f, r = models[k], runs[k]
+    dim = 10 * k + 3
+    walkers = int(walkers or max(32, 2 * dim + 2))
+    aligned = _aligned(r["particles"], np.asarray(r["log_lik"]) + np.asarray(r["log_prior"]), k)
+    cols = [10 * k + 1, 10 * k + 2]
+    moves, start = smc_moves(aligned, walkers, seed, logp=f, log_columns=cols)
+    ch = sample(
+        f,
+        start,
+        out / "chain.h5",
+        walkers=walkers,
+        ndim=dim,
+        seed=seed,
+        steps=steps,
+        resume=resume,
+        budget_s=budget_s,
+        min_steps=MIN_CHAIN_STEPS,
+        progress=progress,
+        t0=t0,
+        stop_when_converged=True,
+        adapt=True,
+        moves=moves,
+        monitor=_monitor(k),
+    )
+    info = {
+        "level": "parts",
+        "parts": k,
+        "noise": "outlier",
+        "free_space_points": 0 if free is None else int(len(free)),
+        "model_choice": {
+            "method": f"tempered SMC evidence ({PARTS_PARTICLES} particles); smallest K within {CHOICE_NATS} nats",
+            "log_evidence": {str(key): v for key, v in log_z.items()},
+            "posterior_probability": {str(key): v for key, v in prob.items()},
+            "smc_complete": {str(key): bool(rr["complete"]) for key, rr in runs.items()},
+            "smc_seconds": {str(key): float(rr["seconds"]) for key, rr in runs.items()},
+            "chosen": k,
+        },
+        "parameter_names": list(pm.param_names(k)),
+    }
+    return write_parts_outputs(out, ch, k, points, seed=seed, t0=t0, info=info, priors=priors)

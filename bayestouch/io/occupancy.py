@@ -1,0 +1,93 @@
+"""The posterior occupancy grid of a run folder (``occupancy.npz``): the probability, over posterior draws, that a
+point of space lies inside the object, on a regular grid — for grasp planning, collision checks or plots, whatever
+the shape model.
+
+File: NumPy ``.npz`` with ``x``, ``y``, ``z`` (grid coordinates, metres, increasing), ``probability``
+(len(x), len(y), len(z)) in [0, 1] (indexing ``ij``) and ``draws`` (how many posterior draws it averages).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+from scipy.interpolate import RegularGridInterpolator
+
+from bayestouch.errors import BadInput
+from bayestouch.io.files import atomic_path
+
+__all__ = ["OCCUPANCY_FILE", "Occupancy", "write_occupancy", "load_occupancy"]
+
+#: the occupancy grid's file name in a run folder
+OCCUPANCY_FILE = "occupancy.npz"
+
+
+class Occupancy(NamedTuple):
+    """Posterior probability of occupancy on a grid.
+
+    Attributes
+    ----------
+    x, y, z : (nx,), (ny,), (nz,) float, metres
+        Increasing grid coordinates.
+    probability : (nx, ny, nz) float
+        Fraction of the posterior draws inside which each grid point lies.
+    draws : int
+        Number of posterior draws averaged (the Monte-Carlo sd of a probability p is √(p(1 − p)/draws)).
+    """
+
+    x: np.ndarray
+    y: np.ndarray
+    z: np.ndarray
+    probability: np.ndarray
+    draws: int
+
+    def at(self, points) -> np.ndarray:
+        """Occupancy probability (P,) at ``points (P, 3)`` m, trilinear between grid points, 0 outside the grid."""
+        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        f = RegularGridInterpolator((self.x, self.y, self.z), self.probability, bounds_error=False, fill_value=0.0)
+        return f(p)
+
+    def volume(self, level: float = 0.5) -> float:
+        """Volume (m³) of the grid cells whose occupancy probability is at least ``level``."""
+        cell = np.diff(self.x).mean() * np.diff(self.y).mean() * np.diff(self.z).mean()
+        return float(np.count_nonzero(self.probability >= level) * cell)
+
+
+def write_occupancy(path: str | os.PathLike[str], occ: Occupancy) -> Path:
+    """Write ``occ`` to ``path`` atomically (a kill leaves the old file or the new one). Returns the path."""
+    path = Path(path)
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        np.savez(fh, x=occ.x, y=occ.y, z=occ.z, probability=occ.probability.astype(np.float32), draws=occ.draws)
+    return path
+
+
+def load_occupancy(path: str | os.PathLike[str]) -> Occupancy:
+    """Read an occupancy grid: ``path`` is the ``.npz`` file or a run folder holding ``occupancy.npz``.
+
+    Raises
+    ------
+    BadInput
+        The file is missing or not an occupancy grid (one line naming what is wrong).
+    """
+    path = Path(path)
+    if path.is_dir():
+        path = path / OCCUPANCY_FILE
+    if not path.is_file():
+        raise BadInput(f"{path}: no occupancy grid here (a parts fit writes {OCCUPANCY_FILE} in its run folder)")
+    try:
+        with np.load(path) as z:
+            occ = Occupancy(
+                np.asarray(z["x"], float),
+                np.asarray(z["y"], float),
+                np.asarray(z["z"], float),
+                np.asarray(z["probability"], float),
+                int(z["draws"]),
+            )
+    except (OSError, ValueError, KeyError) as exc:
+        raise BadInput(f"{path}: not an occupancy grid (expected x, y, z, probability, draws): {exc}") from None
+    shape = (occ.x.size, occ.y.size, occ.z.size)
+    if occ.probability.shape != shape or min(shape) < 2:
+        raise BadInput(f"{path}: probability has shape {occ.probability.shape}, expected {shape} with every side ≥ 2")
+    return occ
