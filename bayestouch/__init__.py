@@ -50,6 +50,8 @@ _API = {
     "sample": "bayestouch.inference.sampler",
     "run_contact_fit": "bayestouch.inference.run",
     "run_raw_fit": "bayestouch.inference.raw",
+    "run_parts_fit": "bayestouch.inference.parts_run",
+    "load_occupancy": "bayestouch.io.occupancy",
     "patch_posterior": "bayestouch.inference.patch",
     "explore": "bayestouch.planning.loop",
     "ExploreSettings": "bayestouch.planning.loop",
