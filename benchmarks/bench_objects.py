@@ -45,6 +45,7 @@ with Wilson intervals.
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import tempfile
@@ -539,7 +540,8 @@ def bench_objects(count: int | None = None, seed: int = 0, methods=METHODS, out:
     Parameters
     ----------
     count : int, optional
-        Number of sets (default ``$BAYESTOUCH_OBJECT_SETS`` or 24: three of each kind).
+        Number of sets (default ``$BAYESTOUCH_OBJECT_SETS`` or 16: two of each kind). ``$BAYESTOUCH_OBJECT_SHARD``
+        ``k/K`` fits the sets i ≡ k (mod K) only (run K processes at once; the last to finish writes the summary).
     seed : int
     methods : sequence of :data:`METHODS`
     out : Path or None
@@ -553,18 +555,29 @@ def bench_objects(count: int | None = None, seed: int = 0, methods=METHODS, out:
 
     from bayestouch.io.files import write_csv_rows, write_json, write_text
 
-    count = int(os.environ.get("BAYESTOUCH_OBJECT_SETS", 24)) if count is None else int(count)
+    count = int(os.environ.get("BAYESTOUCH_OBJECT_SETS", 16)) if count is None else int(count)
     methods = tuple(methods)
     if any(m not in METHODS for m in methods):
         raise ValueError(f"bench_objects: methods must be some of {METHODS}, got {methods}")
+    shard = os.environ.get("BAYESTOUCH_OBJECT_SHARD")  # "k/K": fit only sets i with i % K == k, save the rows
+    k_of = tuple(int(v) for v in shard.split("/")) if shard else (0, 1)
     sets = make_object_sets(count, seed)
+    mine = [i for i in range(count) if i % k_of[1] == k_of[0]]
     rows = []
-    with tqdm(total=count * len(methods), desc="objects", unit="fit") as bar:
-        for i, d in enumerate(sets):
+    with tqdm(total=len(mine) * len(methods), desc="objects", unit="fit") as bar:
+        for i in mine:
             for method in methods:
-                bar.set_postfix_str(f"{d.kind} {method}")
-                rows.append(fit_set(d, method, i))
+                bar.set_postfix_str(f"{sets[i].kind} {method}")
+                rows.append(fit_set(sets[i], method, i))
                 bar.update()
+    if shard:
+        if out is None:
+            return []
+        write_json(Path(out) / f"objects.shard{k_of[0]}of{k_of[1]}.json", rows)
+        shards = sorted(Path(out).glob(f"objects.shard*of{k_of[1]}.json"))
+        if len(shards) < k_of[1]:
+            return []  # the last shard to finish writes the summary
+        rows = sorted((r for f in shards for r in json.loads(f.read_text())), key=lambda r: (r["set"], r["method"]))
     summary = summarise(rows, seed)
     if out is not None:
         out = Path(out)

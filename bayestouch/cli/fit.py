@@ -70,7 +70,8 @@ def add_parser(sub) -> argparse.ArgumentParser:
         "--budget",
         type=float,
         default=None,
-        help="wall-clock budget for sampling, seconds (default: 60 for contact points, none for a recording; "
+        help="wall-clock budget for sampling, seconds (default: 60 for contact points, 180 with --parts, none for a "
+        "recording; "
         "0 for none); a run stopped by it is reported as not converged and can be continued with --resume",
     )
     fp.add_argument(
@@ -170,7 +171,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
 def _run_parts(args) -> int:
     """``bayestouch fit DATA --parts …``: the union-of-parts fit (:mod:`bayestouch.inference.parts_run`)."""
     from bayestouch.inference.parts import MAX_PARTS
-    from bayestouch.inference.parts_run import DEFAULT_MAX_PARTS, run_parts_fit
+    from bayestouch.inference.parts_run import DEFAULT_MAX_PARTS, PARTS_BUDGET_S, run_parts_fit
     from bayestouch.io.contacts import load_contact_points
 
     if args.points.suffix == ".nc":
@@ -208,7 +209,7 @@ def _run_parts(args) -> int:
         seed=args.seed,
         walkers=None if args.walkers == 32 else args.walkers,
         steps=args.steps or 20000,
-        budget_s=60.0 if args.budget is None else (args.budget or None),
+        budget_s=PARTS_BUDGET_S if args.budget is None else (args.budget or None),
         free=cp.free,
         progress=not args.quiet,
         resume=args.resume,
