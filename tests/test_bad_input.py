@@ -58,6 +58,20 @@ TABLE = [
     ("fit {tmp}/good.csv --out {tmp}/o --size-prior 0.0001:0.01", "size prior"),
     ("fit {tmp}/good.csv --out {tmp}/o --ffd 1x1x1", "--ffd"),
     ("fit {tmp}/good.csv --out {tmp}/o --ffd-tau 5", "--ffd-tau"),
+    # sizes whose memory or time grows with them have a stated limit (were MemoryError / OOM, issue 24)
+    ("fit {tmp}/good.csv --out {tmp}/o --walkers 1000000000", "--walkers"),
+    ("fit {tmp}/good.csv --out {tmp}/o --ffd 20x20x20", "--ffd"),
+    ("explore --object {egg} --draws 1000000000 --out {tmp}/o", "--draws"),
+    ("explore --object {egg} --candidates 1000000000 --out {tmp}/o", "--candidates"),
+    ("explore --object {egg} --strokes 100000 --out {tmp}/o", "--strokes"),
+    ("explore --object {egg} --draws 1 --out {tmp}/o", "--draws"),
+    ("explore --object {egg} --target-volume-sd -1 --out {tmp}/o", "--target-volume-sd"),
+    ("experiment --strokes 100000 --out {tmp}/o", "--strokes"),
+    ("experiment --draws 1 --out {tmp}/o", "--draws"),
+    ("sbc --datasets 1000000000 --out {tmp}/o", "--datasets"),
+    ("device run --port {tmp}/no_such_port --strokes 1000000000 --out {tmp}/r.nc", "--strokes"),
+    ("simulate --object {tmp}/negative_amplitude.toml --out {tmp}/r.nc", "amplitude_m"),
+    ("simulate --object {tmp}/negative_roughness.toml --out {tmp}/r.nc", "roughness_m"),
     ("fit {tmp}/good.csv --out {tmp}/o --nu -2", "--nu"),
     ("fit {tmp}/good.csv --out {tmp}/o --steps 0", "--steps"),
     ("fit {tmp}/good.csv --out {tmp}/o --noise laplace", "--noise"),
@@ -97,6 +111,7 @@ TABLE = [
     # an output path that is a file already: refused, and the file is kept
     ("fit {tmp}/good.csv --out {tmp}/keep.txt", "keep.txt"),
     ("demo --out {tmp}/keep.txt", "keep.txt"),
+    ("demo --out {tmp}/a_fit_run", "not a demo's"),
     ("explore --object {egg} --out {tmp}/keep.txt", "keep.txt"),
     ("simulate --object {egg} --out {tmp}/folder.nc", "folder"),
 ]
@@ -146,8 +161,12 @@ def _files(tmp):
     shape = "[shape]\ncentre_m = [0, 0, 0]\naxes_m = [0.03, 0.02, 0.02]\nn = 2\n"
     (tmp / "negative_modes.toml").write_text(shape + "[texture]\nwavelength_m = 0.002\nmodes = -5\n")
     (tmp / "negative_seed.toml").write_text(shape + "[texture]\nwavelength_m = 0.002\nseed = -1\n")
+    (tmp / "negative_amplitude.toml").write_text(shape + "[texture]\nwavelength_m = 0.002\namplitude_m = -0.01\n")
+    (tmp / "negative_roughness.toml").write_text(shape + "[texture]\nwavelength_m = 0.002\nroughness_m = -1e-5\n")
     (tmp / "bad_strokes.json").write_text('{"strokes": [{"contact": [[0, 0]]}]}')
     (tmp / "keep.txt").write_text("recorded")
+    (tmp / "a_fit_run").mkdir()
+    (tmp / "a_fit_run" / "summary.json").write_text("{}")
     (tmp / "folder.nc").mkdir()
 
 
@@ -174,3 +193,18 @@ def test_bad_input_one_line_exit_2(line, needle, tmp, capsys):
     assert "Traceback" not in err
     assert needle in lines[0], lines[0]
     assert (tmp / "keep.txt").read_text() == "recorded"
+
+
+def test_an_empty_out_path_is_refused(tmp_path, capsys, monkeypatch):
+    """``--out ''`` once wrote a fit into the current folder (issue 24): every command refuses it."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "good.csv").write_text(
+        "x,y,z\n" + "".join(f"{0.03 * c:.4f},{0.02 * (1 - c)},0.0\n" for c in (0, 1) * 20)
+    )
+    for argv in (["fit", "good.csv", "--out", ""], ["simulate", "--object", "egg", "--out", " "]):
+        with pytest.raises(SystemExit) as e:
+            main(argv)
+        assert e.value.code == 2
+        err = capsys.readouterr().err
+        assert "--out" in err and "empty path" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["good.csv"]

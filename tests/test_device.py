@@ -590,3 +590,33 @@ def test_cli_run_with_a_stuck_heater_keeps_the_stroke_it_completed(device, tmp_p
     ds = read_recording(out)
     assert ds.attrs["incomplete"] == "true" and ds["taxel_current"].shape[0] == 30
     assert len(sim.model.out) == 1  # the second stroke was never sent
+
+
+def test_cli_run_interrupted_keeps_the_complete_strokes(device, tmp_path, capsys, monkeypatch):
+    """Ctrl-C (or SIGTERM, handled alike) after a complete stroke: the stroke is written to the .nc, marked
+    incomplete, and the interrupt goes on (exit 130 from the CLI); before, only the journal held it."""
+    from bayestouch.cli.device import run_device
+    from bayestouch.hardware.device import FingerDevice
+    from bayestouch.io.recording import read_recording
+
+    sim, dev = device()
+    dev.close()
+    real = FingerDevice.run_stroke
+    calls = []
+
+    def stroke_then_interrupt(self, plan):
+        calls.append(plan)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(self, plan)
+
+    monkeypatch.setattr(FingerDevice, "run_stroke", stroke_then_interrupt)
+    f = _stroke_file(tmp_path / "strokes.json", [make_plan(30), make_plan(20)])
+    out = tmp_path / "dev.nc"
+    argv = ["device", "run", "--port", str(tmp_path / "finger"), "--stroke-file", str(f), "--out", str(out)]
+    with pytest.raises(KeyboardInterrupt):
+        run_device(_parser().parse_args([*argv, "--quiet"]))
+    err = capsys.readouterr().err
+    assert "interrupted; 1 complete stroke(s) written" in err and "journal" in err
+    ds = read_recording(out)
+    assert ds.attrs["incomplete"] == "true" and ds["taxel_current"].shape[0] == 30

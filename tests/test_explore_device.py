@@ -237,3 +237,38 @@ def test_a_stuck_heater_keeps_the_guarded_stroke_it_completed(tmp_path):
     finally:
         dev.close()
         sim.close(timeout=5.0)
+
+
+def test_explore_refuses_a_folder_holding_a_finger_recording(tmp_path, capsys):
+    """A folder holding only an earlier finger run's recording and journal (its summaries gone) is an exploration
+    too: refused without --overwrite, its files untouched (before, only summary_*.json counted)."""
+    from bayestouch.cli import main
+
+    out = tmp_path / "x"
+    out.mkdir()
+    (out / "recording.nc").write_bytes(b"frames")
+    (out / "device.journal").write_bytes(b"packets")
+    assert main(["explore", "--object", "sphere", "--strokes", "1", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "already holds an exploration" in err and "recording.nc" in err and "\n" not in err
+    assert (out / "recording.nc").read_bytes() == b"frames" and (out / "device.journal").read_bytes() == b"packets"
+
+
+@pytest.mark.slow
+def test_explore_overwrite_moves_an_earlier_recording_aside(tmp_path, capsys):
+    """--overwrite replaces the derived outputs and moves the earlier finger data aside (nothing recorded lost, and
+    no stale recording beside the new run's results)."""
+    from bayestouch.cli import main
+
+    out = tmp_path / "x"
+    out.mkdir()
+    (out / "recording.nc").write_bytes(b"frames")
+    (out / "device.journal").write_bytes(b"packets")
+    (out / "summary_7.json").write_text("{}")
+    argv = ["explore", "--object", "sphere", "--strokes", "1", "--candidates", "3", "--draws", "64"]
+    assert main([*argv, "--steps", "30", "--out", str(out), "--overwrite"]) == 0
+    assert not (out / "recording.nc").exists() and not (out / "device.journal").exists()
+    assert not (out / "summary_7.json").exists() and (out / "summary_0.json").is_file()
+    (aside,) = out.glob("replaced-*")
+    assert (aside / "recording.nc").read_bytes() == b"frames" and (aside / "device.journal").read_bytes() == b"packets"
+    assert "moved to" in capsys.readouterr().err

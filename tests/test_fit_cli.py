@@ -285,3 +285,13 @@ def test_vmf_sample_has_the_known_mean_cosine_and_no_preferred_azimuth():
         assert abs(w.mean() - wrong) > 3 * tol, (kappa, w.mean(), wrong, tol)
         tangent = x - w[:, None] * mean
         assert np.all(np.abs(tangent.mean(axis=0)) < 5 * np.sqrt(max(1 - expect, 1e-12) / n) + 1e-12)
+
+
+def test_a_chain_too_short_for_diagnostics_reports_them_as_unknown(points_csv, tmp_path, capsys):
+    """--steps 5 leaves R-hat and ESS undefined (null in summary.json): the CLI's report line says n/a and NOT
+    converged instead of failing with an internal error after writing the run (issue 24)."""
+    out = tmp_path / "short"
+    assert main(["fit", str(points_csv), "--out", str(out), "--steps", "5", "--init", "optimize", "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    assert "NOT converged" in printed and "n/a" in printed
+    assert json.loads((out / "summary.json").read_text())["diagnostics"]["converged"] is False

@@ -452,3 +452,65 @@ def test_experiment_through_the_virtual_finger_with_the_gpis_planner(tmp_path):
         run_experiment(tmp_path, resume=True, **kw)
     with pytest.raises(BadInput, match="prober: expected one of rays, finger"):
         run_experiment(tmp_path / "x", prober="laser", **kw)
+
+
+def test_scheduler_probe_tells_a_dask_scheduler_from_other_servers():
+    """--scheduler pointing at an HTTP server answered HTTP 400 read as a 3 EiB Dask frame (MemoryError), and a
+    silent server hung for minutes (issue 24): both are one-line BadInput now, a real scheduler passes."""
+    import socket
+    import threading
+
+    from bayestouch.planning.experiment import probe_scheduler
+
+    def serve(reply):
+        srv = socket.socket()
+        srv.bind(("127.0.0.1", 0))
+        srv.listen(1)
+
+        def run():
+            conn, _ = srv.accept()
+            if reply:
+                conn.sendall(reply)
+            threading.Event().wait(1.0)
+            conn.close()
+            srv.close()
+
+        threading.Thread(target=run, daemon=True).start()
+        return f"tcp://127.0.0.1:{srv.getsockname()[1]}"
+
+    with pytest.raises(BadInput, match="not a Dask scheduler"):
+        probe_scheduler(serve(b"HTTP/1.1 400 Bad Request\r\n\r\n"), timeout_s=2.0)
+    with pytest.raises(BadInput, match="said nothing"):
+        probe_scheduler(serve(b""), timeout_s=0.3)
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(n_workers=0, processes=False, dashboard_address=None) as cluster:
+        probe_scheduler(cluster.scheduler_address, timeout_s=5.0)  # no exception
+
+
+def test_experiment_resume_refuses_an_edited_object_file(tmp_path, monkeypatch):
+    """The trial key holds the object's contents, not only its file name (issue 24: an edited object file was
+    resumed as '0 trial(s) to run, 1 kept')."""
+    from bayestouch.params import MODELS
+    from bayestouch.planning import experiment as ex
+
+    obj = tmp_path / "myobj.toml"
+    obj.write_text((MODELS / "objects" / "sphere.toml").read_text())
+
+    def fake(task):
+        return [
+            {c: "" for c in COLUMNS}
+            | {"planner": task["planner"], "trial": task["trial"], "object": task["object"], "stroke": s}
+            | {"chamfer": 0.1, "volume_error": 0.1, "seed": task["seed"]}
+            for s in range(task["budget"] + 1)
+        ]
+
+    monkeypatch.setattr(ex, "run_trial", fake)
+    kw = dict(planners=("random",), objects=(str(obj),), trials=1, budget=1, seed=0, workers=1, plot=False)
+    out = tmp_path / "exp"
+    assert run_experiment(out, **kw, log=lambda m: None)["ran"] == 1
+    assert run_experiment(out, **kw, log=lambda m: None, resume=True)["ran"] == 0  # the same file: kept
+    text = obj.read_text()
+    line = next(x for x in text.splitlines() if x.startswith("axes_m"))
+    obj.write_text(text.replace(line, "axes_m = [0.04, 0.02, 0.01]"))
+    with pytest.raises(BadInput, match="other object"):
+        run_experiment(out, **kw, log=lambda m: None, resume=True)

@@ -8,7 +8,18 @@ from pathlib import Path
 
 from bayestouch.errors import BadInput
 
-__all__ = ["seed", "positive_int", "size_list", "one_size", "size_range", "eps_list", "check_out"]
+__all__ = [
+    "seed",
+    "positive_int",
+    "size_list",
+    "one_size",
+    "size_range",
+    "eps_list",
+    "check_out",
+    "out_path",
+    "bounded_int",
+    "stat",
+]
 
 
 def seed(text: str) -> int:
@@ -60,6 +71,37 @@ def eps_list(text: str) -> list[float]:
     if any(not 0 <= e < 0.5 for e in eps):
         raise argparse.ArgumentTypeError(f"epsilons must lie in [0, 0.5), got {eps}")
     return eps
+
+
+def out_path(text: str) -> Path:
+    """An ``--out`` path: not empty (an empty one would write into the current folder)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("expected a file or folder name, got an empty path")
+    return Path(text)
+
+
+def bounded_int(low: int, high: int):
+    """An argparse type: an integer in [low, high] (a count whose memory or time grows with it has a stated
+    limit instead of a MemoryError or an hours-long silence)."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer from {low} to {high}, got {text!r}") from None
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"expected an integer from {low} to {high}, got {value}")
+        return value
+
+    return parse
+
+
+def stat(value, spec: str) -> str:
+    """A diagnostic (R-hat, ESS) for a one-line report: ``format(value, spec)``, or ``n/a`` when a chain too short
+    left it undefined (None or NaN)."""
+    if value is None or value != value:
+        return "n/a"
+    return format(value, spec)
 
 
 def check_out(path: Path) -> Path:

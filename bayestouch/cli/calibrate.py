@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bayestouch.cli.args import out_path
 from bayestouch.errors import BadInput
 from bayestouch.params import MODELS
 
@@ -33,7 +34,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
         required=True,
         help="the touched object: a name (sphere, egg, ...) or a TOML file, in the recording's world frame",
     )
-    cp.add_argument("--out", required=True, type=Path, help="device file to write (.toml)")
+    cp.add_argument("--out", required=True, type=out_path, help="device file to write (.toml)")
     cp.add_argument("--models", type=Path, default=MODELS, help="the finger's parameter folder (default models/)")
     cp.add_argument("--overwrite", action="store_true", help="replace an existing device file")
     return cp

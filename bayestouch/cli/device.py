@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bayestouch.cli.args import bounded_int, out_path
 from bayestouch.cli.args import seed as seed_arg
 from bayestouch.errors import BadInput
 from bayestouch.params import MODELS
@@ -22,6 +23,11 @@ from bayestouch.params import MODELS
 __all__ = ["add_device_parser", "run_device", "load_stroke_file"]
 
 _MODELS = MODELS
+
+
+#: most random strokes of one ``device run`` (1000 strokes of 2 s at 50 Hz: 100,000 frames, half of what
+#: ``simulate`` writes into one recording)
+MAX_DEVICE_STROKES = 1000
 
 
 def _prob(text: str) -> float:
@@ -109,9 +115,14 @@ def add_device_parser(subparsers) -> argparse.ArgumentParser:
         "come from --stroke-file or are random sections of --object (like `simulate`).",
     )
     rp.add_argument("--port", required=True, help="serial port path or pyserial URL (loop://, socket://HOST:PORT)")
-    rp.add_argument("--out", required=True, type=Path, help="recording to write (.nc)")
+    rp.add_argument("--out", required=True, type=out_path, help="recording to write (.nc)")
     rp.add_argument("--overwrite", action="store_true", help="replace an existing --out recording")
-    rp.add_argument("--strokes", type=int, default=1, help="number of random strokes (default 1)")
+    rp.add_argument(
+        "--strokes",
+        type=bounded_int(1, MAX_DEVICE_STROKES),
+        default=1,
+        help=f"number of random strokes (default 1; at most {MAX_DEVICE_STROKES} in one recording)",
+    )
     rp.add_argument(
         "--stroke-file",
         type=Path,
@@ -324,6 +335,25 @@ def _run(args) -> int:
         "object": "unknown (device)" if args.stroke_file else f"device; strokes planned on {args.object}",
     }
     dev = FingerDevice(args.port, timeout=args.timeout, journal=journal, limits=limits)
+
+    def keep(note: str) -> None:
+        """Write the complete strokes so far (marked incomplete) and say where everything received is."""
+        if done:
+            write_recording(build_recording(done, dev.info, {**attrs, "incomplete": "true"}), args.out)
+        written = f" written to {args.out}" if done else ""
+        print(
+            f"bayestouch device run: {note}; {len(done)} complete stroke(s){written}; everything received is in "
+            f"{journal}",
+            file=sys.stderr,
+        )
+
+    def terminated(signum, frame):  # SIGTERM (a scheduler, kill): handled as Ctrl-C, the strokes kept
+        raise KeyboardInterrupt
+
+    try:
+        old_term = signal.signal(signal.SIGTERM, terminated)
+    except ValueError:  # not the main thread: no handler can be installed there
+        old_term = None
     try:
         with dev:
             from tqdm.auto import tqdm
@@ -335,15 +365,14 @@ def _run(args) -> int:
         # a fault, or a stroke refused by the device's own limits after good ones: the good strokes are kept
         if isinstance(e, HeaterFault) and e.data is not None:
             done.append(e.data)  # complete: the heaters stayed on after it, so no further stroke was sent
-        if done:
-            write_recording(build_recording(done, dev.info, {**attrs, "incomplete": "true"}), args.out)
-        print(
-            f"bayestouch device run: error: {e}; {len(done)} complete stroke(s) "
-            + (f"written to {args.out}; " if done else "")
-            + f"everything received is in {journal}",
-            file=sys.stderr,
-        )
+        keep(f"error: {e}")
         return 2 if isinstance(e, BadInput) else 1
+    except KeyboardInterrupt:
+        keep("interrupted")
+        raise
+    finally:
+        if old_term is not None:
+            signal.signal(signal.SIGTERM, old_term)
     write_recording(build_recording(done, info, attrs), args.out)
     if args.journal is None:
         journal.unlink(missing_ok=True)

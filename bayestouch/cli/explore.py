@@ -6,8 +6,10 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+import time
 from pathlib import Path
 
+from bayestouch.cli.args import out_path
 from bayestouch.cli.args import seed as seed_arg
 from bayestouch.errors import BadInput
 
@@ -33,7 +35,7 @@ def _common(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="eig planner: maximise information per second of stroke (cost-aware) instead of per stroke",
     )
-    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--out", required=True, type=out_path, help="output folder")
 
 
 def add_planning_parsers(subparsers) -> tuple[argparse.ArgumentParser, argparse.ArgumentParser]:
@@ -107,12 +109,25 @@ def add_planning_parsers(subparsers) -> tuple[argparse.ArgumentParser, argparse.
     return ep, xp
 
 
+#: largest values of the planner's sizes (memory grows with candidates × draws × rays, time with each): beyond
+#: them a run would end in a MemoryError or an hours-long silence
+SETTING_LIMITS = {"candidates": 4096, "draws": 100_000, "steps": 1_000_000, "budget": 1000}
+#: fewest posterior draws the planner can estimate a covariance from
+MIN_DRAWS = 10
+
+
 def _settings(args) -> dict:
     for name in ("candidates", "draws", "steps"):
-        if getattr(args, name) < 1:
-            raise BadInput(f"--{name} must be a positive integer, got {getattr(args, name)}")
-    if args.budget < 1:
-        raise BadInput(f"--strokes (--budget) must be an integer number of strokes ≥ 1, got {args.budget}")
+        v, hi = getattr(args, name), SETTING_LIMITS[name]
+        if not 1 <= v <= hi:
+            raise BadInput(f"--{name} must be an integer from 1 to {hi}, got {v}")
+    if args.draws < MIN_DRAWS:
+        raise BadInput(f"--draws must be at least {MIN_DRAWS} (a covariance of the posterior), got {args.draws}")
+    if not 1 <= args.budget <= SETTING_LIMITS["budget"]:
+        raise BadInput(
+            f"--strokes (--budget) must be an integer number of strokes from 1 to {SETTING_LIMITS['budget']}, "
+            f"got {args.budget}"
+        )
     out = {"candidates": args.candidates, "draws": args.draws, "steps": args.steps}
     if getattr(args, "per_second", False):
         out["per_second"] = True
@@ -145,6 +160,9 @@ def run_explore(args) -> int:
 
     settings = ExploreSettings(**_settings(args))
     check_policy(args.planner)
+    tv = args.target_volume_sd
+    if tv is not None and not (math.isfinite(tv) and tv > 0):
+        raise BadInput(f"--target-volume-sd must be a positive volume in m^3, got {tv}")
     port = getattr(args, "port", None)
     centre = _centre(getattr(args, "centre", None))
     if port is not None and not port.strip():
@@ -165,14 +183,25 @@ def run_explore(args) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise BadInput(f"--out {out} exists and is not a folder")
+    derived = ["explore.json", "explore.png"]
+    recorded = ["recording.nc", "device.journal"]  # a finger's data: moved aside on --overwrite, never deleted
     earlier = sorted(out.glob("summary_*.json")) if out.is_dir() else []
+    earlier += [out / f for f in derived + recorded if (out / f).exists()]
     if earlier and not args.overwrite:
         raise BadInput(
-            f"--out {out} already holds an exploration ({len(earlier)} stroke summaries); pass --overwrite to "
-            "replace it, or choose another folder"
+            f"--out {out} already holds an exploration ({', '.join(sorted({f.name for f in earlier})[:4])}"
+            f"{' …' if len(earlier) > 4 else ''}); pass --overwrite to replace it, or choose another folder"
         )
-    for f in earlier:  # --overwrite: no stale stroke of the earlier run is left beside the new ones
-        f.unlink()
+    kept = [f for f in earlier if f.name in recorded]
+    if kept:
+        aside = out / f"replaced-{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}"
+        aside.mkdir(exist_ok=True)
+        for f in kept:
+            f.replace(aside / f.name)
+        print(f"explore: the earlier run's {', '.join(f.name for f in kept)} moved to {aside}", file=sys.stderr)
+    for f in earlier:  # --overwrite: no stale output of the earlier run is left beside the new ones
+        if f.name not in recorded:
+            f.unlink()
     out.mkdir(parents=True, exist_ok=True)
     truthless = obj is None
     object_name = name if name is not None else "unknown (a finger without --object)"

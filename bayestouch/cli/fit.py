@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bayestouch.cli.args import one_size, positive_int, size_range
+from bayestouch.cli.args import one_size, out_path, positive_int, size_range, stat
 from bayestouch.cli.args import seed as seed_arg
 from bayestouch.errors import BadInput
 
@@ -17,6 +17,12 @@ __all__ = ["add_parser", "run", "MAX_CONTACTS"]
 #: most contacts a fit takes (more need --subsample): the contact-level posterior of 50,000 points is already far
 #: narrower than the n-ellipsoid's misfit to any real object, and its outputs hold every point's log-likelihood
 MAX_CONTACTS = 50_000
+
+
+#: most emcee walkers a fit takes
+MAX_WALKERS = 10_000
+#: most control points along one axis of an --ffd lattice (8 x 8 x 8: 1536 marginalised displacements)
+MAX_FFD_SIZE = 8
 
 
 def add_parser(sub) -> argparse.ArgumentParser:
@@ -36,7 +42,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
         metavar="DATA",
         help="contact points CSV (x,y,z in metres; optional nx,ny,nz,force) or a recording .nc",
     )
-    fp.add_argument("--out", required=True, type=Path, help="output folder")
+    fp.add_argument("--out", required=True, type=out_path, help="output folder")
     fp.add_argument("--seed", type=seed_arg, default=0, help="seed of the initial fit, walkers and emcee (default 0)")
     fp.add_argument("--walkers", type=positive_int, default=32, help="emcee walkers (default 32)")
     fp.add_argument(
@@ -220,8 +226,8 @@ def _run_parts(args) -> int:
     print(
         f"wrote {args.out}/summary.json, posterior.nc, occupancy.npz, mean_shape.ply, uncertainty_mesh.ply: "
         f"{s['model']['parts']} part(s) ({probs}); volume {v['mean'] * 1e6:.3f} ± {v['sd'] * 1e6:.3f} cm³ "
-        f"(90 % {v['q05'] * 1e6:.3f}–{v['q95'] * 1e6:.3f}), max R-hat {d['max_r_hat']:.3f}, "
-        f"min ESS {d['min_ess_bulk']:.0f}, {'converged' if d['converged'] else 'NOT converged'}"
+        f"(90 % {v['q05'] * 1e6:.3f}–{v['q95'] * 1e6:.3f}), max R-hat {stat(d['max_r_hat'], '.3f')}, "
+        f"min ESS {stat(d['min_ess_bulk'], '.0f')}, {'converged' if d['converged'] else 'NOT converged'}"
         f"{' (stopped by --budget)' if d.get('stopped_by_budget') else ''} ({d['seconds']:.1f} s)"
     )
     for w in d.get("warnings", []):
@@ -232,6 +238,15 @@ def _run_parts(args) -> int:
 def run(args) -> int:
     """Run ``bayestouch fit`` from parsed arguments (bad input raises
     :class:`~bayestouch.errors.BadInput`)."""
+    if args.walkers > MAX_WALKERS:
+        raise BadInput(
+            f"--walkers must be at most {MAX_WALKERS} (memory grows with walkers × data), got {args.walkers}"
+        )
+    if args.ffd is not None and max(args.ffd) > MAX_FFD_SIZE:
+        raise BadInput(
+            f"--ffd: at most {MAX_FFD_SIZE} control points along each axis (the marginal's Cholesky grows as the cube "
+            f"of 3 l m k), got {'x'.join(map(str, args.ffd))}"
+        )
     if args.walkers < 24 or args.walkers % 2:
         raise BadInput(
             f"--walkers must be an even number ≥ 24 (twice the parameters, plus a margin), got {args.walkers}"
@@ -324,7 +339,7 @@ def run(args) -> int:
     print(
         f"wrote {args.out}/summary.json, posterior.nc, mean_shape.ply, uncertainty_mesh.ply: volume "
         f"{v['mean'] * 1e6:.3f} ± {v['sd'] * 1e6:.3f} cm³ (90 % {v['q05'] * 1e6:.3f}–{v['q95'] * 1e6:.3f}), "
-        f"max R-hat {d['max_r_hat']:.3f}, min ESS {d['min_ess_bulk']:.0f}, "
+        f"max R-hat {stat(d['max_r_hat'], '.3f')}, min ESS {stat(d['min_ess_bulk'], '.0f')}, "
         f"{'converged' if d['converged'] else 'NOT converged'}"
         f"{' (stopped by --budget)' if d.get('stopped_by_budget') else ''} ({d['seconds']:.1f} s)"
     )

@@ -6,7 +6,7 @@ import argparse
 import time
 from pathlib import Path
 
-from bayestouch.cli.args import check_out, eps_list, positive_int, size_list
+from bayestouch.cli.args import check_out, eps_list, out_path, positive_int, size_list
 from bayestouch.cli.args import seed as seed_arg
 from bayestouch.errors import BadInput
 from bayestouch.params import MODELS
@@ -23,7 +23,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
         "differential-evolution fit of the 12-parameter n-ellipsoid, FFD refinement for each "
         "lattice size, and the indicators of eq. 3 and 11–13, beside the paper's figures.",
     )
-    rp.add_argument("--out", required=True, type=Path, help="output folder (table2.csv, table2.md)")
+    rp.add_argument("--out", required=True, type=out_path, help="output folder (table2.csv, table2.md)")
     rp.add_argument("--seed", type=seed_arg, default=0, help="seed of the paths, perturbation and DE (default 0)")
     rp.add_argument(
         "--object",

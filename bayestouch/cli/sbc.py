@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
+from bayestouch.cli.args import bounded_int, out_path
 from bayestouch.cli.args import seed as seed_arg
 
 __all__ = ["add_sbc_parser", "run_sbc"]
@@ -19,8 +19,13 @@ def add_sbc_parser(sub) -> argparse.ArgumentParser:
         "statistics of the truths among posterior draws over --datasets simulated data sets; writes sbc.json and "
         "sbc_ranks.png.",
     )
-    ap.add_argument("--datasets", type=int, default=100, help="simulated data sets (default 100)")
-    ap.add_argument("--out", type=Path, required=True, help="output folder")
+    ap.add_argument(
+        "--datasets",
+        type=bounded_int(1, 100_000),
+        default=100,
+        help="simulated data sets (default 100; at most 100000)",
+    )
+    ap.add_argument("--out", type=out_path, required=True, help="output folder")
     ap.add_argument("--seed", type=seed_arg, default=0, help="seed of the data sets and chains (default 0)")
     ap.add_argument("--points", type=int, default=100, help="contact points per data set (default 100)")
     ap.add_argument("--walkers", type=int, default=32, help="emcee walkers (default 32)")

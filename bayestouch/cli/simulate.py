@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bayestouch.cli.args import positive_int
+from bayestouch.cli.args import out_path, positive_int
 from bayestouch.cli.args import seed as seed_arg
 from bayestouch.errors import BadInput
 from bayestouch.params import MODELS
@@ -43,7 +43,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
         help="which simulated finger (its taxels' fixed-pattern gains); default --seed. Recordings of one finger "
         "share it, e.g. a calibration and the strokes it serves",
     )
-    sp.add_argument("--out", required=True, type=Path, help="recording to write (.nc)")
+    sp.add_argument("--out", required=True, type=out_path, help="recording to write (.nc)")
     sp.add_argument("--overwrite", action="store_true", help="replace an existing --out recording")
     sp.add_argument("--duration", type=float, default=2.0, help="seconds per stroke at 1 cm/s (default 2)")
     sp.add_argument("--rate", type=float, default=50.0, help="taxel frames per second (default 50)")

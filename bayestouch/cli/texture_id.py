@@ -6,7 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
-from bayestouch.cli.args import check_out
+from bayestouch.cli.args import check_out, out_path
 from bayestouch.cli.args import seed as seed_arg
 
 __all__ = ["add_texture_parser", "run_texture_id"]
@@ -26,7 +26,7 @@ def add_texture_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--trials", type=int, default=3, help="trials per texture (default 3)")
     p.add_argument("--max-strokes", type=int, default=10, help="strokes before a forced decision (default 10)")
     p.add_argument("--seed", type=seed_arg, default=0, help="seed of the trials (default 0)")
-    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--out", required=True, type=out_path, help="output folder")
     p.add_argument("--policy", default="random", choices=("random", "eig"), help="stroke choice (default random)")
     p.add_argument("--threshold", type=float, default=0.95, help="decide when max posterior >= this")
     p.add_argument("--mode", default="empirical", choices=("empirical", "physics"), help="taxel response mode")

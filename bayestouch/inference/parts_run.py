@@ -250,10 +250,12 @@ def write_parts_outputs(out: Path, chain, k: int, points, *, seed: int, t0: floa
         )
     warnings = []
     if not diag["converged"]:
-        warnings.append(
-            f"not converged (largest R-hat {diag['max_r_hat']:.3f}, smallest bulk ESS {diag['min_ess_bulk']:.0f}"
-            f"{', stopped by the budget' if diag['stopped_by_budget'] else ''}): the intervals are not reliable"
-        )
+        if np.isfinite(diag["max_r_hat"]) and np.isfinite(diag["min_ess_bulk"]):
+            why = f"largest R-hat {diag['max_r_hat']:.3f}, smallest bulk ESS {diag['min_ess_bulk']:.0f}"
+        else:
+            why = "chain too short for R-hat and ESS"
+        budget = ", stopped by the budget" if diag["stopped_by_budget"] else ""
+        warnings.append(f"not converged ({why}{budget}): the intervals are not reliable")
     choice = info["model_choice"]
     if choice["posterior_probability"].get(str(k), 0.0) < CHOICE_CONFIDENT:
         warnings.append(

@@ -813,8 +813,9 @@ def sample(
         return np.concatenate([np.asarray(logp(thetas[:h])), np.asarray(logp(thetas[h:]))])
 
     sampler = emcee.EnsembleSampler(walkers, ndim, halves, vectorize=True, backend=backend, moves=moves)
-    # A resumed run continues from a fresh stream of the same seed offset by the steps already done, so the
-    # whole chain is reproducible given (seed, where it was interrupted).
+    # A new chain starts from the stream of (seed, 0). A resumed one continues from the random state saved with
+    # the checkpoint's last sample (emcee's sample(State) sets it, replacing the one set here), so it proceeds
+    # exactly as the uninterrupted run would from that step; a changed seed is refused before (run.json).
     state = np.random.RandomState([seed, backend.iteration]).get_state()
     sampler.random_state = state
     if not np.array_equal(sampler.random_state[1], state[1]):

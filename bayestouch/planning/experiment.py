@@ -22,6 +22,7 @@ import contextlib
 import json
 import logging
 import multiprocessing as mp
+import socket
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
@@ -290,7 +291,9 @@ def run_experiment(
     options = {"seed": int(seed), "budget": int(budget), "settings": dict(settings or {})}
     if prober != "rays":  # the key of earlier experiments (all in the ray world) stays as it was
         options["prober"] = prober
-    meta = fingerprint("experiment", {}, options)
+    # the objects' contents are part of the key: an object file edited between runs is another experiment
+    contents = {f"object {names[o]}": p.read_bytes() for o, p in paths.items()}
+    meta = fingerprint("experiment", contents, options)
     if csv_path.is_file() and not resume and not overwrite:
         raise BadInput(
             f"--out {out} already holds results.csv; pass --resume to keep its complete trials, --overwrite to "
@@ -301,6 +304,9 @@ def run_experiment(
         old_meta = None
         with contextlib.suppress(OSError, ValueError):
             old_meta = json.loads(meta_path.read_text(encoding="utf-8"))
+        if old_meta is not None and not old_meta.get("data_sha256"):
+            # written before the objects' contents were keyed: compared on the options alone, as then
+            old_meta = {**old_meta, "data_sha256": meta["data_sha256"]}
         diff = [] if old_meta is None else differences(old_meta, meta)
         if diff:
             raise BadInput(
@@ -384,6 +390,51 @@ def _check_address(address) -> None:
         raise BadInput(f"--scheduler: expected an address like tcp://HOST:PORT, got {address!r}")
 
 
+#: largest frame count a Dask message header may announce (its first 8 bytes, little-endian): anything else on
+#: the port (an HTTP server, a dashboard, a proxy) is not a Dask scheduler
+_DASK_MAX_FRAMES = 1 << 16
+
+
+def probe_scheduler(address: str, timeout_s: float = SCHEDULER_TIMEOUT_S) -> None:
+    """Check that a Dask scheduler answers at ``tcp://HOST:PORT`` before a client connects to it: a scheduler
+    speaks first on a new connection (its handshake: an 8-byte little-endian frame count, then the frames), so
+    the first bytes of another server (HTTP's "HTTP/1.1", a dashboard) or its silence are told apart within
+    ``timeout_s`` seconds. Other schemes (tls, inproc) pass unprobed.
+
+    Raises
+    ------
+    BadInput
+        Nothing listens, the peer is silent, or its first bytes are not a Dask message header.
+    """
+    if not address.startswith("tcp://"):
+        return
+    host, _, port = address[len("tcp://") :].rpartition(":")
+    try:
+        port_n = int(port)
+    except ValueError:
+        raise BadInput(f"--scheduler: expected an address like tcp://HOST:PORT, got {address!r}") from None
+    hint = "start one with `dask scheduler` or check the address (the scheduler's port, not its dashboard's)"
+    try:
+        with socket.create_connection((host.strip("[]"), port_n), timeout=timeout_s) as sock:
+            sock.settimeout(timeout_s)
+            head = b""
+            while len(head) < 8:
+                chunk = sock.recv(8 - len(head))
+                if not chunk:
+                    break
+                head += chunk
+    except TimeoutError:
+        raise BadInput(f"--scheduler {address}: the server there said nothing in {timeout_s:g} s; {hint}") from None
+    except OSError as e:
+        raise BadInput(
+            f"--scheduler {address}: no Dask scheduler answered within {timeout_s:g} s ({type(e).__name__}); {hint}"
+        ) from None
+    if len(head) < 8 or int.from_bytes(head, "little") > _DASK_MAX_FRAMES:
+        raise BadInput(
+            f"--scheduler {address}: the server there is not a Dask scheduler (first bytes {head[:8]!r}); {hint}"
+        )
+
+
 def _connect(address: str):
     """A Dask client of the scheduler at ``address``; BadInput when dask.distributed is missing or nothing answers."""
     try:
@@ -393,9 +444,10 @@ def _connect(address: str):
             '--scheduler: needs dask\'s distributed scheduler; install it with pip install "dask[distributed]"'
         ) from None
     _check_address(address)
+    probe_scheduler(address)
     try:
         return Client(address, set_as_default=False, timeout=SCHEDULER_TIMEOUT_S)
-    except (OSError, TimeoutError) as e:
+    except (OSError, TimeoutError, MemoryError, ValueError) as e:
         raise BadInput(
             f"--scheduler {address}: no Dask scheduler answered within {SCHEDULER_TIMEOUT_S:g} s ({type(e).__name__}); "
             "start one with `dask scheduler` or check the address"

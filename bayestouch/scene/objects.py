@@ -270,6 +270,11 @@ def object_from_dict(doc: dict, where: str = "object", source: Path | None = Non
             _int(t, "seed", w, 0, 2**63 - 1, 0),
             _int(t, "modes", w, 1, 4096, 16),
         )
+        if min(texture.amplitude, texture.roughness) < 0:
+            raise BadInput(
+                f"{w}: amplitude_m and roughness_m must be ≥ 0 metres (a depth, not a sign), got "
+                f"{texture.amplitude} and {texture.roughness}"
+            )
         if max(texture.amplitude, texture.roughness) > 0.2 * min(axes):
             raise BadInput(f"{w}: amplitude_m/roughness_m must stay below a fifth of the smallest axis (metres)")
     ffd = None
@@ -279,6 +284,8 @@ def object_from_dict(doc: dict, where: str = "object", source: Path | None = Non
         if not (isinstance(dims, list) and len(dims) == 3 and all(isinstance(x, int) and x >= 2 for x in dims)):
             raise BadInput(f"{w}: 'dims' must be three integers ≥ 2 like [4, 4, 3], got {dims!r}")
         amp = _num(f, "amplitude_m", w, positive=False, default=0.0)
+        if amp < 0:
+            raise BadInput(f"{w}: 'amplitude_m' is the sd of the control-point displacements, ≥ 0 metres, got {amp}")
         rng = np.random.default_rng(_int(f, "seed", w, 0, 2**63 - 1, 0))
         ffd = FFDSpec(tuple(dims), amp * rng.standard_normal((*dims, 3)), _num(f, "margin", w, default=0.15))
     return SceneObject(
