@@ -112,6 +112,9 @@ TABLE = [
     ("fit {tmp}/good.csv --out {tmp}/keep.txt", "keep.txt"),
     ("demo --out {tmp}/keep.txt", "keep.txt"),
     ("demo --out {tmp}/a_fit_run", "not a demo's"),
+    ("fit {tmp}/a_fit_run --out {tmp}/o", "is a folder"),
+    ("fit /dev/null --out {tmp}/o", "not a regular file"),
+    ("fit {tmp}/good.csv --out {tmp}/damaged_run --resume", "damaged"),
     ("explore --object {egg} --out {tmp}/keep.txt", "keep.txt"),
     ("simulate --object {egg} --out {tmp}/folder.nc", "folder"),
 ]
@@ -167,6 +170,9 @@ def _files(tmp):
     (tmp / "keep.txt").write_text("recorded")
     (tmp / "a_fit_run").mkdir()
     (tmp / "a_fit_run" / "summary.json").write_text("{}")
+    (tmp / "damaged_run").mkdir()
+    (tmp / "damaged_run" / "summary.json").write_text("{}")
+    (tmp / "damaged_run" / "run.json").write_text("{not json")
     (tmp / "folder.nc").mkdir()
 
 

@@ -579,3 +579,25 @@ def test_recording_coordinates_and_cf_conventions(tmp_path):
     back = read_recording(write_recording(old, tmp_path / "old.nc"))
     assert "time" in back.coords and "taxel_u" in back.coords
     assert dataset_digest(back) == dataset_digest(new) == dataset_digest(ds)
+
+
+def test_a_recording_gets_the_mode_of_every_other_output(tmp_path):
+    """write_recording's temporary file came from mkstemp (mode 0600): recordings were unreadable to the group
+    while every other output follows the umask (issue 24 review). Now atomic_path's, like the others."""
+    import os
+    import stat
+
+    from bayestouch.io.files import write_text
+    from bayestouch.io.recording import build_dataset, write_recording
+
+    F, M = 4, 3
+    frames = {"time": np.arange(F) * 0.04, "stroke_index": np.zeros(F, int), "taxel_current": np.full((F, M), 1e-7)}
+    ds = build_dataset(frames, np.linspace(0, 1e-3, M), np.zeros(M), np.zeros(M), [3e-4, 3e-4], {"object": "egg"})
+    old = os.umask(0o022)
+    try:
+        rec = write_recording(ds, tmp_path / "r.nc")
+        txt = write_text(tmp_path / "t.txt", "x")
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE(rec.stat().st_mode) == stat.S_IMODE(txt.stat().st_mode) == 0o644
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []  # no temporary left

@@ -285,3 +285,15 @@ def test_t_scale_factor_is_the_t_fit_to_gaussian_readings():
         return -float(jnp.sum(raw.likelihood.reading_log_lik(jnp.asarray(th), pred, data, nu, None)))
 
     assert abs(mle(nll) - 1.5) < 1.5 * tol, mle(nll)
+
+
+def test_a_stride_that_leaves_too_few_frames_is_refused(empirical):
+    """--stride 100000 on a one-stroke recording left one frame: the fit ran and its report failed on undefined
+    diagnostics (issue 24 review). Refused in one line; the default stride reads enough frames (negative
+    control)."""
+    from bayestouch.errors import BadInput
+
+    ds, _ = empirical
+    with pytest.raises(BadInput, match="stride 100000 leaves 1 frame"):
+        raw.load_raw_data(ds, stride=100_000, strokes=[0])  # one stroke, one frame of it
+    assert len(raw.load_raw_data(ds)[0].frames) >= raw.MIN_FRAMES

@@ -256,7 +256,8 @@ def run(args) -> int:
     if args.out.exists() and not args.out.is_dir():
         raise BadInput(f"--out {args.out} exists and is not a folder")
     if not args.points.is_file():
-        raise BadInput(f"{args.points}: no such file (expected a contact points CSV or a recording .nc)")
+        what = "is a folder" if args.points.is_dir() else ("is not a regular file" if args.points.exists() else "")
+        raise BadInput(f"{args.points}: {what or 'no such file'} (expected a contact points CSV or a recording .nc)")
     if args.ffd_tau is not None and not (0 < args.ffd_tau < 0.1):
         raise BadInput(f"--ffd-tau must be in (0, 0.1) metres, got {args.ffd_tau}")
     if args.parts is not None:

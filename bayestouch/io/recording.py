@@ -14,14 +14,13 @@ Variables (SI units in the ``units`` attribute, UDUNITS spelling): ``taxel_curre
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import xarray as xr
 
 from bayestouch.errors import BadInput
+from bayestouch.io.files import atomic_path
 
 __all__ = [
     "UNITS",
@@ -125,15 +124,10 @@ def write_recording(ds, path) -> Path:
     """Write a dataset as netCDF (h5netcdf engine) atomically: an existing file is replaced only when the
     new one is complete."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
+    # atomic_path: a temporary file of the usual umask-derived mode (mkstemp's 0600 made recordings unreadable to
+    # the group where every other output is not), fsynced before it replaces the old file
+    with atomic_path(path) as tmp:
         ds.to_netcdf(tmp, engine="h5netcdf")
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
     return path
 
 

@@ -20,6 +20,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
+import sys
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -161,6 +162,13 @@ def prepare_run_folder(out, fp: dict, *, resume: bool, overwrite: bool = False) 
             old = json.loads(path.read_text(encoding="utf-8"))
         except (OSError, ValueError):
             old = {}
+        if not (isinstance(old, dict) and "level" in old and "options" in old) and resume:
+            raise BadInput(
+                f"--resume: {path} is damaged (not a run fingerprint), so nothing shows the run in {out} was made "
+                "with these data and options; --overwrite to start it again, or choose another --out"
+            )
+    if resume and not held and not (out / "smc.npz").exists():
+        print(f"bayestouch: --resume: {out} holds no run yet; starting one", file=sys.stderr)
     if resume and old is not None and (held or (out / "smc.npz").exists()):
         diff = differences(old, fp)
         if diff:

@@ -15,6 +15,7 @@ The model's derivation and measured figures: ``docs/raw_model.md``.
 from bayestouch.inference.raw.adjustment import ADJUST_BLOCK_S, Adjustment, curvature_adjustment
 from bayestouch.inference.raw.calibrate import calibrate_device
 from bayestouch.inference.raw.data import (
+    MIN_FRAMES,
     HostDevice,
     RawData,
     host_device,
@@ -70,6 +71,7 @@ from bayestouch.inference.raw.texture import (
 
 __all__ = [
     "RawData",
+    "MIN_FRAMES",
     "RAW_PARAM_NAMES",
     "RAW_NATURAL_NAMES",
     "load_raw_data",

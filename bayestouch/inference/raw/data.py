@@ -31,7 +31,12 @@ __all__ = [
     "unloaded_current",
     "load_raw_data",
     "commanded_points",
+    "MIN_FRAMES",
 ]
+
+#: fewest frames with contact a raw-current fit reads (after --stride): a stride longer than the strokes left
+#: one frame, a "fit" of one pad position
+MIN_FRAMES = 5
 
 
 class RawData(NamedTuple):
@@ -319,6 +324,11 @@ def load_raw_data(
     if not frames:
         raise BadInput(f"{where}: no frames with contact (pressing_depth > 0) in the selected strokes")
     frames, start = np.concatenate(frames), np.concatenate(start)
+    if frames.size < MIN_FRAMES:
+        raise BadInput(
+            f"{where}: stride {stride} leaves {frames.size} frame(s) with contact; a fit needs at least {MIN_FRAMES} "
+            "(use a smaller --stride)"
+        )
     dts = np.diff(t[si == si[frames[0]]])
     dt_fine = float(np.median(dts)) if dts.size else 0.02
 
