@@ -214,3 +214,12 @@ def test_an_empty_out_path_is_refused(tmp_path, capsys, monkeypatch):
         err = capsys.readouterr().err
         assert "--out" in err and "empty path" in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["good.csv"]
+
+
+def test_python_m_bayestouch_is_the_command_line():
+    """``python -m bayestouch`` runs the CLI (it had no __main__: 'is a package and cannot be directly executed')."""
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "bayestouch", "fit", "/no/such.csv", "--out", "x"], capture_output=True)
+    assert r.returncode == 2 and b"no such file" in r.stderr
