@@ -44,6 +44,14 @@ def test_fit_writes_outputs_and_resumes(points_csv, tmp_path):
     assert (out / "posterior.nc").is_file() and (out / "mean_shape.ply").read_bytes()[:3] == b"ply"
     _check_posterior_file(out, n_points=200)
     _check_uncertainty_mesh(out, s)
+    # the occupancy grid: inside at the centre, outside beyond the longest axis, its 0.5 set of the true volume
+    from bayestouch.io.occupancy import load_occupancy
+
+    occ = load_occupancy(out)
+    assert "occupancy.npz" in s["files"]
+    c = np.asarray(TRUE.centre)
+    assert occ.at([c])[0] > 0.99 and occ.at([c + [0.045, 0.0, 0.0], c + [0.0, 0.0, 0.03]]).max() < 0.01
+    assert occ.volume(0.5) == pytest.approx(float(ne.volume(TRUE)), rel=0.08)  # 40^3 cells of the grid
     first = emcee.backends.HDFBackend(str(out / "chain.h5"), read_only=True).get_chain()
     # resume to 300 steps: the first 200 are kept bit for bit
     assert main(["fit", str(points_csv), "--out", str(out), "--steps", "300", "--resume", *args]) == 0

@@ -47,6 +47,7 @@ __all__ = [
     "choose_parts",
     "write_parts_outputs",
     "union_summaries",
+    "occupancy_grid",
     "PARTS_PARTICLES",
     "PARTS_ESS",
     "PARTS_BUDGET_S",
@@ -164,7 +165,11 @@ def union_summaries(theta, k: int, seed: int = 0, points: int = VOLUME_POINTS) -
     }
 
 
-def _occupancy(theta, k: int, res: int = OCCUPANCY_RES, chunk: int = 20) -> Occupancy:
+def occupancy_grid(theta, k: int, res: int = OCCUPANCY_RES, chunk: int = 20) -> Occupancy:
+    """The posterior occupancy grid of draws θ (N, 10 K + 3) of a K-part union (K = 1: the single n-ellipsoid,
+    its first 10 parameters): the fraction of the draws inside which each of ``res``³ grid points lies, on the box
+    from the 1 % quantile of the draws' lower bounds to the 99 % quantile of their upper bounds, grown by 5 %."""
+    theta = np.asarray(theta, float)
     lo, hi = _boxes(theta, k)
     a, b = np.quantile(lo, 0.01, axis=0), np.quantile(hi, 0.99, axis=0)
     pad = 0.05 * (b - a)
@@ -231,7 +236,7 @@ def write_parts_outputs(out: Path, chain, k: int, points, *, seed: int, t0: floa
     rng = np.random.default_rng([seed, 0x7A2])
     thin = c[rng.choice(len(c), min(SUMMARY_DRAWS, len(c)), replace=False)]
     u = union_summaries(thin, k, seed)
-    occ = _occupancy(thin, k)
+    occ = occupancy_grid(thin, k)
     verts, faces, spread = _mean_surface(occ, thin, k)
 
     vols = pm.part_volumes(c, k)

@@ -25,10 +25,12 @@ from bayestouch.inference import ffd_marginal as fm
 from bayestouch.inference.de import de_search
 from bayestouch.inference.modes import find_modes, gaussian_mixture
 from bayestouch.inference.optimize import fd_hessian
+from bayestouch.inference.parts_run import SUMMARY_DRAWS, occupancy_grid
 from bayestouch.inference.posterior import PosteriorModel, interval, judged_quantities, vmf_sample, write_posterior
 from bayestouch.inference.sampler import IndependenceMixture, prune_stuck_walkers, sample
 from bayestouch.inference.smc import tempered_smc
 from bayestouch.io.files import write_json
+from bayestouch.io.occupancy import OCCUPANCY_FILE, write_occupancy
 from bayestouch.io.runfolder import fingerprint, prepare_run_folder
 
 __all__ = [
@@ -896,7 +898,20 @@ def run_contact_fit(
         }
     model = model._replace(info=info)
     summary = write_posterior(out, ch, model, seed=seed, t0=t0)
+    if ffd is None:  # a lattice moves the surface off the n-ellipsoid the draws describe
+        _write_occupancy(out, ch, summary, seed)
     return _report_modes(out, summary, ch, model, seed, smc)
+
+
+def _write_occupancy(out: Path, ch, summary: dict, seed: int) -> None:
+    """``occupancy.npz`` (:mod:`bayestouch.io.occupancy`) from thinned draws of the chain: the posterior probability
+    that a point is inside the object, the same summary a parts fit writes."""
+    flat = ch.kept.reshape(-1, ch.kept.shape[2])
+    rng = np.random.default_rng([seed, 0x0CC])
+    pick = rng.choice(len(flat), min(SUMMARY_DRAWS, len(flat)), replace=False)
+    theta = np.column_stack([flat[pick, :10], np.zeros((len(pick), 3))])
+    write_occupancy(out / OCCUPANCY_FILE, occupancy_grid(theta, 1))
+    summary["files"] = [*summary["files"], OCCUPANCY_FILE]
 
 
 def surrounds(points, theta, fraction: float = SURROUND_FRACTION) -> bool:
