@@ -33,6 +33,7 @@ from bayestouch.errors import BadInput
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.rotation import rotation_matrix
 from bayestouch.inference import contact as cm
+from bayestouch.io.occupancy import Occupancy
 
 __all__ = [
     "PART_PARAMS",
@@ -50,6 +51,8 @@ __all__ = [
     "part_volumes",
     "canonical_order",
     "inside_union",
+    "bounding_boxes",
+    "occupancy_grid",
 ]
 
 #: parameters of one part (the first 10 of the single n-ellipsoid's layout)
@@ -301,3 +304,31 @@ def inside_union(theta, k: int, points) -> np.ndarray:
     pts = jnp.asarray(points, dtype=jnp.float64)
     g = jnp.stack([_gauge(parts[:, j, :], jnp.broadcast_to(pts, (parts.shape[0], *pts.shape))) for j in range(k)])
     return np.asarray(jnp.any(g <= 1.0, axis=0))
+
+
+def bounding_boxes(theta, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Axis-aligned boxes (N, 3) lo, hi (m) holding each draw's union: per part centre ± |R| a (n ≥ 1)."""
+    lo, hi = [], []
+    for j in range(k):
+        p = theta[:, 10 * j : 10 * j + 10]
+        R = np.asarray(jnp.vectorize(rotation_matrix, signature="(3)->(3,3)")(jnp.asarray(p[:, 6:9])))
+        half = np.einsum("nij,nj->ni", np.abs(R), np.exp(p[:, 3:6]))
+        lo.append(p[:, :3] - half)
+        hi.append(p[:, :3] + half)
+    return np.min(lo, axis=0), np.max(hi, axis=0)
+
+
+def occupancy_grid(theta, k: int, res: int = 40, chunk: int = 20) -> Occupancy:
+    """The posterior occupancy grid of draws θ (N, 10 K + 3) of a K-part union (K = 1: the single n-ellipsoid,
+    its first 10 parameters): the fraction of the draws inside which each of ``res``³ grid points lies, on the box
+    from the 1 % quantile of the draws' lower bounds to the 99 % quantile of their upper bounds, grown by 5 %."""
+    theta = np.asarray(theta, float)
+    lo, hi = bounding_boxes(theta, k)
+    a, b = np.quantile(lo, 0.01, axis=0), np.quantile(hi, 0.99, axis=0)
+    pad = 0.05 * (b - a)
+    axes = [np.linspace(a[i] - pad[i], b[i] + pad[i], res) for i in range(3)]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    count = np.zeros(len(grid))
+    for s in range(0, len(theta), chunk):
+        count += inside_union(theta[s : s + chunk], k, grid).sum(axis=0)
+    return Occupancy(*axes, (count / len(theta)).reshape(res, res, res), int(len(theta)))

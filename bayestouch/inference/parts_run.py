@@ -30,13 +30,12 @@ from scipy.stats import qmc
 from bayestouch.backend import jnp
 from bayestouch.errors import BadInput
 from bayestouch.geometry.mesh import to_trimesh
-from bayestouch.geometry.rotation import rotation_matrix
 from bayestouch.geometry.symmetry import align_batch
 from bayestouch.inference import contact as cm
 from bayestouch.inference import parts as pm
 from bayestouch.inference.posterior import interval
+from bayestouch.inference.run import smc_moves, smc_stage
 from bayestouch.inference.sampler import convergence, sample
-from bayestouch.inference.smc import tempered_smc
 from bayestouch.io.files import atomic_path, write_json
 from bayestouch.io.meshes import write_spread_mesh
 from bayestouch.io.occupancy import OCCUPANCY_FILE, Occupancy, write_occupancy
@@ -47,7 +46,6 @@ __all__ = [
     "choose_parts",
     "write_parts_outputs",
     "union_summaries",
-    "occupancy_grid",
     "PARTS_PARTICLES",
     "PARTS_ESS",
     "PARTS_BUDGET_S",
@@ -124,23 +122,11 @@ def _monitor(k: int):
     return monitor
 
 
-def _boxes(theta, k: int) -> tuple[np.ndarray, np.ndarray]:
-    """Axis-aligned boxes (N, 3) lo, hi (m) holding each draw's union: per part centre ± |R| a (n ≥ 1)."""
-    lo, hi = [], []
-    for j in range(k):
-        p = theta[:, 10 * j : 10 * j + 10]
-        R = np.asarray(jnp.vectorize(rotation_matrix, signature="(3)->(3,3)")(jnp.asarray(p[:, 6:9])))
-        half = np.einsum("nij,nj->ni", np.abs(R), np.exp(p[:, 3:6]))
-        lo.append(p[:, :3] - half)
-        hi.append(p[:, :3] + half)
-    return np.min(lo, axis=0), np.max(hi, axis=0)
-
-
 def union_summaries(theta, k: int, seed: int = 0, points: int = VOLUME_POINTS) -> dict:
     """Volume (N,) m³, extent lo/hi (N, 3) m, centre of volume (N, 3) m and principal second moments (N, 3) m⁵ of
     the union of each draw θ (N, 10 K + 3), by ``points`` scrambled Sobol points in each draw's bounding box."""
     th = np.asarray(theta, float)
-    lo, hi = _boxes(th, k)
+    lo, hi = pm.bounding_boxes(th, k)
     u = qmc.Sobol(3, scramble=True, seed=np.random.default_rng([seed, 0x50B])).random(points)
     vol, ext_lo, ext_hi, com, mom = [], [], [], [], []
     for i in range(len(th)):
@@ -163,22 +149,6 @@ def union_summaries(theta, k: int, seed: int = 0, points: int = VOLUME_POINTS) -
         "centre": np.array(com),
         "moments": np.array(mom),
     }
-
-
-def occupancy_grid(theta, k: int, res: int = OCCUPANCY_RES, chunk: int = 20) -> Occupancy:
-    """The posterior occupancy grid of draws θ (N, 10 K + 3) of a K-part union (K = 1: the single n-ellipsoid,
-    its first 10 parameters): the fraction of the draws inside which each of ``res``³ grid points lies, on the box
-    from the 1 % quantile of the draws' lower bounds to the 99 % quantile of their upper bounds, grown by 5 %."""
-    theta = np.asarray(theta, float)
-    lo, hi = _boxes(theta, k)
-    a, b = np.quantile(lo, 0.01, axis=0), np.quantile(hi, 0.99, axis=0)
-    pad = 0.05 * (b - a)
-    axes = [np.linspace(a[i] - pad[i], b[i] + pad[i], res) for i in range(3)]
-    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-    count = np.zeros(len(grid))
-    for s in range(0, len(theta), chunk):
-        count += pm.inside_union(theta[s : s + chunk], k, grid).sum(axis=0)
-    return Occupancy(*axes, (count / len(theta)).reshape(res, res, res), int(len(theta)))
 
 
 def _mean_surface(occ: Occupancy, theta, k: int):
@@ -236,7 +206,7 @@ def write_parts_outputs(out: Path, chain, k: int, points, *, seed: int, t0: floa
     rng = np.random.default_rng([seed, 0x7A2])
     thin = c[rng.choice(len(c), min(SUMMARY_DRAWS, len(c)), replace=False)]
     u = union_summaries(thin, k, seed)
-    occ = occupancy_grid(thin, k)
+    occ = pm.occupancy_grid(thin, k, OCCUPANCY_RES)
     verts, faces, spread = _mean_surface(occ, thin, k)
 
     vols = pm.part_volumes(c, k)
@@ -317,55 +287,6 @@ def write_parts_outputs(out: Path, chain, k: int, points, *, seed: int, t0: floa
     return summary
 
 
-def _smc(f, prior, k: int, seed: int, path: Path, budget_s, progress: bool) -> dict:
-    if path.exists():
-        with np.load(path) as z:
-            return {key: (z[key] if z[key].ndim else z[key].item()) for key in z.files}
-
-    def log_lik(x):
-        with np.errstate(invalid="ignore"):
-            return f(x) - f.log_prior(x)
-
-    bar = None
-    if progress:
-        from tqdm.auto import tqdm
-
-        bar = tqdm(total=1000, desc=f"tempering, {k} part{'s' if k > 1 else ''}", unit="‰β", leave=False)
-
-    def tick(beta, stage):
-        if bar is not None:
-            bar.update(int(1000 * beta) - bar.n)
-
-    try:
-        r = tempered_smc(
-            log_lik,
-            f.log_prior,
-            lambda count, g: pm.sample_prior(prior, count, g),
-            np.random.default_rng([seed, 0x9A7, k]),
-            particles=PARTS_PARTICLES,
-            ess_target=PARTS_ESS,
-            gradients=f.parts,
-            max_steps=10,
-            budget_s=budget_s,
-            progress=tick,
-        )
-    finally:
-        if bar is not None:
-            bar.close()
-    res = {
-        "particles": r.particles,
-        "log_lik": r.log_lik,
-        "log_prior": r.log_prior,
-        "log_evidence": r.log_evidence,
-        "betas": r.betas,
-        "complete": bool(r.complete),
-        "seconds": float(r.seconds),
-    }
-    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-        np.savez(fh, **res)
-    return res
-
-
 def run_parts_fit(
     points,
     out,
@@ -409,8 +330,6 @@ def run_parts_fit(
     dict
         The summary written to ``summary.json``.
     """
-    from bayestouch.inference.run import smc_moves
-
     t0 = time.perf_counter()
     out = Path(out)
     priors = priors or cm.load_priors()
@@ -445,7 +364,19 @@ def run_parts_fit(
         path = out / f"smc_parts{k}.npz"
         if not resume:
             path.unlink(missing_ok=True)
-        runs[k] = _smc(f, prior, k, seed, path, share, progress)
+        runs[k] = smc_stage(
+            f,
+            None,
+            seed,
+            path,
+            progress=progress,
+            budget_s=share,
+            prior=(f.log_prior, lambda count, g, prior=prior: pm.sample_prior(prior, count, g)),
+            particles=PARTS_PARTICLES,
+            ess=PARTS_ESS,
+            stream=(0x9A7, k),
+            label=f"tempering, {k} part{'s' if k > 1 else ''}",
+        )
         models[k] = f
     log_z = {k: float(r["log_evidence"]) for k, r in runs.items()}
     # a tempering stopped by the budget estimates ∫ p L^β, not the evidence: it takes no part in the choice unless

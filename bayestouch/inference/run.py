@@ -25,11 +25,11 @@ from bayestouch.inference import ffd_marginal as fm
 from bayestouch.inference.de import de_search
 from bayestouch.inference.modes import find_modes, gaussian_mixture
 from bayestouch.inference.optimize import fd_hessian
-from bayestouch.inference.parts_run import SUMMARY_DRAWS, occupancy_grid
+from bayestouch.inference.parts import occupancy_grid
 from bayestouch.inference.posterior import PosteriorModel, interval, judged_quantities, vmf_sample, write_posterior
 from bayestouch.inference.sampler import IndependenceMixture, prune_stuck_walkers, sample
 from bayestouch.inference.smc import tempered_smc
-from bayestouch.io.files import write_json
+from bayestouch.io.files import atomic_path, write_json
 from bayestouch.io.occupancy import OCCUPANCY_FILE, write_occupancy
 from bayestouch.io.runfolder import fingerprint, prepare_run_folder
 
@@ -241,29 +241,54 @@ _EXTRA_SCALE = {"log_kappa": 1e-2, "log_eps": 1e-2, "w_outlier": 1e-3, "w_in": 1
 _prior_jit = jax.jit(cm.log_prior)
 
 
-def smc_stage(logp, bounds: cm.Bounds, seed: int, path: Path | None = None, *, progress: bool = False, budget_s=None):
+def smc_stage(
+    logp,
+    bounds: cm.Bounds | None,
+    seed: int,
+    path: Path | None = None,
+    *,
+    progress: bool = False,
+    budget_s=None,
+    prior=None,
+    particles: int = SMC_PARTICLES,
+    ess: float = SMC_ESS,
+    stream: tuple[int, ...] = (0x5AC,),
+    label: str = "tempering",
+):
     """The tempered SMC from the prior (:func:`bayestouch.inference.smc.tempered_smc`) of a contact-level
-    log-posterior ``logp`` (W, D) → (W,) with prior ``bounds``: :data:`SMC_PARTICLES` particles, conditional-ESS
-    target :data:`SMC_ESS`, seeded by ``seed``.
+    log-posterior ``logp`` (W, D) → (W,) with prior ``bounds``: ``particles`` particles (:data:`SMC_PARTICLES`),
+    conditional-ESS target ``ess`` (:data:`SMC_ESS`), HMC moves through ``logp.parts`` where it has them, seeded by
+    ``seed`` and ``stream`` (``np.random.default_rng([seed, *stream])``).
+
+    ``prior``: ``(log_prior, sample_prior)`` callables — (N, D) → (N,) and (count, Generator) → (count, D) — for a
+    model whose prior is not a contact-level box (the parts fit's); ``bounds`` is then unused.
 
     ``budget_s`` (seconds): tempering stops after the stage that passes it (``complete`` False; the fit warns).
 
-    With ``path`` the particles, their log-likelihoods, the log-evidence and the temperatures are saved there
-    (``smc.npz``) and read back instead of recomputed when the file exists (a resumed run proposes from the same
-    mixture as the uninterrupted one did).
+    With ``path`` the particles, their log-likelihoods and log-priors, the log-evidence and the temperatures are
+    saved there atomically (``smc.npz``) and read back instead of recomputed when the file exists (a resumed run
+    proposes from the same mixture as the uninterrupted one did).
 
     Returns
     -------
     dict
-        ``particles`` (N, D), ``log_lik`` (N,), ``log_evidence`` (nats), ``betas`` (T,), ``complete`` (reached
-        β = 1), ``evaluations``, ``seconds``.
+        ``particles`` (N, D), ``log_lik`` (N,), ``log_prior`` (N,), ``log_evidence`` (nats), ``betas`` (T,),
+        ``complete`` (reached β = 1), ``evaluations``, ``seconds``.
     """
     if path is not None and Path(path).exists():
         with np.load(path) as z:
             return {k: (z[k] if z[k].ndim else z[k].item()) for k in z.files}
 
-    def log_prior(x):
-        return np.asarray(_prior_jit(jnp.asarray(x), bounds))
+    if prior is None:
+
+        def log_prior(x):
+            return np.asarray(_prior_jit(jnp.asarray(x), bounds))
+
+        def sample_prior(count, g):
+            return cm.sample_prior(bounds, count, g)
+
+    else:
+        log_prior, sample_prior = prior
 
     def log_lik(x):
         with np.errstate(invalid="ignore"):
@@ -273,21 +298,21 @@ def smc_stage(logp, bounds: cm.Bounds, seed: int, path: Path | None = None, *, p
     if progress:
         from tqdm.auto import tqdm
 
-        bar = tqdm(total=1000, desc="tempering", unit="‰β", leave=False)
+        bar = tqdm(total=1000, desc=label, unit="‰β", leave=False)
 
     def tick(beta, stage):
         if bar is not None:
             bar.update(int(1000 * beta) - bar.n)
 
-    rng = np.random.default_rng([seed, 0x5AC])
+    rng = np.random.default_rng([seed, *stream])
     try:
         r = tempered_smc(
             log_lik,
             log_prior,
-            lambda c, g: cm.sample_prior(bounds, c, g),
+            sample_prior,
             rng,
-            particles=SMC_PARTICLES,
-            ess_target=SMC_ESS,
+            particles=particles,
+            ess_target=ess,
             progress=tick,
             gradients=getattr(logp, "parts", None),
             max_steps=SMC_RW_STEPS,
@@ -299,6 +324,7 @@ def smc_stage(logp, bounds: cm.Bounds, seed: int, path: Path | None = None, *, p
     res = {
         "particles": r.particles,
         "log_lik": r.log_lik,
+        "log_prior": r.log_prior,
         "log_evidence": r.log_evidence,
         "betas": r.betas,
         "complete": bool(r.complete),
@@ -306,7 +332,8 @@ def smc_stage(logp, bounds: cm.Bounds, seed: int, path: Path | None = None, *, p
         "seconds": float(r.seconds),
     }
     if path is not None:
-        np.savez(path, **res)
+        with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+            np.savez(fh, **res)
     return res
 
 
@@ -903,12 +930,16 @@ def run_contact_fit(
     return _report_modes(out, summary, ch, model, seed, smc)
 
 
+#: thinned draws the occupancy grid of a contact fit averages
+OCCUPANCY_DRAWS = 400
+
+
 def _write_occupancy(out: Path, ch, summary: dict, seed: int) -> None:
     """``occupancy.npz`` (:mod:`bayestouch.io.occupancy`) from thinned draws of the chain: the posterior probability
     that a point is inside the object, the same summary a parts fit writes."""
     flat = ch.kept.reshape(-1, ch.kept.shape[2])
     rng = np.random.default_rng([seed, 0x0CC])
-    pick = rng.choice(len(flat), min(SUMMARY_DRAWS, len(flat)), replace=False)
+    pick = rng.choice(len(flat), min(OCCUPANCY_DRAWS, len(flat)), replace=False)
     theta = np.column_stack([flat[pick, :10], np.zeros((len(pick), 3))])
     write_occupancy(out / OCCUPANCY_FILE, occupancy_grid(theta, 1))
     summary["files"] = [*summary["files"], OCCUPANCY_FILE]
