@@ -157,13 +157,17 @@ def _two_sphere_contacts(rng, count=160, noise=3e-4):
 @pytest.mark.slow
 def test_parts_fit_chooses_two_parts_for_two_spheres_and_one_for_one(tmp_path):
     """Recovery: contacts all round two overlapping spheres choose K = 2 and the union's 90 % volume interval
-    holds the truth; contacts on one sphere choose K = 1 (negative control for the choice)."""
+    holds the truth; contacts on one sphere choose K = 1 (negative control for the choice). With 512 particles
+    instead of the default 1024 the K = 2 tempering missed the two-sphere mode and K = 1 was chosen: the choice is
+    only as good as the SMC's exploration (docs/parts_model.md)."""
     from bayestouch.inference.parts_run import run_parts_fit
 
     rng = np.random.default_rng(3)
     pts, _, vol = _two_sphere_contacts(rng)
-    s = run_parts_fit(pts, tmp_path / "two", parts="auto", seed=1, progress=False, budget_s=None, steps=3000)
+    s = run_parts_fit(pts, tmp_path / "two", parts="auto", seed=1, progress=False, budget_s=None, steps=1500)
     assert s["model"]["parts"] == 2, s["model"]["model_choice"]
+    vols = [p["volume_m3"]["mean"] for p in s["parameters"]["parts"]]
+    assert vols[0] >= vols[1]  # volume order
     v = s["derived"]["volume_m3"]
     assert v["q05"] <= vol <= v["q95"], (v, vol)
     assert (tmp_path / "two" / "occupancy.npz").is_file() and (tmp_path / "two" / "mean_shape.ply").is_file()
@@ -172,7 +176,7 @@ def test_parts_fit_chooses_two_parts_for_two_spheres_and_one_for_one(tmp_path):
 
     u = rng.normal(size=(120, 3))
     one = 0.02 * u / np.linalg.norm(u, axis=1, keepdims=True) + rng.normal(scale=3e-4, size=(120, 3))
-    s1 = run_parts_fit(one, tmp_path / "one", parts="auto", seed=1, progress=False, budget_s=None, steps=3000)
+    s1 = run_parts_fit(one, tmp_path / "one", parts="auto", seed=1, progress=False, budget_s=None, steps=1500)
     assert s1["model"]["parts"] == 1, s1["model"]["model_choice"]
     v1 = s1["derived"]["volume_m3"]
     assert v1["q05"] <= 4 / 3 * np.pi * 0.02**3 <= v1["q95"]
@@ -226,14 +230,12 @@ def test_fit_cli_parts_writes_a_run_and_refuses_to_resume_other_data(tmp_path, c
     csv = tmp_path / "pts.csv"
     save_contact_points(csv, pts)
     out = tmp_path / "run"
-    args = ["--parts", "2", "--quiet", "--budget", "20", "--steps", "300"]
+    args = ["--parts", "1", "--quiet", "--budget", "20", "--steps", "300"]  # K = 2's outputs: the recovery test
     assert main(["fit", str(csv), "--out", str(out), *args]) == 0
     printed = capsys.readouterr()
-    assert "2 part(s)" in printed.out and "occupancy.npz" in printed.out
+    assert "1 part(s)" in printed.out and "occupancy.npz" in printed.out
     s = json.loads((out / "summary.json").read_text())
-    assert s["model"]["parts"] == 2 and len(s["parameters"]["parts"]) == 2
-    vols = [p["volume_m3"]["mean"] for p in s["parameters"]["parts"]]
-    assert vols[0] >= vols[1]  # volume order
+    assert s["model"]["parts"] == 1 and len(s["parameters"]["parts"]) == 1
     for name in s["files"]:
         assert (out / name).is_file()
     if not s["diagnostics"]["converged"]:  # a short run says so, on the CLI too
