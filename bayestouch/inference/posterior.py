@@ -57,6 +57,7 @@ __all__ = [
     "vmf_sample",
     "PREDICTIVE_DRAWS",
     "DERIVED_DRAWS",
+    "OBSERVATION_VALUES",
 ]
 
 #: draws kept for the log-likelihood and posterior-predictive groups (memory: draws × observations × 8 bytes)
@@ -371,6 +372,19 @@ def _attrs() -> dict:
     }
 
 
+#: most values (draws × observations) of the log-likelihood and posterior-predictive groups: data sets larger than
+#: PREDICTIVE_DRAWS × 10,000 observations get fewer thinned draws there, so writing them stays seconds and MB
+OBSERVATION_VALUES = 5_000_000
+
+
+def _in_batches(fn, draws, n_obs: int, values: int = 500_000) -> dict:
+    """``fn(draws)`` (a dict of (N, …) arrays) evaluated on batches of draws of about ``values`` draws ×
+    observations each, concatenated: the peak memory of a pointwise log-likelihood stays bounded."""
+    step = max(1, values // max(n_obs, 1))
+    parts = [fn(draws[i : i + step]) for i in range(0, len(draws), step)]
+    return {k: np.concatenate([np.asarray(p[k]) for p in parts]) for k in parts[0]}
+
+
 def inference_data(chain, model: PosteriorModel, post: xr.Dataset, derived: xr.Dataset, rng) -> az.InferenceData:
     """ArviZ InferenceData of a chain (:class:`~bayestouch.inference.sampler.Chain`) as ``posterior.nc`` holds it
     (the module docstring lists the groups); ``post`` is :func:`_posterior_group`'s, ``derived`` the area and
@@ -395,10 +409,14 @@ def inference_data(chain, model: PosteriorModel, post: xr.Dataset, derived: xr.D
             coords=post.coords,
         ),
     }
-    rows = _thin_rows(S, max(1, PREDICTIVE_DRAWS // W))
+    # draws × observations bounded (OBSERVATION_VALUES): 500 draws of 50,000 contacts were 25 M log-likelihoods and
+    # 75 M replicated coordinates, gigabytes and half a minute after the budget had stopped the chain
+    n_obs = max([int(np.shape(v)[0]) for v in model.observed.values() if np.ndim(v)] or [1])
+    per_walker = max(1, min(PREDICTIVE_DRAWS, OBSERVATION_VALUES // n_obs) // W)
+    rows = _thin_rows(S, per_walker)
     coords = {"chain": np.arange(W), "draw": rows}
     if model.pointwise_log_lik is not None:
-        ll = model.pointwise_log_lik(np.swapaxes(kept[rows], 0, 1).reshape(-1, D))  # chain-major
+        ll = _in_batches(model.pointwise_log_lik, np.swapaxes(kept[rows], 0, 1).reshape(-1, D), n_obs)  # chain-major
         groups["log_likelihood"] = _coords(
             xr.Dataset(
                 {
@@ -413,7 +431,11 @@ def inference_data(chain, model: PosteriorModel, post: xr.Dataset, derived: xr.D
             )
         )
     if model.predictive is not None:
-        prows = rows if model.predictive_draws is None else _thin_rows(S, max(1, model.predictive_draws // W))
+        prows = (
+            rows
+            if model.predictive_draws is None
+            else _thin_rows(S, min(per_walker, max(1, model.predictive_draws // W)))
+        )
         rep = model.predictive(np.swapaxes(kept[prows], 0, 1).reshape(-1, D), rng)
         groups["posterior_predictive"] = _coords(
             xr.Dataset(

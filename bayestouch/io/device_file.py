@@ -168,7 +168,9 @@ def read_device_file(path, n_taxels: int | None = None) -> DeviceCalibration:
         arrays[name] = a
     lg, sd = arrays["log_gain"], arrays["log_gain_sd"]
     if sd.shape != lg.shape:
-        raise BadInput(f"{where}: [gains] log_gain_sd has {sd.size} values, expected {lg.size} (one per taxel)")
+        raise BadInput(
+            f"{where}: [gains] log_gain has {lg.size} values and log_gain_sd {sd.size}; expected one of each per taxel"
+        )
     if not np.all(sd > 0):
         raise BadInput(f"{where}: [gains] log_gain_sd must be positive for every taxel")
     if np.any(np.abs(lg) > 20):

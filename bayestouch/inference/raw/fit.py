@@ -270,8 +270,8 @@ def _raw_warnings(summary: dict, textured: bool = False) -> list[str]:
     if isinstance(pr, dict) and not pr.get("exact", True):
         out.append(
             f"a posterior draw came {pr['min_clearance_m']:.2g} m from a taxel left out as clear of the "
-            f"surface (margin {pr['margin_m']:g} m): the sampled likelihood may be inexact; rerun with "
-            "run_raw_fit(..., prune=False)"
+            f"surface (margin {pr['margin_m']:g} m): the sampled likelihood may be inexact; rerun from Python with "
+            "bayestouch.run_raw_fit(..., prune=False) (every taxel kept; the command line has no switch for it)"
         )
     return out
 
