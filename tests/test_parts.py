@@ -159,7 +159,9 @@ def test_parts_fit_chooses_two_parts_for_two_spheres_and_one_for_one(tmp_path):
     """Recovery: contacts all round two overlapping spheres choose K = 2 and the union's 90 % volume interval
     holds the truth; contacts on one sphere choose K = 1 (negative control for the choice). With 512 particles
     instead of the default 1024 the K = 2 tempering missed the two-sphere mode and K = 1 was chosen: the choice is
-    only as good as the SMC's exploration (docs/parts_model.md)."""
+    only as good as the SMC's exploration (docs/parts_model.md). With 100 contacts on spheres 31 mm apart the
+    K = 2 chain did not converge (R-hat 2.7; a part ran to the prior box as a slab through the data, w_out 0.18)
+    and said so: this test's data are where the fit works, not a bound on where it does."""
     from bayestouch.inference.parts_run import run_parts_fit
 
     rng = np.random.default_rng(3)
@@ -174,9 +176,9 @@ def test_parts_fit_chooses_two_parts_for_two_spheres_and_one_for_one(tmp_path):
     occ = load_occupancy(tmp_path / "two")
     assert occ.at([[0.0, 0.0, 0.0], [0.026, 0.0, 0.0]]).min() > 0.95 and occ.at([[0.0, 0.0, 0.03]])[0] < 0.05
 
-    u = rng.normal(size=(120, 3))
-    one = 0.02 * u / np.linalg.norm(u, axis=1, keepdims=True) + rng.normal(scale=3e-4, size=(120, 3))
-    s1 = run_parts_fit(one, tmp_path / "one", parts="auto", seed=1, progress=False, budget_s=None, steps=1500)
+    u = rng.normal(size=(60, 3))
+    one = 0.02 * u / np.linalg.norm(u, axis=1, keepdims=True) + rng.normal(scale=3e-4, size=(60, 3))
+    s1 = run_parts_fit(one, tmp_path / "one", parts="auto", seed=1, progress=False, budget_s=None, steps=1000)
     assert s1["model"]["parts"] == 1, s1["model"]["model_choice"]
     v1 = s1["derived"]["volume_m3"]
     assert v1["q05"] <= 4 / 3 * np.pi * 0.02**3 <= v1["q95"]

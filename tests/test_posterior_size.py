@@ -24,7 +24,7 @@ def _points(rng, m):
 def test_large_data_get_fewer_predictive_draws_and_the_same_log_likelihoods(tmp_path, rng):
     ch = _chain(rng)
     pri = cm.load_priors()
-    big = _points(rng, 40_000)
+    big = _points(rng, 20_000)
     s = po.write_posterior(tmp_path / "big", ch, contact_model(big, pri, np.inf), seed=0, t0=0.0)
     idata = az.from_netcdf(tmp_path / "big" / "posterior.nc")
     ll = idata.log_likelihood["points"]
