@@ -381,6 +381,19 @@ def fit_parts(d: ObjectSet, seed: int = 0) -> dict:
     return {"summary": summary, "seconds": seconds, "mesh": mesh}
 
 
+def _calibration(s: dict, d: ObjectSet) -> dict:
+    """A bayestouch run's volume interval against the truth, its convergence and warnings (``bt_`` columns)."""
+    vol = s["derived"]["volume_m3"]
+    return {
+        "bt_volume_covered": bool(vol["q05"] <= d.volume <= vol["q95"]),
+        "bt_volume_q05_m3": vol["q05"],
+        "bt_volume_q95_m3": vol["q95"],
+        "bt_converged": bool(s["diagnostics"]["converged"]),
+        "bt_max_r_hat": float(s["diagnostics"]["max_r_hat"]),
+        "bt_warnings": "; ".join(s["diagnostics"].get("warnings", [])),
+    }
+
+
 def fit_set(d: ObjectSet, method: str, index: int = 0) -> dict:
     """Fit one set with one method: its CSV row (the set's description, ``seconds``, :func:`mesh_metrics`' keys,
     NaN with ``error`` set when the method failed; for bayestouch its volume interval's coverage, ``converged``
@@ -408,16 +421,7 @@ def fit_set(d: ObjectSet, method: str, index: int = 0) -> dict:
             vol = s["derived"]["volume_m3"]
             row["seconds"] = fit["seconds"]
             row.update(mesh_metrics(_mean_shape(s), vol["mean"], d, seed=index))
-            row.update(
-                {
-                    "bt_volume_covered": bool(vol["q05"] <= d.volume <= vol["q95"]),
-                    "bt_volume_q05_m3": vol["q05"],
-                    "bt_volume_q95_m3": vol["q95"],
-                    "bt_converged": bool(s["diagnostics"]["converged"]),
-                    "bt_max_r_hat": float(s["diagnostics"]["max_r_hat"]),
-                    "bt_warnings": "; ".join(s["diagnostics"].get("warnings", [])),
-                }
-            )
+            row.update(_calibration(s, d))
         elif method == "bayestouch-parts":
             fit = fit_parts(d, seed=d.seed)
             s = fit["summary"]
@@ -427,17 +431,7 @@ def fit_set(d: ObjectSet, method: str, index: int = 0) -> dict:
                 row.update(failed, error="bayestouch-parts: no mean surface")
             else:
                 row.update(mesh_metrics(fit["mesh"], vol["mean"], d, seed=index))
-            row.update(
-                {
-                    "bt_parts": int(s["model"]["parts"]),
-                    "bt_volume_covered": bool(vol["q05"] <= d.volume <= vol["q95"]),
-                    "bt_volume_q05_m3": vol["q05"],
-                    "bt_volume_q95_m3": vol["q95"],
-                    "bt_converged": bool(s["diagnostics"]["converged"]),
-                    "bt_max_r_hat": float(s["diagnostics"]["max_r_hat"]),
-                    "bt_warnings": "; ".join(s["diagnostics"].get("warnings", [])),
-                }
-            )
+            row.update(_calibration(s, d), bt_parts=int(s["model"]["parts"]))
         elif method == "sage":
             from benchmarks.bench_sparse import fit_sage
 
