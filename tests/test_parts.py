@@ -246,3 +246,16 @@ def test_fit_cli_parts_writes_a_run_and_refuses_to_resume_other_data(tmp_path, c
     save_contact_points(csv, pts * 1.1)
     assert main(["fit", str(csv), "--out", str(out), *args, "--resume"]) == 2
     assert "other points" in capsys.readouterr().err
+
+
+def test_union_summaries_of_a_ball():
+    """A ball of radius r: volume 4/3 π r³, second moments ∫ x² dV = 4/15 π r⁵ about each axis, centre of volume
+    at its centre, extent ±r (Sobol points: ~1 % and the points' spacing)."""
+    r, c = 0.02, np.array([0.01, -0.02, 0.03])
+    th = theta_of(sphere_part(c, r))
+    u = union_summaries(np.stack([th, th]), 1, seed=3, chunk=1)  # two draws in two chunks
+    assert u["volume"] == pytest.approx([4 / 3 * np.pi * r**3] * 2, rel=0.01)
+    np.testing.assert_allclose(u["moments"], 4 / 15 * np.pi * r**5, rtol=0.02)
+    np.testing.assert_allclose(u["centre"], [c, c], atol=5e-4)
+    np.testing.assert_allclose(u["extent_hi"] - c, r, atol=1.5e-3)
+    np.testing.assert_allclose(c - u["extent_lo"], r, atol=1.5e-3)

@@ -299,10 +299,13 @@ def canonical_order(theta, k: int) -> np.ndarray:
 
 
 def inside_union(theta, k: int, points) -> np.ndarray:
-    """Whether ``points (P, 3)`` m lie inside the union of each draw θ (N, 10 K + 3): (N, P) bool."""
+    """Whether points lie inside the union of each draw θ (N, 10 K + 3): ``points`` (P, 3) m shared by every
+    draw, or (N, P, 3) m, each draw its own; (N, P) bool."""
     parts, _ = _split(jnp.asarray(theta, dtype=jnp.float64), k)
     pts = jnp.asarray(points, dtype=jnp.float64)
-    g = jnp.stack([_gauge(parts[:, j, :], jnp.broadcast_to(pts, (parts.shape[0], *pts.shape))) for j in range(k)])
+    if pts.ndim == 2:
+        pts = jnp.broadcast_to(pts, (parts.shape[0], *pts.shape))
+    g = jnp.stack([_gauge(parts[:, j, :], pts) for j in range(k)])
     return np.asarray(jnp.any(g <= 1.0, axis=0))
 
 

@@ -122,32 +122,37 @@ def _monitor(k: int):
     return monitor
 
 
-def union_summaries(theta, k: int, seed: int = 0, points: int = VOLUME_POINTS) -> dict:
+def union_summaries(theta, k: int, seed: int = 0, points: int = VOLUME_POINTS, chunk: int = 25) -> dict:
     """Volume (N,) m³, extent lo/hi (N, 3) m, centre of volume (N, 3) m and principal second moments (N, 3) m⁵ of
     the union of each draw θ (N, 10 K + 3), by ``points`` scrambled Sobol points in each draw's bounding box."""
     th = np.asarray(theta, float)
     lo, hi = pm.bounding_boxes(th, k)
     u = qmc.Sobol(3, scramble=True, seed=np.random.default_rng([seed, 0x50B])).random(points)
     vol, ext_lo, ext_hi, com, mom = [], [], [], [], []
-    for i in range(len(th)):
-        pts = lo[i] + u * (hi[i] - lo[i])
-        inside = pm.inside_union(th[i : i + 1], k, pts)[0]
-        box = float(np.prod(hi[i] - lo[i]))
-        v = box * inside.mean()
+    for s in range(0, len(th), chunk):  # draws in chunks: each its own points in its own box
+        pts = lo[s : s + chunk, None, :] + u[None] * (hi - lo)[s : s + chunk, None, :]  # (n, P, 3)
+        inside = pm.inside_union(th[s : s + chunk], k, pts)  # (n, P)
+        count = inside.sum(axis=1)
+        w = inside / np.maximum(count, 1)[:, None]
+        v = np.prod(hi - lo, axis=1)[s : s + chunk] * count / points
+        c = np.einsum("np,npi->ni", w, pts)
+        d = pts - c[:, None, :]
+        C = v[:, None, None] * np.einsum("np,npi,npj->nij", w, d, d)
+        big = np.where(inside[..., None], pts, -np.inf).max(axis=1)
+        small = np.where(inside[..., None], pts, np.inf).min(axis=1)
+        none = count == 0  # no point inside: the box's first point, as a degenerate solid
+        big[none], small[none], c[none] = pts[none, 0], pts[none, 0], pts[none, 0]
         vol.append(v)
-        q = pts[inside] if inside.any() else pts[:1]
-        ext_lo.append(q.min(axis=0))
-        ext_hi.append(q.max(axis=0))
-        c = q.mean(axis=0)
+        ext_lo.append(small)
+        ext_hi.append(big)
         com.append(c)
-        C = v * np.cov((q - c).T, bias=True) if len(q) > 1 else np.zeros((3, 3))
-        mom.append(np.linalg.eigvalsh(C)[::-1])
+        mom.append(np.linalg.eigvalsh(C)[:, ::-1])
     return {
-        "volume": np.array(vol),
-        "extent_lo": np.array(ext_lo),
-        "extent_hi": np.array(ext_hi),
-        "centre": np.array(com),
-        "moments": np.array(mom),
+        "volume": np.concatenate(vol),
+        "extent_lo": np.concatenate(ext_lo),
+        "extent_hi": np.concatenate(ext_hi),
+        "centre": np.concatenate(com),
+        "moments": np.concatenate(mom),
     }
 
 
