@@ -166,7 +166,7 @@ def test_parts_fit_chooses_two_parts_for_two_spheres_and_one_for_one(tmp_path):
 
     rng = np.random.default_rng(3)
     pts, _, vol = _two_sphere_contacts(rng)
-    s = run_parts_fit(pts, tmp_path / "two", parts="auto", seed=1, progress=False, budget_s=None, steps=1500)
+    s = run_parts_fit(pts, tmp_path / "two", parts="auto", seed=1, progress=False, budget_s=None, steps=800)
     assert s["model"]["parts"] == 2, s["model"]["model_choice"]
     vols = [p["volume_m3"]["mean"] for p in s["parameters"]["parts"]]
     assert vols[0] >= vols[1]  # volume order
