@@ -70,6 +70,7 @@ TABLE = [
     ("experiment --draws 1 --out {tmp}/o", "--draws"),
     ("sbc --datasets 1000000000 --out {tmp}/o", "--datasets"),
     ("device run --port {tmp}/no_such_port --strokes 1000000000 --out {tmp}/r.nc", "--strokes"),
+    ("device run --port {tmp}/no_such_port --strokes 1 --journal {tmp}/keep.txt --out {tmp}/r.nc", "--journal"),
     ("simulate --object {tmp}/negative_amplitude.toml --out {tmp}/r.nc", "amplitude_m"),
     ("simulate --object {tmp}/negative_roughness.toml --out {tmp}/r.nc", "roughness_m"),
     ("fit {tmp}/good.csv --out {tmp}/o --nu -2", "--nu"),

@@ -282,6 +282,11 @@ def _run(args) -> int:
     if not (0.01 <= args.timeout <= 60):
         raise BadInput(f"--timeout must be in [0.01, 60] seconds, got {args.timeout}")
     currents = _currents(args.currents)
+    if args.journal is not None and args.journal.exists():
+        raise BadInput(
+            f"--journal {args.journal} exists; name a new file (packets are never appended to another file, and an "
+            "earlier journal is kept as it is)"
+        )
     from bayestouch.hardware.safety import check_plan, load_limits, plan_from_stroke
 
     limits = load_limits()
