@@ -348,13 +348,6 @@ def mesh_metrics(estimate, volume: float, d: ObjectSet, seed: int = 0) -> dict:
     }
 
 
-def _mean_shape(summary: dict):
-    from bayestouch.backend import jnp
-    from bayestouch.geometry import nellipsoid as ne
-
-    return ne.from_vector(jnp.asarray([summary["derived"]["mean_shape"][k] for k in ne.PARAM_NAMES]))
-
-
 def fit_parts(d: ObjectSet, seed: int = 0) -> dict:
     """bayestouch's parts fit (:func:`bayestouch.inference.parts_run.run_parts_fit`, ``parts="auto"``, every
     other setting its default) of the set's contacts and free space, timed; its mean surface read back from
@@ -420,7 +413,7 @@ def fit_set(d: ObjectSet, method: str, index: int = 0) -> dict:
             s = fit["summary"]
             vol = s["derived"]["volume_m3"]
             row["seconds"] = fit["seconds"]
-            row.update(mesh_metrics(_mean_shape(s), vol["mean"], d, seed=index))
+            row.update(mesh_metrics(us.mean_shape(s), vol["mean"], d, seed=index))
             row.update(_calibration(s, d))
         elif method == "bayestouch-parts":
             fit = fit_parts(d, seed=d.seed)

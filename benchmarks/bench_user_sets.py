@@ -600,7 +600,7 @@ def bayestouch_metrics(summary: dict, truth: ne.NEllipsoid) -> dict:
     return out
 
 
-def _mean_shape(summary: dict) -> ne.NEllipsoid:
+def mean_shape(summary: dict) -> ne.NEllipsoid:
     """The posterior-mean shape of the summary (``derived.mean_shape``, the shape of ``mean_shape.ply``)."""
     return ne.from_vector(jnp.asarray([summary["derived"]["mean_shape"][k] for k in ne.PARAM_NAMES]))
 
@@ -654,7 +654,7 @@ def fit_set(d: UserSet, method: str, index: int = 0, steps: int | None = None) -
             fit = fit_bayestouch_default(d.points, seed=d.seed, steps=steps, free=d.free_space)
             s = fit["summary"]
             row["seconds"] = fit["seconds"]
-            row.update(shape_metrics(_mean_shape(s), s["derived"]["volume_m3"]["mean"], d.truth, seed=index))
+            row.update(shape_metrics(mean_shape(s), s["derived"]["volume_m3"]["mean"], d.truth, seed=index))
             row.update({f"bt_{k}": v for k, v in bayestouch_metrics(s, d.truth).items()})
         elif method == "sage":
             sq = fit_sage(d.points)

@@ -43,6 +43,9 @@ TABLE = [
     ("fit {tmp}/huge.csv --out {tmp}/o", "--subsample"),
     ("fit {tmp}/micrometres.csv --out {tmp}/o", "span only"),
     ("fit {tmp}/good.csv --out {tmp}/o --subsample 10", "--subsample"),
+    # the parts fit reads its contacts as the single fit does (--subsample was ignored there)
+    ("fit {tmp}/good.csv --out {tmp}/o --parts 1 --subsample 10", "--subsample"),
+    ("fit {tmp}/huge.csv --out {tmp}/o --parts 1", "--subsample"),
     ("simulate --object {tmp}/nan_axes.toml --out {tmp}/r.nc", "finite"),
     ("simulate --object {egg} --strokes 1000000000 --out {tmp}/r.nc", "split it"),
     ("simulate --object {tmp}/huge_n.toml --out {tmp}/r.nc", "'n' must be in"),

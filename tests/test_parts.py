@@ -22,6 +22,13 @@ def sphere_part(centre, r, n=2.0):
 NOISE = np.r_[np.log(3e-4), 0.02, 0.03]
 
 
+def _lens(r1, r2, d):
+    """Volume (m³) of the intersection of two balls of radii r1, r2 (m) whose centres are d apart."""
+    return (
+        np.pi * (r1 + r2 - d) ** 2 * (d**2 + 2 * d * r2 - 3 * r2**2 + 2 * d * r1 + 6 * r1 * r2 - 3 * r1**2) / (12 * d)
+    )
+
+
 def theta_of(*parts):
     return np.r_[np.concatenate(parts), NOISE]
 
@@ -94,9 +101,7 @@ def test_inside_union_and_its_volume(rng):
     inside = pm.inside_union(th[None], 2, pts)[0]
     expect = (np.linalg.norm(pts, axis=1) <= r1) | (np.linalg.norm(pts - [d, 0, 0], axis=1) <= r2)
     assert np.mean(inside != expect) < 2e-3  # only points within rounding of the surfaces
-    lens = (
-        np.pi * (r1 + r2 - d) ** 2 * (d**2 + 2 * d * r2 - 3 * r2**2 + 2 * d * r1 + 6 * r1 * r2 - 3 * r1**2) / (12 * d)
-    )
+    lens = _lens(r1, r2, d)
     exact = 4 / 3 * np.pi * (r1**3 + r2**3) - lens
     u = union_summaries(th[None], 2, seed=0)
     assert u["volume"][0] == pytest.approx(exact, rel=0.01)
@@ -148,9 +153,7 @@ def _two_sphere_contacts(rng, count=160, noise=3e-4):
         if np.linalg.norm(p - other) > (r2 if r == r1 else r1):
             pts.append(p)
     pts = np.asarray(pts) + rng.normal(scale=noise, size=(count, 3))
-    lens = (
-        np.pi * (r1 + r2 - d) ** 2 * (d**2 + 2 * d * r2 - 3 * r2**2 + 2 * d * r1 + 6 * r1 * r2 - 3 * r1**2) / (12 * d)
-    )
+    lens = _lens(r1, r2, d)
     return pts, th, 4 / 3 * np.pi * (r1**3 + r2**3) - lens
 
 

@@ -174,11 +174,34 @@ def add_parser(sub) -> argparse.ArgumentParser:
     return fp
 
 
+def _contacts(args):
+    """The contact file of ``fit DATA``, ``--subsample`` applied (seeded by ``--seed``), at most
+    :data:`MAX_CONTACTS` contacts: the data of the single fit and of the parts fit alike."""
+    from bayestouch.io.contacts import load_contact_points
+
+    cp = load_contact_points(args.points)
+    if args.subsample is not None:
+        if args.subsample < 20:
+            raise BadInput(f"--subsample must be an integer ≥ 20 contacts, got {args.subsample}")
+        if args.subsample < len(cp.points):
+            keep = np.sort(np.random.default_rng([args.seed, 0x5B5]).choice(len(cp.points), args.subsample, False))
+            cp = cp._replace(
+                points=cp.points[keep],
+                normals=None if cp.normals is None else cp.normals[keep],
+                force=None if cp.force is None else cp.force[keep],
+            )
+    if len(cp.points) > MAX_CONTACTS:
+        raise BadInput(
+            f"{args.points}: {len(cp.points)} contacts; a fit takes at most {MAX_CONTACTS} (the posterior of "
+            f"more is no sharper than the model's own error): pass --subsample N to fit N of them"
+        )
+    return cp
+
+
 def _run_parts(args) -> int:
     """``bayestouch fit DATA --parts …``: the union-of-parts fit (:mod:`bayestouch.inference.parts_run`)."""
     from bayestouch.inference.parts import MAX_PARTS
     from bayestouch.inference.parts_run import DEFAULT_MAX_PARTS, PARTS_BUDGET_S, run_parts_fit
-    from bayestouch.io.contacts import load_contact_points
 
     if args.points.suffix == ".nc":
         raise BadInput("--parts applies to contact points (.csv), not to a recording (.nc)")
@@ -202,9 +225,7 @@ def _run_parts(args) -> int:
         raise BadInput(f"--parts: expected auto or a number of parts 1 to {MAX_PARTS}, got {args.parts!r}")
     if args.max_parts is not None and (parts != "auto" or args.max_parts > MAX_PARTS):
         raise BadInput(f"--max-parts goes with --parts auto and is at most {MAX_PARTS}, got {args.max_parts}")
-    cp = load_contact_points(args.points)
-    if len(cp.points) > MAX_CONTACTS:
-        raise BadInput(f"{args.points}: {len(cp.points)} contacts; a parts fit takes at most {MAX_CONTACTS}")
+    cp = _contacts(args)
     if cp.normals is not None and not args.ignore_normals:
         print("bayestouch fit: note: --parts does not use the file's normals (nx, ny, nz)", file=sys.stderr)
     s = run_parts_fit(
@@ -292,8 +313,6 @@ def run(args) -> int:
             **common,
         ).results
     else:
-        from bayestouch.io.contacts import load_contact_points
-
         if args.size_prior is not None and args.ffd is not None:
             raise BadInput("--size-prior: the FFD-marginalised fit keeps its own prior; use one of --size-prior, --ffd")
         if args.texture != "auto" or args.stride is not None or args.calibration is not None:
@@ -301,22 +320,7 @@ def run(args) -> int:
                 "--texture, --stride and --calibration apply to a recording (.nc), not to contact points (.csv)"
             )
 
-        cp = load_contact_points(args.points)
-        if args.subsample is not None:
-            if args.subsample < 20:
-                raise BadInput(f"--subsample must be an integer ≥ 20 contacts, got {args.subsample}")
-            if args.subsample < len(cp.points):
-                keep = np.sort(np.random.default_rng([args.seed, 0x5B5]).choice(len(cp.points), args.subsample, False))
-                cp = cp._replace(
-                    points=cp.points[keep],
-                    normals=None if cp.normals is None else cp.normals[keep],
-                    force=None if cp.force is None else cp.force[keep],
-                )
-        if len(cp.points) > MAX_CONTACTS:
-            raise BadInput(
-                f"{args.points}: {len(cp.points)} contacts; a fit takes at most {MAX_CONTACTS} (the posterior of "
-                f"more is no sharper than the model's own error): pass --subsample N to fit N of them"
-            )
+        cp = _contacts(args)
         if args.nu is not None and (args.noise != "student" or not args.nu > 0):
             raise BadInput(f"--nu must be > 0 and goes with --noise student, got --nu {args.nu} --noise {args.noise}")
         noise, nu = ("student", float("inf")) if args.noise == "gaussian" else (args.noise, args.nu)

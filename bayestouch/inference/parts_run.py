@@ -34,7 +34,7 @@ from bayestouch.geometry.symmetry import align_batch
 from bayestouch.inference import contact as cm
 from bayestouch.inference import parts as pm
 from bayestouch.inference.posterior import interval
-from bayestouch.inference.run import smc_moves, smc_stage
+from bayestouch.inference.run import MIN_CHAIN_STEPS, smc_moves, smc_stage
 from bayestouch.inference.sampler import convergence, sample
 from bayestouch.io.files import atomic_path, write_json
 from bayestouch.io.meshes import write_spread_mesh
@@ -78,9 +78,6 @@ OCCUPANCY_RES = 40
 SUMMARY_DRAWS = 400
 #: share of the budget the SMC stages may take together
 SMC_SHARE = 0.6
-#: fewest chain steps, whatever the budget
-MIN_CHAIN_STEPS = 200
-_NAMES = ("x_G", "y_G", "z_G", "a", "b", "c", "xi", "psi", "zeta", "n")
 
 
 def choose_parts(log_evidence: dict[int, float], nats: float = CHOICE_NATS) -> tuple[int, dict[int, float]]:
@@ -111,13 +108,18 @@ def _aligned(particles, log_post, k: int) -> np.ndarray:
     return x
 
 
+def _judged(c, vols, k: int) -> np.ndarray:
+    """The label-free quantities of draws ``c`` in volume order (:func:`bayestouch.inference.parts.canonical_order`)
+    with their part volumes ``vols`` (N, K): each part's log volume and log n, and log σ."""
+    return np.column_stack([np.log(vols), c[:, [10 * j + 9 for j in range(k)]], c[:, 10 * k]])
+
+
 def _monitor(k: int):
-    """Chain draws (N, 10 K + 3) → each part's volume and log n in volume order, and log σ (label-free)."""
+    """Chain draws (N, 10 K + 3) → :func:`_judged` (the stopping rule's monitor)."""
 
     def monitor(draws):
         c = pm.canonical_order(draws, k)
-        vols = pm.part_volumes(c, k)
-        return np.column_stack([np.log(vols), c[:, [10 * j + 9 for j in range(k)]], c[:, 10 * k]])
+        return _judged(c, pm.part_volumes(c, k), k)
 
     return monitor
 
@@ -198,12 +200,13 @@ def write_parts_outputs(out: Path, chain, k: int, points, *, seed: int, t0: floa
     S, W, D = chain.kept.shape
     flat = chain.kept.reshape(-1, D)
     c = pm.canonical_order(flat, k)
-    for j in range(k):
+    vols = pm.part_volumes(c, k)
+    mon = _judged(c, vols, k).reshape(S, W, -1).swapaxes(0, 1)
+    for j in range(k):  # after the monitor's quantities: wrapping the angles changes no volume or n
         sl = slice(10 * j, 10 * j + 10)
         c[:, sl] = cm.wrap_angles(c[:, sl])
     post = _parts_dataset(c, k, S, W)
 
-    mon = _monitor(k)(flat).reshape(S, W, -1).swapaxes(0, 1)
     mds = xr.Dataset({f"q{i}": (("chain", "draw"), mon[..., i]) for i in range(mon.shape[-1])})
     rhat, ess = az.rhat(mds), az.ess(mds, method="bulk")
     diag = convergence([float(rhat[v]) for v in mds], [float(ess[v]) for v in mds], chain)
@@ -214,7 +217,6 @@ def write_parts_outputs(out: Path, chain, k: int, points, *, seed: int, t0: floa
     occ = pm.occupancy_grid(thin, k, OCCUPANCY_RES)
     verts, faces, spread = _mean_surface(occ, thin, k)
 
-    vols = pm.part_volumes(c, k)
     parts = []
     for j in range(k):
         p = c[:, 10 * j : 10 * j + 10]
@@ -283,9 +285,10 @@ def write_parts_outputs(out: Path, chain, k: int, points, *, seed: int, t0: floa
     )
     write_occupancy(out / OCCUPANCY_FILE, occ)
     if verts is not None:
+        mesh = to_trimesh(verts, faces)
         with atomic_path(out / "mean_shape.ply") as tmp:
-            to_trimesh(verts, faces).export(str(tmp))
-        write_spread_mesh(out / "uncertainty_mesh.ply", to_trimesh(verts, faces), spread)
+            mesh.export(str(tmp))
+        write_spread_mesh(out / "uncertainty_mesh.ply", mesh, spread)
     with atomic_path(out / "posterior.nc") as tmp:
         idata.to_netcdf(str(tmp), compress=False)
     write_json(out / "summary.json", summary)
