@@ -26,6 +26,8 @@ The parts are exchangeable (the posterior has K! copies of every mode); summarie
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from bayestouch.backend import jax, jnp
@@ -79,19 +81,24 @@ def param_names(k: int) -> tuple[str, ...]:
     return tuple(f"{name}_{j}" for j in range(k) for name in PART_PARAMS) + NOISE_PARAMS
 
 
-class PartsPrior:
-    """The prior of a K-part union for one data set: each part's :class:`~bayestouch.inference.contact.Bounds`
-    (its first 10 entries), the noise box, and K. Frozen after construction; a pytree leaf-free static object."""
+class PartsPrior(NamedTuple):
+    """The prior of a K-part union for one data set: K, each part's
+    :class:`~bayestouch.inference.contact.Bounds` (the single n-ellipsoid's first 10 entries) and the noise box."""
 
-    __slots__ = ("k", "part", "noise_lower", "noise_upper", "lower", "upper")
+    k: int
+    part: cm.Bounds
+    noise_lower: jnp.ndarray
+    noise_upper: jnp.ndarray
 
-    def __init__(self, k: int, part: cm.Bounds, noise_lower, noise_upper):
-        self.k = _check_k(k)
-        self.part = part
-        self.noise_lower = jnp.asarray(noise_lower)
-        self.noise_upper = jnp.asarray(noise_upper)
-        self.lower = jnp.concatenate([jnp.tile(part.lower, self.k), self.noise_lower])
-        self.upper = jnp.concatenate([jnp.tile(part.upper, self.k), self.noise_upper])
+    @property
+    def lower(self):
+        """The box's lower corner (10 K + 3,) in θ's layout."""
+        return jnp.concatenate([jnp.tile(self.part.lower, self.k), self.noise_lower])
+
+    @property
+    def upper(self):
+        """The box's upper corner (10 K + 3,) in θ's layout."""
+        return jnp.concatenate([jnp.tile(self.part.upper, self.k), self.noise_upper])
 
 
 def parts_prior(points, k: int, priors: cm.PriorParams | None = None) -> PartsPrior:
@@ -100,7 +107,7 @@ def parts_prior(points, k: int, priors: cm.PriorParams | None = None) -> PartsPr
     priors = priors or cm.load_priors()
     b = cm.bounds_for(points, priors, noise="outlier")
     part = cm.Bounds(b.lower[:10], b.upper[:10], b.size_mu, b.size_sd)
-    return PartsPrior(k, part, b.lower[10:], b.upper[10:])
+    return PartsPrior(_check_k(k), part, jnp.asarray(b.lower[10:]), jnp.asarray(b.upper[10:]))
 
 
 def _split(theta, k: int):
