@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from bayestouch.cli.args import out_path
+from bayestouch.cli.args import check_out, out_path
 from bayestouch.cli.args import seed as seed_arg
 from bayestouch.errors import BadInput
 
@@ -41,9 +41,7 @@ def run(args) -> int:
     from bayestouch.demo import FULL, QUICK, run_demo
     from bayestouch.io.runfolder import RESULT_FILES
 
-    out = args.out
-    if out.exists() and not out.is_dir():
-        raise BadInput(f"--out {out} exists and is not a folder")
+    out = check_out(args.out)
     held = [f for f in RESULT_FILES if (out / f).exists()]
     # a demo's folder (its strokes/ made first, demo.json and report.html later) is rebuilt by the next demo
     demo_made = any((out / f).exists() for f in ("strokes", "demo.json", "report.html"))

@@ -29,6 +29,7 @@ import numpy as np
 
 from bayestouch.errors import BadInput
 from bayestouch.io.files import write_json
+from bayestouch.io.occupancy import OCCUPANCY_FILE
 
 __all__ = [
     "FINGERPRINT_FILE",
@@ -51,8 +52,8 @@ OUTPUTS = (
     "mean_shape.ply",
     "uncertainty_mesh.ply",
     "smc.npz",
-    "occupancy.npz",
-    *(f"smc_parts{k}.npz" for k in range(1, 5)),
+    OCCUPANCY_FILE,
+    *(f"smc_parts{k}.npz" for k in range(1, 5)),  # the parts fit's per-K tempering, K = 1 … parts.MAX_PARTS
     FINGERPRINT_FILE,
 )
 
