@@ -148,6 +148,14 @@ BAD_FILES = {
         _csv(["45.0,0.0,0.0"] + [",".join(repr(float(v) * 1000) for v in r.split(",")) for r in RING[1:]]),
         "x,y,z look like millimetres (largest |value| 45.0",
     ),
+    "micrometres": (
+        _csv([",".join(repr(float(v) * 1e6) for v in r.split(",")) for r in RING]),
+        "look like micrometres (largest |value| ",
+    ),
+    "nanometres": (
+        _csv([",".join(repr(float(v) * 1e9) for v in r.split(",")) for r in RING]),
+        "look like nanometres (largest |value| ",
+    ),
     "millimetres by diagonal": (
         _csv([f"{s * 1.5},{t * 1.5},{u * 0.1}" for s in (-1, 1) for t in (-1, 1) for u in range(4)]),
         "look like millimetres (largest |value| 1.5, bounding-box diagonal 4.2",

@@ -76,9 +76,9 @@ def add_parser(sub) -> argparse.ArgumentParser:
         "--budget",
         type=float,
         default=None,
-        help="wall-clock budget for sampling, seconds (default: 60 for contact points, 180 with --parts, none for a "
-        "recording; "
-        "0 for none); a run stopped by it is reported as not converged and can be continued with --resume",
+        help="wall-clock budget of the fit (search, sampling and outputs), seconds (default: 60 for contact points, "
+        "180 with --parts, none for a recording; 0 for none); the chain runs at least 200 steps; a run stopped by "
+        "it is reported as not converged and can be continued with --resume",
     )
     fp.add_argument(
         "--noise",

@@ -34,7 +34,7 @@ from bayestouch.geometry.symmetry import align_batch
 from bayestouch.inference import contact as cm
 from bayestouch.inference import parts as pm
 from bayestouch.inference.posterior import interval
-from bayestouch.inference.run import MIN_CHAIN_STEPS, smc_moves, smc_stage
+from bayestouch.inference.run import MIN_CHAIN_STEPS, sampling_budget, smc_moves, smc_stage
 from bayestouch.inference.sampler import convergence, sample
 from bayestouch.io.files import atomic_path, write_json
 from bayestouch.io.meshes import write_spread_mesh
@@ -78,6 +78,9 @@ OCCUPANCY_RES = 40
 SUMMARY_DRAWS = 400
 #: share of the budget the SMC stages may take together
 SMC_SHARE = 0.6
+#: seconds the outputs after the chain take (union summaries, occupancy grid, mean surface, posterior.nc; 8.4 s for
+#: two parts on 160 contacts here), reserved from the budget
+PARTS_OUTPUT_SECONDS = 10.0
 
 
 def choose_parts(log_evidence: dict[int, float], nats: float = CHOICE_NATS) -> tuple[int, dict[int, float]]:
@@ -325,8 +328,9 @@ def run_parts_fit(
     steps : int
         Largest number of chain steps.
     budget_s : float, seconds, optional
-        Wall-clock budget of the whole fit: the SMC stages share :data:`SMC_SHARE` of it, the chain stops when it
-        is spent (after at least :data:`MIN_CHAIN_STEPS` steps).
+        Wall-clock budget of the whole fit: the SMC stages share :data:`SMC_SHARE` of it, the chain stops
+        :data:`PARTS_OUTPUT_SECONDS` before it is spent, for the outputs (after at least :data:`MIN_CHAIN_STEPS`
+        steps; :func:`bayestouch.inference.run.sampling_budget`).
     free : (K_f, 3) float, metres, optional
         Free-space finger positions.
     priors : PriorParams, optional
@@ -406,7 +410,7 @@ def run_parts_fit(
         seed=seed,
         steps=steps,
         resume=resume,
-        budget_s=budget_s,
+        budget_s=sampling_budget(budget_s, PARTS_OUTPUT_SECONDS),
         min_steps=MIN_CHAIN_STEPS,
         progress=progress,
         t0=t0,

@@ -111,6 +111,26 @@ def _show(text: str, limit: int = 40) -> str:
     return repr(text)
 
 
+def _likely_unit(max_abs: float, diagonal: float) -> tuple[str, float]:
+    """The unit that brings coordinates too large for metres into range, and its factor to metres.
+
+    Parameters
+    ----------
+    max_abs, diagonal : float
+        Largest absolute coordinate and bounding-box diagonal as written in the file (unknown unit).
+
+    Returns
+    -------
+    (str, float)
+        ``("millimetres", 1e3)``, ``("micrometres", 1e6)`` or ``("nanometres", 1e9)``: the smallest factor whose
+        quotient lies within the metre limits; ``("some unit other than metres", 1e3)`` when none does.
+    """
+    for unit, factor in (("millimetres", 1e3), ("micrometres", 1e6), ("nanometres", 1e9)):
+        if max_abs / factor <= MM_MAX_ABS_M and diagonal / factor <= MM_MAX_DIAGONAL_M:
+            return unit, factor
+    return "some unit other than metres", 1e3
+
+
 def _num(v: float) -> str:
     """A number for a message: six significant digits, Python float spelling (45.0, 0.0123, 1000000.0)."""
     return repr(float(f"{float(v):.6g}"))
@@ -296,10 +316,11 @@ def load_contact_points(path: str | os.PathLike[str], *, min_points: int = N_ELL
     max_abs = float(np.max(np.abs(every)))
     diagonal = float(np.linalg.norm(np.ptp(every, axis=0)))
     if max_abs > MM_MAX_ABS_M or diagonal > MM_MAX_DIAGONAL_M:
+        unit, factor = _likely_unit(max_abs, diagonal)
         raise file_error(
             source,
-            f"x,y,z look like millimetres (largest |value| {_num(max_abs)}, bounding-box "
-            f"diagonal {_num(diagonal)}); give metres (e.g. divide by 1000), within "
+            f"x,y,z look like {unit} (largest |value| {_num(max_abs)}, bounding-box "
+            f"diagonal {_num(diagonal)}); give metres (e.g. divide by {factor:g}), within "
             f"±{MM_MAX_ABS_M} m and a bounding-box diagonal ≤ {MM_MAX_DIAGONAL_M} m",
         )
     span = float(np.linalg.norm(np.ptp(points, axis=0)))
