@@ -37,6 +37,9 @@ __all__ = [
     "brinson_init",
     "brinson_update",
     "WireTrace",
+    "WireState",
+    "wire_state_init",
+    "wire_step",
     "simulate_wire",
     "transformation",
     "quasi_static_fraction",
@@ -460,6 +463,37 @@ def _substep(p, carry, current, stress, h, rate_scale, n_newton=2):
     st_new = brinson_update(p, st, Tn, stress, rate, rate_scale)
     # energy-consistent split: the enthalpy released/absorbed by Δξ goes into T exactly
     return T_pred + lat * (st_new.xi - st.xi), st_new
+
+
+class WireState(NamedTuple):
+    """A wire's state between samples, carried through ``lax.scan`` by callers that set the stress sample by sample
+    (e.g. from the bend it produces, :mod:`bayestouch.physics.pose`).
+
+    Attributes
+    ----------
+    temperature : array, K
+    brinson : BrinsonState
+    """
+
+    temperature: jax.Array
+    brinson: BrinsonState
+
+
+def wire_state_init(p: WireParams, T0=None, xi0=1.0, stress=0.0) -> WireState:
+    """The state at temperature ``T0`` (K, default ambient), martensite fraction ``xi0`` and stress ``stress`` (Pa),
+    with both Brinson branches latched through it."""
+    T0 = jnp.asarray(p.ambient if T0 is None else T0, dtype=float)
+    T0, stress, xi0 = jnp.broadcast_arrays(T0, jnp.asarray(stress, dtype=float), jnp.asarray(xi0, dtype=float))
+    return WireState(T0, brinson_init(p, T0, stress, xi0))
+
+
+def wire_step(p: WireParams, state: WireState, current, stress, dt, substeps: int = 10, rate_scale=0.1) -> WireState:
+    """One sample of :func:`simulate_wire`: the current (A) and stress (Pa) held for ``dt`` seconds, integrated in
+    ``substeps`` steps."""
+    carry = (state.temperature, state.brinson)
+    for _ in range(substeps):
+        carry = _substep(p, carry, current, stress, dt / substeps, rate_scale)
+    return WireState(*carry)
 
 
 def _outputs(p, T, xi, stress):

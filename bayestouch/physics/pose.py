@@ -1,0 +1,328 @@
+"""The bending chain that places the pad: wire-current programs → wire temperatures and martensite fractions (lumped
+thermal model + Brinson kinetics, which carry the NiTi hysteresis) → rod curvature (three-wire moment equilibrium) →
+tip pose in the finger-base frame → pad pose in the world (base pose × tip pose) → where the pad meets the object.
+
+Pure functions of arrays and the :class:`~bayestouch.physics.sma.WireParams` and
+:class:`~bayestouch.physics.bending.RodParams` pytrees; SI units (metres, kelvin, seconds, amperes, pascals). The
+equations and their simplifications: ``docs/physics_notes.md`` § "The bending chain".
+"""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import NamedTuple
+
+import numpy as np
+
+from bayestouch.backend import jax, jnp
+from bayestouch.errors import BadInput
+from bayestouch.physics import bending as bd
+from bayestouch.physics import sma
+from bayestouch.scene.surface import Surface, signed_distance
+
+__all__ = [
+    "TipPath",
+    "tip_path",
+    "PadPath",
+    "pad_path",
+    "pad_contact",
+    "chain_stroke_arrays",
+    "HysteresisLoop",
+    "hysteresis_loop",
+]
+
+
+class TipPath(NamedTuple):
+    """The rod's state over T frames (the finger-base frame: the rod leaves the base along +z).
+
+    Attributes
+    ----------
+    wire_temperature : (T, 3) float, kelvin
+    martensite : (T, 3) float, 1
+        Martensite fraction ξ of each wire (its history is the hysteresis).
+    stress : (T, 3) float, pascals
+        Wire stresses at the bend's equilibrium.
+    curvature : (T, 2) float, 1/metres
+        Curvature vector u = κ (cos φ, sin φ).
+    tip_position : (T, 3) float, metres
+    tip_rotation : (T, 3, 3) float
+        Tip frame in the base frame; its third column is the rod's tangent at the tip.
+    """
+
+    wire_temperature: np.ndarray
+    martensite: np.ndarray
+    stress: np.ndarray
+    curvature: np.ndarray
+    tip_position: np.ndarray
+    tip_rotation: np.ndarray
+
+
+def _check_currents(wire: sma.WireParams, currents) -> np.ndarray:
+    cur = np.asarray(currents, dtype=float)
+    if cur.ndim != 2 or cur.shape[1] != 3 or len(cur) < 1:
+        raise BadInput(f"wire currents: expected an array of shape (T, 3) in amperes, got shape {cur.shape}")
+    if not np.all(np.isfinite(cur)) or np.any(cur < 0) or np.any(cur > wire.max_current):
+        raise BadInput(f"wire currents must be finite and within [0, {wire.max_current:g}] A")
+    return cur
+
+
+@partial(jax.jit, static_argnames=("substeps",))
+def _chain(wire, rod, currents, dt, T0, xi0, substeps):
+    """The causal scan of :func:`tip_path`: (temperatures, martensite, stresses (T, 3), curvatures (T, 2))."""
+    cold = bd.curvature_equilibrium(rod, wire, jnp.full(3, wire.ambient), jnp.ones(3))
+    state = sma.wire_state_init(wire, T0, xi0, cold.stress)
+
+    def step(carry, current):
+        st, sig = carry
+        st = sma.wire_step(wire, st, current, sig, dt, substeps)
+        eq = bd.curvature_equilibrium(rod, wire, st.temperature, st.brinson.xi)
+        return (st, eq.stress), (st.temperature, st.brinson.xi, eq.stress, eq.u)
+
+    _, out = jax.lax.scan(step, (state, cold.stress), currents)
+    return out
+
+
+def tip_path(
+    wire: sma.WireParams,
+    rod: bd.RodParams,
+    currents,
+    dt: float,
+    *,
+    T0=None,
+    xi0=1.0,
+    substeps: int = 10,
+) -> TipPath:
+    """Wire currents → the rod's curvature and tip pose, frame by frame.
+
+    Each frame, every wire's temperature and martensite fraction advance by one sample of the lumped thermal model
+    and the Brinson kinetics (:func:`bayestouch.physics.sma.wire_step`) under the stress the wire carried at the
+    previous frame's bend; then the curvature is the three-wire moment equilibrium
+    (:func:`bayestouch.physics.bending.curvature_equilibrium`) at the new temperatures and fractions, which gives
+    the stresses for the next frame. The coupling is causal: the Brinson branch memory (the hysteresis) sees the
+    stresses in the order they happen (a fixed point over the whole program instead flips between a bent and a
+    straight end state, because a cooling wire transforms back only under the high stress of the bend).
+
+    Parameters
+    ----------
+    wire : WireParams
+    rod : RodParams
+    currents : (T, 3) float, amperes
+        Current program of the three wires, held for ``dt`` per frame.
+    dt : float, seconds
+        Frame interval (keep ``dt / substeps`` ≲ 10 ms inside the transformation windows).
+    T0 : float or (3,) float, kelvin, optional
+        Initial wire temperatures (default ambient).
+    xi0 : float or (3,) float, 1
+        Initial martensite fractions (default 1: cold, as after a long rest).
+    substeps : int
+        Thermal integration steps per frame.
+
+    Returns
+    -------
+    TipPath
+    """
+    cur = _check_currents(wire, currents)
+    if not (np.isfinite(dt) and dt > 0):
+        raise BadInput(f"dt: expected a positive frame interval in seconds, got {dt}")
+    T0 = jnp.broadcast_to(jnp.asarray(wire.ambient if T0 is None else T0, dtype=float), (3,))
+    xi0 = jnp.broadcast_to(jnp.asarray(xi0, dtype=float), (3,))
+    temps, xi, stress, u = (np.asarray(a) for a in _chain(wire, rod, jnp.asarray(cur), float(dt), T0, xi0, substeps))
+    p, R = _poses(rod, jnp.asarray(u))
+    return TipPath(temps, xi, stress, u, np.asarray(p), np.asarray(R))
+
+
+_poses = jax.jit(jax.vmap(bd.tip_pose, in_axes=(None, 0)))
+
+
+class PadPath(NamedTuple):
+    """Where the pad is in the world over T frames.
+
+    Attributes
+    ----------
+    centre : (T, 3) float, metres
+        Centre of the fingertip's spherical pad (the rod's tip).
+    tangent : (T, 3) float
+        Unit tangent of the rod at the tip (the direction the pad faces).
+    tip : TipPath
+        The rod's state in the base frame.
+    """
+
+    centre: np.ndarray
+    tangent: np.ndarray
+    tip: TipPath
+
+
+def pad_path(
+    wire: sma.WireParams,
+    rod: bd.RodParams,
+    currents,
+    dt: float,
+    base_position,
+    base_rotation=None,
+    **kw,
+) -> PadPath:
+    """The pad's path in the world: the carrier's base pose × the bent rod's tip pose (:func:`tip_path`).
+
+    Parameters
+    ----------
+    currents : (T, 3) float, amperes
+    dt : float, seconds
+    base_position : (T, 3) or (3,) float, metres
+        The finger base's position in the world (where the stage or arm carries it).
+    base_rotation : (T, 3, 3) or (3, 3) float, optional
+        World-from-base rotation (default identity: the rod leaves the base along world +z).
+    **kw
+        Passed to :func:`tip_path`.
+
+    Returns
+    -------
+    PadPath
+    """
+    tip = tip_path(wire, rod, currents, dt, **kw)
+    T = len(tip.tip_position)
+    pos = np.broadcast_to(np.asarray(base_position, dtype=float), (T, 3))
+    rot = np.eye(3) if base_rotation is None else np.asarray(base_rotation, dtype=float)
+    rot = np.broadcast_to(rot, (T, 3, 3))
+    if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(rot))):
+        raise BadInput("base_position, base_rotation: expected finite metres and rotation matrices")
+    if np.max(np.abs(rot @ np.swapaxes(rot, -1, -2) - np.eye(3))) > 1e-6:
+        raise BadInput("base_rotation: expected orthonormal 3 × 3 rotation matrices")
+    centre = pos + np.einsum("tij,tj->ti", rot, tip.tip_position)
+    tangent = np.einsum("tij,tj->ti", rot, tip.tip_rotation[:, :, 2])
+    return PadPath(centre, tangent, tip)
+
+
+@jax.jit
+def _foot(surf: Surface, x):
+    """Foot point on the surface, outward normal and signed distance of points ``x (T, 3)`` in metres: two
+    projections along the signed distance's gradient."""
+
+    def one(p):
+        grad = jax.grad(lambda q: signed_distance(surf, q))
+
+        def step(q, _):
+            g = grad(q)
+            n = g / jnp.linalg.norm(g)
+            return q - signed_distance(surf, q) * n, None
+
+        foot, _ = jax.lax.scan(step, p, None, length=3)
+        g = grad(foot)
+        return foot, g / jnp.linalg.norm(g), signed_distance(surf, p)
+
+    return jax.vmap(one)(x)
+
+
+def pad_contact(surf: Surface, centre, tip_radius: float):
+    """Where a spherical pad of radius ``tip_radius`` centred at ``centre`` meets the object.
+
+    The pad touches the surface at the foot of its centre (the nearest surface point), pressed by the overlap
+    ``depth = tip_radius − φ(centre)``; a negative depth is a pad clear of the object (no contact). The result feeds
+    :func:`bayestouch.physics.forward.simulate` in place of a stroke's commanded contact points: its pad is then
+    centred exactly at ``centre`` (``contact + (R − depth) n``).
+
+    Parameters
+    ----------
+    surf : Surface
+    centre : (T, 3) float, metres
+    tip_radius : float, metres
+
+    Returns
+    -------
+    contact : (T, 3) float, metres
+    normal : (T, 3) float
+        Outward unit normal at the contact.
+    depth : (T,) float, metres
+    """
+    foot, normal, phi = _foot(surf, jnp.asarray(centre, dtype=float))
+    return np.asarray(foot), np.asarray(normal), float(tip_radius) - np.asarray(phi)
+
+
+class HysteresisLoop(NamedTuple):
+    """A quasi-static current sweep of one wire up and down.
+
+    Attributes
+    ----------
+    current : (K,) float, amperes
+    deflection : (K,) float, metres
+        Lateral tip deflection √(x² + y²) in the base frame.
+    temperature : (K,) float, kelvin
+        The swept wire's temperature.
+    martensite : (K,) float, 1
+        The swept wire's martensite fraction.
+    heating : (K,) bool
+        True on the rising half of the sweep.
+    """
+
+    current: np.ndarray
+    deflection: np.ndarray
+    temperature: np.ndarray
+    martensite: np.ndarray
+    heating: np.ndarray
+
+
+def hysteresis_loop(
+    wire: sma.WireParams,
+    rod: bd.RodParams,
+    *,
+    wire_index: int = 0,
+    peak: float | None = None,
+    sweep_s: float = 120.0,
+    dt: float = 0.05,
+) -> HysteresisLoop:
+    """Tip deflection against the current of one wire, swept 0 → ``peak`` → 0 in ``sweep_s`` seconds each way (the
+    other two wires unpowered): slow against the wire's thermal time constant, so the loop is the NiTi hysteresis
+    and not the thermal lag.
+
+    Parameters
+    ----------
+    wire_index : int
+        The swept wire (0, 1, 2).
+    peak : float, amperes, optional
+        Top of the sweep (default :func:`bayestouch.physics.sma.max_steady_current`, the most current the wire
+        carries in steady state within its temperature limit).
+    sweep_s : float, seconds
+    dt : float, seconds
+
+    Returns
+    -------
+    HysteresisLoop
+    """
+    if wire_index not in (0, 1, 2):
+        raise BadInput(f"wire_index: expected 0, 1 or 2, got {wire_index}")
+    peak = float(sma.max_steady_current(wire)) if peak is None else float(peak)
+    n = max(2, int(round(sweep_s / dt)))
+    up = np.linspace(0.0, peak, n)
+    I = np.concatenate([up, up[::-1]])
+    cur = np.zeros((2 * n, 3))
+    cur[:, wire_index] = I
+    path = tip_path(wire, rod, cur, dt)
+    defl = np.linalg.norm(path.tip_position[:, :2], axis=1)
+    heating = np.arange(2 * n) < n
+    return HysteresisLoop(I, defl, path.wire_temperature[:, wire_index], path.martensite[:, wire_index], heating)
+
+
+def chain_stroke_arrays(surf: Surface, pad: PadPath, tip_radius: float) -> tuple:
+    """The stroke that the pad's path makes on the object, as :func:`bayestouch.physics.forward.simulate` takes it:
+    contact points and normals where the pad meets the surface (:func:`pad_contact`), the direction of motion of
+    the pad centre, and the per-frame overlap as the pressing depth (negative: clear of the object, no pressure).
+
+    Parameters
+    ----------
+    surf : Surface
+    pad : PadPath
+    tip_radius : float, metres
+        Radius of the pad's outer (skin) surface (``Finger.tip_radius``).
+
+    Returns
+    -------
+    tuple (contact (T, 3) m, normal (T, 3), tangent (T, 3), depth (T,) m) of JAX arrays
+    """
+    contact, normal, depth = pad_contact(surf, pad.centre, tip_radius)
+    move = np.gradient(pad.centre, axis=0) if len(pad.centre) > 1 else np.zeros_like(pad.centre)
+    # a pad that does not move (or moves along the normal) slides nowhere: any tangent direction serves
+    fallback = np.cross(normal, [0.0, 0.0, 1.0])
+    fallback = np.where(np.linalg.norm(fallback, axis=1, keepdims=True) > 1e-6, fallback, [1.0, 0.0, 0.0])
+    along = move - np.sum(move * normal, axis=1, keepdims=True) * normal
+    tangent = np.where(np.linalg.norm(along, axis=1, keepdims=True) > 1e-12, along, fallback)
+    tangent = tangent / np.linalg.norm(tangent, axis=1, keepdims=True)
+    return jnp.asarray(contact), jnp.asarray(normal), jnp.asarray(tangent), jnp.asarray(depth)

@@ -1,0 +1,158 @@
+"""The bending chain that places the pad (bayestouch.physics.pose): wire currents → hysteresis → bend → tip pose →
+pad pose → contact with the object."""
+
+import numpy as np
+import pytest
+
+from bayestouch.backend import jnp
+from bayestouch.errors import BadInput
+from bayestouch.geometry import nellipsoid as ne
+from bayestouch.physics import bending as bd
+from bayestouch.physics import pose, sma
+from bayestouch.scene.objects import SceneObject
+
+
+@pytest.fixture(scope="module")
+def wire():
+    return sma.load_wire()
+
+
+@pytest.fixture(scope="module")
+def rod():
+    return bd.load_rod()
+
+
+@pytest.fixture(scope="module")
+def loop(wire, rod):
+    return pose.hysteresis_loop(wire, rod)
+
+
+def test_unpowered_wires_leave_the_rod_straight(wire, rod):
+    """No current: the three wires pull equally, the tip stays at (0, 0, L) on the base's axis."""
+    path = pose.tip_path(wire, rod, np.zeros((50, 3)), 0.05)
+    np.testing.assert_allclose(path.tip_position, np.tile([0.0, 0.0, rod.length], (50, 1)), atol=1e-9)
+    np.testing.assert_allclose(path.martensite, 1.0)
+
+
+def test_loop_is_a_hysteresis_loop(loop):
+    """The swept wire's deflection rises on heating and falls on cooling, and at every current inside the
+    transformation range the cooling branch lies above the heating one (the austenite persists until the wire is
+    cooled below the forward transformation): a loop of positive area that a model without hysteresis (the same
+    path both ways) would not have."""
+    n = len(loop.current) // 2
+    up, down = loop.deflection[:n], loop.deflection[n:][::-1]  # both at increasing current
+    assert np.all(np.diff(up) > -1e-6) and np.all(np.diff(down) > -1e-6)
+    span = up.max()
+    assert span > 0.015  # ~19 mm: a 6 cm rod bent by one wire's full transformation
+    gap = down - up
+    assert gap.min() > -1e-4 * span
+    area = np.trapezoid(gap, loop.current[:n])  # m·A
+    assert area > 0.1 * span * (loop.current[n - 1] - loop.current[0])
+    # where does each branch cross half the span: heating later (higher current) than cooling
+    i_up = np.interp(0.5 * span, up, loop.current[:n])
+    i_down = np.interp(0.5 * span, down, loop.current[:n])
+    assert i_up - i_down > 0.01  # amperes
+
+
+def test_heating_branch_follows_brinson_at_the_stress_the_bend_puts_on_the_wire(wire, rod):
+    """At half transformation on heating the cosine kinetics give T = (A_s + A_f)/2 + σ/C_A (Brinson 1993, with
+    A_s = 34.5 °C, A_f = 49 °C, C_A = 13.8 MPa/K of models/finger.toml), σ the stress the bend puts on the heated
+    wire at that moment (~170 MPa here, not the 136 MPa of the straight rod): the chain feeds the bend's stress back
+    into the kinetics. At the straight rod's stress the half-way temperature would be 2.4 K lower."""
+    n = 2400
+    cur = np.zeros((n, 3))
+    cur[:, 0] = np.linspace(0.0, float(sma.max_steady_current(wire)), n)
+    path = pose.tip_path(wire, rod, cur, 0.05)
+    xi = path.martensite[:, 0]
+    k = int(np.argmax(xi < 0.5))
+    f = (0.5 - xi[k - 1]) / (xi[k] - xi[k - 1])
+    T_half = path.wire_temperature[k - 1, 0] + f * (path.wire_temperature[k, 0] - path.wire_temperature[k - 1, 0])
+    sigma = path.stress[k - 1, 0]  # the stress the step into frame k ran under
+    expected = 0.5 * (wire.A_s + wire.A_f) + sigma / wire.C_A
+    assert sigma > 150e6
+    assert T_half == pytest.approx(expected, abs=1.0)
+    straight = bd.curvature_equilibrium(rod, wire, jnp.full(3, wire.ambient), jnp.ones(3)).stress[0]
+    assert abs(T_half - (0.5 * (wire.A_s + wire.A_f) + float(straight) / wire.C_A)) > 2.0
+
+
+def test_pad_path_is_base_pose_times_tip_pose(wire, rod):
+    """The pad centre is base position + base rotation · tip position, and its tangent the rotated tip tangent:
+    checked against the tip path itself and, with no current, against the straight rod along the base's axis."""
+    cur = np.zeros((40, 3))
+    cur[:, 1] = 0.15
+    th = 0.7
+    R = np.array([[1, 0, 0], [0, np.cos(th), -np.sin(th)], [0, np.sin(th), np.cos(th)]])
+    base = np.array([0.01, -0.02, 0.1])
+    pp = pose.pad_path(wire, rod, cur, 0.05, base, R)
+    np.testing.assert_allclose(pp.centre, base + pp.tip.tip_position @ R.T, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(pp.tangent, axis=1), 1.0, atol=1e-9)
+    assert np.linalg.norm(pp.tip.tip_position[-1, :2]) > 1e-3  # it bent
+    still = pose.pad_path(wire, rod, np.zeros((5, 3)), 0.05, base, R)
+    np.testing.assert_allclose(still.centre, np.tile(base + R @ [0, 0, rod.length], (5, 1)), atol=1e-9)
+    with pytest.raises(BadInput, match="base_rotation"):
+        pose.pad_path(wire, rod, cur, 0.05, base, 2 * R)
+
+
+def test_pad_contact_on_a_sphere_is_the_overlap():
+    """A pad of radius R centred at distance d from a ball of radius r touches it at the ball's surface point
+    towards the pad, with normal along that direction and depth R − (d − r) (negative: clear of the ball)."""
+    r, R = 0.03, 0.007
+    ball = SceneObject("ball", ne.NEllipsoid(jnp.zeros(3), jnp.full(3, r), jnp.zeros(3), jnp.asarray(2.0)))
+    surf = ball.surface()
+    rng = np.random.default_rng(0)
+    dirs = rng.normal(size=(20, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    d = r + R + rng.uniform(-2e-3, 1e-3, 20)
+    contact, normal, depth = pose.pad_contact(surf, d[:, None] * dirs, R)
+    np.testing.assert_allclose(contact, r * dirs, atol=1e-7)
+    np.testing.assert_allclose(normal, dirs, atol=1e-6)
+    np.testing.assert_allclose(depth, R - (d - r), atol=1e-7)
+
+
+@pytest.mark.parametrize(
+    ("currents", "needle"),
+    [
+        (np.zeros((4, 2)), r"shape \(T, 3\)"),
+        (np.full((4, 3), -0.01), r"within \[0,"),
+        (np.full((4, 3), np.nan), "finite"),
+        (np.full((4, 3), 1.0), r"within \[0,"),
+    ],
+)
+def test_bad_current_programs_are_refused(wire, rod, currents, needle):
+    with pytest.raises(BadInput, match=needle):
+        pose.tip_path(wire, rod, currents, 0.05)
+
+
+def test_strokes_through_the_chain_touch_where_the_bent_rod_puts_the_pad(wire, rod):
+    """A base carried straight over a ball with the rod pointing down: with the wires cold the pad presses the
+    designed 0.5 mm at the top and the taxels feel it; with one wire heated the same base path puts the pad
+    millimetres away (the tip swings sideways and up) — the contact comes from the pose, not from a commanded point
+    on the surface. Contacts lie on the ball either way, and a pad clear of it gets no force."""
+    from bayestouch.backend import jax
+    from bayestouch.physics import forward
+    from bayestouch.physics.virtual import load_finger
+
+    vf = load_finger()
+    R_pad = float(vf.finger.tip_radius)
+    r = 0.03
+    surf = SceneObject("ball", ne.NEllipsoid(jnp.zeros(3), jnp.full(3, r), jnp.zeros(3), jnp.asarray(2.0))).surface()
+    T = 60
+    down = np.diag([1.0, -1.0, -1.0])  # rod along world −z
+    base = np.column_stack([np.linspace(-0.02, 0.02, T), np.zeros(T), np.full(T, r + R_pad - 5e-4 + rod.length)])
+    cold = pose.pad_path(wire, rod, np.zeros((T, 3)), 0.05, base, down)
+    arrays = pose.chain_stroke_arrays(surf, cold, R_pad)
+    contact, _, _, depth = (np.asarray(a) for a in arrays)
+    mid = T // 2
+    np.testing.assert_allclose(depth, R_pad - (np.linalg.norm(cold.centre, axis=1) - r), atol=1e-7)
+    assert depth.max() == pytest.approx(5e-4, abs=5e-6)  # the designed overlap at the top (x = ±0.34 mm: −1.6 µm)
+    np.testing.assert_allclose(np.linalg.norm(contact, axis=1), r, atol=1e-7)
+    frames = forward.simulate(surf, arrays, vf.finger, jax.random.PRNGKey(0), noise=False)
+    force = np.asarray(frames.force)
+    assert force[mid] > 0.05 and np.all(force[depth < -1e-3] < 1e-6)
+
+    heated = np.zeros((T, 3))
+    heated[:, 0] = 0.15
+    warm = pose.pad_path(wire, rod, heated, 0.05, base, down, T0=360.0, xi0=0.0)
+    c2 = np.asarray(pose.chain_stroke_arrays(surf, warm, R_pad)[0])
+    np.testing.assert_allclose(np.linalg.norm(c2, axis=1), r, atol=1e-7)
+    assert np.median(np.linalg.norm(warm.centre - cold.centre, axis=1)) > 5e-3
