@@ -156,3 +156,22 @@ def test_strokes_through_the_chain_touch_where_the_bent_rod_puts_the_pad(wire, r
     c2 = np.asarray(pose.chain_stroke_arrays(surf, warm, R_pad)[0])
     np.testing.assert_allclose(np.linalg.norm(c2, axis=1), r, atol=1e-7)
     assert np.median(np.linalg.norm(warm.centre - cold.centre, axis=1)) > 5e-3
+
+
+@pytest.mark.parametrize(("kappa", "phi"), [(5.0, 0.0), (8.0, 1.0), (10.0, -1.0)])
+def test_currents_for_a_bend_reach_it_from_cold(wire, rod, kappa, phi):
+    """Round trip: the currents the inverse gives, held from cold through the dynamic chain, settle at the target
+    curvature (within 1 %); one wire for a bend towards it, two for a bend between two wires."""
+    target = kappa * np.array([np.cos(phi), np.sin(phi)])
+    currents, _, reached = pose.currents_for_bend(wire, rod, target)
+    assert np.linalg.norm(reached - target) < 0.02 * kappa
+    path = pose.tip_path(wire, rod, np.tile(currents, (600, 1)), 0.05)  # 30 s: many thermal time constants
+    np.testing.assert_allclose(path.curvature[-1], target, atol=0.01 * kappa)
+    assert np.sum(currents > 0.05) == (1 if phi == 0.0 else 2)
+
+
+def test_a_bend_beyond_reach_is_refused(wire, rod):
+    with pytest.raises(BadInput, match=r"curvature: 30 1/m at 45° is beyond the finger's reach"):
+        pose.currents_for_bend(wire, rod, 30.0 * np.array([np.cos(np.pi / 4), np.sin(np.pi / 4)]))
+    with pytest.raises(BadInput, match="curvature: expected two finite values"):
+        pose.currents_for_bend(wire, rod, [np.nan, 1.0])

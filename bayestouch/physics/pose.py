@@ -13,6 +13,7 @@ from functools import partial
 from typing import NamedTuple
 
 import numpy as np
+from scipy.optimize import minimize
 
 from bayestouch.backend import jax, jnp
 from bayestouch.errors import BadInput
@@ -27,6 +28,8 @@ __all__ = [
     "pad_path",
     "pad_contact",
     "chain_stroke_arrays",
+    "currents_for_bend",
+    "BEND_TEMPERATURE_MARGIN",
     "HysteresisLoop",
     "hysteresis_loop",
 ]
@@ -326,3 +329,81 @@ def chain_stroke_arrays(surf: Surface, pad: PadPath, tip_radius: float) -> tuple
     tangent = np.where(np.linalg.norm(along, axis=1, keepdims=True) > 1e-12, along, fallback)
     tangent = tangent / np.linalg.norm(tangent, axis=1, keepdims=True)
     return jnp.asarray(contact), jnp.asarray(normal), jnp.asarray(tangent), jnp.asarray(depth)
+
+
+#: margin (K) below the wire's temperature limit that :func:`currents_for_bend` keeps
+BEND_TEMPERATURE_MARGIN = 5.0
+
+
+@jax.jit
+def _bend_cost(x, wire, rod, target, scale, lam):
+    """Squared curvature miss (relative to ``scale``) plus ``lam`` × the squared heating, for temperatures
+    ``ambient + x`` (K); the major heating branch from cold."""
+    u = bd.curvature_equilibrium(rod, wire, wire.ambient + x).u
+    return jnp.sum(((u - target) / scale) ** 2) + lam * jnp.sum((x / 100.0) ** 2)
+
+
+_bend_cost_and_grad = jax.jit(jax.value_and_grad(_bend_cost))
+
+
+def currents_for_bend(wire: sma.WireParams, rod: bd.RodParams, curvature, *, tolerance: float = 0.02):
+    """The steady wire currents that bend the rod to ``curvature``, approached by heating from cold: the inverse of
+    the bending chain on its major heating branch, the least heating among the solutions.
+
+    The three wire temperatures (between ambient and the limit less :data:`BEND_TEMPERATURE_MARGIN`) minimise the
+    curvature miss plus a small penalty on heating; each current is the steady current of its temperature at the
+    martensite fraction of the equilibrium (:func:`bayestouch.physics.sma.steady_state_current`). A finger that
+    has been hotter since it was cold sits on a cooling branch and bends further for the same currents
+    (:func:`hysteresis_loop`): the host must then cool it first, or correct with the sensed curvature.
+
+    Parameters
+    ----------
+    curvature : (2,) float, 1/metres
+        Target curvature vector u = κ (cos φ, sin φ) (φ from the base frame's x axis).
+    tolerance : float
+        Largest accepted miss |u − target| as a fraction of |target| (or of 1 m⁻¹ for a straight target).
+
+    Returns
+    -------
+    currents : (3,) float, amperes
+    temperatures : (3,) float, kelvin
+    reached : (2,) float, 1/metres
+        The curvature of the returned temperatures.
+
+    Raises
+    ------
+    bayestouch.errors.BadInput
+        A target the wires cannot reach within their temperature limit.
+    """
+    target = np.asarray(curvature, dtype=float).reshape(-1)
+    if target.shape != (2,) or not np.all(np.isfinite(target)):
+        raise BadInput(f"curvature: expected two finite values in 1/m, got {np.asarray(curvature).tolist()}")
+    scale = max(float(np.linalg.norm(target)), 1.0)
+    top = float(wire.max_temperature - BEND_TEMPERATURE_MARGIN - wire.ambient)
+    n = np.asarray(bd.wire_directions(rod))
+    best = None
+    for start in (0.3, 0.7):  # from partly and from mostly transformed: the branch's flat ends stall a gradient
+        x0 = np.clip(start * top * np.maximum(n @ target / scale, 0.0) + 1.0, 0.0, top)
+        res = minimize(
+            lambda x: tuple(np.asarray(v, float) for v in _bend_cost_and_grad(x, wire, rod, target, scale, 1e-4)),
+            x0,
+            jac=True,
+            method="L-BFGS-B",
+            bounds=[(0.0, top)] * 3,
+        )
+        if best is None or res.fun < best.fun:
+            best = res
+    temps = wire.ambient + best.x
+    eq = bd.curvature_equilibrium(rod, wire, jnp.asarray(temps))
+    reached = np.asarray(eq.u)
+    miss = float(np.linalg.norm(reached - target))
+    if miss > tolerance * scale:
+        kappa = float(np.linalg.norm(target))
+        raise BadInput(
+            f"curvature: {kappa:.4g} 1/m at {np.degrees(np.arctan2(target[1], target[0])):.0f}° is beyond the "
+            f"finger's reach within its {wire.max_temperature - BEND_TEMPERATURE_MARGIN:.0f} K limit (closest "
+            f"{float(np.linalg.norm(reached)):.4g} 1/m)"
+        )
+    xi = sma.quasi_static_fraction(wire, eq.stress, jnp.asarray(temps))
+    currents = np.asarray(sma.steady_state_current(wire, jnp.asarray(temps), xi))
+    return currents, temps, reached
