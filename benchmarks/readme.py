@@ -112,6 +112,22 @@ def _objects(d: dict) -> tuple[str, str, str]:
     )
 
 
+def _pose(d: dict) -> tuple[str, str, str]:
+    def mm(key):
+        m = d[key]
+        return f"{m['median']:.2f} mm {_ci(m['ci95'], 2)}"
+
+    return (
+        f"Where the pad is against where a host thinks it is ({d['scenarios']} drawn fingers and wire-current "
+        "programs through the bending chain: SMA thermal model, Brinson hysteresis, three-wire bend)",
+        f"median tip error over frames: host with the nominal constants and the hysteresis {mm('nominal_median_mm')}"
+        f" (95th percentile {mm('nominal_p95_mm')}); without the hysteresis {mm('nominal_no_hysteresis_median_mm')}"
+        f"; every constant exact, no hysteresis {mm('true_no_hysteresis_median_mm')}; tip deflections up to "
+        f"{d['max_deflection_mm']['median']:.1f} mm. Not yet used by the simulator or the fits",
+        "`bench_pose` (`benchmarks/results/pose.json`)",
+    )
+
+
 def _sparse(doc: dict) -> tuple[str, str, str]:
 
     def val(metric: str, method: str) -> float:
@@ -212,6 +228,7 @@ ROWS: tuple[tuple[str, Callable[[dict], tuple[str, str, str]]], ...] = (
     ("mismatch.json", _mismatch),
     ("user_sets.json", _user_sets),
     ("objects.json", _objects),
+    ("pose.json", _pose),
     ("bench_sparse.json", _sparse),
     ("bench_planners.json", _planners),
     ("bench_samplers.json", _samplers),
