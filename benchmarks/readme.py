@@ -128,6 +128,25 @@ def _pose(d: dict) -> tuple[str, str, str]:
     )
 
 
+def _pose_fit(d: dict) -> tuple[str, str, str]:
+    def arm(m):
+        c = m["volume_coverage_90"]
+        return (
+            f"90 % volume intervals hold the truth in {c['k']}/{c['n']} {_ci(c['wilson95'])}, median |z| "
+            f"{m['abs_z_median']['median']:.2f}, median width {_pct(m['width_rel_median']['median'], 0)} of the "
+            f"volume, converged {m['converged']}/{c['n']}"
+        )
+
+    return (
+        f"Shape from contacts the host placed with its own idea of the pad's pose ({d['scenarios']} drawn objects "
+        f"and fingers, 6 strokes × 20 contacts, pose errors from the bending chain, median "
+        f"{d['pose_error_median_mm']:.1f} mm)",
+        f"ignoring the pose error: {arm(d['ignoring'])}; one pose offset per stroke marginalised (prior median 1 mm): "
+        f"{arm(d['marginalised'])}. Neither is calibrated yet (target 85–95 %)",
+        "`bench_pose_fit` (`benchmarks/results/pose_fit.json`)",
+    )
+
+
 def _sparse(doc: dict) -> tuple[str, str, str]:
 
     def val(metric: str, method: str) -> float:
@@ -229,6 +248,7 @@ ROWS: tuple[tuple[str, Callable[[dict], tuple[str, str, str]]], ...] = (
     ("user_sets.json", _user_sets),
     ("objects.json", _objects),
     ("pose.json", _pose),
+    ("pose_fit.json", _pose_fit),
     ("bench_sparse.json", _sparse),
     ("bench_planners.json", _planners),
     ("bench_samplers.json", _samplers),

@@ -37,8 +37,11 @@ POSE_PARAM_NAMES = cm.PARAM_NAMES + ("log_tau",)
 #: box of the pose sd τ, metres
 TAU_MIN = 1e-5
 TAU_MAX = 0.02
-#: sd of log τ about the stated pose sd (a factor e^0.7 ≈ 2 either way)
-TAU_LOG_SD = 0.7
+#: sd of log τ about the stated pose sd (a factor e^0.3 ≈ 1.35 either way: the host knows its pose sd from a
+#: calibration). A wider prior lets τ run to centimetres, where the strokes' free offsets take the shape over: at
+#: 0.5 one benchmark scenario (benchmarks/bench_pose_fit.py, scenario 1, true pose errors 0.24 mm) put τ at 7.8 mm
+#: with R-hat 1.22, against 0.75 mm and R-hat 1.02 at 0.3
+TAU_LOG_SD = 0.3
 _LOG_2PI = float(np.log(2 * np.pi))
 
 
@@ -94,15 +97,17 @@ def pose_log_likelihood(thetas, points, strokes) -> np.ndarray:
 
 
 @jax.jit
-def _log_prob(th, hom, onehot, bounds, tau_mu):
+def _log_prob(th, hom, onehot, bounds, tau_mu, tau_sd):
     lp = cm.log_prior(th, bounds)
-    z = (th[:, 11] - tau_mu) / TAU_LOG_SD
+    z = (th[:, 11] - tau_mu) / tau_sd
     ll = _stroke_log_lik(cm.clip_to_box(th, bounds), hom, onehot)
     out = jnp.where(jnp.isfinite(lp), lp - 0.5 * z * z + ll, -jnp.inf)
     return jnp.where(jnp.isnan(out), -jnp.inf, out)
 
 
-def make_pose_log_prob(points, strokes, tau_m: float, priors: cm.PriorParams | None = None):
+def make_pose_log_prob(
+    points, strokes, tau_m: float, priors: cm.PriorParams | None = None, tau_log_sd: float = TAU_LOG_SD
+):
     """A walker-vectorised log-posterior ``f(thetas (W, 12)) → (W,)`` of the pose-error model, and its box.
 
     Parameters
@@ -115,6 +120,8 @@ def make_pose_log_prob(points, strokes, tau_m: float, priors: cm.PriorParams | N
         The host's pose sd: the prior median of τ.
     priors : PriorParams, optional
         The contact level's priors (default :func:`bayestouch.inference.contact.load_priors`).
+    tau_log_sd : float
+        Prior sd of log τ (how well the host knows its pose sd, e.g. from a calibration).
 
     Returns
     -------
@@ -132,12 +139,14 @@ def make_pose_log_prob(points, strokes, tau_m: float, priors: cm.PriorParams | N
         lower=jnp.concatenate([b.lower, jnp.asarray([np.log(TAU_MIN)])]),
         upper=jnp.concatenate([b.upper, jnp.asarray([np.log(TAU_MAX)])]),
     )
+    if not (np.isfinite(tau_log_sd) and tau_log_sd > 0):
+        raise BadInput(f"tau_log_sd: expected a positive sd of log τ, got {tau_log_sd!r}")
     mu = float(np.log(tau_m))
 
     def f(thetas):
         th = np.atleast_2d(np.asarray(thetas, dtype=np.float64))
         if th.shape[1] != len(POSE_PARAM_NAMES):
             raise BadInput(f"thetas: expected (W, {len(POSE_PARAM_NAMES)}) parameter vectors, got shape {th.shape}")
-        return np.asarray(_log_prob(jnp.asarray(th), hom, onehot, bounds, mu))
+        return np.asarray(_log_prob(jnp.asarray(th), hom, onehot, bounds, mu, float(tau_log_sd)))
 
     return f, bounds
