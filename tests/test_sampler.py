@@ -590,3 +590,33 @@ def test_thinned_autocorrelation_time_is_the_whole_chains_and_falls_back_when_ta
     by_hand = S.integrated_time(fast[::k])[0] * k
     assert by_hand > 2 * S.integrated_time(fast)[0]
     assert S._thinned_time(fast)[0] == S.integrated_time(fast)[0]
+
+
+def test_ctrl_c_stops_after_the_step_saves_the_chain_and_prints_no_walkers(tmp_path, capsys):
+    """A SIGINT while the log-density runs ends the chain after that step: the checkpoint holds the steps done and
+    KeyboardInterrupt is raised outside emcee, which would otherwise print every walker and a traceback."""
+    import os
+    import signal
+    import threading
+
+    import emcee
+
+    if threading.current_thread() is not threading.main_thread():
+        pytest.skip("signal handlers are installed from the main thread only")
+    before = signal.getsignal(signal.SIGINT)
+    calls = []
+
+    def logp(x):
+        calls.append(1)
+        if len(calls) == 12:  # two half-batch calls per step: during step 6
+            os.kill(os.getpid(), signal.SIGINT)
+        return -0.5 * np.sum(np.asarray(x) ** 2, axis=1)
+
+    start = np.random.default_rng(0).normal(size=(8, 2))
+    with pytest.raises(KeyboardInterrupt):
+        sample(logp, start, tmp_path / "c.h5", walkers=8, ndim=2, seed=0, steps=1000, progress=False)
+    out = capsys.readouterr()
+    assert "emcee" not in out.out + out.err and "params" not in out.out
+    steps = emcee.backends.HDFBackend(str(tmp_path / "c.h5"), read_only=True).iteration
+    assert 5 <= steps <= 7
+    assert signal.getsignal(signal.SIGINT) is before  # the handler is restored

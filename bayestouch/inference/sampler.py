@@ -8,6 +8,8 @@ numbers a summary needs.
 
 from __future__ import annotations
 
+import signal
+import threading
 import time
 from pathlib import Path
 from typing import NamedTuple
@@ -647,6 +649,32 @@ def _looks_converged(chain: np.ndarray, tau, old_tau, burn: int, length: int) ->
     return (k <= 1 or passes(kept[::k])) and passes(kept)
 
 
+class _DeferredInterrupt:
+    """While sampling in the main thread, a first Ctrl-C (SIGINT) only asks the chain to stop after the current step
+    (the checkpoint is then flushed and KeyboardInterrupt raised outside emcee, which would print the walkers and a
+    traceback of an error raised inside the log-density); a second one interrupts at once."""
+
+    def __init__(self):
+        self.requested = False
+        self._old = None
+
+    def _handler(self, signum, frame):
+        if self.requested:
+            raise KeyboardInterrupt
+        self.requested = True
+
+    def __enter__(self):
+        if threading.current_thread() is threading.main_thread():
+            self._old = signal.signal(signal.SIGINT, self._handler)
+        return self
+
+    def __exit__(self, *exc):
+        if self._old is not None:
+            signal.signal(signal.SIGINT, self._old)
+            self._old = None
+        return False
+
+
 def sample(
     logp,
     start,
@@ -832,7 +860,9 @@ def sample(
         next_check = _next_check(next_check, check_every)
     seen = _MonitoredChain(monitor)
     if todo > 0:
+        interrupt = _DeferredInterrupt()
         try:
+            interrupt.__enter__()
             for i, _ in enumerate(
                 sampler.sample(
                     start if start is not None else backend.get_last_sample(), iterations=todo, progress=progress
@@ -853,8 +883,13 @@ def sample(
                     if old_tau is not None and _looks_converged(chain, tau, old_tau, burn, length):
                         break
                     old_tau = tau
+                if interrupt.requested:
+                    break
         finally:
+            interrupt.__exit__(None, None, None)
             flush()
+        if interrupt.requested:  # after the checkpoint is flushed, outside emcee (which prints a raised error)
+            raise KeyboardInterrupt
     chain = backend.get_chain()
     lp = backend.get_log_prob()
     n_done = chain.shape[0]
