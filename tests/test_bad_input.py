@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from bayestouch.cli import main
+from bayestouch.params import MODELS
 
 #: command line, text the one-line message must contain
 TABLE = [
@@ -121,6 +122,24 @@ TABLE = [
     ("fit {tmp}/good.csv --out {tmp}/damaged_run --resume", "damaged"),
     ("explore --object {egg} --out {tmp}/keep.txt", "keep.txt"),
     ("simulate --object {egg} --out {tmp}/folder.nc", "folder"),
+    # output paths that cannot be written (review of issue 24, second round)
+    ("fit {tmp}/good.csv --out {tmp}/loop_a", "symbolic link to nothing"),
+    ("fit {tmp}/good.csv --out {tmp}/dangling", "symbolic link to nothing"),
+    ("fit {tmp}/good.csv --out {tmp}/keep.txt/run", "is not a folder"),
+    ("simulate --object {egg} --out {tmp}/keep.txt/r.nc", "is not a folder"),
+    ("simulate --object {egg} --out /proc/r.nc", "cannot create files in /proc"),
+    # object and texture files whose tables have the wrong type, unknown keys or absurd sizes
+    ("simulate --object {tmp}/defects_int.toml --out {tmp}/r.nc", "'defects' must be tables [[defects]]"),
+    ("simulate --object {tmp}/texture_int.toml --out {tmp}/r.nc", "must be a table [texture]"),
+    ("explore --object {tmp}/object_str.toml --out {tmp}/o", "must be a table [object]"),
+    ("simulate --object {tmp}/typo.toml --out {tmp}/r.nc", "unknown key 'angle_rad'"),
+    ("simulate --object {tmp}/textures_typo.toml --out {tmp}/r.nc", "unknown key 'textures'"),
+    ("simulate --object {tmp}/deep_defect.toml --out {tmp}/r.nc", "'depth_m' must not exceed"),
+    ("simulate --object {tmp}/ffd_huge.toml --out {tmp}/r.nc", "'dims' must be three integers from 2 to 16"),
+    ("simulate --object {tmp}/ffd_amp.toml --out {tmp}/r.nc", "must stay below a fifth"),
+    ("simulate --object {tmp}/far.toml --out {tmp}/r.nc", "beyond ±2 m"),
+    ("simulate --object {tmp}/micro.toml --out {tmp}/r.nc", "below 1 mm"),
+    ("texture-id --library {tmp}/lib_ints.toml --out {tmp}/o", "expected a table [[texture]]"),
 ]
 
 
@@ -178,6 +197,22 @@ def _files(tmp):
     (tmp / "damaged_run" / "summary.json").write_text("{}")
     (tmp / "damaged_run" / "run.json").write_text("{not json")
     (tmp / "folder.nc").mkdir()
+    (tmp / "defects_int.toml").write_text("defects = 5\n" + shape)
+    (tmp / "texture_int.toml").write_text("texture = 5\n" + shape)
+    (tmp / "object_str.toml").write_text('object = "egg"\n' + shape)
+    (tmp / "typo.toml").write_text(shape + "angle_rad = [0.4, 0.3, -0.5]\n")
+    (tmp / "textures_typo.toml").write_text(shape + "[textures]\nwavelength_m = 0.002\n")
+    bump = '[[defects]]\nkind = "bump"\ncentre_m = [0.03, 0, 0]\nradius_m = 0.002\n'
+    (tmp / "deep_defect.toml").write_text(shape + bump + "depth_m = 5.0\n")
+    (tmp / "ffd_huge.toml").write_text(shape + "[ffd]\ndims = [1000, 1000, 1000]\n")
+    (tmp / "ffd_amp.toml").write_text(shape + "[ffd]\ndims = [3, 3, 3]\namplitude_m = 0.5\n")
+    (tmp / "far.toml").write_text(shape.replace("centre_m = [0, 0, 0]", "centre_m = [100, 0, 0]"))
+    (tmp / "micro.toml").write_text(shape.replace("[0.03, 0.02, 0.02]", "[1e-6, 1e-6, 1e-6]"))
+    lib = (MODELS / "textures.toml").read_text()
+    (tmp / "lib_ints.toml").write_text("texture = [1, 2]\n" + lib[lib.index("[library]") : lib.index("[[texture]]")])
+    (tmp / "loop_a").symlink_to(tmp / "loop_b")
+    (tmp / "loop_b").symlink_to(tmp / "loop_a")
+    (tmp / "dangling").symlink_to(tmp / "nowhere")
 
 
 @pytest.fixture(scope="module")

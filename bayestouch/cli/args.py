@@ -4,6 +4,8 @@ the output-folder check."""
 from __future__ import annotations
 
 import argparse
+import os
+import tempfile
 from pathlib import Path
 
 from bayestouch.errors import BadInput
@@ -74,10 +76,23 @@ def eps_list(text: str) -> list[float]:
 
 
 def out_path(text: str) -> Path:
-    """An ``--out`` path: not empty (an empty one would write into the current folder)."""
+    """An ``--out`` path that can be written: not empty (an empty one would write into the current folder), not a
+    symbolic link to nothing (dangling or a loop), below a folder (not a file) in which a file can be created."""
     if not text.strip():
         raise argparse.ArgumentTypeError("expected a file or folder name, got an empty path")
-    return Path(text)
+    path = Path(text)
+    if path.is_symlink() and not path.exists():
+        raise argparse.ArgumentTypeError(f"{text} is a symbolic link to nothing (dangling, or a loop)")
+    base = next((a for a in path.absolute().parents if a.exists()), None)
+    if base is None or not base.is_dir():
+        raise argparse.ArgumentTypeError(f"{text}: {base} is not a folder; expected a path below a folder")
+    try:
+        fd, probe = tempfile.mkstemp(dir=base, prefix=".bayestouch-probe-")
+    except OSError as e:
+        raise argparse.ArgumentTypeError(f"{text}: cannot create files in {base} ({e.strerror})") from None
+    os.close(fd)
+    os.unlink(probe)
+    return path
 
 
 def bounded_int(low: int, high: int):

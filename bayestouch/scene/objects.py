@@ -200,6 +200,24 @@ def defect_arrays(d: tuple[Defect, ...]) -> Defects:
     )
 
 
+#: the tables an object file may hold
+_TOP_KEYS = ("object", "shape", "defects", "texture", "ffd")
+#: smallest semi-axis of an object file, metres (the contact prior's axis_min, models/priors.toml)
+AXIS_MIN_M = 1e-3
+#: an object must lie within ±WORKSPACE_M metres of the origin on every axis (the recordings' contact_point range)
+WORKSPACE_M = 2.0
+#: most control points per axis of an object's FFD lattice
+FFD_DIM_MAX = 16
+
+
+def _known(d: dict, keys: tuple, where: str, table: str) -> None:
+    """Refuse a key of ``d`` that is not in ``keys`` (a typo would otherwise be ignored silently)."""
+    unknown = [k for k in d if k not in keys]
+    if unknown:
+        at = f" {table}" if table else ""
+        raise BadInput(f"{where}{at}: unknown key {unknown[0]!r}; expected one of {', '.join(keys)}")
+
+
 def _vec3(d: dict, key: str, where: str) -> tuple[float, float, float]:
     v = d.get(key)
     if not (
@@ -234,16 +252,31 @@ N_MAX = 100.0
 
 def object_from_dict(doc: dict, where: str = "object", source: Path | None = None) -> SceneObject:
     """Build a :class:`SceneObject` from a parsed TOML document (see ``models/objects/*.toml``)."""
+    _known(doc, _TOP_KEYS, where, "")
     meta = doc.get("object", {})
+    if not isinstance(meta, dict):
+        raise BadInput(f"{where}: 'object' must be a table [object] with name and description, got {meta!r}")
+    _known(meta, ("name", "description"), where, "[object]")
     shape = doc.get("shape")
     if not isinstance(shape, dict):
         raise BadInput(f"{where}: missing table [shape] with centre_m, axes_m, angles_rad, n")
+    _known(shape, ("centre_m", "axes_m", "angles_rad", "n"), where, "[shape]")
     centre = _vec3(shape, "centre_m", f"{where} [shape]")
     axes = _vec3(shape, "axes_m", f"{where} [shape]")
     if min(axes) <= 0:
         raise BadInput(f"{where} [shape]: 'axes_m' must all be > 0 metres, got {list(axes)}")
     if max(axes) > 2.0:
         raise BadInput(f"{where} [shape]: 'axes_m' {list(axes)} look like millimetres; give metres")
+    if min(axes) < AXIS_MIN_M:
+        raise BadInput(
+            f"{where} [shape]: 'axes_m' {list(axes)} has a semi-axis below {AXIS_MIN_M * 1e3:g} mm, smaller than "
+            "the finger's pad can touch; give metres"
+        )
+    if max(abs(c) for c in centre) + max(axes) > WORKSPACE_M:
+        raise BadInput(
+            f"{where} [shape]: 'centre_m' {list(centre)} puts the object beyond ±{WORKSPACE_M:g} m, the workspace "
+            "recordings are checked against; give metres"
+        )
     angles = _vec3(shape, "angles_rad", f"{where} [shape]") if "angles_rad" in shape else (0.0, 0.0, 0.0)
     n = _num(shape, "n", f"{where} [shape]")
     if not 1.0 <= n <= N_MAX:
@@ -251,17 +284,32 @@ def object_from_dict(doc: dict, where: str = "object", source: Path | None = Non
             f"{where} [shape]: 'n' must be in [1, {N_MAX:g}] (convex n-ellipsoid; {N_MAX:g} is already a box), got {n}"
         )
     defects = []
-    for i, d in enumerate(doc.get("defects", [])):
+    listed = doc.get("defects", [])
+    if not (isinstance(listed, list) and all(isinstance(d, dict) for d in listed)):
+        raise BadInput(f"{where}: 'defects' must be tables [[defects]] with kind, centre_m, radius_m, depth_m")
+    for i, d in enumerate(listed):
         w = f"{where} [[defects]] #{i + 1}"
+        _known(d, ("kind", "centre_m", "radius_m", "depth_m", "end_m"), where, f"[[defects]] #{i + 1}")
         kind = d.get("kind")
         if kind not in DEFECT_KINDS:
             raise BadInput(f"{w}: 'kind' must be one of {', '.join(DEFECT_KINDS)}, got {kind!r}")
         end = _vec3(d, "end_m", w) if kind == "crack" else None
-        defects.append(Defect(kind, _vec3(d, "centre_m", w), _num(d, "radius_m", w), _num(d, "depth_m", w), end))
+        defect = Defect(kind, _vec3(d, "centre_m", w), _num(d, "radius_m", w), _num(d, "depth_m", w), end)
+        if defect.depth > min(axes) or defect.radius > max(axes):
+            raise BadInput(
+                f"{w}: 'depth_m' must not exceed the smallest semi-axis ({min(axes):g} m) nor 'radius_m' the largest "
+                f"({max(axes):g} m), got depth {defect.depth:g} and radius {defect.radius:g}"
+            )
+        defects.append(defect)
     s = ne.NEllipsoid(jnp.array(centre), jnp.array(axes), jnp.array(angles), jnp.array(n))
     texture = None
     if "texture" in doc:
         t, w = doc["texture"], f"{where} [texture]"
+        if not isinstance(t, dict):
+            raise BadInput(f"{w}: 'texture' must be a table [texture] with wavelength_m, amplitude_m, …, got {t!r}")
+        _known(
+            t, ("amplitude_m", "wavelength_m", "orientation_rad", "roughness_m", "seed", "modes"), where, "[texture]"
+        )
         texture = TextureSpec(
             _num(t, "amplitude_m", w, positive=False, default=0.0),
             _num(t, "wavelength_m", w),
@@ -280,12 +328,23 @@ def object_from_dict(doc: dict, where: str = "object", source: Path | None = Non
     ffd = None
     if "ffd" in doc:
         f, w = doc["ffd"], f"{where} [ffd]"
+        if not isinstance(f, dict):
+            raise BadInput(f"{w}: 'ffd' must be a table [ffd] with dims, amplitude_m, seed, margin, got {f!r}")
+        _known(f, ("dims", "amplitude_m", "seed", "margin"), where, "[ffd]")
         dims = f.get("dims")
-        if not (isinstance(dims, list) and len(dims) == 3 and all(isinstance(x, int) and x >= 2 for x in dims)):
-            raise BadInput(f"{w}: 'dims' must be three integers ≥ 2 like [4, 4, 3], got {dims!r}")
+        if not (
+            isinstance(dims, list)
+            and len(dims) == 3
+            and all(isinstance(x, int) and not isinstance(x, bool) and 2 <= x <= FFD_DIM_MAX for x in dims)
+        ):
+            raise BadInput(f"{w}: 'dims' must be three integers from 2 to {FFD_DIM_MAX} like [4, 4, 3], got {dims!r}")
         amp = _num(f, "amplitude_m", w, positive=False, default=0.0)
         if amp < 0:
             raise BadInput(f"{w}: 'amplitude_m' is the sd of the control-point displacements, ≥ 0 metres, got {amp}")
+        if amp > 0.2 * min(axes):
+            raise BadInput(
+                f"{w}: 'amplitude_m' {amp:g} m must stay below a fifth of the smallest semi-axis ({min(axes):g} m)"
+            )
         rng = np.random.default_rng(_int(f, "seed", w, 0, 2**63 - 1, 0))
         ffd = FFDSpec(tuple(dims), amp * rng.standard_normal((*dims, 3)), _num(f, "margin", w, default=0.15))
     return SceneObject(

@@ -117,7 +117,9 @@ def library_from_dict(doc: dict, where: str = "texture library", source: Path | 
     lib = doc.get("library", {})
     if not isinstance(lib, dict):
         raise BadInput(f"{where}: [library] must be a table with 'modes'")
-    modes = int(_number(lib, "modes", f"{where} [library]", 1, 256, default=16))
+    modes = lib.get("modes", 16)
+    if not isinstance(modes, int) or isinstance(modes, bool) or not 1 <= modes <= 256:
+        raise BadInput(f"{where} [library]: 'modes' must be an integer in [1, 256], got {modes!r}")
     obj = doc.get("object")
     if not isinstance(obj, dict) or not isinstance(obj.get("shape"), dict):
         raise BadInput(f"{where}: missing table [object.shape] with centre_m, axes_m, angles_rad, n (metres)")
@@ -130,6 +132,8 @@ def library_from_dict(doc: dict, where: str = "texture library", source: Path | 
     cmin = float(np.min(np.asarray(base.shape.axes)))
     for i, t in enumerate(entries):
         w = f"{where} [[texture]] #{i + 1}"
+        if not isinstance(t, dict):
+            raise BadInput(f"{w}: expected a table [[texture]] with name, wavelength_m, amplitude_m, …, got {t!r}")
         name = t.get("name")
         if not isinstance(name, str) or not name or name in names:
             raise BadInput(f"{w}: 'name' must be a unique non-empty string, got {name!r}")
