@@ -228,7 +228,7 @@ def _contacts(data) -> ContactPoints | None:
         return data
     if isinstance(data, str | os.PathLike):
         path = Path(data)
-        if path.suffix == ".nc":
+        if path.suffix.lower() == ".nc":
             return None
         if not path.is_file():
             raise BadInput(f"data: {path}: no such file (expected a contact points CSV or a recording .nc)")

@@ -9,8 +9,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import xarray as xr
 
 from bayestouch.cli import main
+from bayestouch.io.device_file import DeviceCalibration, write_device_file
 from bayestouch.params import MODELS
 
 #: command line, text the one-line message must contain
@@ -140,6 +142,10 @@ TABLE = [
     ("simulate --object {tmp}/far.toml --out {tmp}/r.nc", "beyond ±2 m"),
     ("simulate --object {tmp}/micro.toml --out {tmp}/r.nc", "below 1 mm"),
     ("texture-id --library {tmp}/lib_ints.toml --out {tmp}/o", "expected a table [[texture]]"),
+    # a netCDF file that is not a recording, and a device file with an absurd response scale
+    ("calibrate {tmp}/posterior_like.nc --object sphere --out {tmp}/d.toml", "variable 'taxel_current' is missing"),
+    ("fit {sphere_rec} --out {tmp}/o --calibration {tmp}/huge_scale.toml", "[response] scale must be a number in"),
+    ("fit {tmp}/UPPER.NC --out {tmp}/o", "variable 'taxel_current' is missing"),  # read as a recording, not a CSV
 ]
 
 
@@ -210,6 +216,10 @@ def _files(tmp):
     (tmp / "micro.toml").write_text(shape.replace("[0.03, 0.02, 0.02]", "[1e-6, 1e-6, 1e-6]"))
     lib = (MODELS / "textures.toml").read_text()
     (tmp / "lib_ints.toml").write_text("texture = [1, 2]\n" + lib[lib.index("[library]") : lib.index("[[texture]]")])
+    xr.Dataset({"volume": ("draw", np.ones(4))}).to_netcdf(tmp / "posterior_like.nc", engine="h5netcdf")
+    (tmp / "UPPER.NC").write_bytes((tmp / "posterior_like.nc").read_bytes())
+    cal = DeviceCalibration(np.zeros(256), np.full(256, 1e-3), 1.0, "physics", {}, 1e300, 1e-300)
+    write_device_file(tmp / "huge_scale.toml", cal)
     (tmp / "loop_a").symlink_to(tmp / "loop_b")
     (tmp / "loop_b").symlink_to(tmp / "loop_a")
     (tmp / "dangling").symlink_to(tmp / "nowhere")
@@ -226,7 +236,9 @@ def tmp(tmp_path_factory):
 def test_bad_input_one_line_exit_2(line, needle, tmp, capsys):
     from bayestouch.params import MODELS
 
-    argv = line.format(tmp=tmp, egg=MODELS / "objects" / "egg.toml").split()
+    argv = line.format(
+        tmp=tmp, egg=MODELS / "objects" / "egg.toml", sphere_rec=MODELS.parent / "data" / "recordings" / "sphere.nc"
+    ).split()
     try:
         code = main(argv)
     except SystemExit as e:  # argparse's own errors

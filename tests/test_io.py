@@ -562,6 +562,36 @@ def test_a_damaged_recording_is_refused_before_a_fit(tmp_path, name, index, valu
             open_recording(source)
 
 
+@pytest.mark.parametrize(
+    "change,needle",
+    [
+        (lambda ds: ds.assign(skin_temperature=ds.skin_temperature * 0 + 1.5), "'skin_temperature'.*outside"),
+        (lambda ds: ds.assign(contact_normal=ds.contact_normal * 0), "'contact_normal'.*not unit normals"),
+        (lambda ds: ds.assign_coords(time=ds.time * 0), "'time' does not increase within stroke 0"),
+        (lambda ds: ds.assign_coords(time=ds.time[::-1].values), "'time' does not increase"),
+        (lambda ds: ds.assign(taxel_current=-ds.taxel_current), "'taxel_current' is negative in 100%"),
+        (
+            lambda ds: ds.assign(taxel_current=ds.taxel_current.assign_attrs(units="mA") * 1e3),
+            "'taxel_current' is in 'mA'; expected 'A'",
+        ),
+    ],
+)
+def test_a_recording_in_other_units_or_order_is_refused(tmp_path, change, needle):
+    """Review of issue 24 (second round): currents in mA, all-negative currents, 1.5 K skin, zero normals, constant
+    or reversed times fitted, crashed or gave nonsense; each is refused in one line naming the variable (the
+    undamaged recording loads: the negative control)."""
+    from bayestouch.inference.raw.data import open_recording
+    from bayestouch.io.recording import read_recording, write_recording
+    from bayestouch.params import MODELS
+
+    ds = read_recording(MODELS.parent / "data" / "recordings" / "sphere.nc")
+    open_recording(ds)
+    bad = change(ds)
+    write_recording(bad, tmp_path / "bad.nc")
+    with pytest.raises(BadInput, match=needle):
+        open_recording(tmp_path / "bad.nc")
+
+
 def test_recording_coordinates_and_cf_conventions(tmp_path):
     """time and stroke_index are coordinates along frame, taxel_u/v along taxel, the global attribute is CF's
     Conventions; a file written when they were variables reads the same, with the same identity (a run folder's

@@ -203,7 +203,7 @@ def _run_parts(args) -> int:
     from bayestouch.inference.parts import MAX_PARTS
     from bayestouch.inference.parts_run import DEFAULT_MAX_PARTS, PARTS_BUDGET_S, run_parts_fit
 
-    if args.points.suffix == ".nc":
+    if args.points.suffix.lower() == ".nc":
         raise BadInput("--parts applies to contact points (.csv), not to a recording (.nc)")
     clash = [
         flag
@@ -295,7 +295,7 @@ def run(args) -> int:
         progress=not args.quiet,
         stop_when_converged=not args.no_early_stop,
     )
-    if args.points.suffix == ".nc":
+    if args.points.suffix.lower() == ".nc":
         if args.ffd is not None:
             raise BadInput("--ffd applies to contact points (.csv), not to a recording (.nc)")
         if args.size_prior is not None or args.init != "auto" or args.subsample is not None:

@@ -123,6 +123,10 @@ def write_device_file(path, cal: DeviceCalibration) -> Path:
     return write_text(path, "\n".join(lines))
 
 
+#: the range of the [response] entries: a sensitivity scale (relative to the models' constants) and its sd
+_RESPONSE_RANGE = {"scale": (1e-3, 1e3), "scale_sd": (1e-6, 10.0)}
+
+
 def read_device_file(path, n_taxels: int | None = None) -> DeviceCalibration:
     """Read a device file written by :func:`write_device_file`.
 
@@ -184,8 +188,9 @@ def read_device_file(path, n_taxels: int | None = None) -> DeviceCalibration:
         vals = []
         for name in ("scale", "scale_sd"):
             v = resp.get(name)
-            if not isinstance(v, int | float) or isinstance(v, bool) or not (math.isfinite(v) and v > 0):
-                raise BadInput(f"{where}: [response] {name} must be a positive finite number, got {v!r}")
+            lo, hi = _RESPONSE_RANGE[name]
+            if not isinstance(v, int | float) or isinstance(v, bool) or not (math.isfinite(v) and lo <= v <= hi):
+                raise BadInput(f"{where}: [response] {name} must be a number in [{lo:g}, {hi:g}], got {v!r}")
             vals.append(float(v))
         scale, scale_sd = vals
     info = {k: v for k, v in dev.items() if k not in ("mode", "noise_scale")}

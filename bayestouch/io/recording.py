@@ -148,8 +148,8 @@ PHYSICAL_RANGES = {
     "pressing_depth": (-0.1, 0.1),
     "contact_point": (-2.0, 2.0),  # as contact files (io.contacts.MM_MAX_ABS_M): beyond, millimetres
     "wire_current": (-10.0, 10.0),
-    "wire_temperature": (1.0, 2000.0),
-    "skin_temperature": (1.0, 2000.0),
+    "wire_temperature": (200.0, 1000.0),  # −73 °C to 727 °C: NiTi degrades far below the top
+    "skin_temperature": (200.0, 500.0),
     "finger_tip_position": (-2.0, 2.0),
     "stroke_depth": (-0.1, 0.1),
 }
@@ -161,6 +161,10 @@ def check_recording(ds, where: str = "recording") -> None:
     """Raise :class:`~bayestouch.errors.BadInput` naming the first variable of ``ds`` that holds a non-finite value,
     a value outside :data:`PHYSICAL_RANGES` or (taxel currents) a non-zero magnitude below
     :data:`CURRENT_FLOOR_A`, with how many values and the first frame; ``where`` names the recording."""
+    for name in list(ds.variables):
+        unit = ds[name].attrs.get("units")
+        if name in UNITS and unit is not None and str(unit) != UNITS[name]:
+            raise BadInput(f"{where}: '{name}' is in {unit!r}; expected {UNITS[name]!r} (recordings are in SI units)")
     for name, (lo, hi) in PHYSICAL_RANGES.items():
         if name not in ds:
             continue
@@ -179,4 +183,28 @@ def check_recording(ds, where: str = "recording") -> None:
             raise BadInput(
                 f"{where}: '{name}' holds {int(bad.sum())} {what} value(s) (first at index {first}): a damaged "
                 "recording, not a measurement"
+            )
+    if "taxel_current" in ds:
+        cur = np.asarray(ds["taxel_current"].values, dtype=float)
+        if cur.size and np.mean(cur < 0) > 0.5:
+            raise BadInput(
+                f"{where}: 'taxel_current' is negative in {np.mean(cur < 0):.0%} of its values; the taxels' drain "
+                "currents are positive (a sign flipped in the read-out?)"
+            )
+    if "contact_normal" in ds:
+        length = np.linalg.norm(np.asarray(ds["contact_normal"].values, dtype=float), axis=-1)
+        if np.any(~(length > 0.5)):
+            raise BadInput(
+                f"{where}: 'contact_normal' has {int(np.sum(~(length > 0.5)))} vector(s) that are not unit normals "
+                f"(first at frame {int(np.argmax(~(length > 0.5)))}); expected unit outward normals"
+            )
+    if "time" in ds and "stroke_index" in ds:
+        t = np.asarray(ds["time"].values, dtype=float)
+        k = np.asarray(ds["stroke_index"].values)
+        same = k[1:] == k[:-1]
+        if np.any(same & ~(np.diff(t) > 0)):
+            i = int(np.argmax(same & ~(np.diff(t) > 0))) + 1
+            raise BadInput(
+                f"{where}: 'time' does not increase within stroke {int(k[i])} (frame {i}: {t[i - 1]:g} s then "
+                f"{t[i]:g} s); expected strictly increasing times within each stroke"
             )

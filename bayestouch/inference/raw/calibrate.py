@@ -20,6 +20,7 @@ from bayestouch.errors import BadInput
 from bayestouch.inference.raw.data import (
     host_device,
     load_raw_data,
+    need_variable,
     nominal_log_gain_sd,
     open_recording,
     unloaded_current,
@@ -151,9 +152,9 @@ def calibrate_device(recording, obj, *, models=MODELS, object_name: str | None =
     ds, where = open_recording(recording)
     finger = host_device(models).finger
     mode = str(ds.attrs.get("mode", "physics"))
-    cur = np.asarray(ds["taxel_current"].values, float)
-    temp, t = (np.asarray(ds[v].values, float) for v in ("skin_temperature", "time"))
-    si = np.asarray(ds["stroke_index"].values, int)
+    cur = need_variable(ds, "taxel_current", 2, where)
+    temp, t = (need_variable(ds, v, 1, where) for v in ("skin_temperature", "time"))
+    si = need_variable(ds, "stroke_index", 1, where).astype(int)
     ref = np.asarray(finger.reference).ravel().astype(bool)
     if cur.ndim != 2 or cur.shape[1] != ref.size:
         raise BadInput(f"{where}: variable 'taxel_current' must be (frame, {ref.size}) for this finger")

@@ -25,6 +25,7 @@ from bayestouch.physics.virtual import load_finger
 __all__ = [
     "RawData",
     "open_recording",
+    "need_variable",
     "nominal_log_gain_sd",
     "HostDevice",
     "host_device",
@@ -134,7 +135,9 @@ def open_recording(ds_or_path):
     return ds, str(p)
 
 
-def _need(ds, name, ndim, where):
+def need_variable(ds, name, ndim, where):
+    """The finite values of variable ``name`` of a recording, which must have ``ndim`` dimensions (else one-line
+    BadInput naming the recording ``where`` and the variable)."""
     if name not in ds.variables:
         raise BadInput(f"{where}: variable '{name}' is missing; expected a bayestouch recording (bayestouch simulate)")
     v = np.asarray(ds[name].values, dtype=float)
@@ -274,13 +277,13 @@ def load_raw_data(
         raise BadInput(f"stride must be an integer ≥ 1, got {stride}")
     if not radius > 0:
         raise BadInput(f"radius must be positive (metres), got {radius}")
-    cur = _need(ds, "taxel_current", 2, where)
-    contact = _need(ds, "contact_point", 2, where)
-    normal = _need(ds, "contact_normal", 2, where)
-    depth = _need(ds, "pressing_depth", 1, where)
-    temp = _need(ds, "skin_temperature", 1, where)
-    t = _need(ds, "time", 1, where)
-    si = _need(ds, "stroke_index", 1, where).astype(int)
+    cur = need_variable(ds, "taxel_current", 2, where)
+    contact = need_variable(ds, "contact_point", 2, where)
+    normal = need_variable(ds, "contact_normal", 2, where)
+    depth = need_variable(ds, "pressing_depth", 1, where)
+    temp = need_variable(ds, "skin_temperature", 1, where)
+    t = need_variable(ds, "time", 1, where)
+    si = need_variable(ds, "stroke_index", 1, where).astype(int)
     nF, nT = cur.shape
     for name, v in (("contact_point", contact), ("contact_normal", normal)):
         if v.shape != (nF, 3):
