@@ -146,6 +146,10 @@ TABLE = [
     ("calibrate {tmp}/posterior_like.nc --object sphere --out {tmp}/d.toml", "variable 'taxel_current' is missing"),
     ("fit {sphere_rec} --out {tmp}/o --calibration {tmp}/huge_scale.toml", "[response] scale must be a number in"),
     ("fit {tmp}/UPPER.NC --out {tmp}/o", "variable 'taxel_current' is missing"),  # read as a recording, not a CSV
+    # contact files: repeated rows, values near the float limit, an object beyond the prior's sizes
+    ("fit {tmp}/two_points_repeated.csv --out {tmp}/o", "only 2 distinct points among 60"),
+    ("fit {tmp}/near_float_max.csv --out {tmp}/o", "look like some unit other than metres"),
+    ("fit {tmp}/big_ball.csv --out {tmp}/o", "more than twice the prior's largest semi-axis"),
 ]
 
 
@@ -161,11 +165,10 @@ def _files(tmp):
             f"{30 * c:.3f},{20 * s:.3f},5.0\n" for c, s in zip([1, 0, -1, 0] * 10, [0, 1, 0, -1] * 10, strict=True)
         )
     )
+    turn = np.linspace(0, 2 * np.pi, 40, endpoint=False)
     (tmp / "good.csv").write_text(
         "x,y,z\n"
-        + "".join(
-            f"{0.03 * c:.4f},{0.02 * s:.4f},0.0\n" for c, s in zip([1, 0, -1, 0] * 10, [0, 1, 0, -1] * 10, strict=True)
-        )
+        + "".join(f"{0.03 * np.cos(t):.5f},{0.02 * np.sin(t):.5f},{0.005 * np.sin(2 * t):.5f}\n" for t in turn)
     )
     d = np.random.default_rng(0).normal(size=(50_001, 3))
     np.savetxt(
@@ -217,6 +220,12 @@ def _files(tmp):
     lib = (MODELS / "textures.toml").read_text()
     (tmp / "lib_ints.toml").write_text("texture = [1, 2]\n" + lib[lib.index("[library]") : lib.index("[[texture]]")])
     xr.Dataset({"volume": ("draw", np.ones(4))}).to_netcdf(tmp / "posterior_like.nc", engine="h5netcdf")
+    (tmp / "two_points_repeated.csv").write_text("x,y,z\n" + "0.01,0.02,0.03\n0.02,0.01,0.0\n" * 30)
+    (tmp / "near_float_max.csv").write_text("x,y,z\n" + "".join(f"{v},1e308,-1e308\n" for v in range(20)))
+    ring = np.linspace(0, 2 * np.pi, 40, endpoint=False)
+    (tmp / "big_ball.csv").write_text(
+        "x,y,z\n" + "".join(f"{0.4 * np.cos(t)},{0.4 * np.sin(t)},{0.01 * np.sin(3 * t)}\n" for t in ring)
+    )
     (tmp / "UPPER.NC").write_bytes((tmp / "posterior_like.nc").read_bytes())
     cal = DeviceCalibration(np.zeros(256), np.full(256, 1e-3), 1.0, "physics", {}, 1e300, 1e-300)
     write_device_file(tmp / "huge_scale.toml", cal)

@@ -639,3 +639,16 @@ def test_a_recording_gets_the_mode_of_every_other_output(tmp_path):
         os.umask(old)
     assert stat.S_IMODE(rec.stat().st_mode) == stat.S_IMODE(txt.stat().st_mode) == 0o644
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []  # no temporary left
+
+
+def test_normals_of_any_length_up_to_the_float_limit_are_normalised(tmp_path):
+    """Normals 1e300 long (review of issue 24) overflowed to an infinite length and were normalised to zero, then
+    refused as 'zero length' without a file or row; they are directions like any other."""
+    from bayestouch.io.contacts import load_contact_points
+
+    rows = [r + f",{1e300 * (i % 3 - 1)},1e300,{-1e300 if i % 2 else 1e300}" for i, r in enumerate(RING)]
+    p = tmp_path / "huge_normals.csv"
+    p.write_text(_csv(rows, "x,y,z,nx,ny,nz"))
+    n = load_contact_points(p).normals
+    np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, rtol=1e-12)
+    np.testing.assert_allclose(n[0], np.array([-1.0, 1.0, 1.0]) / np.sqrt(3), rtol=1e-12)

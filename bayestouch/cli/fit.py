@@ -190,6 +190,15 @@ def _contacts(args):
                 normals=None if cp.normals is None else cp.normals[keep],
                 force=None if cp.force is None else cp.force[keep],
             )
+    from bayestouch.inference.contact import load_priors
+
+    axis_max = load_priors().axis_max
+    half = 0.5 * float(np.max(np.ptp(cp.points, axis=0)))
+    if half > axis_max:
+        raise BadInput(
+            f"{args.points}: the contacts span {2 * half:.3g} m, more than twice the prior's largest semi-axis "
+            f"({axis_max:g} m, models/priors.toml axis_max): no object the fit can represent holds them"
+        )
     if len(cp.points) > MAX_CONTACTS:
         raise BadInput(
             f"{args.points}: {len(cp.points)} contacts; a fit takes at most {MAX_CONTACTS} (the posterior of "

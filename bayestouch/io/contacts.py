@@ -314,7 +314,8 @@ def load_contact_points(path: str | os.PathLike[str], *, min_points: int = N_ELL
     # a file in millimetres is in millimetres throughout: free positions count too
     every = points if free is None else np.vstack([points, free])
     max_abs = float(np.max(np.abs(every)))
-    diagonal = float(np.linalg.norm(np.ptp(every, axis=0)))
+    with np.errstate(over="ignore", invalid="ignore"):  # values near 1e308: the span overflows, and is refused
+        diagonal = float(np.linalg.norm(np.ptp(every, axis=0)))
     if max_abs > MM_MAX_ABS_M or diagonal > MM_MAX_DIAGONAL_M:
         unit, factor = _likely_unit(max_abs, diagonal)
         raise file_error(
@@ -323,7 +324,8 @@ def load_contact_points(path: str | os.PathLike[str], *, min_points: int = N_ELL
             f"diagonal {_num(diagonal)}); give metres (e.g. divide by {factor:g}), within "
             f"±{MM_MAX_ABS_M} m and a bounding-box diagonal ≤ {MM_MAX_DIAGONAL_M} m",
         )
-    span = float(np.linalg.norm(np.ptp(points, axis=0)))
+    with np.errstate(over="ignore", invalid="ignore"):
+        span = float(np.linalg.norm(np.ptp(points, axis=0)))
     if 0 < span < MIN_DIAGONAL_M:
         raise file_error(
             source,
@@ -337,10 +339,23 @@ def load_contact_points(path: str | os.PathLike[str], *, min_points: int = N_ELL
             source, f"all {n} {what} are identical ({at}); expected contact points spread over the object's surface"
         )
 
+    distinct = len(np.unique(points, axis=0))
+    if distinct < min_points:
+        raise file_error(
+            source,
+            f"only {distinct} distinct points among {n} (rows repeated); need at least {min_points} distinct "
+            "contact points",
+        )
+
     normals = None
     if "nx" in col:
         raw = np.ascontiguousarray(table[:, [col[c] for c in _NORMAL]])
-        length = np.linalg.norm(raw, axis=1)
+        with np.errstate(over="ignore"):
+            length = np.linalg.norm(raw, axis=1)
+        huge = ~np.isfinite(length)
+        if huge.any():  # vectors of ~1e300: scaled by their largest component before their length overflows
+            raw[huge] /= np.max(np.abs(raw[huge]), axis=1, keepdims=True)
+            length[huge] = np.linalg.norm(raw[huge], axis=1)
         short = np.flatnonzero(~(length >= MIN_NORMAL_LENGTH))
         if short.size:
             i = int(short[0])
