@@ -110,7 +110,9 @@ def test_console_script_runs_without_traceback(tmp_path):
 def test_out_below_a_file_exits_2(tmp_path, capsys):
     blocker = tmp_path / "blocker"
     blocker.write_text("a file, not a folder")
-    assert main(["reproduce-paper", "--out", str(blocker / "sub"), "--paths", "1"]) == 2
+    with pytest.raises(SystemExit) as done:  # refused while the arguments are parsed, before any work
+        main(["reproduce-paper", "--out", str(blocker / "sub"), "--paths", "1"])
+    assert done.value.code == 2
     err = capsys.readouterr().err.strip()
     assert "blocker" in err and "\n" not in err and "internal error" not in err
     assert blocker.read_text() == "a file, not a folder"

@@ -30,7 +30,9 @@ def test_a_folder_holding_a_run_is_refused_without_resume_or_overwrite(tmp_path)
     assert (out / "summary.json").read_text() == '{"old": true}'  # nothing lost
     prepare_run_folder(out, _fp(pts), resume=True)  # the same data and options resume
     prepare_run_folder(out, _fp(pts, seed=1), resume=False, overwrite=True)
-    assert not (out / "summary.json").exists()  # the old run's outputs went before the new run starts
+    assert not (out / "summary.json").exists()  # the old run's outputs went before the new run starts ...
+    (aside,) = out.glob("replaced-*")
+    assert (aside / "summary.json").read_text() == '{"old": true}'  # ... aside, not deleted
     assert json.loads((out / FINGERPRINT_FILE).read_text())["options"]["seed"] == 1
     with pytest.raises(BadInput, match="exclude each other"):
         prepare_run_folder(out, _fp(pts), resume=True, overwrite=True)
@@ -97,3 +99,33 @@ def test_fit_cli_refuses_to_replace_or_wrongly_resume_a_run(tmp_path, capsys):
     assert main(["fit", str(sphere), "--out", str(out), "--overwrite", *fast]) == 0
     s = json.loads((out / "summary.json").read_text())
     assert abs(s["derived"]["mean_shape"]["a"] - 0.02) < 2e-3  # the sphere's run, not the egg's
+
+
+def test_a_folder_in_use_by_another_process_is_refused(tmp_path):
+    """Two fits into one folder at once replaced the first's finished result (review of issue 24): the folder is
+    locked by the process that prepared it, another process is refused in one line, and the lock goes with
+    release_run_folder (the same process may prepare it again meanwhile)."""
+    import subprocess
+    import sys
+
+    from bayestouch.io.runfolder import release_run_folder
+
+    pts = np.arange(12.0).reshape(4, 3)
+    out = tmp_path / "run"
+    prepare_run_folder(out, _fp(pts), resume=False)
+    prepare_run_folder(out, _fp(pts), resume=True)  # this process holds it: no self-deadlock
+    other = (
+        "import sys, numpy as np\n"
+        "from bayestouch.errors import BadInput\n"
+        "from bayestouch.io.runfolder import fingerprint, prepare_run_folder\n"
+        "fp = fingerprint('contact', {'points': np.arange(12.0).reshape(4, 3)}, {'seed': 0})\n"
+        "try:\n"
+        f"    prepare_run_folder({str(out)!r}, fp, resume=True)\n"
+        "except BadInput as e:\n"
+        "    print(e); sys.exit(2)\n"
+    )
+    busy = subprocess.run([sys.executable, "-c", other], capture_output=True, text=True)
+    assert busy.returncode == 2 and "in use by another bayestouch run" in busy.stdout
+    release_run_folder(out)
+    free = subprocess.run([sys.executable, "-c", other], capture_output=True, text=True)
+    assert free.returncode == 0, free.stdout + free.stderr

@@ -39,7 +39,7 @@ from bayestouch.inference.sampler import convergence, sample
 from bayestouch.io.files import atomic_path, write_json
 from bayestouch.io.meshes import write_spread_mesh
 from bayestouch.io.occupancy import OCCUPANCY_FILE, Occupancy, write_occupancy
-from bayestouch.io.runfolder import fingerprint, prepare_run_folder
+from bayestouch.io.runfolder import fingerprint, prepare_run_folder, release_run_folder
 
 __all__ = [
     "run_parts_fit",
@@ -434,4 +434,6 @@ def run_parts_fit(
         },
         "parameter_names": list(pm.param_names(k)),
     }
-    return write_parts_outputs(out, ch, k, points, seed=seed, t0=t0, info=info, priors=priors)
+    summary = write_parts_outputs(out, ch, k, points, seed=seed, t0=t0, info=info, priors=priors)
+    release_run_folder(out)
+    return summary

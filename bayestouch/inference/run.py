@@ -31,7 +31,7 @@ from bayestouch.inference.sampler import IndependenceMixture, prune_stuck_walker
 from bayestouch.inference.smc import tempered_smc
 from bayestouch.io.files import atomic_path, write_json
 from bayestouch.io.occupancy import OCCUPANCY_FILE, write_occupancy
-from bayestouch.io.runfolder import fingerprint, prepare_run_folder
+from bayestouch.io.runfolder import fingerprint, prepare_run_folder, release_run_folder
 
 __all__ = [
     "initial_theta",
@@ -967,7 +967,9 @@ def run_contact_fit(
     summary = write_posterior(out, ch, model, seed=seed, t0=t0)
     if ffd is None:  # a lattice moves the surface off the n-ellipsoid the draws describe
         _write_occupancy(out, ch, summary, seed)
-    return _report_modes(out, summary, ch, model, seed, smc)
+    summary = _report_modes(out, summary, ch, model, seed, smc)
+    release_run_folder(out)
+    return summary
 
 
 #: thinned draws the occupancy grid of a contact fit averages

@@ -9,8 +9,10 @@ same folder
   ``posterior.nc``): one line naming the folder and the two ways on;
 * with ``resume`` is refused when its fingerprint differs from the folder's, naming what differs (the data, or each
   option with both values), so another object's points or a changed seed never continue a chain;
-* with ``overwrite`` first removes the old run's outputs, so the folder never shows an old summary beside a new
-  chain.
+* with ``overwrite`` first moves the old run's outputs into ``replaced-<UTC time>/`` inside the folder, so the folder
+  never shows an old summary beside a new chain and an interrupted new run loses nothing;
+* while another process writes into the same folder is refused (an exclusive lock on ``.bayestouch.lock``, held
+  until :func:`release_run_folder` or the process's end).
 
 Folders written before ``run.json`` existed resume as before (the chain's walkers × parameters are still checked).
 """
@@ -20,7 +22,9 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
+import os
 import sys
+import time
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -29,6 +33,11 @@ import numpy as np
 
 from bayestouch.errors import BadInput
 from bayestouch.io.files import write_json
+
+try:  # POSIX; elsewhere run folders are not locked
+    import fcntl
+except ImportError:  # pragma: no cover
+    fcntl = None
 from bayestouch.io.occupancy import OCCUPANCY_FILE
 
 __all__ = [
@@ -39,6 +48,8 @@ __all__ = [
     "differences",
     "fingerprint",
     "prepare_run_folder",
+    "release_run_folder",
+    "LOCK_FILE",
 ]
 
 #: the file holding a run's fingerprint
@@ -137,7 +148,7 @@ def prepare_run_folder(out, fp: dict, *, resume: bool, overwrite: bool = False) 
     resume : bool
         Continue the run in ``out``: refused when its fingerprint differs.
     overwrite : bool
-        Replace a run in ``out``: its outputs are removed first.
+        Replace a run in ``out``: its outputs are first moved into ``out/replaced-<UTC time>/``.
 
     Returns
     -------
@@ -155,6 +166,8 @@ def prepare_run_folder(out, fp: dict, *, resume: bool, overwrite: bool = False) 
         raise BadInput("--resume and --overwrite exclude each other: continue the run in the folder, or replace it")
     if out.exists() and not out.is_dir():
         raise BadInput(f"--out {out} exists and is not a folder")
+    out.mkdir(parents=True, exist_ok=True)
+    _lock(out)
     held = [f for f in RESULT_FILES if (out / f).exists()]
     old = None
     path = out / FINGERPRINT_FILE
@@ -183,9 +196,45 @@ def prepare_run_folder(out, fp: dict, *, resume: bool, overwrite: bool = False) 
                 f"--out {out} already holds a run ({', '.join(held)}); pass --resume to continue it, --overwrite to "
                 "replace it, or choose another folder"
             )
+        # set aside, not deleted: an interrupted or failed new run leaves the old result where the user finds it
+        aside = out / f"replaced-{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}"
+        k = 1
+        while aside.exists():
+            k += 1
+            aside = aside.with_name(f"{aside.name.split('.')[0]}.{k}")
+        aside.mkdir()
         for name in OUTPUTS:
             with contextlib.suppress(FileNotFoundError):
-                (out / name).unlink()
-    out.mkdir(parents=True, exist_ok=True)
+                (out / name).rename(aside / name)
+        print(f"bayestouch: --overwrite: the previous run is kept in {aside} until you delete it", file=sys.stderr)
     write_json(path, fp)
     return out
+
+
+#: the lock file that marks a run folder as in use by a process (``fcntl.flock``, released when it exits)
+LOCK_FILE = ".bayestouch.lock"
+_LOCKS: dict[str, int] = {}
+
+
+def _lock(out: Path) -> None:
+    """Hold an exclusive lock on ``out`` for this process (a second process writing into the same folder is
+    refused); a folder this process already holds is not locked twice."""
+    key = str(out.resolve())
+    if fcntl is None or key in _LOCKS:
+        return
+    fd = os.open(out / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        os.close(fd)
+        raise BadInput(
+            f"--out {out} is in use by another bayestouch run; wait for it to finish or choose another folder"
+        ) from None
+    _LOCKS[key] = fd
+
+
+def release_run_folder(out) -> None:
+    """Release this process's lock on the run folder ``out`` (:func:`prepare_run_folder` takes it)."""
+    fd = _LOCKS.pop(str(Path(out).resolve()), None)
+    if fd is not None:
+        os.close(fd)

@@ -45,7 +45,7 @@ from bayestouch.inference.raw.texture import initial_raw_texture
 from bayestouch.inference.run import initial_theta, natural_draws
 from bayestouch.inference.sampler import adaptive_moves, sample
 from bayestouch.io.device_file import DeviceCalibration, read_device_file
-from bayestouch.io.runfolder import dataset_digest, fingerprint, prepare_run_folder
+from bayestouch.io.runfolder import dataset_digest, fingerprint, prepare_run_folder, release_run_folder
 from bayestouch.params import MODELS
 
 __all__ = [
@@ -472,4 +472,8 @@ def run_raw_fit(
     if prune:
         info["pruning"] = prune_clearance(flat[:: max(1, len(flat) // 256)], data, tex)
     adjust = curvature_adjustment(flat, data, finger, texture=tex) if adjust else None
-    return write_posterior(out, ch, raw_model(data, finger, texture=tex, info=info, adjust=adjust), seed=seed, t0=t0)
+    summary = write_posterior(
+        out, ch, raw_model(data, finger, texture=tex, info=info, adjust=adjust), seed=seed, t0=t0
+    )
+    release_run_folder(out)
+    return summary
