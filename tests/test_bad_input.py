@@ -146,6 +146,11 @@ TABLE = [
     ("calibrate {tmp}/posterior_like.nc --object sphere --out {tmp}/d.toml", "variable 'taxel_current' is missing"),
     ("fit {sphere_rec} --out {tmp}/o --calibration {tmp}/huge_scale.toml", "[response] scale must be a number in"),
     ("fit {tmp}/UPPER.NC --out {tmp}/o", "variable 'taxel_current' is missing"),  # read as a recording, not a CSV
+    ("simulate --object {egg} --duration 1e-9 --out {tmp}/r.nc", "fewer than 2 frames per stroke"),
+    # experiment lists: empty or repeated entries (an empty --objects ran nothing, exit 0; eig,eig doubled rows)
+    ("experiment --objects , --out {tmp}/o", "--objects: expected comma-separated"),
+    ("experiment --planners eig,eig --trials 1 --out {tmp}/o", "--planners: eig named twice"),
+    ("experiment --objects egg,sphere,egg --trials 1 --out {tmp}/o", "--objects: egg named twice"),
     # contact files: repeated rows, values near the float limit, an object beyond the prior's sizes
     ("fit {tmp}/two_points_repeated.csv --out {tmp}/o", "only 2 distinct points among 60"),
     ("fit {tmp}/near_float_max.csv --out {tmp}/o", "look like some unit other than metres"),

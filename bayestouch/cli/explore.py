@@ -343,6 +343,12 @@ def run_experiment(args) -> int:
 
     planners = [p.strip() for p in args.planners.split(",") if p.strip()]
     objects = [o.strip() for o in args.objects.split(",") if o.strip()]
+    if not objects:
+        raise BadInput(f"--objects: expected comma-separated object names or TOML files, got {args.objects!r}")
+    for flag, names in (("--planners", planners), ("--objects", objects)):
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:
+            raise BadInput(f"{flag}: {', '.join(twice)} named twice; each trial runs once per entry")
     if args.trials < 1:
         raise BadInput(f"--trials must be an integer ≥ 1, got {args.trials}")
     res = run(

@@ -83,6 +83,11 @@ def run(args) -> int:
         raise BadInput(f"--duration must be in (0, 600] seconds, got {args.duration}")
     if not (1 <= args.rate <= 2000):
         raise BadInput(f"--rate must be in [1, 2000] frames per second, got {args.rate}")
+    if args.duration * args.rate < 2:
+        raise BadInput(
+            f"--duration {args.duration:g} s at --rate {args.rate:g} Hz gives fewer than 2 frames per stroke; "
+            "give a longer --duration or a higher --rate"
+        )
     try:
         currents = [float(x) for x in args.currents.split(",")]
     except ValueError:
