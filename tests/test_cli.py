@@ -27,7 +27,7 @@ def test_every_subcommand_of_the_issues_exists():
         (["reproduce-paper", "--out", "X", "--sizes", "6x1x3"], "6x6x3"),
         (["reproduce-paper", "--out", "X", "--epsilons", "abc"], "epsilons"),
         (["reproduce-paper", "--out", "X", "--epsilons", "0.7"], "[0, 0.5)"),
-        (["reproduce-paper", "--out", "X", "--paths", "0"], "positive integer"),
+        (["reproduce-paper", "--out", "X", "--paths", "0"], "--paths: expected an integer from 1 to"),
         (["nonsense"], "invalid choice"),
     ],
 )

@@ -25,6 +25,11 @@ __all__ = ["add_device_parser", "run_device", "load_stroke_file"]
 _MODELS = MODELS
 
 
+#: longest ``device simulate --for``, seconds (a week; leave --for out to serve until interrupted)
+MAX_RUN_FOR_S = 7 * 24 * 3600.0
+#: longest ``device simulate --delay`` stall, seconds (the longest --watchdog)
+MAX_DELAY_S = 60.0
+
 #: most random strokes of one ``device run`` (1000 strokes of 2 s at 50 Hz: 100,000 frames, half of what
 #: ``simulate`` writes into one recording)
 MAX_DEVICE_STROKES = 1000
@@ -62,7 +67,8 @@ def add_device_parser(subparsers) -> argparse.ArgumentParser:
         "--link",
         type=Path,
         default=None,
-        help="also keep a symbolic link at this path pointing to the pty (survives --disconnect-after)",
+        help="also keep a symbolic link at this path pointing to the pty (survives --disconnect-after); a new "
+        "path, a dangling link or a link to a pty (an existing file or folder is refused, never replaced)",
     )
     sp.add_argument(
         "--object",
@@ -87,7 +93,7 @@ def add_device_parser(subparsers) -> argparse.ArgumentParser:
         "--delay",
         type=float,
         default=0.0,
-        help="fault: stall the outgoing stream this many seconds, before 5%% of the packets",
+        help=f"fault: stall the outgoing stream this many seconds, before 5%% of the packets (0 to {MAX_DELAY_S:g})",
     )
     sp.add_argument("--inbound-faults", action="store_true", help="drop/corrupt received bytes too")
     sp.add_argument(
@@ -104,7 +110,8 @@ def add_device_parser(subparsers) -> argparse.ArgumentParser:
         type=float,
         default=None,
         metavar="SECONDS",
-        help="stop after this many seconds (default: until interrupted)",
+        help=f"stop after this many seconds, more than 0 and at most {MAX_RUN_FOR_S:g} (a week) (default: until "
+        "interrupted)",
     )
 
     rp = sub.add_parser(
@@ -209,8 +216,13 @@ def _simulate(args) -> int:
         raise BadInput(f"--watchdog must be in [0.05, 60] seconds, got {args.watchdog}")
     if args.disconnect_after is not None and args.disconnect_after < 1:
         raise BadInput(f"--disconnect-after must be ≥ 1 frames, got {args.disconnect_after}")
-    if args.delay < 0:
-        raise BadInput(f"--delay must be ≥ 0 seconds, got {args.delay}")
+    if not (0 <= args.delay <= MAX_DELAY_S):
+        raise BadInput(f"--delay must be in [0, {MAX_DELAY_S:g}] seconds, got {args.delay}")
+    if args.run_for is not None and not (0 < args.run_for <= MAX_RUN_FOR_S):
+        raise BadInput(
+            f"--for must be in (0, {MAX_RUN_FOR_S:g}] seconds (a week; leave it out to run until interrupted), got "
+            f"{args.run_for}"
+        )
     faults = Faults(
         args.drop,
         args.corrupt,
@@ -223,7 +235,10 @@ def _simulate(args) -> int:
     )
     limits = load_limits(args.models, max_force=args.max_force, watchdog=args.watchdog)
     sim = VirtualDevice(None, limits=limits, speed=args.speed, faults=faults, link=args.link)
-    port = sim.open()
+    try:
+        port = sim.open()
+    except BadInput as e:  # the link's path ("link PATH: ..."), named as the option
+        raise BadInput(f"--{e}") from None
     if args.print_port:
         print(port, flush=True)
     print(

@@ -6,12 +6,27 @@ import argparse
 import time
 from pathlib import Path
 
-from bayestouch.cli.args import check_out, eps_list, out_path, positive_int, size_list
+import numpy as np
+
+from bayestouch.cli.args import bounded_int, check_out, eps_list, out_path, size_list
 from bayestouch.cli.args import seed as seed_arg
 from bayestouch.errors import BadInput
 from bayestouch.params import MODELS
 
 __all__ = ["add_parser", "run"]
+
+#: most finger paths, and the highest sampling rate (samples per second at 1 cm/s)
+MAX_PATHS = 1000
+MAX_RATE = 1000.0
+#: most model mesh cells per cube edge (6·res² vertices; the FFD matrix is vertices × control points)
+MAX_RES = 200
+#: most FFD control points along one lattice axis (the paper's largest lattice is 7x7x7)
+MAX_FFD_AXIS = 10
+#: most contact points of the probed data (an upper bound from --paths, --rate and the object's size; the FFD
+#: least squares holds points × control points)
+MAX_POINTS = 500_000
+#: the finger's speed along the paths, m/s (``scene.paths.random_paths``, the paper's 1 cm/s)
+_SPEED = 0.01
 
 
 def add_parser(sub) -> argparse.ArgumentParser:
@@ -31,13 +46,32 @@ def add_parser(sub) -> argparse.ArgumentParser:
         default=MODELS / "objects" / "graphite_plate.toml",
         help="object TOML (default: the damaged graphite plate)",
     )
-    rp.add_argument("--paths", type=positive_int, default=25, help="number of finger paths (default 25)")
-    rp.add_argument("--rate", type=float, default=20.0, help="contact samples per second at 1 cm/s (default 20)")
     rp.add_argument(
-        "--sizes", type=size_list, default=None, help="FFD sizes, e.g. 7x7x7,6x6x3 (default: the paper's five)"
+        "--paths",
+        type=bounded_int(1, MAX_PATHS),
+        default=25,
+        help=f"number of finger paths (default 25; 1 to {MAX_PATHS}, and at most {MAX_POINTS} contact points with "
+        "--rate)",
+    )
+    rp.add_argument(
+        "--rate",
+        type=float,
+        default=20.0,
+        help=f"contact samples per second at 1 cm/s (default 20; more than 0 and at most {MAX_RATE:g})",
+    )
+    rp.add_argument(
+        "--sizes",
+        type=size_list,
+        default=None,
+        help=f"FFD sizes, e.g. 7x7x7,6x6x3, each from 2 to {MAX_FFD_AXIS} (default: the paper's five)",
     )
     rp.add_argument("--epsilons", type=eps_list, default=None, help="perturbation levels (default 0,0.001)")
-    rp.add_argument("--res", type=positive_int, default=40, help="model mesh cells per cube edge (default 40)")
+    rp.add_argument(
+        "--res",
+        type=bounded_int(1, MAX_RES),
+        default=40,
+        help=f"model mesh cells per cube edge (default 40; 1 to {MAX_RES})",
+    )
     rp.add_argument("--quiet", action="store_true", help="no progress bar")
     return rp
 
@@ -49,9 +83,26 @@ def run(args) -> int:
     from bayestouch.report.tables import write_table2
     from bayestouch.scene.objects import load_object
 
-    if not args.rate > 0:
-        raise BadInput(f"--rate must be > 0 samples per second, got {args.rate}")
+    if not (0 < args.rate <= MAX_RATE):
+        raise BadInput(f"--rate must be in (0, {MAX_RATE:g}] samples per second, got {args.rate}")
+    for size in args.sizes or ():
+        if max(int(p) for p in size.split("x")) > MAX_FFD_AXIS:
+            raise BadInput(
+                f"--sizes: at most {MAX_FFD_AXIS} control points along each axis (the FFD matrix holds mesh "
+                f"vertices × control points), got {size}"
+            )
+    if args.out.exists() and not args.out.is_dir():
+        raise BadInput(f"--out {args.out} exists and is not a folder")
     obj = load_object(args.object)
+    # a path walks part of a plane section at 1 cm/s, a convex curve inside a great circle of the object's
+    # bounding sphere: at most that circle's length
+    seconds = 2 * np.pi * float(np.linalg.norm(np.asarray(obj.shape.axes, float))) / _SPEED
+    most = max(args.paths, 21) * args.rate * seconds  # Table 1 takes at least 21 paths
+    if most > MAX_POINTS:
+        raise BadInput(
+            f"--paths × --rate: up to {most:.3g} contact points on {obj.name} ({args.paths} paths of up to "
+            f"{seconds:.0f} s at {args.rate:g} samples/s); at most {MAX_POINTS} fit in memory, lower --rate or --paths"
+        )
     out = check_out(args.out)
     from bayestouch.paper import reproduce_table2
 

@@ -19,6 +19,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from bayestouch.errors import BadInput
 from bayestouch.hardware import protocol as pr
 from bayestouch.hardware.frame_models import FRAME_KEYS, PROBE_KEYS
 from bayestouch.hardware.safety import (
@@ -106,6 +107,7 @@ class VirtualDevice:
             rate,
         )
         self.link = Path(link) if link else None
+        self._link_target: str | None = None  # where the link this device made points
         self.port: str | None = None
         self._master = self._slave = None
         self._rng = np.random.default_rng(faults.seed)
@@ -154,19 +156,87 @@ class VirtualDevice:
     # ------------------------------------------------------------ pty
 
     def open(self) -> str:
-        """Open the pseudo-terminal; returns the slave's path (what a client opens)."""
+        """Open the pseudo-terminal; returns the slave's path (what a client opens).
+
+        With ``link``, the link is made (or moved to the new pty). A path that holds anything but a symbolic link
+        this device made, a dangling one or one to a pty is refused with :class:`~bayestouch.errors.BadInput`
+        (``"link PATH: ..."``) before the pty is opened: a file or folder of the user's is never replaced, and
+        nothing else in the link's folder is touched."""
+        if self.link is not None:
+            self._check_link()
         master, slave = os.openpty()
         tty.setraw(slave)
         os.set_blocking(master, False)
         self._master, self._slave = master, slave
         self.port = os.ttyname(slave)
         if self.link is not None:
-            tmp = self.link.with_name(self.link.name + ".tmp")
-            if tmp.is_symlink() or tmp.exists():
-                tmp.unlink()
-            os.symlink(self.port, tmp)
-            os.replace(tmp, self.link)
+            try:
+                self._place_link(self.port)
+            except BaseException:
+                self._close_pty()
+                raise
         return self.port
+
+    def _link_replaceable(self) -> bool:
+        """Whether ``link`` may be pointed elsewhere: it is the symbolic link this device made, a dangling one, or
+        one to a pty (another virtual finger's)."""
+        link = self.link
+        if not link.is_symlink():
+            return False
+        target = os.readlink(link)
+        if target == self._link_target or not link.exists():
+            return True
+        real = os.path.realpath(link)
+        return real.startswith("/dev/pts/") or real == "/dev/ptmx"
+
+    def _check_link(self) -> None:
+        link = self.link
+        parent = link.parent
+        if not parent.is_dir():
+            raise BadInput(f"link {link}: folder {parent} does not exist; expected a path in an existing folder")
+        if link.is_symlink():
+            if not self._link_replaceable():
+                raise BadInput(
+                    f"link {link} is a symbolic link to {os.readlink(link)}, not to a pty; expected a new path, a "
+                    "dangling link or a link to a pty (it is not replaced)"
+                )
+        elif link.is_dir():
+            raise BadInput(f"link {link} is a folder; expected a new path for the symbolic link (it is not replaced)")
+        elif link.exists():
+            raise BadInput(
+                f"link {link} exists and is not a symbolic link; expected a new path (a file is never replaced)"
+            )
+
+    def _place_link(self, port: str) -> None:
+        """Point ``link`` at ``port``: a new link made in place, an existing one replaced atomically through a
+        uniquely named temporary link in the same folder (never a name another file could have)."""
+        link = self.link
+        try:
+            if not link.is_symlink():
+                os.symlink(port, link)  # fails, replacing nothing, if something appeared there meanwhile
+            else:
+                for _ in range(100):
+                    tmp = link.with_name(f".{link.name}.{os.getpid()}.{os.urandom(6).hex()}.tmp")
+                    try:
+                        os.symlink(port, tmp)
+                        break
+                    except FileExistsError:
+                        continue
+                else:
+                    raise FileExistsError(f"no free temporary name beside {link}")
+                try:
+                    if not self._link_replaceable():  # checked again: it could have changed since
+                        raise FileExistsError(f"{link} is no longer a link to a pty")
+                    os.replace(tmp, link)
+                except BaseException:
+                    tmp.unlink(missing_ok=True)
+                    raise
+        except OSError as e:
+            raise BadInput(
+                f"link {link}: cannot make a symbolic link there ({e.strerror or e}); expected a new path in a "
+                "writable folder"
+            ) from None
+        self._link_target = port
 
     def _close_pty(self) -> None:
         for fd in (self._master, self._slave):
@@ -198,8 +268,11 @@ class VirtualDevice:
             w.join(timeout)
         self._workers.clear()
         self._close_pty()
-        if self.link is not None and self.link.is_symlink():
-            self.link.unlink()
+        # the link is removed only while it is still the one this device made (a user's file is never deleted)
+        if self.link is not None and self._link_target is not None and self.link.is_symlink():
+            if os.readlink(self.link) == self._link_target:
+                self.link.unlink(missing_ok=True)
+            self._link_target = None
 
     def __enter__(self) -> VirtualDevice:
         return self.start()
@@ -431,7 +504,11 @@ class VirtualDevice:
         self._out.clear()
         self._close_pty()
         self._dec = pr.Decoder()
-        self.open()
+        try:
+            self.open()
+        except BadInput:  # something else took the link's place meanwhile: left alone, served without the link
+            self.link, self._link_target = None, None
+            self.open()
 
     def _run(self) -> None:
         while not self._stop.is_set():
