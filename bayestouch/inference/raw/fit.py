@@ -472,8 +472,6 @@ def run_raw_fit(
     if prune:
         info["pruning"] = prune_clearance(flat[:: max(1, len(flat) // 256)], data, tex)
     adjust = curvature_adjustment(flat, data, finger, texture=tex) if adjust else None
-    summary = write_posterior(
-        out, ch, raw_model(data, finger, texture=tex, info=info, adjust=adjust), seed=seed, t0=t0
-    )
+    summary = write_posterior(out, ch, raw_model(data, finger, texture=tex, info=info, adjust=adjust), seed=seed, t0=t0)
     release_run_folder(out)
     return summary
