@@ -147,6 +147,7 @@ TABLE = [
     ("fit {sphere_rec} --out {tmp}/o --calibration {tmp}/huge_scale.toml", "[response] scale must be a number in"),
     ("fit {tmp}/UPPER.NC --out {tmp}/o", "variable 'taxel_current' is missing"),  # read as a recording, not a CSV
     ("simulate --object {egg} --duration 1e-9 --out {tmp}/r.nc", "fewer than 2 frames per stroke"),
+    ("device run --port {tmp}/no_such_port --strokes 1 --out {tmp}/d.nc --journal {tmp}/d.nc", "is the --out"),
     # experiment lists: empty or repeated entries (an empty --objects ran nothing, exit 0; eig,eig doubled rows)
     ("experiment --objects , --out {tmp}/o", "--objects: expected comma-separated"),
     ("experiment --planners eig,eig --trials 1 --out {tmp}/o", "--planners: eig named twice"),

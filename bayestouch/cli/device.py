@@ -297,6 +297,8 @@ def _run(args) -> int:
     if not (0.01 <= args.timeout <= 60):
         raise BadInput(f"--timeout must be in [0.01, 60] seconds, got {args.timeout}")
     currents = _currents(args.currents)
+    if args.journal is not None and args.journal.absolute() == args.out.absolute():
+        raise BadInput(f"--journal {args.journal} is the --out recording; name another file for the packets")
     if args.journal is not None and args.journal.exists():
         raise BadInput(
             f"--journal {args.journal} exists; name a new file (packets are never appended to another file, and an "
