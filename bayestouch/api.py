@@ -439,7 +439,7 @@ def simulate(
         progress=progress,
     )
     if out is not None:
-        write_recording(ds, out)
+        write_recording(ds, out, replace=overwrite)
     return ds
 
 

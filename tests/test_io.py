@@ -652,3 +652,28 @@ def test_normals_of_any_length_up_to_the_float_limit_are_normalised(tmp_path):
     n = load_contact_points(p).normals
     np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, rtol=1e-12)
     np.testing.assert_allclose(n[0], np.array([-1.0, 1.0, 1.0]) / np.sqrt(3), rtol=1e-12)
+
+
+def test_a_recording_that_appears_while_another_is_written_is_kept(tmp_path):
+    """Two simulations into one new --out: the second to finish replaced the first's recording (review of issue 24).
+    Without overwrite the file already there is kept and the new one written beside it, both named; with
+    overwrite it is replaced (the control)."""
+    import xarray as xr
+
+    from bayestouch.io.recording import write_recording
+
+    path = tmp_path / "r.nc"
+    first, second = (xr.Dataset({"time": ("frame", np.arange(3.0) + k)}) for k in (0, 10))
+    write_recording(first, path, replace=False)  # nothing there yet: written
+    with pytest.raises(BadInput, match=r"r\.nc appeared while this run wrote it.*this run's file is .*r\.\d{8}T"):
+        write_recording(second, path, replace=False)
+    def first_time(p):
+        with xr.open_dataset(p, engine="h5netcdf") as ds:
+            return float(ds.time[0])
+
+    assert first_time(path) == 0.0  # the first is kept
+    (kept,) = tmp_path.glob("r.*T*Z.nc")
+    assert first_time(kept) == 10.0
+    write_recording(second, path)  # replace=True: replaced
+    assert first_time(path) == 10.0
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["r.nc", kept.name])  # no temporary left

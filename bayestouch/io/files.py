@@ -16,6 +16,7 @@ import json
 import math
 import os
 import secrets
+import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import IO, Any
@@ -167,11 +168,15 @@ def atomic_write(path: str | os.PathLike[str], write: Callable[[IO[str]], None])
 
 
 @contextlib.contextmanager
-def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
+def atomic_path(path: str | os.PathLike[str], *, replace: bool = True) -> Iterator[Path]:
     """A temporary path beside ``path`` for a writer that takes a file name (netCDF, PLY, HDF5, ``.npz``): when
     the ``with`` block ends without an exception the file there is flushed to disk and replaces ``path``
     (:func:`os.replace`); otherwise it is removed and ``path`` is left as it was. The temporary name ends in
     ``path``'s own suffix, so writers that choose a format by the extension choose the same one.
+
+    With ``replace=False`` a file that appeared at ``path`` meanwhile (another process writing the same name) is
+    kept: the new file is linked into place only where nothing is (:func:`os.link`, atomic), else it is kept beside
+    it as ``NAME.<UTC time>.SUFFIX`` and :class:`~bayestouch.errors.BadInput` names both.
     """
     target = Path(path)
     target.parent.mkdir(parents=True, exist_ok=True)
@@ -180,7 +185,26 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
         yield tmp
         with open(tmp, "rb+") as f:
             os.fsync(f.fileno())
-        os.replace(tmp, target)
+        if replace:
+            os.replace(tmp, target)
+        else:
+            try:
+                os.link(tmp, target)
+                clash = False
+            except FileExistsError:
+                clash = True
+            except OSError:  # a file system without hard links: the check and the rename are two steps there
+                clash = target.exists()
+                if not clash:
+                    os.replace(tmp, target)
+            if clash:
+                stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
+                kept = target.with_name(f"{target.stem}.{stamp}{target.suffix}")
+                os.replace(tmp, kept)
+                raise BadInput(
+                    f"{target} appeared while this run wrote it (another run writing the same name?); it is kept, "
+                    f"and this run's file is {kept}"
+                ) from None
     finally:
         with contextlib.suppress(OSError):
             tmp.unlink()

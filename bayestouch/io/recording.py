@@ -120,13 +120,14 @@ def with_coordinates(ds):
     return ds.set_coords([k for k in COORDINATES if k in ds.data_vars])
 
 
-def write_recording(ds, path) -> Path:
+def write_recording(ds, path, *, replace: bool = True) -> Path:
     """Write a dataset as netCDF (h5netcdf engine) atomically: an existing file is replaced only when the
-    new one is complete."""
+    new one is complete; with ``replace=False`` a file that appeared at ``path`` meanwhile is kept and the new one
+    written beside it (:func:`bayestouch.io.files.atomic_path`)."""
     path = Path(path)
     # atomic_path: a temporary file of the usual umask-derived mode (mkstemp's 0600 made recordings unreadable to
     # the group where every other output is not), fsynced before it replaces the old file
-    with atomic_path(path) as tmp:
+    with atomic_path(path, replace=replace) as tmp:
         ds.to_netcdf(tmp, engine="h5netcdf")
     return path
 
