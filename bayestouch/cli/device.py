@@ -361,7 +361,8 @@ def _run(args) -> int:
     def keep(note: str) -> None:
         """Write the complete strokes so far (marked incomplete) and say where everything received is."""
         if done:
-            write_recording(build_recording(done, dev.info, {**attrs, "incomplete": "true"}), args.out)
+            partial = build_recording(done, dev.info, {**attrs, "incomplete": "true"})
+            write_recording(partial, args.out, replace=args.overwrite)
         written = f" written to {args.out}" if done else ""
         print(
             f"bayestouch device run: {note}; {len(done)} complete stroke(s){written}; everything received is in "
@@ -395,7 +396,7 @@ def _run(args) -> int:
     finally:
         if old_term is not None:
             signal.signal(signal.SIGTERM, old_term)
-    write_recording(build_recording(done, info, attrs), args.out)
+    write_recording(build_recording(done, info, attrs), args.out, replace=args.overwrite)
     if args.journal is None:
         journal.unlink(missing_ok=True)
     n = sum(len(s.plan.time) for s in done)
