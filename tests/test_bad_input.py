@@ -148,6 +148,11 @@ TABLE = [
     ("fit {tmp}/UPPER.NC --out {tmp}/o", "variable 'taxel_current' is missing"),  # read as a recording, not a CSV
     ("simulate --object {egg} --duration 1e-9 --out {tmp}/r.nc", "fewer than 2 frames per stroke"),
     ("device run --port {tmp}/no_such_port --strokes 1 --out {tmp}/d.nc --journal {tmp}/d.nc", "is the --out"),
+    # flags that contradict each other (one was silently ignored)
+    ("simulate --object {egg} --force 0.07 --depth 3e-4 --out {tmp}/r.nc", "--depth and --force exclude each other"),
+    ("experiment --resume --overwrite --trials 1 --out {tmp}/o", "--resume and --overwrite exclude each other"),
+    ("sbc --area-term --no-area-term --out {tmp}/o", "--area-term and --no-area-term exclude each other"),
+    ("explore --object {egg} --timeout 5 --out {tmp}/o", "--timeout applies to a finger on --port"),
     # experiment lists: empty or repeated entries (an empty --objects ran nothing, exit 0; eig,eig doubled rows)
     ("experiment --objects , --out {tmp}/o", "--objects: expected comma-separated"),
     ("experiment --planners eig,eig --trials 1 --out {tmp}/o", "--planners: eig named twice"),

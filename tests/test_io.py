@@ -667,6 +667,7 @@ def test_a_recording_that_appears_while_another_is_written_is_kept(tmp_path):
     write_recording(first, path, replace=False)  # nothing there yet: written
     with pytest.raises(BadInput, match=r"r\.nc appeared while this run wrote it.*this run's file is .*r\.\d{8}T"):
         write_recording(second, path, replace=False)
+
     def first_time(p):
         with xr.open_dataset(p, engine="h5netcdf") as ds:
             return float(ds.time[0])

@@ -64,7 +64,9 @@ def add_planning_parsers(subparsers) -> tuple[argparse.ArgumentParser, argparse.
         metavar="X,Y,Z",
         help="nominal centre of the object (the fixture), metres; required with --port and no --object",
     )
-    ep.add_argument("--timeout", type=float, default=0.3, help="with --port: seconds to wait for an answer (0.3)")
+    ep.add_argument(
+        "--timeout", type=float, default=None, help="with --port: seconds to wait for an answer (default 0.3)"
+    )
     ep.add_argument(
         "--planner", default="eig", help="eig, random, coverage, gpis (GPIS max-variance) or oracle (default eig)"
     )
@@ -178,7 +180,11 @@ def run_explore(args) -> int:
         raise BadInput("--centre: expected the object's nominal centre X,Y,Z in metres when --port has no --object")
     if port is not None and args.planner == "oracle":
         raise BadInput("--planner oracle needs the simulated truth; use eig, random or coverage with --port")
-    if not (0.01 <= getattr(args, "timeout", 0.3) <= 60):
+    if getattr(args, "timeout", None) is not None and getattr(args, "port", None) is None:
+        raise BadInput("--timeout applies to a finger on --port; without --port the strokes are simulated")
+    if getattr(args, "timeout", None) is None:
+        args.timeout = 0.3
+    if not (0.01 <= args.timeout <= 60):
         raise BadInput(f"--timeout must be in [0.01, 60] seconds, got {args.timeout}")
     out = Path(args.out)
     if out.exists() and not out.is_dir():
@@ -341,6 +347,8 @@ def run_experiment(args) -> int:
     from bayestouch.planning.experiment import gap_closed
     from bayestouch.planning.experiment import run_experiment as run
 
+    if args.resume and args.overwrite:
+        raise BadInput("--resume and --overwrite exclude each other: keep the finished trials, or replace them")
     planners = [p.strip() for p in args.planners.split(",") if p.strip()]
     objects = [o.strip() for o in args.objects.split(",") if o.strip()]
     if not objects:

@@ -109,6 +109,8 @@ def _kept_steps(steps: int, adapt: bool) -> int:
 
 def check_sbc_args(a) -> None:
     """Refuse settings whose memory or time is out of reach, or that fail only after hours (BadInput)."""
+    if a.area_term and a.no_area_term:
+        raise BadInput("--area-term and --no-area-term exclude each other")
     if a.out.exists() and not a.out.is_dir():
         raise BadInput(f"--out {a.out} exists and is not a folder")
     if a.walkers % 4:

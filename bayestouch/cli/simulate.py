@@ -49,7 +49,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
     sp.add_argument("--rate", type=float, default=50.0, help="taxel frames per second (default 50)")
     sp.add_argument(
         "--depth",
-        default="3e-4",
+        default=None,
         help="pressing depth in metres, or a comma list cycled over the strokes, e.g. 2e-4,3e-4,4e-4 for a "
         "calibration that identifies the taxels' response (default 3e-4)",
     )
@@ -96,8 +96,10 @@ def run(args) -> int:
         ) from None
     if len(currents) != 3:
         raise BadInput(f"--currents must be three numbers in amperes, got {len(currents)}")
+    if args.depth is not None and args.force is not None:
+        raise BadInput("--depth and --force exclude each other: with --force each frame's depth is solved for it")
     try:
-        depths = [float(x) for x in str(args.depth).split(",")]
+        depths = [float(x) for x in str("3e-4" if args.depth is None else args.depth).split(",")]
     except ValueError:
         raise BadInput(f"--depth must be metres or a comma list of metres like 2e-4,3e-4, got {args.depth!r}") from None
     if not all(0 < d <= 2e-3 for d in depths):
