@@ -148,6 +148,9 @@ TABLE = [
     ("fit {tmp}/UPPER.NC --out {tmp}/o", "variable 'taxel_current' is missing"),  # read as a recording, not a CSV
     ("simulate --object {egg} --duration 1e-9 --out {tmp}/r.nc", "fewer than 2 frames per stroke"),
     ("device run --port {tmp}/no_such_port --strokes 1 --out {tmp}/d.nc --journal {tmp}/d.nc", "is the --out"),
+    # negative numbers in scientific notation, or lists starting with one, are values ("expected one argument")
+    ("simulate --object {egg} --depth -1e-4 --out {tmp}/r.nc", "--depth: each pressing depth must be in"),
+    ("simulate --object {egg} --currents -0.15,0.05,0.05 --out {tmp}/r.nc", "wire currents must each be in"),
     # flags that contradict each other (one was silently ignored)
     ("simulate --object {egg} --force 0.07 --depth 3e-4 --out {tmp}/r.nc", "--depth and --force exclude each other"),
     ("experiment --resume --overwrite --trials 1 --out {tmp}/o", "--resume and --overwrite exclude each other"),

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import re
 import sys
 
 # One BLAS thread unless the user says otherwise, set before NumPy loads BLAS: the toolkit's linear algebra is on
@@ -28,8 +29,19 @@ class _OneLineParser(argparse.ArgumentParser):
     """argparse with a one-line error (no usage block): ``bayestouch fit: error: ... (see bayestouch fit --help)``,
     exit code 2. Subcommand parsers inherit the class."""
 
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        # a negative number in scientific notation (--depth -1e-4) or a list starting with one is a value, not an
+        # option: argparse's own pattern knows only -12 and -1.5
+        self._negative_number_matcher = _NEGATIVE_NUMBER
+
     def error(self, message: str):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+_NUMBER = r"(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?"
+#: a negative number, or a comma list of numbers that starts with one (--currents -0.15,0.05,0.05)
+_NEGATIVE_NUMBER = re.compile(rf"^-{_NUMBER}(,-?{_NUMBER})*$")
 
 
 def build_parser() -> argparse.ArgumentParser:
