@@ -187,3 +187,15 @@ def test_the_budget_leaves_time_for_the_outputs(monkeypatch, tmp_path):
     assert got[0] == pytest.approx(60.0 - reserve) and got[0] < 60.0
     assert got[1] == pytest.approx(8.0 * (1 - run.OUTPUT_SHARE))
     assert got[2] is None
+
+
+def test_a_chain_too_short_for_diagnostics_reports_them_as_missing_without_arviz_warnings(tmp_path, capfd):
+    """A 1-step chain: R-hat and the bulk ESS are NaN (the CLI prints n/a), the run is not converged, and ArviZ's
+    two 'Shape validation failed' lines (printed beside the fit's own report before) are not called up."""
+    from bayestouch.inference import run
+
+    pts = np.asarray(sample_surface(TRUE, 400, seed=1)) + np.random.default_rng(1).normal(0, 3e-4, (400, 3))
+    s = run.run_contact_fit(pts, tmp_path / "r", steps=1, init="optimize", budget_s=None, progress=False)
+    assert np.isnan(s["parameters"]["a"]["r_hat"]) and not s["diagnostics"]["converged"]
+    captured = capfd.readouterr()
+    assert "Shape validation" not in captured.out + captured.err

@@ -254,8 +254,11 @@ def write_posterior(out: Path, chain, model: PosteriorModel, *, seed: int, t0: f
     nat = model.natural(kept.reshape(-1, D)).reshape(S, W, -1)
     flat = nat.reshape(-1, nat.shape[-1])
     post = _posterior_group(nat, model)
-    ess = az.ess(post, method="bulk")
-    rhat = az.rhat(post)
+    if S >= MIN_DIAGNOSTIC_DRAWS:
+        ess = az.ess(post, method="bulk")
+        rhat = az.rhat(post)
+    else:  # too short for R-hat and ESS (ArviZ would warn and give NaN): reported as n/a, the run not converged
+        ess = rhat = dict.fromkeys(model.names, float("nan"))
     params = {
         name: {**interval(nat[..., i]), "r_hat": float(rhat[name]), "ess_bulk": float(ess[name])}
         for i, name in enumerate(model.names)
@@ -375,6 +378,10 @@ def _attrs() -> dict:
 #: most values (draws × observations) of the log-likelihood and posterior-predictive groups: data sets larger than
 #: PREDICTIVE_DRAWS × 10,000 observations get fewer thinned draws there, so writing them stays seconds and MB
 OBSERVATION_VALUES = 5_000_000
+
+
+#: fewest kept draws per walker for R-hat and the bulk ESS (ArviZ's minimum)
+MIN_DIAGNOSTIC_DRAWS = 4
 
 
 def _in_batches(fn, draws, n_obs: int, values: int = 500_000) -> dict:
