@@ -98,15 +98,6 @@ def add_sbc_parser(sub) -> argparse.ArgumentParser:
     return ap
 
 
-def _kept_steps(steps: int, adapt: bool) -> int:
-    """The fewest steps a chain of ``steps`` keeps after burn-in (``inference.sampler._tau_and_burn``: at most half
-    of the chain after the first adaptation, or of the whole chain)."""
-    from bayestouch.inference.sampler import ADAPT_FIRST
-
-    seg = steps - (ADAPT_FIRST if adapt and steps > ADAPT_FIRST else 0)
-    return seg - seg // 2
-
-
 def check_sbc_args(a) -> None:
     """Refuse settings whose memory or time is out of reach, or that fail only after hours (BadInput)."""
     if a.area_term and a.no_area_term:
@@ -130,7 +121,9 @@ def check_sbc_args(a) -> None:
             f"--datasets × --draws must be at most {MAX_DATASET_DRAWS} (every draw is held in memory), got "
             f"{a.datasets} × {a.draws}; split the calibration into several runs with different --seed"
         )
-    kept = a.walkers * _kept_steps(a.steps, a.moves == "adaptive")
+    from bayestouch.inference.sampler import fewest_kept_steps
+
+    kept = a.walkers * fewest_kept_steps(a.steps, a.moves == "adaptive")
     if a.draws > kept:
         raise BadInput(
             f"--draws must be at most the {kept} draws a chain of {a.walkers} walkers × {a.steps} steps keeps after "

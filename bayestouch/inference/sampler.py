@@ -41,6 +41,7 @@ __all__ = [
     "ESS_MIN",
     "TAU_FACTOR",
     "ADAPT_FIRST",
+    "fewest_kept_steps",
 ]
 
 #: convergence thresholds (Vehtari et al. 2021 for R-hat and bulk ESS; emcee's docs for N > 50 τ)
@@ -571,6 +572,19 @@ def _thinned_time(seg: np.ndarray) -> np.ndarray:
     return integrated_time(seg)
 
 
+def _skipped(n: int, adapt: bool, first: int) -> int:
+    """Steps of a chain of ``n`` before the stretch τ and the burn-in are taken on: an adaptive chain's first
+    ``first`` (before its first adaptation), when it is longer."""
+    return first if adapt and n > first else 0
+
+
+def fewest_kept_steps(steps: int, adapt: bool, first: int = ADAPT_FIRST) -> int:
+    """The fewest steps a chain of ``steps`` keeps after burn-in (:func:`_tau_and_burn`: the burn-in is at most half
+    of the stretch after the skipped steps)."""
+    seg = steps - _skipped(steps, adapt, first)
+    return seg - _burn_in(seg, float("nan"))
+
+
 def _tau_and_burn(
     chain: np.ndarray, adapt: bool, first: int = ADAPT_FIRST, thin: bool = False
 ) -> tuple[np.ndarray, int, int]:
@@ -578,8 +592,7 @@ def _tau_and_burn(
     was estimated on. An adaptive chain is judged after its first adaptation (step ``first``), where the
     kernel of its kept draws begins; burn-in there is :func:`_burn_in` of that stretch. ``thin``: τ of a long
     chain from a thinned copy (:func:`_thinned_time`; the convergence checks), whose largest τ only is exact."""
-    n = chain.shape[0]
-    skip = first if adapt and n > first else 0
+    skip = _skipped(chain.shape[0], adapt, first)
     seg = chain[skip:]
     if len(seg) <= 1:
         tau = np.full(chain.shape[2], np.nan)
@@ -860,34 +873,32 @@ def sample(
         next_check = _next_check(next_check, check_every)
     seen = _MonitoredChain(monitor)
     if todo > 0:
-        interrupt = _DeferredInterrupt()
-        try:
-            interrupt.__enter__()
-            for i, _ in enumerate(
-                sampler.sample(
-                    start if start is not None else backend.get_last_sample(), iterations=todo, progress=progress
-                ),
-                start=1,
-            ):
-                if budget_s is not None and time.perf_counter() - t0 > budget_s and first + i >= min_steps:
-                    stopped = True
-                    break
-                if first + i in adapt_at:
-                    flush()
-                    adapt_to(first + i, backend.get_log_prob(), backend.get_chain())
-                if stop_when_converged and first + i >= next_check:
-                    next_check = _next_check(first + i, check_every)
-                    flush()
-                    chain = seen.extend(backend.get_chain())
-                    tau, burn, length = _tau_and_burn(chain, adapt, skip_to, thin=True)
-                    if old_tau is not None and _looks_converged(chain, tau, old_tau, burn, length):
+        with _DeferredInterrupt() as interrupt:
+            try:
+                for i, _ in enumerate(
+                    sampler.sample(
+                        start if start is not None else backend.get_last_sample(), iterations=todo, progress=progress
+                    ),
+                    start=1,
+                ):
+                    if budget_s is not None and time.perf_counter() - t0 > budget_s and first + i >= min_steps:
+                        stopped = True
                         break
-                    old_tau = tau
-                if interrupt.requested:
-                    break
-        finally:
-            interrupt.__exit__(None, None, None)
-            flush()
+                    if first + i in adapt_at:
+                        flush()
+                        adapt_to(first + i, backend.get_log_prob(), backend.get_chain())
+                    if stop_when_converged and first + i >= next_check:
+                        next_check = _next_check(first + i, check_every)
+                        flush()
+                        chain = seen.extend(backend.get_chain())
+                        tau, burn, length = _tau_and_burn(chain, adapt, skip_to, thin=True)
+                        if old_tau is not None and _looks_converged(chain, tau, old_tau, burn, length):
+                            break
+                        old_tau = tau
+                    if interrupt.requested:
+                        break
+            finally:
+                flush()
         if interrupt.requested:  # after the checkpoint is flushed, outside emcee (which prints a raised error)
             raise KeyboardInterrupt
     chain = backend.get_chain()
