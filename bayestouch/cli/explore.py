@@ -6,7 +6,6 @@ from __future__ import annotations
 import argparse
 import math
 import sys
-import time
 from pathlib import Path
 
 from bayestouch.cli.args import out_path
@@ -155,7 +154,7 @@ def run_explore(args) -> int:
     (the schema of ``bayestouch simulate``, rewritten after every stroke) and ``device.journal`` (every packet
     received) are written too; without ``--object`` there is no truth and the errors are unknown (NaN)."""
     from bayestouch.io.contacts import save_contact_points
-    from bayestouch.io.files import write_json
+    from bayestouch.io.files import move_aside, write_json
     from bayestouch.planning.loop import ExploreSettings, explore
     from bayestouch.planning.policies import check_policy
     from bayestouch.scene.objects import load_object, resolve_object
@@ -200,10 +199,7 @@ def run_explore(args) -> int:
         )
     kept = [f for f in earlier if f.name in recorded]
     if kept:
-        aside = out / f"replaced-{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}"
-        aside.mkdir(exist_ok=True)
-        for f in kept:
-            f.replace(aside / f.name)
+        aside = move_aside(out, kept)
         print(f"explore: the earlier run's {', '.join(f.name for f in kept)} moved to {aside}", file=sys.stderr)
     for f in earlier:  # --overwrite: no stale output of the earlier run is left beside the new ones
         if f.name not in recorded:

@@ -32,6 +32,8 @@ __all__ = [
     "write_text",
     "atomic_write",
     "atomic_path",
+    "utc_stamp",
+    "move_aside",
     "read_csv_records",
     "file_error",
     "ragged_error",
@@ -198,8 +200,7 @@ def atomic_path(path: str | os.PathLike[str], *, replace: bool = True) -> Iterat
                 if not clash:
                     os.replace(tmp, target)
             if clash:
-                stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
-                kept = target.with_name(f"{target.stem}.{stamp}{target.suffix}")
+                kept = target.with_name(f"{target.stem}.{utc_stamp()}{target.suffix}")
                 os.replace(tmp, kept)
                 raise BadInput(
                     f"{target} appeared while this run wrote it (another run writing the same name?); it is kept, "
@@ -209,6 +210,25 @@ def atomic_path(path: str | os.PathLike[str], *, replace: bool = True) -> Iterat
         with contextlib.suppress(OSError):
             tmp.unlink()
     _fsync_dir(target.parent)
+
+
+def utc_stamp() -> str:
+    """The current UTC time as it names kept files and folders: ``20261126T102857Z``."""
+    return time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
+
+
+def move_aside(folder: str | os.PathLike[str], paths) -> Path:
+    """Move the files ``paths`` into a new folder ``folder/replaced-<UTC time>`` (``.2``, ``.3`` … when that name
+    is taken) and return it: an earlier run's outputs kept, never deleted, where a new run replaces them."""
+    base = Path(folder) / f"replaced-{utc_stamp()}"
+    aside, k = base, 1
+    while aside.exists():
+        k += 1
+        aside = base.with_name(f"{base.name}.{k}")
+    aside.mkdir(parents=True)
+    for p in map(Path, paths):
+        p.replace(aside / p.name)
+    return aside
 
 
 def write_text(path: str | os.PathLike[str], text: str) -> Path:

@@ -19,12 +19,10 @@ Folders written before ``run.json`` existed resume as before (the chain's walker
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import json
 import os
 import sys
-import time
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -32,13 +30,13 @@ from typing import Any
 import numpy as np
 
 from bayestouch.errors import BadInput
-from bayestouch.io.files import write_json
+from bayestouch.io.files import move_aside, write_json
+from bayestouch.io.occupancy import OCCUPANCY_FILE
 
 try:  # POSIX; elsewhere run folders are not locked
     import fcntl
 except ImportError:  # pragma: no cover
     fcntl = None
-from bayestouch.io.occupancy import OCCUPANCY_FILE
 
 __all__ = [
     "FINGERPRINT_FILE",
@@ -197,15 +195,7 @@ def prepare_run_folder(out, fp: dict, *, resume: bool, overwrite: bool = False) 
                 "replace it, or choose another folder"
             )
         # set aside, not deleted: an interrupted or failed new run leaves the old result where the user finds it
-        aside = out / f"replaced-{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}"
-        k = 1
-        while aside.exists():
-            k += 1
-            aside = aside.with_name(f"{aside.name.split('.')[0]}.{k}")
-        aside.mkdir()
-        for name in OUTPUTS:
-            with contextlib.suppress(FileNotFoundError):
-                (out / name).rename(aside / name)
+        aside = move_aside(out, [out / name for name in OUTPUTS if (out / name).exists()])
         print(f"bayestouch: --overwrite: the previous run is kept in {aside} until you delete it", file=sys.stderr)
     write_json(path, fp)
     return out
