@@ -198,9 +198,18 @@ def candidate_thetas(points, seed: int, priors: cm.PriorParams, starts: int = 3)
     else:
         pj = every
 
-    def fg(t, on=None):
-        v, g = _neg_log_post_and_grad(jnp.asarray(t), pj if on is None else on, bounds, nu)
+    box = list(zip(lo, hi, strict=True))
+
+    def fg(t, on):
+        v, g = _neg_log_post_and_grad(jnp.asarray(t), on, bounds, nu)
         return float(v), np.asarray(g)
+
+    def polish(t0, on) -> tuple[float, np.ndarray]:
+        """L-BFGS-B from ``t0`` on the points ``on``: (value, θ), or ``t0``'s when the polish did not improve it."""
+        f = partial(fg, on=on)
+        v0 = f(t0)[0]
+        res = minimize(f, t0, jac=True, method="L-BFGS-B", bounds=box, options={"maxiter": 500})
+        return (float(res.fun), res.x) if np.isfinite(res.fun) and res.fun <= v0 else (v0, t0)
 
     results: list[tuple[float, np.ndarray]] = []
     polished: list[float] = []
@@ -214,25 +223,10 @@ def candidate_thetas(points, seed: int, priors: cm.PriorParams, starts: int = 3)
             lo + 1e-9 * (hi - lo),
             hi - 1e-9 * (hi - lo),
         )
-        v0 = fg(t0)[0]
-        res = minimize(
-            fg, t0, jac=True, method="L-BFGS-B", bounds=list(zip(lo, hi, strict=True)), options={"maxiter": 500}
-        )
-        t, val = (res.x, res.fun) if np.isfinite(res.fun) and res.fun <= v0 else (t0, v0)
-        results.append((float(val), t))
+        results.append(polish(t0, pj))
     ranked = [t for _, t in sorted(results, key=lambda r: r[0])]
     if pj is not every:  # the best start polished on every point
-        v0 = fg(ranked[0], every)[0]
-        res = minimize(
-            partial(fg, on=every),
-            ranked[0],
-            jac=True,
-            method="L-BFGS-B",
-            bounds=list(zip(lo, hi, strict=True)),
-            options={"maxiter": 500},
-        )
-        if np.isfinite(res.fun) and res.fun <= v0:
-            ranked[0] = res.x
+        ranked[0] = polish(ranked[0], every)[1]
     return ranked
 
 
