@@ -48,6 +48,7 @@ __all__ = [
     "free_space_terms",
     "OUTLIER_SCALE",
     "principal_frame",
+    "frame_normals",
     "PrincipalFrame",
 ]
 
@@ -331,14 +332,18 @@ def principal_frame(th, hom) -> PrincipalFrame:
     return PrincipalFrame(d, q, v, ss, R, a)
 
 
+def frame_normals(f: PrincipalFrame):
+    """The model surface's outward unit normals (W, 3, M) in the world frame at the points of a
+    :func:`principal_frame` (the gradient of G, normalised)."""
+    g = jnp.einsum("wkj,wjm->wkm", f.R, jnp.sign(f.q) * f.v)
+    return g / jnp.sqrt(jnp.sum(g * g, axis=1, keepdims=True) + _TINY)
+
+
 def _geometry(th, hom, want_normals: bool):
     """Residuals (W, M) m of the homogeneous points ``hom (4, M)`` for walkers ``th (W, D)``, and the model's
     outward unit normals in the world frame (W, 3, M) when ``want_normals``."""
     f = principal_frame(th, hom)
-    if not want_normals:
-        return f.d, None
-    g = jnp.einsum("wkj,wjm->wkm", f.R, jnp.sign(f.q) * f.v)
-    return f.d, g / jnp.sqrt(jnp.sum(g * g, axis=1, keepdims=True) + _TINY)
+    return f.d, frame_normals(f) if want_normals else None
 
 
 def _student_const(nu: float) -> float:

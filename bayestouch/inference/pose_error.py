@@ -57,8 +57,7 @@ def _stroke_log_lik(th, hom, onehot):
     """Log-likelihood (W,) of walkers ``th (W, 12)`` for homogeneous contacts ``hom (4, M)`` grouped by ``onehot
     (S, M)`` into strokes."""
     f = cm.principal_frame(th, hom)
-    g = jnp.einsum("wkj,wjm->wkm", f.R, jnp.sign(f.q) * f.v)
-    n = g / jnp.sqrt(jnp.sum(g * g, axis=1, keepdims=True) + 1e-300)  # (W, 3, M) outward unit normals
+    n = cm.frame_normals(f)  # (W, 3, M) outward unit normals
     d = f.d  # (W, M)
     s2 = jnp.exp(2.0 * th[:, 10])[:, None]  # (W, 1)
     t2 = jnp.exp(2.0 * th[:, 11])[:, None]
