@@ -197,20 +197,19 @@ def pad_path(
 
 @jax.jit
 def _foot(surf: Surface, x):
-    """Foot point on the surface, outward normal and signed distance of points ``x (T, 3)`` in metres: two
-    projections along the signed distance's gradient."""
+    """Foot point on the surface, outward normal and signed distance of points ``x (T, 3)`` in metres: three
+    projections along the signed distance's gradient (the first one's value is the points' signed distance)."""
+
+    phi_and_grad = jax.value_and_grad(lambda q: signed_distance(surf, q))
 
     def one(p):
-        grad = jax.grad(lambda q: signed_distance(surf, q))
-
         def step(q, _):
-            g = grad(q)
-            n = g / jnp.linalg.norm(g)
-            return q - signed_distance(surf, q) * n, None
+            phi, g = phi_and_grad(q)
+            return q - phi * g / jnp.linalg.norm(g), phi
 
-        foot, _ = jax.lax.scan(step, p, None, length=3)
-        g = grad(foot)
-        return foot, g / jnp.linalg.norm(g), signed_distance(surf, p)
+        foot, phis = jax.lax.scan(step, p, None, length=3)
+        _, g = phi_and_grad(foot)
+        return foot, g / jnp.linalg.norm(g), phis[0]
 
     return jax.vmap(one)(x)
 
