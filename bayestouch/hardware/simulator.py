@@ -215,15 +215,9 @@ class VirtualDevice:
             if not link.is_symlink():
                 os.symlink(port, link)  # fails, replacing nothing, if something appeared there meanwhile
             else:
-                for _ in range(100):
-                    tmp = link.with_name(f".{link.name}.{os.getpid()}.{os.urandom(6).hex()}.tmp")
-                    try:
-                        os.symlink(port, tmp)
-                        break
-                    except FileExistsError:
-                        continue
-                else:
-                    raise FileExistsError(f"no free temporary name beside {link}")
+                # 48 random bits and the process id: a name no other file has (os.symlink refuses one that exists)
+                tmp = link.with_name(f".{link.name}.{os.getpid()}.{os.urandom(6).hex()}.tmp")
+                os.symlink(port, tmp)
                 try:
                     if not self._link_replaceable():  # checked again: it could have changed since
                         raise FileExistsError(f"{link} is no longer a link to a pty")
