@@ -179,10 +179,10 @@ def run_explore(args) -> int:
         raise BadInput("--centre: expected the object's nominal centre X,Y,Z in metres when --port has no --object")
     if port is not None and args.planner == "oracle":
         raise BadInput("--planner oracle needs the simulated truth; use eig, random or coverage with --port")
-    if getattr(args, "timeout", None) is not None and getattr(args, "port", None) is None:
+    timeout = getattr(args, "timeout", None)
+    if timeout is not None and port is None:
         raise BadInput("--timeout applies to a finger on --port; without --port the strokes are simulated")
-    if getattr(args, "timeout", None) is None:
-        args.timeout = 0.3
+    args.timeout = 0.3 if timeout is None else timeout
     if not (0.01 <= args.timeout <= 60):
         raise BadInput(f"--timeout must be in [0.01, 60] seconds, got {args.timeout}")
     out = Path(args.out)

@@ -186,25 +186,25 @@ def check_recording(ds, where: str = "recording") -> None:
                 "recording, not a measurement"
             )
     if "taxel_current" in ds:
-        cur = np.asarray(ds["taxel_current"].values, dtype=float)
-        if cur.size and np.mean(cur < 0) > 0.5:
+        negative = np.mean(np.asarray(ds["taxel_current"].values, dtype=float) < 0) if ds["taxel_current"].size else 0
+        if negative > 0.5:
             raise BadInput(
-                f"{where}: 'taxel_current' is negative in {np.mean(cur < 0):.0%} of its values; the taxels' drain "
+                f"{where}: 'taxel_current' is negative in {negative:.0%} of its values; the taxels' drain "
                 "currents are positive (a sign flipped in the read-out?)"
             )
     if "contact_normal" in ds:
-        length = np.linalg.norm(np.asarray(ds["contact_normal"].values, dtype=float), axis=-1)
-        if np.any(~(length > 0.5)):
+        short = ~(np.linalg.norm(np.asarray(ds["contact_normal"].values, dtype=float), axis=-1) > 0.5)
+        if short.any():
             raise BadInput(
-                f"{where}: 'contact_normal' has {int(np.sum(~(length > 0.5)))} vector(s) that are not unit normals "
-                f"(first at frame {int(np.argmax(~(length > 0.5)))}); expected unit outward normals"
+                f"{where}: 'contact_normal' has {int(short.sum())} vector(s) that are not unit normals "
+                f"(first at frame {int(np.argmax(short))}); expected unit outward normals"
             )
     if "time" in ds and "stroke_index" in ds:
         t = np.asarray(ds["time"].values, dtype=float)
         k = np.asarray(ds["stroke_index"].values)
-        same = k[1:] == k[:-1]
-        if np.any(same & ~(np.diff(t) > 0)):
-            i = int(np.argmax(same & ~(np.diff(t) > 0))) + 1
+        stalled = (k[1:] == k[:-1]) & ~(np.diff(t) > 0)
+        if stalled.any():
+            i = int(np.argmax(stalled)) + 1
             raise BadInput(
                 f"{where}: 'time' does not increase within stroke {int(k[i])} (frame {i}: {t[i - 1]:g} s then "
                 f"{t[i]:g} s); expected strictly increasing times within each stroke"
