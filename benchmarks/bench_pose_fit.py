@@ -28,9 +28,8 @@ import time
 import arviz as az
 import numpy as np
 from scipy.spatial.transform import Rotation
-from scipy.special import gammaln
 
-from bayestouch.backend import jnp
+from bayestouch.backend import jax, jnp
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.inference import contact as cm
 from bayestouch.inference import pose_error as pe
@@ -53,10 +52,11 @@ WALKERS = 32
 
 
 def _volume(theta) -> np.ndarray:
-    """n-ellipsoid volumes (S,) m³ of θ draws (S, ≥ 10) (eq. 11)."""
-    a = np.exp(theta[:, 3:6])
-    n = np.exp(theta[:, 9])
-    return 8.0 * np.prod(a, axis=1) * np.exp(3 * gammaln(1 + 1 / n) - gammaln(1 + 3 / n))
+    """n-ellipsoid volumes (S,) m³ of θ draws (S, ≥ 10) (eq. 11, :func:`bayestouch.geometry.nellipsoid.volume`)."""
+    return np.asarray(_volumes(jnp.asarray(np.asarray(theta)[:, :10])))
+
+
+_volumes = jax.jit(jax.vmap(lambda t: ne.volume(cm.shape_of(t))))
 
 
 def _contacts(rng: np.random.Generator):
@@ -76,7 +76,7 @@ def _contacts(rng: np.random.Generator):
         dirs = np.cos(t)[:, None] * u + np.sin(t)[:, None] * v
         pts.append(np.asarray(ne.project_to_surface(shape, jnp.asarray(0.01 * dirs))))
         lab.append(np.full(PER_STROKE, s))
-    vol = 8.0 * np.prod(axes) * np.exp(3 * gammaln(1 + 1 / n) - gammaln(1 + 3 / n))
+    vol = float(ne.volume(shape))
     return np.concatenate(pts), np.concatenate(lab), vol
 
 
