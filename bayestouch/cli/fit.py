@@ -177,6 +177,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
 def _contacts(args):
     """The contact file of ``fit DATA``, ``--subsample`` applied (seeded by ``--seed``), at most
     :data:`MAX_CONTACTS` contacts: the data of the single fit and of the parts fit alike."""
+    from bayestouch.inference.contact import load_priors
     from bayestouch.io.contacts import load_contact_points
 
     cp = load_contact_points(args.points)
@@ -190,8 +191,6 @@ def _contacts(args):
                 normals=None if cp.normals is None else cp.normals[keep],
                 force=None if cp.force is None else cp.force[keep],
             )
-    from bayestouch.inference.contact import load_priors
-
     axis_max = load_priors().axis_max
     half = 0.5 * float(np.max(np.ptp(cp.points, axis=0)))
     if half > axis_max:

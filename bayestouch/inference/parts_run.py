@@ -33,7 +33,7 @@ from bayestouch.geometry.mesh import to_trimesh
 from bayestouch.geometry.symmetry import align_batch
 from bayestouch.inference import contact as cm
 from bayestouch.inference import parts as pm
-from bayestouch.inference.posterior import MIN_DIAGNOSTIC_DRAWS, interval
+from bayestouch.inference.posterior import interval, rhat_and_ess
 from bayestouch.inference.run import MIN_CHAIN_STEPS, sampling_budget, smc_moves, smc_stage
 from bayestouch.inference.sampler import convergence, sample
 from bayestouch.io.files import atomic_path, write_json
@@ -211,10 +211,7 @@ def write_parts_outputs(out: Path, chain, k: int, points, *, seed: int, t0: floa
     post = _parts_dataset(c, k, S, W)
 
     mds = xr.Dataset({f"q{i}": (("chain", "draw"), mon[..., i]) for i in range(mon.shape[-1])})
-    if S >= MIN_DIAGNOSTIC_DRAWS:
-        rhat, ess = az.rhat(mds), az.ess(mds, method="bulk")
-    else:  # too short for R-hat and ESS: n/a, not converged
-        rhat = ess = dict.fromkeys(mds, float("nan"))
+    rhat, ess = rhat_and_ess(mds)
     diag = convergence([float(rhat[v]) for v in mds], [float(ess[v]) for v in mds], chain)
 
     rng = np.random.default_rng([seed, 0x7A2])

@@ -53,6 +53,8 @@ __all__ = [
     "write_posterior",
     "inference_data",
     "interval",
+    "rhat_and_ess",
+    "MIN_DIAGNOSTIC_DRAWS",
     "uncertainty_spread",
     "vmf_sample",
     "PREDICTIVE_DRAWS",
@@ -254,11 +256,7 @@ def write_posterior(out: Path, chain, model: PosteriorModel, *, seed: int, t0: f
     nat = model.natural(kept.reshape(-1, D)).reshape(S, W, -1)
     flat = nat.reshape(-1, nat.shape[-1])
     post = _posterior_group(nat, model)
-    if S >= MIN_DIAGNOSTIC_DRAWS:
-        ess = az.ess(post, method="bulk")
-        rhat = az.rhat(post)
-    else:  # too short for R-hat and ESS (ArviZ would warn and give NaN): reported as n/a, the run not converged
-        ess = rhat = dict.fromkeys(model.names, float("nan"))
+    rhat, ess = rhat_and_ess(post)
     params = {
         name: {**interval(nat[..., i]), "r_hat": float(rhat[name]), "ess_bulk": float(ess[name])}
         for i, name in enumerate(model.names)
@@ -382,6 +380,16 @@ OBSERVATION_VALUES = 5_000_000
 
 #: fewest kept draws per walker for R-hat and the bulk ESS (ArviZ's minimum)
 MIN_DIAGNOSTIC_DRAWS = 4
+
+
+def rhat_and_ess(post: xr.Dataset) -> tuple:
+    """Rank-normalised R-hat and bulk ESS of every variable of ``post`` (dims chain, draw), each indexable by the
+    variable's name; NaN for all when the chains are shorter than :data:`MIN_DIAGNOSTIC_DRAWS` (reported as n/a and
+    not converged, without ArviZ's "Shape validation failed" warnings)."""
+    if post.sizes["draw"] >= MIN_DIAGNOSTIC_DRAWS:
+        return az.rhat(post), az.ess(post, method="bulk")
+    missing = dict.fromkeys(post.data_vars, float("nan"))
+    return missing, missing
 
 
 def _in_batches(fn, draws, n_obs: int, values: int = 500_000) -> dict:
