@@ -1,5 +1,6 @@
-"""Hardware adapter: frame throughput at 16 × 16 taxels over a pseudo-terminal, command round-trip latency, and
-the pure protocol's encode/decode rate.
+"""Hardware adapter: frame throughput at 16 × 16 taxels over a pseudo-terminal, command round-trip latency, the
+pure protocol's encode/decode rate, and strokes delivered whole over a link that loses bytes (whole packets
+against segment mode, PROTOCOL.md §9).
 
 The virtual finger serves frames as fast as it can (``speed = 0``, the synthetic frame model, so the forward
 model's cost is not in the numbers); the client is :class:`~bayestouch.hardware.device.FingerDevice` with real
@@ -16,10 +17,11 @@ from pathlib import Path
 import numpy as np
 
 from bayestouch.hardware import protocol as pr
-from bayestouch.hardware.device import FingerDevice
-from bayestouch.hardware.frame_models import SyntheticModel
+from bayestouch.hardware.device import DeviceError, FingerDevice
+from bayestouch.hardware.frame_models import FRAME_KEYS, SyntheticModel
 from bayestouch.hardware.safety import StrokePlan
-from bayestouch.hardware.simulator import VirtualDevice
+from bayestouch.hardware.simulator import Faults, VirtualDevice
+from benchmarks.bench_user_sets import bootstrap_median, wilson_interval
 from benchmarks.harness import best_of
 
 T = 1000  # frames per stroke (the protocol's longest stroke plan)
@@ -93,3 +95,78 @@ def bench_protocol_pure():
         {"metric": "FRAME encode (16x16), frames/s", "value": 1 / enc, "unit": "1/s", "bytes": len(raw)},
         {"metric": "FRAME stream decode (16x16), frames/s", "value": 1 / dec, "unit": "1/s", "bytes": len(raw)},
     ]
+
+
+#: byte-loss probabilities (each byte, both directions) of the lossy-link benchmark
+LOSS_RATES = (0.0, 1e-3, 5e-3, 1e-2, 2e-2)
+LOSS_RUNS = 5  # sessions per rate and mode (fault seeds 0 … 4)
+LOSS_STROKES, LOSS_T = 3, 50  # strokes per session, frames per stroke
+
+
+class _Kept(SyntheticModel):
+    """The synthetic model, keeping what it produced for each stroke (the truth a delivered stroke must equal)."""
+
+    def __init__(self):
+        super().__init__(16, 16, seed=1)
+        self.out: dict[int, dict] = {}
+
+    def __call__(self, plan, index):
+        self.out[index] = r = super().__call__(plan, index)
+        return r
+
+
+def _session(rate: float, segment: int | None, seed: int) -> dict:
+    """One session over a lossy link: handshake and LOSS_STROKES strokes; whether every stroke came back whole
+    and equal to what the device produced, and the wall time."""
+    with tempfile.TemporaryDirectory() as tmp:
+        link = Path(tmp) / "finger"
+        faults = Faults(drop=rate, inbound=True, seed=seed)
+        t0 = time.perf_counter()
+        with VirtualDevice(_Kept(), speed=0.0, faults=faults, link=link) as sim:
+            dev = FingerDevice(str(link), segment=segment, connect_timeout=10.0, stroke_timeout=60.0)
+            try:
+                dev.open()
+                got = [dev.run_stroke(_plan(LOSS_T)) for _ in range(LOSS_STROKES)]
+                ok = len(sim.model.out) == LOSS_STROKES and all(
+                    np.array_equal(g.frames[k], np.asarray(sim.model.out[i][k], np.float32).astype(float))
+                    for i, g in enumerate(got)
+                    for k in FRAME_KEYS
+                )
+                error = "" if ok else "a stroke differs from what the device produced"
+            except DeviceError as e:
+                ok, error = False, str(e)
+            finally:
+                dev.close()
+        return {"ok": ok, "seconds": time.perf_counter() - t0, "error": error, "segmented": dev.stats["segmented"]}
+
+
+def bench_link_loss():
+    out = []
+    for rate in LOSS_RATES:
+        for mode, segment in (("whole packets", 0), ("automatic segment mode", None)):
+            runs = [_session(rate, segment, seed) for seed in range(LOSS_RUNS)]
+            k = sum(r["ok"] for r in runs)
+            lo, hi = wilson_interval(k, LOSS_RUNS)
+            secs = [r["seconds"] / LOSS_STROKES if r["ok"] else np.inf for r in runs]
+            med, mlo, mhi = (v if np.isfinite(v) else None for v in bootstrap_median(secs))  # None: failed runs
+            print(f"  loss {rate:g}, {mode}: {k}/{LOSS_RUNS} sessions whole, median {med} s/stroke", flush=True)
+            out.append(
+                {
+                    "metric": f"sessions delivered whole at {rate:g} byte loss each way, {mode}",
+                    "value": k / LOSS_RUNS,
+                    "unit": "fraction",
+                    "ci95": [lo, hi],
+                    "sessions": LOSS_RUNS,
+                    "strokes_per_session": LOSS_STROKES,
+                    "frames_per_stroke": LOSS_T,
+                    "taxels": 256,
+                    "loss_per_byte": rate,
+                    "segment": "auto" if segment is None else segment,
+                    "segmented_sessions": sum(bool(r["segmented"]) for r in runs),
+                    "seconds_per_stroke_median": med,  # a failed session counts as infinitely slow
+                    "seconds_per_stroke_ci95": [mlo, mhi],
+                    "errors": sorted({r["error"] for r in runs if r["error"]}),
+                    "transport": "pty, same process, device speed 0 (as fast as the line allows)",
+                }
+            )
+    return out

@@ -147,6 +147,29 @@ def _pose_fit(d: dict) -> tuple[str, str, str]:
     )
 
 
+def _link_loss(doc: dict) -> tuple[str, str, str]:
+    rows = [r for r in doc["results"] if r["benchmark"] == "bench_link_loss"]
+    first = rows[0]
+
+    def cell(r) -> str:
+        t = r["seconds_per_stroke_median"]
+        return f"{r['value'] * r['sessions']:.0f}/{r['sessions']}" + (f" ({t:.2f} s/stroke)" if t is not None else "")
+
+    by_rate: dict[float, dict[str, dict]] = {}
+    for r in rows:
+        by_rate.setdefault(r["loss_per_byte"], {})[str(r["segment"])] = r
+    parts = [
+        f"{_pct(rate, 1)}: whole packets {cell(m['0'])}, automatic {cell(m['auto'])}" for rate, m in by_rate.items()
+    ]
+    return (
+        f"Strokes over a link that loses bytes, both ways (virtual finger on a pty; sessions of "
+        f"{first['strokes_per_session']} strokes × {first['frames_per_stroke']} frames × {first['taxels']} taxels, "
+        "each delivered whole and equal to what the device produced; protocol revision 1.2 segment mode)",
+        "sessions delivered whole — " + "; ".join(parts),
+        "`bench_device` (`benchmarks/results/bench_device.json`)",
+    )
+
+
 def _sparse(doc: dict) -> tuple[str, str, str]:
 
     def val(metric: str, method: str) -> float:
@@ -252,6 +275,7 @@ ROWS: tuple[tuple[str, Callable[[dict], tuple[str, str, str]]], ...] = (
     ("bench_sparse.json", _sparse),
     ("bench_planners.json", _planners),
     ("bench_samplers.json", _samplers),
+    ("bench_device.json", _link_loss),
 )
 
 

@@ -45,6 +45,12 @@ TABLE = [
     ("device simulate --model synthetic --delay nan", "--delay"),
     ("device simulate --model synthetic --delay 1e9", "--delay"),
     ("device simulate --model synthetic --delay -1", "--delay"),
+    # segment mode (protocol revision 1.2): auto, 0 or a part size the protocol allows
+    ("device run --port {tmp}/none --out {tmp}/r.nc --segment 8", "--segment"),
+    ("device run --port {tmp}/none --out {tmp}/r.nc --segment 70000", "--segment"),
+    ("device run --port {tmp}/none --out {tmp}/r.nc --segment -1", "--segment"),
+    ("device run --port {tmp}/none --out {tmp}/r.nc --segment big", "--segment"),
+    ("explore --out {tmp}/e --segment 48", "--segment applies to a finger on --port"),
 ]
 
 

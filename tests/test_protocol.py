@@ -88,6 +88,8 @@ def _messages(n_taxels: int = 256, T: int = 7) -> list:
             0.0123456789,
             g.normal(size=3) * 0.01,
         ),
+        pr.Segment(48),
+        pr.Part(0xDEADBEEF, 300, 48, np.arange(48, dtype=np.uint8)),
     ]
 
 
@@ -173,7 +175,7 @@ def test_decode_rejects_tampering():
 
 
 def test_decoder_streams_split_packets_and_discards_overlong_garbage():
-    msgs = _messages()
+    msgs = [m for m in _messages() if not isinstance(m, pr.Part)]  # a lone part is held, not delivered
     stream = b"".join(pr.encode(m, i) for i, m in enumerate(msgs))
     dec = pr.Decoder()
     got = []
@@ -200,7 +202,7 @@ def test_decoder_survives_garbage(data):
     assert dec.bad + dec.good <= data.count(0) + 2
 
 
-_SMALL = [pr.Ack(1), pr.Resend(5, 6, 7), pr.StrokeDone(1, 2, 0), pr.Nak(4, 1, "x"), _messages(16)[-2], _messages(16)[1]]
+_SMALL = [pr.Ack(1), pr.Resend(5, 6, 7), pr.StrokeDone(1, 2, 0), pr.Nak(4, 1, "x"), _messages(16)[12], _messages(16)[1]]
 
 
 @given(st.lists(st.sampled_from(range(len(_SMALL))), min_size=1, max_size=12), st.data())
@@ -223,3 +225,110 @@ def test_decoder_rejects_and_counts_every_damaged_packet(kinds, data):
     assert [s for s, _ in out] == [i for i in range(len(packets)) if i not in damaged]
     assert dec.bad == len(damaged)
     assert all(_same(m, _as_sent(_SMALL[kinds[s]])) for s, m in out)
+
+
+# ---------------------------------------------------------------- segmented packets (revision 1.2)
+
+
+def _lossy(wire: bytes, rate: float, rng: np.random.Generator) -> bytes:
+    keep = rng.random(len(wire)) >= rate
+    return np.frombuffer(wire, np.uint8)[keep].tobytes()
+
+
+def test_split_parts_reassemble_in_any_order_to_the_same_packet():
+    frame = _messages()[10]
+    wire = pr.encode(frame, 777)
+    parts = pr.split(wire, 48)
+    n = -(-len(pr.cobs_decode(wire[:-1])) // 48)
+    assert parts.count(0) == n > 20  # a 1.1 kB frame in 48-byte parts
+    assert pr.split(wire, 0) == wire and pr.split(pr.encode(pr.Ack(3), 1), 48) == pr.encode(pr.Ack(3), 1)
+    packets = [p + b"\x00" for p in parts.split(b"\x00")[:-1]]
+    rng = np.random.default_rng(0)
+    dec = pr.Decoder()
+    out = []
+    for i in rng.permutation(len(packets)):
+        out += dec.feed(packets[i])
+    assert len(out) == 1 and out[0][0] == 777 and _same(out[0][1], _as_sent(frame))
+    assert (dec.good, dec.parts, dec.bad) == (1, n, 0)
+    # all but one part: nothing is delivered
+    dec = pr.Decoder()
+    assert dec.feed(b"".join(packets[:-1])) == [] and len(dec._partial) == 1
+
+
+def test_parts_of_different_packets_have_different_keys():
+    # the key is the packet's own CRC: a CRC-32 over a body that ends in its CRC is the constant residue, so a key
+    # taken that way would let every frame complete every other one
+    keys = set()
+    for i in range(5):
+        frame = _messages()[10]._replace(index=i)
+        _, part = pr.decode_packet(pr.split(pr.encode(frame, i), 48).split(b"\x00")[0])
+        keys.add(part.key)
+    assert len(keys) == 5
+
+
+def test_parts_of_several_lossy_transmissions_combine():
+    # at 1 % byte loss a whole 1.1 kB frame arrives with probability 0.99^1124 ≈ 1e-5: never in 40 tries; its
+    # 48-byte parts arrive with probability ≈ 0.47 each, so a few transmissions together bring every part
+    frame = _messages()[10]
+    wire = pr.encode(frame, 5)
+    rng = np.random.default_rng(1)
+    whole = pr.Decoder()
+    assert not any(whole.feed(_lossy(wire, 0.01, rng)) for _ in range(40))
+    dec = pr.Decoder()
+    tries, out = 0, []
+    while not out and tries < 40:
+        out = dec.feed(_lossy(pr.split(wire, 48), 0.01, rng) + b"\x00")
+        tries += 1
+    assert out and 2 <= tries <= 20 and _same(out[0][1], _as_sent(frame))
+    assert dec.bad > 0  # damaged parts were seen and dropped
+
+
+def test_a_completed_packet_sent_again_is_delivered_again_once():
+    # a command retried because its answer was lost must reach the device again, once per transmission
+    wire = pr.split(pr.encode(_messages()[1], 9), 48)
+    dec = pr.Decoder()
+    assert len(dec.feed(wire)) == 1
+    assert [s for s, _ in dec.feed(wire)] == [9]
+    later = wire[wire.index(0) + 1 :]  # without its first part: the others alone deliver nothing
+    assert dec.feed(later) == []
+
+
+def test_decoder_rejects_malformed_parts():
+    body = pr.cobs_decode(pr.encode(_messages()[1], 4)[:-1])
+    (crc,) = np.frombuffer(body[-4:], "<u4")
+    dec = pr.Decoder()
+    bad = [
+        pr.Part(int(crc), len(body), len(body) - 2, np.zeros(8, np.uint8)),  # runs past the packet's end
+        pr.Part(int(crc), 5, 0, np.zeros(5, np.uint8)),  # shorter than header + CRC
+        pr.Part(int(crc), pr.MAX_PACKET + 1, 0, np.zeros(8, np.uint8)),  # longer than any packet
+        pr.Part(int(crc), len(body), 0, np.zeros(0, np.uint8)),  # empty
+    ]
+    assert dec.feed(b"".join(pr.encode(m, 1) for m in bad)) == [] and dec.bad == 4
+    # complete, but not the packet its key names: rejected
+    wrong = bytearray(body)
+    wrong[8] ^= 1
+    assert dec.feed(pr.encode(pr.Part(int(crc), len(wrong), 0, np.frombuffer(bytes(wrong), np.uint8)), 2)) == []
+    assert dec.bad == 5
+    # a part inside a part
+    inner = pr.cobs_decode(pr.encode(bad[0], 3)[:-1])
+    (ic,) = np.frombuffer(inner[-4:], "<u4")
+    assert dec.feed(pr.encode(pr.Part(int(ic), len(inner), 0, np.frombuffer(inner, np.uint8)), 3)) == []
+    assert dec.bad == 6 and "part inside a part" in dec.last_error
+    # the good parts of the same packet still complete it
+    assert len(dec.feed(pr.split(pr.encode(_messages()[1], 4), 32))) == 1
+
+
+def test_decoder_holds_a_bounded_number_of_incomplete_packets():
+    size = len(pr.cobs_decode(pr.encode(_messages()[10], 0)[:-1]))
+    dec = pr.Decoder(max_partial_bytes=8 * size)
+    for i in range(50):
+        first = pr.split(pr.encode(_messages()[10]._replace(index=i), i), 48).split(b"\x00")[0] + b"\x00"
+        dec.feed(first)
+    assert len(dec._partial) == 8 and dec._held == 8 * size
+    # a hostile stream of parts of the largest packets holds no more than the budget
+    dec = pr.Decoder()
+    for k in range(600):
+        dec.feed(pr.encode(pr.Part(k, pr.MAX_PACKET, 0, np.zeros(16, np.uint8)), k))
+    assert dec._held <= dec.max_partial_bytes and len(dec._partial) == dec.max_partial_bytes // pr.MAX_PACKET
+    with pytest.raises(ValueError, match="segment size"):
+        pr.split(pr.encode(_messages()[10], 1), 8)

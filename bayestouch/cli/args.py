@@ -12,6 +12,7 @@ from bayestouch.errors import BadInput
 
 __all__ = [
     "seed",
+    "segment",
     "positive_int",
     "size_list",
     "one_size",
@@ -43,6 +44,22 @@ def positive_int(text: str) -> int:
         raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
     if v < 1:
         raise argparse.ArgumentTypeError(f"expected a positive integer, got {v}")
+    return v
+
+
+def segment(text: str) -> int | None:
+    """``--segment``: ``auto`` (None), 0 (whole packets) or a PART size in bytes (protocol revision 1.2)."""
+    from bayestouch.hardware.protocol import MAX_PACKET, MIN_SEGMENT
+
+    expected = f"expected auto, 0 (whole packets) or a part size of {MIN_SEGMENT}–{MAX_PACKET} bytes"
+    if text.strip().lower() == "auto":
+        return None
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{expected}, got {text!r}") from None
+    if v != 0 and not MIN_SEGMENT <= v <= MAX_PACKET:
+        raise argparse.ArgumentTypeError(f"{expected}, got {v}")
     return v
 
 

@@ -17,6 +17,7 @@ import numpy as np
 
 from bayestouch.cli.args import bounded_int, out_path
 from bayestouch.cli.args import seed as seed_arg
+from bayestouch.cli.args import segment as segment_arg
 from bayestouch.errors import BadInput
 from bayestouch.params import MODELS
 
@@ -149,6 +150,13 @@ def add_device_parser(subparsers) -> argparse.ArgumentParser:
     rp.add_argument("--depth", type=float, default=3e-4, help="pressing depth in metres (default 3e-4)")
     rp.add_argument("--currents", default="0.15,0.05,0.05", help="wire hold currents, A (default 0.15,0.05,0.05)")
     rp.add_argument("--timeout", type=float, default=0.3, help="seconds to wait for an answer before a retry")
+    rp.add_argument(
+        "--segment",
+        type=segment_arg,
+        default=None,
+        help="packets on a lossy link (protocol 1.2): auto (default: parts of 48 bytes once whole packets do not get "
+        "through), 0 (always whole) or a part size in bytes",
+    )
     rp.add_argument(
         "--journal",
         type=Path,
@@ -356,7 +364,7 @@ def _run(args) -> int:
         "software": f"bayestouch {__version__}",
         "object": "unknown (device)" if args.stroke_file else f"device; strokes planned on {args.object}",
     }
-    dev = FingerDevice(args.port, timeout=args.timeout, journal=journal, limits=limits)
+    dev = FingerDevice(args.port, timeout=args.timeout, journal=journal, limits=limits, segment=args.segment)
 
     def keep(note: str) -> None:
         """Write the complete strokes so far (marked incomplete) and say where everything received is."""

@@ -10,6 +10,7 @@ from pathlib import Path
 
 from bayestouch.cli.args import out_path
 from bayestouch.cli.args import seed as seed_arg
+from bayestouch.cli.args import segment as segment_arg
 from bayestouch.errors import BadInput
 
 __all__ = ["add_planning_parsers", "run_explore", "run_experiment"]
@@ -65,6 +66,13 @@ def add_planning_parsers(subparsers) -> tuple[argparse.ArgumentParser, argparse.
     )
     ep.add_argument(
         "--timeout", type=float, default=None, help="with --port: seconds to wait for an answer (default 0.3)"
+    )
+    ep.add_argument(
+        "--segment",
+        type=segment_arg,
+        default=False,  # not given (False, not a string: argparse leaves it unconverted)
+        help="with --port: packets on a lossy link (protocol 1.2): auto (default: parts of 48 bytes once whole "
+        "packets do not get through), 0 (always whole) or a part size in bytes",
     )
     ep.add_argument(
         "--planner", default="eig", help="eig, random, coverage, gpis (GPIS max-variance) or oracle (default eig)"
@@ -182,6 +190,10 @@ def run_explore(args) -> int:
     timeout = getattr(args, "timeout", None)
     if timeout is not None and port is None:
         raise BadInput("--timeout applies to a finger on --port; without --port the strokes are simulated")
+    segment = getattr(args, "segment", False)
+    if segment is not False and port is None:
+        raise BadInput("--segment applies to a finger on --port; without --port the strokes are simulated")
+    args.segment = None if segment is False else segment
     args.timeout = 0.3 if timeout is None else timeout
     if not (0.01 <= args.timeout <= 60):
         raise BadInput(f"--timeout must be in [0.01, 60] seconds, got {args.timeout}")
@@ -276,7 +288,7 @@ def _explore_device(obj, args, port: str, out: Path, kw: dict):
         "software": f"bayestouch {__version__}",
         "object": f"device; truth {obj.name}" if obj is not None else "unknown (device)",
     }
-    dev = FingerDevice(port, timeout=args.timeout, journal=journal)
+    dev = FingerDevice(port, timeout=args.timeout, journal=journal, segment=args.segment)
     prober = None
     try:
         with dev:

@@ -46,7 +46,12 @@ __all__ = [
     "winkler_depth",
     "depth_for_force",
     "frame_problem",
+    "AUTO_SEGMENT",
 ]
+
+#: PART size (packet bytes) chosen when whole packets do not get through: with 28 bytes of framing per part it
+#: carries the most data per byte sent at 0.5–2 % byte loss (48 / 76 of each part, 47 % of parts whole at 1 %)
+AUTO_SEGMENT = 48
 
 
 class DeviceError(RuntimeError):
@@ -231,6 +236,11 @@ class FingerDevice:
         The client's own limits; the tighter of these and the device's apply.
     handshake : bool
         Send HELLO on :meth:`open` (off: only for tests of what is written before any handshake).
+    segment : int or None, bytes
+        Segmented packets (protocol revision 1.2, PROTOCOL.md §9) for a link that loses bytes: None (default)
+        switches to PARTs of :data:`AUTO_SEGMENT` bytes when whole packets do not get through (a handshake that
+        fails with damaged packets arriving, or a stroke whose frames are still missing after ``retries`` rounds
+        of RESEND); 0 never; a size ≥ :data:`~bayestouch.hardware.protocol.MIN_SEGMENT` from the handshake on.
     """
 
     def __init__(
@@ -248,9 +258,16 @@ class FingerDevice:
         limits: Limits | None = None,
         handshake: bool = True,
         baudrate: int = 921600,
+        segment: int | None = None,
     ):
         if not url:
             raise BadInput("--port: expected a serial port path or a pyserial URL like loop://, got nothing")
+        if segment is not None and (segment < 0 or 0 < segment < pr.MIN_SEGMENT or segment > pr.MAX_PACKET):
+            raise BadInput(
+                f"--segment: expected 0 (whole packets) or {pr.MIN_SEGMENT}–{pr.MAX_PACKET} bytes, got {segment}"
+            )
+        self.segment = segment
+        self._segment = 0  # the PART size in use (0: whole packets)
         self.url, self.timeout, self.retries = str(url), float(timeout), int(retries)
         self.connect_timeout, self.stroke_timeout = float(connect_timeout), float(stroke_timeout)
         self.reconnects, self.reconnect_wait, self.redo = int(reconnects), float(reconnect_wait), int(redo)
@@ -274,6 +291,7 @@ class FingerDevice:
             "frames": 0,
             "duplicate_frames": 0,
             "bad_frames": 0,
+            "segmented": 0,
         }
 
     # ------------------------------------------------------------ connection
@@ -371,7 +389,7 @@ class FingerDevice:
     def _send(self, msg) -> tuple[int, bytes]:
         seq = self._seq
         self._seq = (self._seq + 1) & 0xFFFF
-        raw = pr.encode(msg, seq)
+        raw = pr.split(pr.encode(msg, seq), self._segment)
         self._write(raw)
         return seq, raw
 
@@ -410,19 +428,31 @@ class FingerDevice:
                 return
 
     def _command(self, msg, *, reconnect: bool = True, timeout: float | None = None, tries: int | None = None):
-        """Send ``msg`` until its answer (ACK, NAK, HELLO reply or STATUS) arrives; returns the answer."""
+        """Send ``msg`` until its answer (ACK, NAK, HELLO reply or STATUS) arrives; returns the answer.
+
+        A long command that gets no answer as a whole packet is sent again as PARTs when ``segment`` is None and
+        the device agrees to segment mode (PROTOCOL.md §9)."""
         seq, raw = self._send_safe(msg, reconnect)
         tries = tries or self.retries
+        whole = raw.count(0) == 1
+        rep = self._await(seq, raw, tries if whole else 4 * tries, reconnect, timeout)
+        if rep is None and whole and self.segment is None and not self._segment and len(raw) > 2 * AUTO_SEGMENT:
+            if self._use_segments(AUTO_SEGMENT, reconnect):
+                raw = pr.split(raw, self._segment)
+                self._write_safe(raw, reconnect)
+                rep = self._await(seq, raw, 4 * tries, reconnect, timeout)
+        if rep is None:
+            raise DeviceError(f"{self.url}: no answer to {type(msg).__name__} after {tries} tries")
+        return rep
+
+    def _await(self, seq: int, raw: bytes, tries: int, reconnect: bool, timeout: float | None):
+        """Wait for the answer to ``seq``, writing ``raw`` (already sent once) again before each further try;
+        None when ``tries`` waits pass without it. Parts sent again complete more of the packet on the device:
+        each try of a command sent as parts counts."""
         for attempt in range(tries):
             if attempt:
                 self.stats["retries"] += 1
-                try:
-                    self._write(raw)
-                except _Disconnected:
-                    if not reconnect:
-                        raise
-                    self._reconnect()
-                    self._write(raw)
+                self._write_safe(raw, reconnect)
             end = time.monotonic() + (timeout or self.timeout)
             while time.monotonic() < end:
                 try:
@@ -434,7 +464,16 @@ class FingerDevice:
                     break
                 if seq in self._replies:
                     return self._replies.pop(seq)
-        raise DeviceError(f"{self.url}: no answer to {type(msg).__name__} after {tries} tries")
+        return None
+
+    def _write_safe(self, raw: bytes, reconnect: bool) -> None:
+        try:
+            self._write(raw)
+        except _Disconnected:
+            if not reconnect:
+                raise
+            self._reconnect()
+            self._write(raw)
 
     def _send_safe(self, msg, reconnect: bool):
         try:
@@ -451,7 +490,18 @@ class FingerDevice:
         """Handshake: firmware, layout, rate and limits (stored as ``info``)."""
         timeout = self.connect_timeout if timeout is None else timeout
         tries = max(1, int(np.ceil(timeout / max(self.timeout, 0.05))))
-        rep = self._command(pr.Hello(), reconnect=reconnect, tries=tries)
+        size = self._segment or self.segment
+        if size:  # SEGMENT just before HELLO keeps the device in segment mode (PROTOCOL.md §9)
+            self._segment = 0
+            self._use_segments(size, reconnect)
+        if self.segment is None and not self._segment and tries > 2 * self.retries:
+            try:
+                rep = self._command(pr.Hello(), reconnect=reconnect, tries=self.retries)
+            except DeviceError:  # a lossy link (the reply is long), or a device still booting
+                self._use_segments(AUTO_SEGMENT, reconnect)
+                rep = self._command(pr.Hello(), reconnect=reconnect, tries=tries - 2 * self.retries)
+        else:
+            rep = self._command(pr.Hello(), reconnect=reconnect, tries=tries)
         if not isinstance(rep, pr.HelloReply):
             raise DeviceError(f"{self.url}: handshake answered with {type(rep).__name__}")
         if rep.protocol != pr.PROTOCOL_VERSION:
@@ -460,9 +510,27 @@ class FingerDevice:
         self._log(rep)
         return rep
 
+    def _use_segments(self, size: int, reconnect: bool = True) -> bool:
+        """Ask the device for PARTs of ``size`` bytes (SEGMENT) and send PARTs too once it agrees; returns whether
+        it did (a revision < 1.2 device does not answer; a NAK leaves whole packets)."""
+        try:
+            rep = self._command(pr.Segment(size), reconnect=reconnect)
+        except DeviceError:
+            if self.segment:
+                raise DeviceError(f"{self.url}: the device does not answer SEGMENT (protocol revision < 1.2)") from None
+            return False
+        if isinstance(rep, pr.Ack):
+            self._segment = size
+            self.stats["segmented"] = size
+            return True
+        if self.segment:
+            raise DeviceError(f"{self.url}: the device refused segment size {size}: {getattr(rep, 'reason', rep)}")
+        return False
+
     def status(self) -> pr.Status:
         """The device's :class:`~bayestouch.hardware.protocol.Status`."""
-        rep = self._command(pr.StatusRequest())
+        # on a link lossy enough for segment mode a STATUS (sent whole, fresh for each request) needs more tries
+        rep = self._command(pr.StatusRequest(), tries=self.retries * (4 if self._segment else 1))
         if not isinstance(rep, pr.Status):
             raise DeviceError(f"{self.url}: status request answered with {type(rep).__name__}")
         return rep
@@ -680,6 +748,11 @@ class FingerDevice:
                     return [frames[i] for i in range(T)] if total == T else None
                 if now - last_activity > 0.5 * self.timeout and now - last_resend > 0.5 * self.timeout:
                     resends += 1
+                    if resends == self.retries and self.segment is None and not self._segment:
+                        try:  # whole frames do not get through: smaller packets (PROTOCOL.md §9)
+                            self._use_segments(AUTO_SEGMENT)
+                        except _Disconnected:
+                            pass
                     if resends > 10 * self.retries:
                         raise DeviceError(f"{self.url}: {len(missing)} frames of stroke {sid} still missing")
                     for first, count in _runs(missing):

@@ -118,6 +118,9 @@ class VirtualDevice:
         self._out = bytearray()
         self._stall_until = 0.0
         self._seq = 0
+        self._segment = 0  # revision 1.2: PART size asked for by the host (0: whole packets)
+        self._after_segment = False  # the last command was SEGMENT (a HELLO then keeps segment mode)
+        self._frame_seq = np.zeros(0, np.int64)
         self._last_packet = b""
         self._last_reply = b""
         self._t0 = time.monotonic()
@@ -291,19 +294,28 @@ class VirtualDevice:
             arr = arr[keep]
         return arr.tobytes()
 
-    def _send(self, msg) -> bytes:
-        raw = pr.encode(msg, self._seq)
-        self._seq = (self._seq + 1) & 0xFFFF
+    def _send(self, msg, seq: int | None = None, whole: bool = False) -> bytes:
+        """Send ``msg`` with the next sequence number (or ``seq``: a resent frame keeps its first one, so that its
+        bytes and, in segment mode, its parts are those of the first transmission); returns its packet bytes.
+        ``whole``: never split (a STATUS is made afresh for each request, so its parts could never combine)."""
+        if seq is None:
+            seq = self._seq
+            self._seq = (self._seq + 1) & 0xFFFF
+        raw = pr.encode(msg, seq)
         self.stats["tx_packets"] += 1
         if self.faults.delay > 0 and self._rng.random() < self.faults.delay_prob:
             self._stall_until = max(self._stall_until, time.monotonic() + self.faults.delay)
             self.stats["stalls"] += 1
-        out = self._faulty(raw)
+        self._transmit(raw, whole)
+        return raw
+
+    def _transmit(self, raw: bytes, whole: bool = False) -> None:
+        """Put one packet on the line: split into parts in segment mode (unless ``whole``), through the faults."""
+        out = self._faulty(raw if whole else pr.split(raw, self._segment))
         if len(self._out) > 4_000_000:  # nobody reads: a real device's buffer overflows too
             self.stats["overflow_bytes"] += len(out)
         else:
             self._out += out
-        return raw
 
     def _flush(self) -> None:
         if not self._out or self._master is None or time.monotonic() < self._stall_until:
@@ -326,9 +338,12 @@ class VirtualDevice:
         self._last_rx = now
         self.stats["rx_packets"] += 1
         if packet == self._last_packet and self._last_reply and not isinstance(msg, pr.Heartbeat | pr.StatusRequest):
-            self._out += self._faulty(self._last_reply)  # a retried command: answer again, do not repeat it
+            self._transmit(self._last_reply)  # a retried command: answer again, do not repeat it
             return
+        after_segment, self._after_segment = self._after_segment, isinstance(msg, pr.Segment)
         if isinstance(msg, pr.Hello):
+            if not after_segment:  # a new session (PROTOCOL.md §9): whole packets unless SEGMENT came just before
+                self._segment = 0
             m = self.model
             L = self.limits
             self._reply(
@@ -376,6 +391,12 @@ class VirtualDevice:
             w = threading.Thread(target=self._compute, args=(plan, index, msg.stroke_id, extra), daemon=True)
             self._workers = [t for t in self._workers if t.is_alive()] + [w]
             w.start()
+        elif isinstance(msg, pr.Segment):
+            if msg.size and msg.size < pr.MIN_SEGMENT:
+                self._reply(packet, pr.Nak(seq, 6, f"segment size {msg.size}: expected 0 or ≥ {pr.MIN_SEGMENT} bytes"))
+                return
+            self._reply(packet, pr.Ack(seq))  # the ACK itself is short and goes whole
+            self._segment = int(msg.size)
         elif isinstance(msg, pr.Abort):
             self._reply(packet, pr.Ack(seq))
             if self.state in (1, 2):
@@ -394,7 +415,8 @@ class VirtualDevice:
                     self._dec.bad,
                     self._wire_current,
                     self._wire_temperature,
-                )
+                ),
+                whole=True,
             )
         elif isinstance(msg, pr.Heartbeat):
             self._send(pr.Ack(seq))
@@ -424,8 +446,10 @@ class VirtualDevice:
 
     def _send_frame(self, i: int) -> None:
         f = self._frames
-        if i == self._n_sent:  # first transmission: stamp the sample time (a resent frame keeps its stamp)
+        if i == self._n_sent:  # first transmission: stamp the sample time (a resent frame keeps its stamp and seq)
             self._stamps[i] = time.monotonic() - self._t0
+            self._frame_seq[i] = self._seq
+            self._seq = (self._seq + 1) & 0xFFFF
         fields = (
             self.stroke_id,
             i,
@@ -439,9 +463,10 @@ class VirtualDevice:
             float(f["contact_force"][i]),
         )
         if isinstance(self._cmd, pr.ProbeStroke):
-            self._send(pr.ProbeFrame(*fields, int(f["probe"][i]), float(f["travel"][i]), f["position"][i]))
+            msg = pr.ProbeFrame(*fields, int(f["probe"][i]), float(f["travel"][i]), f["position"][i])
         else:
-            self._send(pr.Frame(*fields))
+            msg = pr.Frame(*fields)
+        self._send(msg, seq=int(self._frame_seq[i]))
 
     def _heater_off(self) -> None:
         if not self.faults.stuck_heater:
@@ -467,6 +492,7 @@ class VirtualDevice:
                     return
                 self._frames, self.state, self._started = res[1], 2, now
                 self._stamps = np.zeros(len(self._cmd.time))
+                self._frame_seq = np.zeros(len(self._cmd.time), np.int64)
         if self.state != 2:
             return
         t = np.asarray(self._cmd.time)
@@ -498,6 +524,7 @@ class VirtualDevice:
         self._out.clear()
         self._close_pty()
         self._dec = pr.Decoder()
+        self._segment, self._after_segment = 0, False  # a new connection starts with whole packets
         try:
             self.open()
         except BadInput:  # something else took the link's place meanwhile: left alone, served without the link
