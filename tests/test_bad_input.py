@@ -7,6 +7,8 @@ holding the fixture files written by :func:`_files`) and a piece of the message 
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 import xarray as xr
@@ -164,6 +166,25 @@ TABLE = [
     ("fit {tmp}/two_points_repeated.csv --out {tmp}/o", "only 2 distinct points among 60"),
     ("fit {tmp}/near_float_max.csv --out {tmp}/o", "look like some unit other than metres"),
     ("fit {tmp}/big_ball.csv --out {tmp}/o", "more than twice the prior's largest semi-axis"),
+    # third review (issue 24): exactly flat contacts (emcee stopped on an infinite proposal, exit 1)
+    ("fit {tmp}/coplanar.csv --out {tmp}/o", "the contacts lie in one plane"),
+    # a dead read-out fitted to a confident posterior, exit 0; calibrated to a device file fit then refused
+    ("fit {tmp}/dead_readout.nc --out {tmp}/o", "'taxel_current' never changes"),
+    ("calibrate {tmp}/dead_readout.nc --object sphere --out {tmp}/d.toml", "'taxel_current' never changes"),
+    ("calibrate {tmp}/quantum_mode.nc --object sphere --out {tmp}/d.toml", "attribute 'mode' is 'quantum'"),
+    ("calibrate {sphere_rec} --object box --out {tmp}/d.toml", "recorded over 'sphere', not 'box'"),
+    ("fit {sphere_rec} --calibration {tmp}/zero_noise.toml --out {tmp}/o", "noise_scale must be a finite number > 0"),
+    # ports that are no serial device (exit 1, an empty journal and a folder left behind)
+    ("device run --port {tmp} --strokes 1 --out {tmp}/p/r.nc", "is a folder, not a serial device"),
+    ("device run --port {tmp}/keep.txt --strokes 1 --out {tmp}/p/r.nc", "is a plain file, not a serial device"),
+    ("device run --port {tmp}/fifo --strokes 1 --out {tmp}/p/r.nc", "is a FIFO, not a serial device"),
+    ("device run --port loop:// --strokes 1 --out {tmp}/p/r.nc", "sends back every packet written to it"),
+    ("device run --port socket://127.0.0.1:9 --strokes 1 --out {tmp}/p/r.nc", "cannot open the port"),
+    # stroke files: a misspelt key left the default currents in place; huge numbers and deep nesting were exit 1
+    ("device run --port {tmp}/no_such_port --stroke-file {tmp}/typo_strokes.json --out {tmp}/r.nc", "'hold_current'"),
+    ("device run --port {tmp}/no_such_port --stroke-file {tmp}/huge_depth.json --out {tmp}/r.nc", "needs numeric"),
+    ("device run --port {tmp}/no_such_port --stroke-file {tmp}/deep.json --out {tmp}/r.nc", "cannot be read as JSON"),
+    ("device run --port {tmp}/no_such_port --stroke-file {tmp}/extra_top.json --out {tmp}/r.nc", "unknown key(s)"),
 ]
 
 
@@ -241,8 +262,24 @@ def _files(tmp):
         "x,y,z\n" + "".join(f"{0.4 * np.cos(t)},{0.4 * np.sin(t)},{0.01 * np.sin(3 * t)}\n" for t in ring)
     )
     (tmp / "UPPER.NC").write_bytes((tmp / "posterior_like.nc").read_bytes())
-    cal = DeviceCalibration(np.zeros(256), np.full(256, 1e-3), 1.0, "physics", {}, 1e300, 1e-300)
-    write_device_file(tmp / "huge_scale.toml", cal)
+    cal = DeviceCalibration(np.zeros(256), np.full(256, 1e-3), 1.0, "physics", {}, 2.0, 1e-3)
+    write_device_file(tmp / "huge_scale.toml", cal)  # then damaged: write_device_file refuses such values itself
+    text = (tmp / "huge_scale.toml").read_text()
+    (tmp / "huge_scale.toml").write_text(
+        text.replace("scale = 2.0", "scale = 1e300").replace("_sd = 0.001", "_sd = 1e-300")
+    )
+    (tmp / "zero_noise.toml").write_text(text.replace("noise_scale = 1.0", "noise_scale = 0.0"))
+    d = np.random.default_rng(2).normal(size=(60, 2))
+    (tmp / "coplanar.csv").write_text("x,y,z\n" + "".join(f"{0.02 * a},{0.02 * b},0.01\n" for a, b in d))
+    rec = xr.open_dataset(MODELS.parent / "data" / "recordings" / "sphere.nc").load()
+    rec.assign(taxel_current=rec.taxel_current * 0).to_netcdf(tmp / "dead_readout.nc", engine="h5netcdf")
+    rec.assign_attrs(mode="quantum").to_netcdf(tmp / "quantum_mode.nc", engine="h5netcdf")
+    os.mkfifo(tmp / "fifo")
+    one = '{"time": [0, 0.02], "contact": [[0, 0, 0.02], [0, 2e-4, 0.02]], "normal": [[0, 0, 1], [0, 0, 1]], '
+    (tmp / "typo_strokes.json").write_text('{"strokes": [' + one + '"depth": 3e-4, "hold_current": [0, 0, 0]}]}')
+    (tmp / "huge_depth.json").write_text('{"strokes": [' + one + '"depth": 1' + "0" * 400 + "}]}")
+    (tmp / "deep.json").write_text('{"strokes": ' + "[" * 100_000 + "]" * 100_000 + "}")
+    (tmp / "extra_top.json").write_text('{"strokes": [' + one + '"depth": 3e-4}], "speed": 5}')
     (tmp / "loop_a").symlink_to(tmp / "loop_b")
     (tmp / "loop_b").symlink_to(tmp / "loop_a")
     (tmp / "dangling").symlink_to(tmp / "nowhere")
@@ -273,6 +310,7 @@ def test_bad_input_one_line_exit_2(line, needle, tmp, capsys):
     assert "Traceback" not in err
     assert needle in lines[0], lines[0]
     assert (tmp / "keep.txt").read_text() == "recorded"
+    assert not (tmp / "p").exists()  # a refused port leaves no folder or journal behind
 
 
 def test_an_empty_out_path_is_refused(tmp_path, capsys, monkeypatch):

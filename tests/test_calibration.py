@@ -121,7 +121,11 @@ def test_calibration_against_the_wrong_object_says_so(sphere_cal):
     """Negative control: the same strokes calibrated against the egg leave residuals hundreds of times the read-out
     noise (the CLI warns above 3)."""
     ds, _, _ = _record("sphere", 2, seed=102, device_seed=3)
-    cal = calibrate_device(ds, load_object("egg"))
+    # a recording that names its object is refused against another one before any arithmetic
+    with pytest.raises(BadInput, match="recorded over 'sphere', not 'egg'"):
+        calibrate_device(ds, load_object("egg"))
+    # one that does not (a real finger's) gets the misfit
+    cal = calibrate_device(ds.assign_attrs(object="unknown (device)"), load_object("egg"))
     assert cal.noise_scale > 30
 
 

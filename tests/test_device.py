@@ -320,8 +320,8 @@ def test_unsafe_plans_refused_before_any_byte(monkeypatch):
             with pytest.raises(UnsafePlan):
                 dev.run_stroke(plan)
             assert written == [] and dev._ser.in_waiting == 0, why
-        # negative control: a safe plan is sent (loop:// only echoes it, so no ACK comes)
-        with pytest.raises(DeviceError, match="no answer"):
+        # negative control: a safe plan is sent (loop:// only echoes it, so no ACK comes, and the client says so)
+        with pytest.raises(DeviceError, match="sends back every packet written to it"):
             dev.run_stroke(make_plan())
         assert written and pr.Decoder().feed(written[0])[0][1].stroke_id > 0
     finally:
@@ -407,7 +407,11 @@ def test_cli_run_writes_the_simulate_schema(device, tmp_path):
     assert run_device(_parser().parse_args([*argv, "--out", str(out3), "--quiet"])) == 0
     kept = [p for p in tmp_path.iterdir() if p.name.startswith("again.nc.journal.")]
     assert len(kept) == 1 and kept[0].read_bytes() == b"frames of a failed run"
+    first = out3.read_bytes()
     assert run_device(_parser().parse_args([*argv, "--out", str(out3), "--overwrite", "--quiet"])) == 0
+    # --overwrite sets the earlier recording aside (never deleted), as fit's --overwrite does
+    aside = [p for p in tmp_path.glob("replaced-*") if (p / "again.nc").is_file()]
+    assert len(aside) == 1 and (aside[0] / "again.nc").read_bytes() == first and out3.read_bytes() != first
 
 
 def test_cli_bad_input(tmp_path):
@@ -628,7 +632,7 @@ def test_frames_with_impossible_contents_are_rejected_never_recorded(tmp_path):
 
 def test_cli_run_with_a_stuck_heater_keeps_the_stroke_it_completed(device, tmp_path, capsys):
     """A finger whose wires stay powered after the first stroke: `device run` stops there (no second stroke is
-    sent to a finger that is still heating), says so in one line with exit 1 (a device fault, not bad input), and
+    sent to a finger that is still heating), says so in one line with exit 2 (exit 1 is an internal error), and
     the first stroke, complete, is in the .nc, marked incomplete (before, the .nc was not written: the stroke
     survived only in the journal)."""
     from bayestouch.cli.device import run_device
@@ -639,12 +643,52 @@ def test_cli_run_with_a_stuck_heater_keeps_the_stroke_it_completed(device, tmp_p
     f = _stroke_file(tmp_path / "strokes.json", [make_plan(30), make_plan(20)])
     out = tmp_path / "dev.nc"
     argv = ["device", "run", "--port", str(tmp_path / "finger"), "--stroke-file", str(f), "--out", str(out)]
-    assert run_device(_parser().parse_args([*argv, "--quiet"])) == 1
+    assert run_device(_parser().parse_args([*argv, "--quiet"])) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "heaters still on" in err[0] and "1 complete stroke(s) written" in err[0]
     ds = read_recording(out)
     assert ds.attrs["incomplete"] == "true" and ds["taxel_current"].shape[0] == 30
     assert len(sim.model.out) == 1  # the second stroke was never sent
+
+
+def test_cli_run_interrupted_with_overwrite_keeps_the_earlier_recording(device, tmp_path, capsys, monkeypatch):
+    """--overwrite over a complete recording, then Ctrl-C after one stroke: the partial run is written, and the
+    earlier recording is set aside whole (before, the one complete stroke replaced it)."""
+    from bayestouch.cli.device import run_device
+    from bayestouch.hardware.device import FingerDevice
+    from bayestouch.io.recording import read_recording
+
+    sim, dev = device()
+    dev.close()
+    f = _stroke_file(tmp_path / "strokes.json", [make_plan(30), make_plan(20)])
+    out = tmp_path / "dev.nc"
+    argv = ["device", "run", "--port", str(tmp_path / "finger"), "--stroke-file", str(f), "--out", str(out)]
+    assert run_device(_parser().parse_args([*argv, "--quiet"])) == 0
+    complete = out.read_bytes()
+    real, calls = FingerDevice.run_stroke, []
+
+    def stroke_then_interrupt(self, plan):
+        calls.append(plan)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(self, plan)
+
+    monkeypatch.setattr(FingerDevice, "run_stroke", stroke_then_interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        run_device(_parser().parse_args([*argv, "--overwrite", "--quiet"]))
+    assert read_recording(out)["taxel_current"].shape[0] == 30
+    (aside,) = tmp_path.glob("replaced-*")
+    assert (aside / "dev.nc").read_bytes() == complete
+
+
+def test_stroke_file_with_a_byte_order_mark_is_read(tmp_path):
+    from bayestouch.cli.device import load_stroke_file
+
+    f = _stroke_file(tmp_path / "s.json", [make_plan(10)])
+    bom = tmp_path / "bom.json"
+    bom.write_bytes(b"\xef\xbb\xbf" + f.read_bytes())
+    a, b = load_stroke_file(f, [0.1, 0.05, 0.05]), load_stroke_file(bom, [0.1, 0.05, 0.05])
+    assert len(a) == len(b) == 1 and np.array_equal(a[0].contact, b[0].contact)
 
 
 def test_cli_run_interrupted_keeps_the_complete_strokes(device, tmp_path, capsys, monkeypatch):

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import functools
 import json
+import os
 
 import numpy as np
 import pytest
@@ -198,10 +199,12 @@ def test_explore_port_drives_the_finger_and_writes_the_recording(finger, tmp_pat
 def test_explore_port_bad_inputs_are_one_line(tmp_path, capsys):
     from bayestouch.cli import main
 
-    port = tmp_path / "port"
-    port.write_text("")
+    plain = tmp_path / "port"
+    plain.write_text("")
+    port = os.devnull  # a character device: the checks after the port's are reached
     cases = [
         (["--port", str(tmp_path / "nope")], "--port"),
+        (["--port", str(plain)], "is a plain file, not a serial device"),
         (["--port", str(port)], "--centre"),
         (["--port", str(port), "--centre", "0,0"], "--centre"),
         (["--port", str(port), "--centre", "0,0,0", "--planner", "oracle"], "--planner"),

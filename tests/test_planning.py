@@ -255,6 +255,12 @@ def test_experiment_writes_results_and_resumes_without_redoing(tmp_path, monkeyp
     third = run_experiment(tmp_path, **{**kw, "plot": False}, resume=True)
     assert third["ran"] == 1 and third["skipped"] == 1
     assert len(read_csv_rows(tmp_path / "results.csv")) == 4
+    # without the experiment.json written with them, the kept trials' settings cannot be checked: refused (before,
+    # the resume went on and wrote a new experiment.json claiming the new settings)
+    (tmp_path / "experiment.json").unlink()
+    with pytest.raises(BadInput, match="experiment.json is missing or damaged"):
+        run_experiment(tmp_path, **{**kw, "plot": False, "seed": 7}, resume=True)
+    assert not (tmp_path / "experiment.json").exists()
 
 
 def test_a_miss_penalises_shapes_that_the_ray_would_have_touched():
@@ -498,7 +504,7 @@ def test_experiment_resume_refuses_an_edited_object_file(tmp_path, monkeypatch):
 
     def fake(task):
         return [
-            {c: "" for c in COLUMNS}
+            dict.fromkeys(COLUMNS, 0.0)
             | {"planner": task["planner"], "trial": task["trial"], "object": task["object"], "stroke": s}
             | {"chamfer": 0.1, "volume_error": 0.1, "seed": task["seed"]}
             for s in range(task["budget"] + 1)
@@ -514,3 +520,33 @@ def test_experiment_resume_refuses_an_edited_object_file(tmp_path, monkeypatch):
     obj.write_text(text.replace(line, "axes_m = [0.04, 0.02, 0.01]"))
     with pytest.raises(BadInput, match="other object"):
         run_experiment(out, **kw, log=lambda m: None, resume=True)
+
+
+def test_a_damaged_results_file_is_refused_naming_line_and_column(tmp_path):
+    """results.csv damaged between runs (issue 24, third review): a header line appended, a text or nan measure,
+    a stroke listed twice were an internal error or were kept silently (and counted twice). Each is one line
+    naming the line and the column; negative control: the undamaged rows pass unchanged."""
+    from bayestouch.planning.experiment import checked_rows
+
+    good = [
+        dict(
+            zip(
+                COLUMNS,
+                ["random", "0", "sphere", str(k), "0.01", "0.02", "1.5", "80", "80", "1e-6", "nan", "0.0", "7"],
+                strict=True,
+            )
+        )
+        for k in range(2)
+    ]
+    assert checked_rows(good, "r.csv") == good
+    cases = [
+        (good + [{c: c for c in COLUMNS}], r"line 4, column trial: 'trial' is not a whole number"),
+        ([{**good[0], "chamfer": "abc"}, good[1]], r"line 2, column chamfer: 'abc' is not a number"),
+        ([{**good[0], "seconds": "nan"}, good[1]], r"line 2, column seconds: 'nan' is not a finite number"),
+        ([*good, good[1]], r"line 4 repeats stroke 1 of trial 0 \(sphere, random\) from line 3"),
+        ([good[0], {**good[1], "seed": "-3"}], r"line 3, column seed"),
+        ([good[0], {k: v for k, v in good[1].items() if k != "eig"}], r"line 3 lacks column\(s\) \['eig'\]"),
+    ]
+    for rows, needle in cases:
+        with pytest.raises(BadInput, match=needle):
+            checked_rows(rows, "r.csv")

@@ -297,3 +297,27 @@ def test_a_stride_that_leaves_too_few_frames_is_refused(empirical):
     with pytest.raises(BadInput, match="stride 100000 leaves 1 frame"):
         raw.load_raw_data(ds, stride=100_000, strokes=[0])  # one stroke, one frame of it
     assert len(raw.load_raw_data(ds)[0].frames) >= raw.MIN_FRAMES
+
+
+@pytest.mark.parametrize("texture", ["auto", "on", "off"])
+def test_the_bare_stage_never_reads_coarser_than_the_stride_given(tmp_path, empirical, monkeypatch, texture):
+    """`fit short.nc --stride 1` on a recording of 16 frames was refused with "stride 5 leaves 4 frames ... use a
+    smaller --stride" (issue 24, third review): the bare stage ignored --stride unless --texture off. The stride it
+    reads is captured at its first load; negative control: without --stride it is BARE_STRIDE."""
+    from bayestouch.inference.raw import fit as raw_fit
+
+    seen = []
+
+    class Stop(Exception):
+        pass
+
+    def spy(ds, **kw):
+        seen.append(kw["stride"])
+        raise Stop
+
+    monkeypatch.setattr(raw_fit, "load_raw_data", spy)
+    ds, _ = empirical
+    for stride in (1, None):
+        with pytest.raises(Stop):
+            raw.run_raw_fit(ds, tmp_path / f"f{stride}", stride=stride, texture=texture, progress=False)
+    assert seen == [1, raw.BARE_STRIDE]

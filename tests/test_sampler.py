@@ -620,3 +620,24 @@ def test_ctrl_c_stops_after_the_step_saves_the_chain_and_prints_no_walkers(tmp_p
     steps = emcee.backends.HDFBackend(str(tmp_path / "c.h5"), read_only=True).iteration
     assert 5 <= steps <= 7
     assert signal.getsignal(signal.SIGINT) is before  # the handler is restored
+
+
+def test_proposals_of_a_degenerate_ensemble_are_finite():
+    """An independence proposal fitted to an ensemble spread without bound along one direction (contacts in one
+    plane) drew infinite coordinates, on which emcee stops the run ("At least one parameter value was infinite",
+    issue 24, third review). Every draw is finite now, and one that overflowed lies far outside any prior (so it is
+    rejected); negative control: an ordinary proposal's draws are unchanged."""
+    from bayestouch.inference.sampler import OUTSIDE, IndependenceMixture, IndependenceT, finite_proposals
+
+    rng = np.random.RandomState(0)
+    move = IndependenceT(None)
+    move.set(np.zeros(2), np.eye(2))
+    move.chol = np.diag([1.0, 1e308])  # a scale whose t draws overflow
+    x = move.draw(rng, 200)
+    assert np.all(np.isfinite(x)) and np.any(np.abs(x) == OUTSIDE)
+    mix = IndependenceMixture(np.array([[0.0, 800.0]]), np.array([np.diag([1.0, 50.0])]), None, 10.0, [1.0], [1])
+    with np.errstate(over="raise"):  # the log column is exponentiated without overflow
+        y = mix.draw(np.random.RandomState(1), 200)
+    assert np.all(np.isfinite(y))
+    ok = np.random.default_rng(2).normal(size=(50, 3))
+    assert np.array_equal(finite_proposals(ok), ok)

@@ -7,7 +7,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import signal
+import stat
 import sys
 import threading
 import time
@@ -167,13 +169,17 @@ def add_device_parser(subparsers) -> argparse.ArgumentParser:
     return dp
 
 
+#: the keys of one stroke of a ``--stroke-file`` (``hold_currents`` optional)
+STROKE_KEYS = ("time", "contact", "normal", "depth", "hold_currents")
+
+
 def load_stroke_file(path: Path, hold_currents) -> list:
     """Stroke plans from a JSON file (see ``device run --help``); raises BadInput naming the problem."""
     from bayestouch.hardware.safety import StrokePlan
 
     try:
-        doc = json.loads(Path(path).read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        doc = json.loads(Path(path).read_text(encoding="utf-8-sig"))  # a byte-order mark is allowed, as in a CSV
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as e:
         raise BadInput(
             f"--stroke-file {path}: cannot be read as JSON ({type(e).__name__}); expected "
             '{"strokes": [{"time", "contact", "normal", "depth"}]}'
@@ -181,8 +187,20 @@ def load_stroke_file(path: Path, hold_currents) -> list:
     items = doc.get("strokes") if isinstance(doc, dict) else None
     if not isinstance(items, list) or not items:
         raise BadInput(f'--stroke-file {path}: expected an object with a non-empty list "strokes"')
+    if set(doc) != {"strokes"}:
+        raise BadInput(
+            f'--stroke-file {path}: unknown key(s) {sorted(set(doc) - {"strokes"})}; expected only "strokes"'
+        )
     plans = []
     for i, s in enumerate(items):
+        if not isinstance(s, dict):
+            raise BadInput(f"--stroke-file {path}: stroke {i} is a {type(s).__name__}; expected an object")
+        unknown = sorted(set(s) - set(STROKE_KEYS))
+        if unknown:
+            # a misspelt key (hold_current) would otherwise leave its default in place without a word
+            raise BadInput(
+                f"--stroke-file {path}: stroke {i}: unknown key(s) {unknown}; expected {', '.join(STROKE_KEYS)}"
+            )
         try:
             plans.append(
                 StrokePlan(
@@ -193,12 +211,30 @@ def load_stroke_file(path: Path, hold_currents) -> list:
                     np.asarray(s.get("hold_currents", hold_currents), float),
                 )
             )
-        except (KeyError, TypeError, ValueError) as e:
+        except (KeyError, TypeError, ValueError, OverflowError) as e:
             raise BadInput(
                 f"--stroke-file {path}: stroke {i} needs numeric time, contact, normal and depth "
                 f"({type(e).__name__}: {e})"
             ) from None
     return plans
+
+
+def check_port(port: str) -> None:
+    """Refuse a ``--port`` path that names no character device (a folder, a plain file, a FIFO, nothing) with
+    :class:`BadInput`; URLs (``scheme://``) are left to pyserial."""
+    if "://" in port:
+        return
+    expected = (
+        "expected a serial port path (e.g. the pty printed by `bayestouch device simulate`) or a pyserial URL like "
+        "socket://HOST:PORT"
+    )
+    try:
+        mode = os.stat(port).st_mode
+    except OSError:
+        raise BadInput(f"--port {port}: no such device; {expected}") from None
+    if not stat.S_ISCHR(mode):
+        kind = "a folder" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode) else "a plain file"
+        raise BadInput(f"--port {port} is {kind}, not a serial device; {expected}")
 
 
 def _currents(text: str):
@@ -318,11 +354,7 @@ def _run(args) -> int:
     # the inputs first, then the port: a bad stroke file is named even when no device is attached
     if args.stroke_file is not None:
         plans = load_stroke_file(args.stroke_file, currents)
-    if "://" not in args.port and not Path(args.port).exists():
-        raise BadInput(
-            f"--port {args.port}: no such device; expected a serial port path (e.g. the pty printed by "
-            "`bayestouch device simulate`) or a pyserial URL like socket://HOST:PORT"
-        )
+    check_port(args.port)
     if args.stroke_file is None:
         if not (0 < args.duration <= 600):
             raise BadInput(f"--duration must be in (0, 600] seconds, got {args.duration}")
@@ -345,6 +377,7 @@ def _run(args) -> int:
             raise type(e)(f"stroke {i}: {e}") from None
     from bayestouch import __version__
     from bayestouch.hardware.device import DeviceError, FingerDevice, HeaterFault, build_recording
+    from bayestouch.io.files import move_aside
     from bayestouch.io.recording import write_recording
 
     if args.out.exists() and not args.overwrite:
@@ -366,17 +399,21 @@ def _run(args) -> int:
     }
     dev = FingerDevice(args.port, timeout=args.timeout, journal=journal, limits=limits, segment=args.segment)
 
+    def set_aside() -> None:
+        """With --overwrite, the earlier recording is moved aside (never deleted) before the new one is written."""
+        if args.overwrite and args.out.exists():
+            aside = move_aside(args.out.parent, [args.out])
+            print(f"bayestouch device run: kept the earlier {args.out.name} in {aside}", file=sys.stderr)
+
     def keep(note: str) -> None:
         """Write the complete strokes so far (marked incomplete) and say where everything received is."""
         if done:
+            set_aside()
             partial = build_recording(done, dev.info, {**attrs, "incomplete": "true"})
             write_recording(partial, args.out, replace=args.overwrite)
         written = f" written to {args.out}" if done else ""
-        print(
-            f"bayestouch device run: {note}; {len(done)} complete stroke(s){written}; everything received is in "
-            f"{journal}",
-            file=sys.stderr,
-        )
+        got = f"everything received is in {journal}" if journal.exists() else "nothing was received"
+        print(f"bayestouch device run: {note}; {len(done)} complete stroke(s){written}; {got}", file=sys.stderr)
 
     def terminated(signum, frame):  # SIGTERM (a scheduler, kill): handled as Ctrl-C, the strokes kept
         raise KeyboardInterrupt
@@ -397,13 +434,14 @@ def _run(args) -> int:
         if isinstance(e, HeaterFault) and e.data is not None:
             done.append(e.data)  # complete: the heaters stayed on after it, so no further stroke was sent
         keep(f"error: {e}")
-        return 2 if isinstance(e, BadInput) else 1
+        return 2  # the device failed or refused: one line, everything received kept (exit 1 is an internal error)
     except KeyboardInterrupt:
         keep("interrupted")
         raise
     finally:
         if old_term is not None:
             signal.signal(signal.SIGTERM, old_term)
+    set_aside()
     write_recording(build_recording(done, info, attrs), args.out, replace=args.overwrite)
     if args.journal is None:
         journal.unlink(missing_ok=True)

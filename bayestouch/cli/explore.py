@@ -176,11 +176,10 @@ def run_explore(args) -> int:
     centre = _centre(getattr(args, "centre", None))
     if port is not None and not port.strip():
         raise BadInput("--port: expected a serial port path or a pyserial URL, got an empty string")
-    if port is not None and "://" not in port and not Path(port).exists():
-        raise BadInput(
-            f"--port {port}: no such device; expected a serial port path (e.g. the pty printed by "
-            "`bayestouch device simulate`) or a pyserial URL like socket://HOST:PORT"
-        )
+    if port is not None:
+        from bayestouch.cli.device import check_port
+
+        check_port(port)
     name = args.object if args.object is not None else (None if port else "egg")
     obj = load_object(resolve_object(name)) if name is not None else None
     if obj is None and centre is None:
@@ -256,7 +255,7 @@ def run_explore(args) -> int:
     else:
         res = _explore_device(obj, args, port, out, kw)
         if res is None:
-            return 1
+            return 2  # the device failed: said in one line, the complete strokes kept
     save_contact_points(out / "points.csv", res.points)
     write_json(
         out / "explore.json",

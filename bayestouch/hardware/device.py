@@ -281,6 +281,7 @@ class FingerDevice:
         self._seq = int(np.random.default_rng().integers(0, 1 << 16))
         self._sid = int(time.time()) & 0xFFFFFF
         self._inbox: list = []
+        self._echoed: set[int] = set()  # sequence numbers of our own commands that came back
         self._replies: dict[int, object] = {}
         self.stats = {
             "retries": 0,
@@ -314,14 +315,14 @@ class FingerDevice:
         try:
             self._ser = serial.serial_for_url(self.url, baudrate=self.baudrate, timeout=0.01, write_timeout=5.0)
         except (serial.SerialException, OSError, ValueError) as e:
-            raise DeviceError(f"cannot open {self.url}: {e}") from None
+            raise DeviceError(
+                f"cannot open the port {self.url} ({e}); expected a serial port path or a pyserial URL"
+            ) from None
         self._dec = pr.Decoder()
 
     def open(self) -> FingerDevice:
-        """Open the port (and the journal) and do the handshake."""
-        if self.journal_path is not None and self._journal is None:
-            self.journal_path.parent.mkdir(parents=True, exist_ok=True)
-            self._journal = open(self.journal_path, "ab")  # closed in close()
+        """Open the port and do the handshake (the journal is made when the first packet arrives: a port that
+        cannot be opened or never answers leaves no file behind)."""
         self._open_port()
         if self.handshake:
             try:
@@ -394,9 +395,13 @@ class FingerDevice:
         return seq, raw
 
     def _log(self, msg) -> None:
-        if self._journal is not None:
-            self._journal.write(pr.encode(msg, 0))
-            self._journal.flush()
+        if self.journal_path is None:
+            return
+        if self._journal is None:
+            self.journal_path.parent.mkdir(parents=True, exist_ok=True)
+            self._journal = open(self.journal_path, "ab")  # closed in close()
+        self._journal.write(pr.encode(msg, 0))
+        self._journal.flush()
 
     def _pump(self, timeout: float) -> None:
         """Read for up to ``timeout`` seconds (less once something arrived); sort what arrives."""
@@ -412,13 +417,14 @@ class FingerDevice:
                 raise _Disconnected(str(e)) from None
             if data:
                 before = self._dec.bad
-                for _, m in self._dec.feed(data):
+                for seq, m in self._dec.feed(data):
                     got = True
                     if isinstance(m, pr.Frame | pr.ProbeFrame | pr.StrokeDone):
                         self._inbox.append(m)
                     elif hasattr(m, "ack"):
                         self._replies[m.ack] = m
-                    # anything else (a command echoed by loop://) is not for the client
+                    else:  # a command: the port echoes what is sent (loop://, a terminal), no finger answers
+                        self._echoed.add(seq)
                 self.stats["bad_packets"] += self._dec.bad - before
             try:
                 idle = got and not self._ser.in_waiting
@@ -464,6 +470,11 @@ class FingerDevice:
                     break
                 if seq in self._replies:
                     return self._replies.pop(seq)
+            if seq in self._echoed:
+                raise DeviceError(
+                    f"{self.url}: the port sends back every packet written to it (a loopback such as loop://, or a "
+                    "terminal) and nothing answers; expected the port of a finger"
+                )
         return None
 
     def _write_safe(self, raw: bytes, reconnect: bool) -> None:

@@ -42,6 +42,7 @@ __all__ = [
     "TAU_FACTOR",
     "ADAPT_FIRST",
     "fewest_kept_steps",
+    "finite_proposals",
 ]
 
 #: convergence thresholds (Vehtari et al. 2021 for R-hat and bulk ESS; emcee's docs for N > 50 τ)
@@ -146,6 +147,21 @@ def adaptation_steps(upto: int) -> list[int]:
     return out
 
 
+#: largest logarithm the independence mixture exponentiates (e^700 ≈ 1e304, finite): a proposal beyond it lies
+#: outside every prior and is rejected
+LOG_PROPOSAL_MAX = 700.0
+#: what a non-finite proposed coordinate becomes (emcee refuses infinite or NaN coordinates outright): finite, far
+#: outside every prior, so the proposal is rejected as one outside the support would be
+OUTSIDE = 1e300
+
+
+def finite_proposals(y: np.ndarray) -> np.ndarray:
+    """Proposals ``(W, D)`` with every non-finite coordinate set to ±:data:`OUTSIDE` (NaN to +): a proposal fitted to
+    a degenerate ensemble (a posterior improper along one direction, e.g. contacts in one plane) can overflow, and
+    emcee would stop the run on it; such a point has zero prior density and is rejected."""
+    return np.nan_to_num(y, nan=OUTSIDE, posinf=OUTSIDE, neginf=-OUTSIDE)
+
+
 class IndependenceT:
     """Independence Metropolis–Hastings move with a multivariate Student-t proposal fitted to earlier draws.
 
@@ -202,7 +218,9 @@ class IndependenceT:
         """``count`` draws (count, D) of the proposal from a ``np.random.RandomState``."""
         z = random.standard_normal((count, len(self.mean)))
         u = random.chisquare(self.nu, count)
-        return self.mean + (z @ self.chol.T) * np.sqrt(self.nu / u)[:, None]
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflow is mapped outside the prior below
+            y = self.mean + (z @ self.chol.T) * np.sqrt(self.nu / u)[:, None]
+        return finite_proposals(y)
 
     def propose(self, model, state):
         if self.mean is None:
@@ -336,9 +354,10 @@ class IndependenceMixture(IndependenceT):
         j = random.choice(len(self.centres), size=count, p=self.weights)
         z = random.standard_normal((count, self.centres.shape[1]))
         u = random.chisquare(self.nu, count)
-        y = self.centres[j] + np.einsum("wij,wj->wi", self.chols[j], z) * np.sqrt(self.nu / u)[:, None]
-        y[:, self.log_columns] = np.exp(y[:, self.log_columns])
-        return y
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflow is mapped outside the prior below
+            y = self.centres[j] + np.einsum("wij,wj->wi", self.chols[j], z) * np.sqrt(self.nu / u)[:, None]
+            y[:, self.log_columns] = np.exp(np.minimum(y[:, self.log_columns], LOG_PROPOSAL_MAX))
+        return finite_proposals(y)
 
     def log_g(self, x) -> np.ndarray:
         """Log proposal density (W,) at ``x (W, D)`` up to a constant; −inf where a ``log_columns`` entry is ≤ 0."""

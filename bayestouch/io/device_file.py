@@ -36,6 +36,7 @@ reference-drift correction.
 from __future__ import annotations
 
 import math
+import tomllib
 from pathlib import Path
 from typing import NamedTuple
 
@@ -45,7 +46,7 @@ from bayestouch.errors import BadInput
 from bayestouch.io.files import write_text
 from bayestouch.params import read_toml
 
-__all__ = ["DEVICE_FORMAT", "DeviceCalibration", "write_device_file", "read_device_file"]
+__all__ = ["DEVICE_FORMAT", "DeviceCalibration", "write_device_file", "read_device_file", "device_calibration"]
 
 #: version of the device-file layout written by :func:`write_device_file`
 DEVICE_FORMAT = 1
@@ -120,7 +121,11 @@ def write_device_file(path, cal: DeviceCalibration) -> Path:
             f"scale_sd = {float(cal.response_scale_sd)!r}",
             "",
         ]
-    return write_text(path, "\n".join(lines))
+    text = "\n".join(lines)
+    # what is written is what read_device_file accepts: a calibration the data do not determine (a taxel whose gain
+    # has no spread, a zero noise scale) is refused here rather than written for `fit` to refuse later
+    device_calibration(tomllib.loads(text), "calibration")
+    return write_text(path, text)
 
 
 #: the range of the [response] entries: a sensitivity scale (relative to the models' constants) and its sd
@@ -146,6 +151,15 @@ def read_device_file(path, n_taxels: int | None = None) -> DeviceCalibration:
     if not p.is_file():
         raise BadInput(f"{where}: no such file; expected the TOML written by `bayestouch calibrate`")
     doc = read_toml(p, "device file", "DEVICE.toml from `bayestouch calibrate`")
+    cal = device_calibration(doc, where)
+    if n_taxels is not None and np.size(cal.log_gain) != int(n_taxels):
+        raise BadInput(f"{where}: calibrates {np.size(cal.log_gain)} taxels, but the finger has {int(n_taxels)}")
+    return cal
+
+
+def device_calibration(doc: dict, where: str) -> DeviceCalibration:
+    """The :class:`DeviceCalibration` of a parsed device file ``doc``; raises :class:`BadInput` (``where`` named)
+    on a field that is absent or out of range."""
     dev, gains = doc.get("device"), doc.get("gains")
     if not isinstance(dev, dict) or not isinstance(gains, dict):
         raise BadInput(f"{where}: expected the tables [device] and [gains] written by `bayestouch calibrate`")
@@ -155,8 +169,9 @@ def read_device_file(path, n_taxels: int | None = None) -> DeviceCalibration:
     if mode not in _MODES:
         raise BadInput(f"{where}: [device] mode is {mode!r}, expected one of {_MODES}")
     k = dev.get("noise_scale")
-    if not isinstance(k, int | float) or isinstance(k, bool) or not (math.isfinite(k) and k >= 0):
-        raise BadInput(f"{where}: [device] noise_scale must be a finite number ≥ 0, got {k!r}")
+    if not isinstance(k, int | float) or isinstance(k, bool) or not (math.isfinite(k) and k > 0):
+        # 0 would declare the read-out noiseless: a likelihood of unbounded precision
+        raise BadInput(f"{where}: [device] noise_scale must be a finite number > 0, got {k!r}")
     arrays = {}
     for name in ("log_gain", "log_gain_sd"):
         v = gains.get(name)
@@ -176,11 +191,12 @@ def read_device_file(path, n_taxels: int | None = None) -> DeviceCalibration:
             f"{where}: [gains] log_gain has {lg.size} values and log_gain_sd {sd.size}; expected one of each per taxel"
         )
     if not np.all(sd > 0):
-        raise BadInput(f"{where}: [gains] log_gain_sd must be positive for every taxel")
+        raise BadInput(
+            f"{where}: [gains] log_gain_sd must be positive for every taxel ({int(np.sum(~(sd > 0)))} are not: "
+            "readings without spread between strokes do not determine a gain)"
+        )
     if np.any(np.abs(lg) > 20):
         raise BadInput(f"{where}: [gains] log_gain has |values| over 20 (gains beyond e^±20); expected ln of a gain")
-    if n_taxels is not None and lg.size != int(n_taxels):
-        raise BadInput(f"{where}: calibrates {lg.size} taxels, but the finger has {int(n_taxels)}")
     resp, scale, scale_sd = doc.get("response"), 1.0, None
     if resp is not None:
         if not isinstance(resp, dict):

@@ -186,7 +186,13 @@ def check_recording(ds, where: str = "recording") -> None:
                 "recording, not a measurement"
             )
     if "taxel_current" in ds:
-        negative = np.mean(np.asarray(ds["taxel_current"].values, dtype=float) < 0) if ds["taxel_current"].size else 0
+        cur = np.asarray(ds["taxel_current"].values, dtype=float)
+        if cur.ndim == 2 and cur.shape[0] >= 2 and cur.shape[1] and np.all(np.ptp(cur, axis=0) == 0):
+            raise BadInput(
+                f"{where}: 'taxel_current' never changes: every taxel reads the same value in all {cur.shape[0]} "
+                f"frames (e.g. {cur[0, 0]:g} A); a dead or frozen read-out carries no signal"
+            )
+        negative = np.mean(cur < 0) if cur.size else 0
         if negative > 0.5:
             raise BadInput(
                 f"{where}: 'taxel_current' is negative in {negative:.0%} of its values; the taxels' drain "

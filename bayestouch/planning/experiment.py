@@ -21,6 +21,7 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+import math
 import multiprocessing as mp
 import socket
 from collections.abc import Callable, Sequence
@@ -50,6 +51,8 @@ __all__ = [
     "ResultsFile",
     "run_tasks",
     "wilson_interval",
+    "checked_rows",
+    "FINITE_COLUMNS",
 ]
 
 _log = logging.getLogger(__name__)
@@ -192,6 +195,49 @@ def wilson_interval(k: int, n: int, z: float = 1.959963984540054) -> tuple[float
     return float(c - h), float(c + h)
 
 
+#: results.csv columns that every row holds as a finite number (``volume_sd`` and ``eig`` may be nan: no posterior
+#: spread yet, or a planner without an information gain)
+FINITE_COLUMNS = ("chamfer", "volume_error", "seconds", "n_points", "new_points", "decision_s")
+
+
+def checked_rows(rows: list[dict], path) -> list[dict]:
+    """The rows of an experiment's ``results.csv`` ``path``, refused (:class:`BadInput` naming the line and column)
+    when one is damaged: a missing column, a trial or stroke that is not a whole number ≥ 0, a seed that is not a
+    whole number, a measure that is not a (finite) number, or a stroke of a trial listed twice."""
+    seen: dict[tuple, int] = {}
+    for i, r in enumerate(rows):
+        line = i + 2  # the header is line 1
+        missing = [c for c in COLUMNS if c not in r or r[c] is None]
+        if missing:
+            raise BadInput(f"{path}: line {line} lacks column(s) {missing}; expected {', '.join(COLUMNS)}")
+
+        def bad(col: str, expected: str, line=line, r=r) -> BadInput:
+            return BadInput(f"{path}: line {line}, column {col}: {r[col]!r} is not {expected} (a damaged file)")
+
+        for col in ("trial", "stroke"):
+            if not str(r[col]).isdigit():
+                raise bad(col, "a whole number ≥ 0")
+        if str(r["seed"]) not in ("",) and not str(r["seed"]).isdigit():
+            raise bad("seed", "a whole number")
+        if not str(r["planner"]).strip() or not str(r["object"]).strip():
+            raise bad("planner" if not str(r["planner"]).strip() else "object", "a name")
+        for col in (*FINITE_COLUMNS, "volume_sd", "eig"):
+            try:
+                v = float(r[col])
+            except ValueError:
+                raise bad(col, "a number") from None
+            if col in FINITE_COLUMNS and not math.isfinite(v):
+                raise bad(col, "a finite number")
+        key = (*_key(r), int(r["stroke"]))
+        if key in seen:
+            raise BadInput(
+                f"{path}: line {line} repeats stroke {key[3]} of trial {key[2]} ({key[0]}, {key[1]}) from line "
+                f"{seen[key]} (a damaged file: each stroke of a trial is one row)"
+            )
+        seen[key] = line
+    return rows
+
+
 def _key(row) -> tuple:
     return str(row["object"]), str(row["planner"]), int(row["trial"])
 
@@ -294,6 +340,8 @@ def run_experiment(
     # the objects' contents are part of the key: an object file edited between runs is another experiment
     contents = {f"object {names[o]}": p.read_bytes() for o, p in paths.items()}
     meta = fingerprint("experiment", contents, options)
+    if csv_path.exists() and not csv_path.is_file():
+        raise BadInput(f"--out {out}: {csv_path} is not a file; expected the results.csv of an experiment, or nothing")
     if csv_path.is_file() and not resume and not overwrite:
         raise BadInput(
             f"--out {out} already holds results.csv; pass --resume to keep its complete trials, --overwrite to "
@@ -304,16 +352,22 @@ def run_experiment(
         old_meta = None
         with contextlib.suppress(OSError, ValueError):
             old_meta = json.loads(meta_path.read_text(encoding="utf-8"))
-        if old_meta is not None and not old_meta.get("data_sha256"):
+        if not isinstance(old_meta, dict) or "options" not in old_meta:
+            # without it nothing says which settings the kept trials were made with
+            raise BadInput(
+                f"--resume: cannot verify the settings of {csv_path}: {meta_path.name} is missing or damaged; "
+                "expected the experiment.json written with it (or pass --overwrite, or choose another --out)"
+            )
+        if not old_meta.get("data_sha256"):
             # written before the objects' contents were keyed: compared on the options alone, as then
             old_meta = {**old_meta, "data_sha256": meta["data_sha256"]}
-        diff = [] if old_meta is None else differences(old_meta, meta)
+        diff = differences(old_meta, meta)
         if diff:
             raise BadInput(
                 f"--resume: {csv_path} was made with {'; '.join(diff)}; resume with the same settings or choose "
                 "another --out"
             )
-        old = read_csv_rows(csv_path)
+        old = checked_rows(read_csv_rows(csv_path), csv_path)
         wrong = [
             r for r in old if r.get("seed") not in (None, "") and int(r["seed"]) != _trial_seed(seed, int(r["trial"]))
         ]

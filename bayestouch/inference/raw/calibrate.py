@@ -13,6 +13,8 @@ correlated blocks: the 1/f noise then makes their spread ~30 % too small.
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
 from bayestouch.backend import jnp
@@ -23,6 +25,7 @@ from bayestouch.inference.raw.data import (
     need_variable,
     nominal_log_gain_sd,
     open_recording,
+    recording_mode,
     unloaded_current,
 )
 from bayestouch.inference.raw.likelihood import distance_log_current
@@ -150,8 +153,14 @@ def calibrate_device(recording, obj, *, models=MODELS, object_name: str | None =
         Log-gains relative to the reference taxels' median, standard errors, the residual noise scale.
     """
     ds, where = open_recording(recording)
+    named = str(ds.attrs.get("object", ""))
+    if re.fullmatch(r"[\w.-]+", named) and named != obj.name:  # a simulated recording names its object
+        raise BadInput(
+            f"object: {where} was recorded over {named!r}, not {obj.name!r}; the gains would be measured against the "
+            f"wrong surface (expected the object the strokes touched: {named})"
+        )
     finger = host_device(models).finger
-    mode = str(ds.attrs.get("mode", "physics"))
+    mode = recording_mode(ds, where)
     cur = need_variable(ds, "taxel_current", 2, where)
     temp, t = (need_variable(ds, v, 1, where) for v in ("skin_temperature", "time"))
     si = need_variable(ds, "stroke_index", 1, where).astype(int)

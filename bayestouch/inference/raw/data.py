@@ -26,6 +26,7 @@ __all__ = [
     "RawData",
     "open_recording",
     "need_variable",
+    "recording_mode",
     "nominal_log_gain_sd",
     "HostDevice",
     "host_device",
@@ -173,6 +174,15 @@ class HostDevice(NamedTuple):
     response_sd: float
 
 
+def recording_mode(ds, where: str) -> str:
+    """The taxel mode a recording was made in (its ``mode`` attribute, default ``physics``); :class:`BadInput`
+    naming ``where`` for another value."""
+    mode = str(ds.attrs.get("mode", "physics"))
+    if mode not in tx.MODES:
+        raise BadInput(f"{where}: attribute 'mode' is {mode!r}, expected one of {tx.MODES}")
+    return mode
+
+
 def host_device(models: Path = MODELS, calibration: DeviceCalibration | None = None) -> HostDevice:
     """The finger as a host that has only ``models`` and the device file knows it.
 
@@ -291,13 +301,9 @@ def load_raw_data(
     for name, v in (("pressing_depth", depth), ("skin_temperature", temp), ("time", t), ("stroke_index", si)):
         if v.shape != (nF,):
             raise BadInput(f"{where}: variable '{name}' has shape {v.shape}, expected ({nF},) (frame)")
-    mode = str(ds.attrs.get("mode", "physics"))
-    if mode not in tx.MODES:
-        raise BadInput(f"{where}: attribute 'mode' is {mode!r}, expected one of {tx.MODES}")
+    mode = recording_mode(ds, where)
     if calibration is not None and calibration.mode != mode:
-        raise BadInput(
-            f"calibration: made in the {calibration.mode} taxel mode, the recording {where} is in the {mode} mode"
-        )
+        raise BadInput(f"calibration: made in the {calibration.mode} taxel mode; {where} is in the {mode} mode")
     if device is None and finger is None:
         device = host_device(Path(models), calibration)
     if device is not None:

@@ -336,7 +336,7 @@ def run_raw_fit(
         Stop sampling after this wall-clock time.
     stride : int, optional
         Frame stride of :func:`load_raw_data`; default :data:`TEXTURE_STRIDE` when the texture is modelled,
-        :data:`BARE_STRIDE` otherwise.
+        :data:`BARE_STRIDE` otherwise. The bare shape's first stage uses at most :data:`BARE_STRIDE`.
     radius, strokes, models
         See :func:`load_raw_data`.
     starts : int
@@ -400,7 +400,8 @@ def run_raw_fit(
     )
     priors = cm.load_priors()
     # the bare shape: DE on the commanded contact points, then L-BFGS-B on the raw posterior at the coarse stride
-    bare_stride = BARE_STRIDE if stride is None or texture != "off" else int(stride)
+    # (coarse for speed, never coarser than a stride the user gave: a short recording may need every frame)
+    bare_stride = BARE_STRIDE if stride is None else int(stride) if texture == "off" else min(BARE_STRIDE, int(stride))
     dev = {"device": host, "calibration": cal}
     bare_data, _ = load_raw_data(ds, models=models, stride=bare_stride, radius=radius, strokes=strokes, **dev)
     th0 = initial_raw_theta(
