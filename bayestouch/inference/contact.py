@@ -606,7 +606,25 @@ def _tempering_parts(thetas, data: _Data, bounds: Bounds, noise: str, nu: float,
     return lp, ll, g_lp, g_ll
 
 
-_tempering_jit = jax.jit(_tempering_parts, static_argnums=(3, 4, 5))
+#: rows per block of the tempering terms and gradients: the SMC's 2048 particles in one program took 27.7 ms per
+#: call here, in two 1024-row blocks 12 ms (the value-only program scales linearly; the gradient's does not)
+TEMPERING_BLOCK = 1024
+
+
+def _tempering_blocked(thetas, data: _Data, bounds: Bounds, noise: str, nu: float, precision: str):
+    """:func:`_tempering_parts` over blocks of :data:`TEMPERING_BLOCK` rows (``lax.map``) when the rows divide
+    into them; the same numbers."""
+    w = thetas.shape[0]
+    if w <= TEMPERING_BLOCK or w % TEMPERING_BLOCK:
+        return _tempering_parts(thetas, data, bounds, noise, nu, precision)
+    out = jax.lax.map(
+        lambda t: _tempering_parts(t, data, bounds, noise, nu, precision),
+        thetas.reshape(-1, TEMPERING_BLOCK, thetas.shape[-1]),
+    )
+    return tuple(o.reshape(w, *o.shape[2:]) for o in out)
+
+
+_tempering_jit = jax.jit(_tempering_blocked, static_argnums=(3, 4, 5))
 
 
 # data passed as arguments (not closed over): one compiled program per (W, M, options), shared by every

@@ -26,6 +26,7 @@ The parts are exchangeable (the posterior has K! copies of every mode); summarie
 
 from __future__ import annotations
 
+from functools import partial
 from typing import NamedTuple
 
 import numpy as np
@@ -305,15 +306,28 @@ def canonical_order(theta, k: int) -> np.ndarray:
     return np.concatenate([parts.reshape(len(th), 10 * k), noise], axis=1)
 
 
+def _inside(theta, k: int, pts):
+    """(N, P) bool: points ``pts`` (N, P, 3) m inside the union of each draw θ (N, 10 K + 3) (JAX arrays)."""
+    parts, _ = _split(theta, k)
+    return jnp.any(jnp.stack([_gauge(parts[:, j, :], pts) for j in range(k)]) <= 1.0, axis=0)
+
+
 def inside_union(theta, k: int, points) -> np.ndarray:
     """Whether points lie inside the union of each draw θ (N, 10 K + 3): ``points`` (P, 3) m shared by every
     draw, or (N, P, 3) m, each draw its own; (N, P) bool."""
-    parts, _ = _split(jnp.asarray(theta, dtype=jnp.float64), k)
+    th = jnp.asarray(theta, dtype=jnp.float64)
     pts = jnp.asarray(points, dtype=jnp.float64)
     if pts.ndim == 2:
-        pts = jnp.broadcast_to(pts, (parts.shape[0], *pts.shape))
-    g = jnp.stack([_gauge(parts[:, j, :], pts) for j in range(k)])
-    return np.asarray(jnp.any(g <= 1.0, axis=0))
+        pts = jnp.broadcast_to(pts, (th.shape[0], *pts.shape))
+    return np.asarray(_inside(th, k, pts))
+
+
+@partial(jax.jit, static_argnums=1)
+def _weighted_inside(theta, k: int, grid, weight):
+    """Σ over draws of ``weight`` (N,) × [grid point inside the draw's union]: (P,), one compiled program per block
+    shape (the occupancy grid's blocks are padded to one size)."""
+    pts = jnp.broadcast_to(grid, (theta.shape[0], *grid.shape))
+    return weight @ _inside(theta, k, pts).astype(grid.dtype)
 
 
 def bounding_boxes(theta, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -338,7 +352,11 @@ def occupancy_grid(theta, k: int, res: int = 40, chunk: int = 20) -> Occupancy:
     pad = 0.05 * (b - a)
     axes = [np.linspace(a[i] - pad[i], b[i] + pad[i], res) for i in range(3)]
     grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-    count = np.zeros(len(grid))
+    g, count = jnp.asarray(grid), np.zeros(len(grid))
     for s in range(0, len(theta), chunk):
-        count += inside_union(theta[s : s + chunk], k, grid).sum(axis=0)
+        blk = theta[s : s + chunk]
+        weight = np.zeros(chunk)
+        weight[: len(blk)] = 1.0
+        blk = np.concatenate([blk, np.repeat(blk[-1:], chunk - len(blk), axis=0)])  # the last block padded
+        count += np.asarray(_weighted_inside(jnp.asarray(blk), k, g, jnp.asarray(weight)))
     return Occupancy(*axes, (count / len(theta)).reshape(res, res, res), int(len(theta)))
