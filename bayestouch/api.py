@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import sys
 import tempfile
 import weakref
 from pathlib import Path
@@ -24,8 +25,8 @@ from pathlib import Path
 import numpy as np
 
 from bayestouch.errors import BadInput
-from bayestouch.io.contacts import N_ELLIPSOID_PARAMS, ContactPoints, load_contact_points
-from bayestouch.io.files import atomic_path
+from bayestouch.io.contacts import N_ELLIPSOID_PARAMS, ContactPoints, check_contact_spread, load_contact_points
+from bayestouch.io.files import atomic_path, move_aside
 from bayestouch.io.runfolder import OUTPUTS, RESULT_FILES
 from bayestouch.params import MODELS
 
@@ -54,7 +55,17 @@ class Fit:
         path = self.folder / "summary.json"
         if not path.is_file():
             raise BadInput(f"{self.folder}: no summary.json (expected the folder of a finished `bayestouch fit`)")
-        self.results = json.loads(path.read_text())
+        try:
+            self.results = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, ValueError) as e:
+            raise BadInput(f"{path}: cannot be read as JSON ({type(e).__name__}); a damaged summary") from None
+        r = self.results if isinstance(self.results, dict) else {}
+        missing = [k for k in ("derived", "diagnostics", "model") if not isinstance(r.get(k), dict)]
+        if missing:
+            raise BadInput(
+                f"{path}: not the summary of a fit (no {', '.join(missing) or 'object'}); expected the summary.json "
+                "of `bayestouch fit`"
+            )
         self._temporary = _temporary
         self._idata = None
         if _temporary is not None:  # the temporary folder goes with the object
@@ -235,7 +246,14 @@ def _contacts(data) -> ContactPoints | None:
         return load_contact_points(path)
     if type(data).__name__ == "Dataset":  # an xarray recording
         return None
-    a = np.asarray(data, dtype=float)
+    if np.iscomplexobj(data):
+        raise BadInput("data: the contact points are complex numbers; expected real coordinates in metres")
+    try:
+        a = np.asarray(data, dtype=float)
+    except (TypeError, ValueError):
+        raise BadInput(
+            f"data: expected contact points as an (M, 3) array of numbers in metres, got {type(data)}"
+        ) from None
     if a.ndim != 2 or a.shape[1] != 3 or len(a) < N_ELLIPSOID_PARAMS:
         raise BadInput(
             f"data: expected contact points as an (M, 3) array in metres with M ≥ {N_ELLIPSOID_PARAMS} (as many as "
@@ -290,11 +308,23 @@ def fit(
     -------
     Fit
     """
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or not 0 <= seed < 2**32:
+        raise BadInput(f"seed must be an integer in [0, 2**32), got {seed!r}")
+    if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int | np.integer) or steps < 1):
+        raise BadInput(f"steps must be a positive integer (the largest chain length) or None, got {steps!r}")
     if isinstance(walkers, bool) or not isinstance(walkers, int | np.integer) or walkers < 24 or walkers % 2:
         raise BadInput(f"walkers must be an even integer ≥ 24 (twice the parameters, plus a margin), got {walkers!r}")
-    if budget_s is not None and budget_s != "auto" and not (isinstance(budget_s, int | float) and budget_s > 0):
+    if (
+        budget_s is not None
+        and budget_s != "auto"
+        and (isinstance(budget_s, bool) or not (isinstance(budget_s, int | float) and budget_s > 0))
+    ):
         raise BadInput(f"budget_s must be > 0 seconds, 'auto' or None (no budget), got {budget_s!r}")
     cp = _contacts(data)
+    if cp is not None:
+        from bayestouch.inference.contact import load_priors
+
+        check_contact_spread(cp.points, "data", load_priors().axis_max)
     allowed = _RAW_OPTIONS if cp is None else _CONTACT_OPTIONS
     unknown = sorted(set(options) - set(allowed))
     if unknown:
@@ -439,8 +469,18 @@ def simulate(
         progress=progress,
     )
     if out is not None:
+        set_aside(out)
         write_recording(ds, out, replace=overwrite)
     return ds
+
+
+def set_aside(path) -> None:
+    """Move an existing file ``path`` into ``replaced-<UTC>/`` beside it (an ``overwrite`` keeps the earlier
+    recording or device file, never deletes it) and say where on stderr."""
+    path = Path(path)
+    if path.is_file():
+        aside = move_aside(path.parent, [path])
+        print(f"bayestouch: --overwrite: the earlier {path.name} is kept in {aside}", file=sys.stderr)
 
 
 def calibrate(recording, obj, *, models=MODELS, out=None, overwrite: bool = False):
@@ -462,7 +502,7 @@ def calibrate(recording, obj, *, models=MODELS, out=None, overwrite: bool = Fals
     DeviceCalibration
     """
     from bayestouch.inference.raw.calibrate import calibrate_device
-    from bayestouch.io.device_file import write_device_file
+    from bayestouch.io.device_file import device_file_text, write_device_file
     from bayestouch.scene.objects import SceneObject, load_object
 
     if out is not None:
@@ -474,5 +514,7 @@ def calibrate(recording, obj, *, models=MODELS, out=None, overwrite: bool = Fals
     scene = obj if isinstance(obj, SceneObject) else load_object(obj, models)
     cal = calibrate_device(recording, scene, models=models, object_name=str(obj) if isinstance(obj, str) else None)
     if out is not None:
+        device_file_text(cal)  # refused (BadInput) before an earlier file is moved
+        set_aside(out)
         write_device_file(out, cal)
     return cal

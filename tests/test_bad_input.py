@@ -185,6 +185,27 @@ TABLE = [
     ("device run --port {tmp}/no_such_port --stroke-file {tmp}/huge_depth.json --out {tmp}/r.nc", "needs numeric"),
     ("device run --port {tmp}/no_such_port --stroke-file {tmp}/deep.json --out {tmp}/r.nc", "cannot be read as JSON"),
     ("device run --port {tmp}/no_such_port --stroke-file {tmp}/extra_top.json --out {tmp}/r.nc", "unknown key(s)"),
+    # fourth review: a command wrote over another command's results (a fit's summary.json), or over its own
+    ("texture-id --out {tmp}/a_fit_run --textures 2 --trials 1 --max-strokes 1", "already holds summary.json"),
+    ("sbc --datasets 2 --out {tmp}/a_fit_run", "already holds summary.json"),
+    ("reproduce-paper --paths 1 --sizes 2x2x2 --out {tmp}/a_fit_run", "already holds summary.json"),
+    ("explore --strokes 1 --out {tmp}/has_points", "already holds results (points.csv)"),
+    ("texture-id --out {tmp}/t --max-strokes 100000000", "--max-strokes"),
+    ("texture-id --out {tmp}/t --trials 100000000", "--trials"),
+    ("reproduce-paper --sizes , --out {tmp}/p2", "--sizes"),
+    ("reproduce-paper --epsilons , --out {tmp}/p2", "--epsilons"),
+    # a run without its run.json continued with other data (the old object's volume, exit 0)
+    ("fit {tmp}/good.csv --out {tmp}/a_fit_run --resume", "but no run.json"),
+    ("experiment --objects sphere,{sphere} --trials 1 --out {tmp}/x", "are the same object file"),
+    # options that do not apply were dropped without a word
+    ("fit {sphere_rec} --out {tmp}/o --texture off --noise student --nu 3", "--noise, --nu: apply to contact points"),
+    ("fit {sphere_rec} --out {tmp}/o --precision mixed", "--precision: apply to contact points"),
+    ("fit {tmp}/good.csv --out {tmp}/o --ffd-tau 1e-3", "--ffd-tau goes with --ffd"),
+    ("calibrate {tmp}/interleaved.nc --object sphere --out {tmp}/d.toml", "comes back after other strokes"),
+    (
+        "device run --port {tmp}/no_such_port --stroke-file {tmp}/typo_strokes.json --depth 1e-4 --out {tmp}/r.nc",
+        "--depth: not used with --stroke-file",
+    ),
 ]
 
 
@@ -275,6 +296,11 @@ def _files(tmp):
     rec.assign(taxel_current=rec.taxel_current * 0).to_netcdf(tmp / "dead_readout.nc", engine="h5netcdf")
     rec.assign_attrs(mode="quantum").to_netcdf(tmp / "quantum_mode.nc", engine="h5netcdf")
     os.mkfifo(tmp / "fifo")
+    (tmp / "has_points").mkdir()
+    (tmp / "has_points" / "points.csv").write_text("x,y,z\n0,0,0\n")
+    k = rec.stroke_index.values.copy()
+    k[::2] = 0  # stroke 0's frames interleaved with the others'
+    rec.assign_coords(stroke_index=("frame", k)).to_netcdf(tmp / "interleaved.nc", engine="h5netcdf")
     one = '{"time": [0, 0.02], "contact": [[0, 0, 0.02], [0, 2e-4, 0.02]], "normal": [[0, 0, 1], [0, 0, 1]], '
     (tmp / "typo_strokes.json").write_text('{"strokes": [' + one + '"depth": 3e-4, "hold_current": [0, 0, 0]}]}')
     (tmp / "huge_depth.json").write_text('{"strokes": [' + one + '"depth": 1' + "0" * 400 + "}]}")
@@ -297,7 +323,10 @@ def test_bad_input_one_line_exit_2(line, needle, tmp, capsys):
     from bayestouch.params import MODELS
 
     argv = line.format(
-        tmp=tmp, egg=MODELS / "objects" / "egg.toml", sphere_rec=MODELS.parent / "data" / "recordings" / "sphere.nc"
+        tmp=tmp,
+        egg=MODELS / "objects" / "egg.toml",
+        sphere=MODELS / "objects" / "sphere.toml",
+        sphere_rec=MODELS.parent / "data" / "recordings" / "sphere.nc",
     ).split()
     try:
         code = main(argv)

@@ -170,7 +170,7 @@ def test_explore_port_drives_the_finger_and_writes_the_recording(finger, tmp_pat
     s0 = json.loads((out / "summary_0.json").read_text())
     assert "no truth" in s0["errors_note"] and s0["object"].startswith("unknown")
     # a second exploration into the folder is refused (its stroke summaries would mix with these)
-    assert main(argv) == 2 and "already holds an exploration" in capsys.readouterr().err
+    assert main(argv) == 2 and "already holds results" in capsys.readouterr().err
     assert json.loads((out / "summary_0.json").read_text()) == s0
     # the contacts lie on the TRUE ball (the scout's belief was a sphere of 2.5 cm 1 mm off)
     pts = load_contact_points(out / "points.csv").points
@@ -253,7 +253,7 @@ def test_explore_refuses_a_folder_holding_a_finger_recording(tmp_path, capsys):
     (out / "device.journal").write_bytes(b"packets")
     assert main(["explore", "--object", "sphere", "--strokes", "1", "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip()
-    assert "already holds an exploration" in err and "recording.nc" in err and "\n" not in err
+    assert "already holds results" in err and "recording.nc" in err and "\n" not in err
     assert (out / "recording.nc").read_bytes() == b"frames" and (out / "device.journal").read_bytes() == b"packets"
 
 
@@ -274,4 +274,5 @@ def test_explore_overwrite_moves_an_earlier_recording_aside(tmp_path, capsys):
     assert not (out / "summary_7.json").exists() and (out / "summary_0.json").is_file()
     (aside,) = out.glob("replaced-*")
     assert (aside / "recording.nc").read_bytes() == b"frames" and (aside / "device.journal").read_bytes() == b"packets"
+    assert (aside / "summary_7.json").read_text() == "{}"  # set aside too, never deleted
     assert "moved to" in capsys.readouterr().err

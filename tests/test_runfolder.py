@@ -55,9 +55,12 @@ def test_resume_refuses_other_data_or_options_and_names_them(tmp_path):
     with pytest.raises(BadInput, match="noise 'outlier' \\(now 'student'\\)"):
         prepare_run_folder(out, _fp(pts, noise="student"), resume=True)
     assert (out / "chain.h5").read_bytes() == b"chain"
-    # a folder from before fingerprints (no run.json) resumes as before
+    # a run without its run.json (deleted, or from before fingerprints) cannot show its data: refused (issue 24,
+    # fourth review: other data continued it and reported the old object's volume, exit 0)
     (out / FINGERPRINT_FILE).unlink()
-    prepare_run_folder(out, _fp(other), resume=True)
+    with pytest.raises(BadInput, match="but no run.json"):
+        prepare_run_folder(out, _fp(other), resume=True)
+    assert (out / "chain.h5").read_bytes() == b"chain"
 
 
 def test_atomic_path_keeps_the_old_file_when_the_writer_fails(tmp_path):

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 import tempfile
 from pathlib import Path
 
@@ -19,6 +20,7 @@ __all__ = [
     "size_range",
     "eps_list",
     "check_out",
+    "RESULT_FILES",
     "out_path",
     "bounded_int",
     "stat",
@@ -66,6 +68,8 @@ def segment(text: str) -> int | None:
 def size_list(text: str) -> list[str]:
     """FFD lattice sizes like ``7x7x7,6x6x3`` (each ≥ 2), lower-cased."""
     sizes = [s.strip().lower() for s in text.split(",") if s.strip()]
+    if not sizes:  # an empty list fell back to the defaults without a word
+        raise argparse.ArgumentTypeError(f"expected at least one size like 6x6x3, got {text!r}")
     for s in sizes:
         parts = s.split("x")
         if len(parts) != 3 or not all(p.isdigit() and int(p) >= 2 for p in parts):
@@ -87,6 +91,8 @@ def eps_list(text: str) -> list[float]:
         eps = [float(s) for s in text.split(",") if s.strip()]
     except ValueError:
         raise argparse.ArgumentTypeError(f"epsilons must be comma-separated numbers, got {text!r}") from None
+    if not eps:
+        raise argparse.ArgumentTypeError(f"expected at least one perturbation level like 0,0.001, got {text!r}")
     if any(not 0 <= e < 0.5 for e in eps):
         raise argparse.ArgumentTypeError(f"epsilons must lie in [0, 0.5), got {eps}")
     return eps
@@ -136,10 +142,43 @@ def stat(value, spec: str) -> str:
     return format(value, spec)
 
 
-def check_out(path: Path) -> Path:
-    """The output folder ``--out``, created; a path that exists and is not a folder is bad input."""
+#: files that hold a finished result of some command (fit, experiment, texture-id, sbc, reproduce-paper, explore):
+#: an ``--out`` folder holding one is another run's, refused unless ``--overwrite`` (which sets them aside)
+RESULT_FILES = (
+    "summary.json",
+    "run.json",
+    "posterior.nc",
+    "chain.h5",
+    "results.csv",
+    "experiment.json",
+    "sbc.json",
+    "table2.csv",
+    "explore.json",
+    "points.csv",
+    "recording.nc",
+)
+
+
+def check_out(path: Path, overwrite: bool | None = None, command: str = "") -> Path:
+    """The output folder ``--out``, created; a path that exists and is not a folder is bad input.
+
+    With ``overwrite`` given (a command with ``--overwrite``), a folder that holds a finished result
+    (:data:`RESULT_FILES`) is refused unless ``overwrite``, which moves those files into ``replaced-<UTC>/``
+    (:func:`bayestouch.io.files.move_aside`): a command never writes over another run's results."""
     if path.exists() and not path.is_dir():
         raise BadInput(f"--out {path} exists and is not a folder")
+    if overwrite is not None and path.is_dir():
+        held = [path / n for n in RESULT_FILES if (path / n).exists()]
+        if held and not overwrite:
+            raise BadInput(
+                f"--out {path} already holds {held[0].name} (a finished result); pass --overwrite to set it aside, "
+                "or choose another folder"
+            )
+        if held:
+            from bayestouch.io.files import move_aside
+
+            aside = move_aside(path, held)
+            print(f"bayestouch {command}: --overwrite: the earlier results are kept in {aside}", file=sys.stderr)
     path.mkdir(parents=True, exist_ok=True)
     return path
 

@@ -169,6 +169,15 @@ def add_device_parser(subparsers) -> argparse.ArgumentParser:
     return dp
 
 
+#: the options that shape ``device run``'s random strokes, with their defaults (refused beside ``--stroke-file``)
+RANDOM_STROKE_DEFAULTS = {
+    "strokes": 1,
+    "object": _MODELS / "objects" / "egg.toml",
+    "seed": 0,
+    "duration": 2.0,
+    "rate": 50.0,
+    "depth": 3e-4,
+}
 #: the keys of one stroke of a ``--stroke-file`` (``hold_currents`` optional)
 STROKE_KEYS = ("time", "contact", "normal", "depth", "hold_currents")
 
@@ -353,6 +362,9 @@ def _run(args) -> int:
     limits = load_limits()
     # the inputs first, then the port: a bad stroke file is named even when no device is attached
     if args.stroke_file is not None:
+        given = [f"--{k.replace('_', '-')}" for k, v in RANDOM_STROKE_DEFAULTS.items() if getattr(args, k) != v]
+        if given:  # they shape random strokes only: silently dropped before
+            raise BadInput(f"{', '.join(given)}: not used with --stroke-file (its strokes are given in full)")
         plans = load_stroke_file(args.stroke_file, currents)
     check_port(args.port)
     if args.stroke_file is None:

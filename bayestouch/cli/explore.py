@@ -8,7 +8,7 @@ import math
 import sys
 from pathlib import Path
 
-from bayestouch.cli.args import out_path
+from bayestouch.cli.args import RESULT_FILES, out_path
 from bayestouch.cli.args import seed as seed_arg
 from bayestouch.cli.args import segment as segment_arg
 from bayestouch.errors import BadInput
@@ -199,22 +199,18 @@ def run_explore(args) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise BadInput(f"--out {out} exists and is not a folder")
-    derived = ["explore.json", "explore.png"]
-    recorded = ["recording.nc", "device.journal"]  # a finger's data: moved aside on --overwrite, never deleted
+    # what an exploration writes, and any other command's result (a fit's summary.json, a points.csv of the user's)
+    written = {"explore.json", "explore.png", "points.csv", "device.journal", *RESULT_FILES}
     earlier = sorted(out.glob("summary_*.json")) if out.is_dir() else []
-    earlier += [out / f for f in derived + recorded if (out / f).exists()]
+    earlier += [out / f for f in sorted(written) if (out / f).exists()]
     if earlier and not args.overwrite:
         raise BadInput(
-            f"--out {out} already holds an exploration ({', '.join(sorted({f.name for f in earlier})[:4])}"
-            f"{' …' if len(earlier) > 4 else ''}); pass --overwrite to replace it, or choose another folder"
+            f"--out {out} already holds results ({', '.join(sorted({f.name for f in earlier})[:4])}"
+            f"{' …' if len(earlier) > 4 else ''}); pass --overwrite to set them aside, or choose another folder"
         )
-    kept = [f for f in earlier if f.name in recorded]
-    if kept:
-        aside = move_aside(out, kept)
-        print(f"explore: the earlier run's {', '.join(f.name for f in kept)} moved to {aside}", file=sys.stderr)
-    for f in earlier:  # --overwrite: no stale output of the earlier run is left beside the new ones
-        if f.name not in recorded:
-            f.unlink()
+    if earlier:  # --overwrite: set aside, never deleted, and no stale output is left beside the new ones
+        aside = move_aside(out, earlier)
+        print(f"explore: the earlier results ({len(earlier)} files) moved to {aside}", file=sys.stderr)
     out.mkdir(parents=True, exist_ok=True)
     truthless = obj is None
     object_name = name if name is not None else "unknown (a finger without --object)"

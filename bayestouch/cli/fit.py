@@ -17,10 +17,6 @@ __all__ = ["add_parser", "run", "MAX_CONTACTS"]
 #: most contacts a fit takes (more need --subsample): the contact-level posterior of 50,000 points is already far
 #: narrower than the n-ellipsoid's misfit to any real object, and its outputs hold every point's log-likelihood
 MAX_CONTACTS = 50_000
-#: contacts whose thinnest spread (smallest singular value of the centred points) is at most this fraction of their
-#: widest lie in one plane to rounding: exactly flat data, which no posterior over a closed shape can use (a real
-#: flat face, touched with 0.1 mm of noise over 5 cm, is at 2e-3 and is fitted)
-COPLANAR_RATIO = 1e-6
 
 
 #: most emcee walkers a fit takes
@@ -182,7 +178,7 @@ def _contacts(args):
     """The contact file of ``fit DATA``, ``--subsample`` applied (seeded by ``--seed``), at most
     :data:`MAX_CONTACTS` contacts: the data of the single fit and of the parts fit alike."""
     from bayestouch.inference.contact import load_priors
-    from bayestouch.io.contacts import load_contact_points
+    from bayestouch.io.contacts import check_contact_spread, load_contact_points
 
     cp = load_contact_points(args.points)
     if args.subsample is not None:
@@ -195,20 +191,7 @@ def _contacts(args):
                 normals=None if cp.normals is None else cp.normals[keep],
                 force=None if cp.force is None else cp.force[keep],
             )
-    axis_max = load_priors().axis_max
-    half = 0.5 * float(np.max(np.ptp(cp.points, axis=0)))
-    if half > axis_max:
-        raise BadInput(
-            f"{args.points}: the contacts span {2 * half:.3g} m, more than twice the prior's largest semi-axis "
-            f"({axis_max:g} m, models/priors.toml axis_max): no object the fit can represent holds them"
-        )
-    sv = np.linalg.svd(cp.points - cp.points.mean(axis=0), compute_uv=False)
-    if sv[-1] <= COPLANAR_RATIO * sv[0]:
-        raise BadInput(
-            f"{args.points}: the contacts lie in one plane (or on one line): their thinnest spread is "
-            f"{sv[-1] / np.sqrt(len(cp.points)):.2g} m over a spread of {sv[0] / np.sqrt(len(cp.points)):.2g} m; "
-            "expected contacts on a curved surface (points on a flat face alone say nothing of the object's depth)"
-        )
+    check_contact_spread(cp.points, str(args.points), load_priors().axis_max)
     if len(cp.points) > MAX_CONTACTS:
         raise BadInput(
             f"{args.points}: {len(cp.points)} contacts; a fit takes at most {MAX_CONTACTS} (the posterior of "
@@ -317,10 +300,19 @@ def run(args) -> int:
     if args.points.suffix.lower() == ".nc":
         if args.ffd is not None:
             raise BadInput("--ffd applies to contact points (.csv), not to a recording (.nc)")
-        if args.size_prior is not None or args.init != "auto" or args.subsample is not None:
-            raise BadInput(
-                "--size-prior, --init and --subsample apply to contact points (.csv), not to a recording (.nc)"
-            )
+        contact_only = {
+            "--size-prior": args.size_prior is not None,
+            "--init": args.init != "auto",
+            "--subsample": args.subsample is not None,
+            "--noise": args.noise != "auto",
+            "--nu": args.nu is not None,
+            "--precision": args.precision != "auto",
+            "--ffd-tau": args.ffd_tau is not None,
+            "--ignore-normals": args.ignore_normals,
+        }
+        given = [k for k, v in contact_only.items() if v]
+        if given:  # options of the contact level: silently without effect on a recording before
+            raise BadInput(f"{', '.join(given)}: apply to contact points (.csv), not to a recording (.nc)")
         s = fit(
             args.points,
             args.out,
@@ -332,6 +324,8 @@ def run(args) -> int:
             **common,
         ).results
     else:
+        if args.ffd_tau is not None and args.ffd is None:
+            raise BadInput("--ffd-tau goes with --ffd (the FFD lattice whose displacements it scales)")
         if args.size_prior is not None and args.ffd is not None:
             raise BadInput("--size-prior: the FFD-marginalised fit keeps its own prior; use one of --size-prior, --ffd")
         if args.texture != "auto" or args.stride is not None or args.calibration is not None:

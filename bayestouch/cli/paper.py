@@ -39,6 +39,9 @@ def add_parser(sub) -> argparse.ArgumentParser:
         "lattice size, and the indicators of eq. 3 and 11–13, beside the paper's figures.",
     )
     rp.add_argument("--out", required=True, type=out_path, help="output folder (table2.csv, table2.md)")
+    rp.add_argument(
+        "--overwrite", action="store_true", help="set aside the results already in --out (otherwise refused)"
+    )
     rp.add_argument("--seed", type=seed_arg, default=0, help="seed of the paths, perturbation and DE (default 0)")
     rp.add_argument(
         "--object",
@@ -103,7 +106,7 @@ def run(args) -> int:
             f"--paths × --rate: up to {most:.3g} contact points on {obj.name} ({args.paths} paths of up to "
             f"{seconds:.0f} s at {args.rate:g} samples/s); at most {MAX_POINTS} fit in memory, lower --rate or --paths"
         )
-    out = check_out(args.out)
+    out = check_out(args.out, args.overwrite, "reproduce-paper")
     from bayestouch.paper import reproduce_table2
 
     t0 = time.perf_counter()

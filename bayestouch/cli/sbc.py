@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from bayestouch.cli.args import bounded_int, out_path
+from bayestouch.cli.args import bounded_int, check_out, out_path
 from bayestouch.cli.args import seed as seed_arg
 from bayestouch.errors import BadInput
 
@@ -43,6 +43,9 @@ def add_sbc_parser(sub) -> argparse.ArgumentParser:
         f"{MAX_DATASET_POINTS:,}, datasets × draws at most {MAX_DATASET_DRAWS:,})",
     )
     ap.add_argument("--out", type=out_path, required=True, help="output folder")
+    ap.add_argument(
+        "--overwrite", action="store_true", help="set aside the results already in --out (otherwise refused)"
+    )
     ap.add_argument("--seed", type=seed_arg, default=0, help="seed of the data sets and chains (default 0)")
     ap.add_argument(
         "--points",
@@ -139,6 +142,7 @@ def check_sbc_args(a) -> None:
 def run_sbc(a) -> int:
     """Run the calibration from parsed arguments and print its coverage and chi-square p-values."""
     check_sbc_args(a)
+    check_out(a.out, a.overwrite, "sbc")
     from bayestouch.inference.sbc import de_moves, plot_ranks, sbc
     from bayestouch.io.files import write_json
 

@@ -6,10 +6,15 @@ import argparse
 import json
 from pathlib import Path
 
-from bayestouch.cli.args import check_out, out_path
+from bayestouch.cli.args import bounded_int, check_out, out_path
 from bayestouch.cli.args import seed as seed_arg
 
 __all__ = ["add_texture_parser", "run_texture_id"]
+
+#: most trials per texture and strokes per trial (each stroke a simulated recording and a posterior update; the
+#: summary loops over strokes): beyond them the run takes days or its memory
+MAX_TRIALS = 10_000
+MAX_STROKES = 1_000
 
 
 def add_texture_parser(sub) -> argparse.ArgumentParser:
@@ -23,10 +28,20 @@ def add_texture_parser(sub) -> argparse.ArgumentParser:
         "--trials trials; writes results.csv (one row per stroke), summary.json and accuracy_vs_strokes.png.",
     )
     p.add_argument("--textures", type=int, default=20, help="use the first N library textures (default 20)")
-    p.add_argument("--trials", type=int, default=3, help="trials per texture (default 3)")
-    p.add_argument("--max-strokes", type=int, default=10, help="strokes before a forced decision (default 10)")
+    p.add_argument(
+        "--trials", type=bounded_int(1, MAX_TRIALS), default=3, help=f"trials per texture (default 3, ≤ {MAX_TRIALS})"
+    )
+    p.add_argument(
+        "--max-strokes",
+        type=bounded_int(1, MAX_STROKES),
+        default=10,
+        help=f"strokes before a forced decision (default 10, ≤ {MAX_STROKES})",
+    )
     p.add_argument("--seed", type=seed_arg, default=0, help="seed of the trials (default 0)")
     p.add_argument("--out", required=True, type=out_path, help="output folder")
+    p.add_argument(
+        "--overwrite", action="store_true", help="set aside the results already in --out (otherwise refused)"
+    )
     p.add_argument("--policy", default="random", choices=("random", "eig"), help="stroke choice (default random)")
     p.add_argument("--threshold", type=float, default=0.95, help="decide when max posterior >= this")
     p.add_argument("--mode", default="empirical", choices=("empirical", "physics"), help="taxel response mode")
@@ -53,8 +68,8 @@ def run_texture_id(args) -> int:
     from bayestouch.io.device_file import read_device_file
     from bayestouch.planning.texture_id import IdSettings, run_experiment
 
-    check_out(Path(args.out))
     calibration = None if args.calibration is None else read_device_file(args.calibration)
+    check_out(Path(args.out), args.overwrite, "texture-id")
     s = run_experiment(
         args.out,
         textures=args.textures,

@@ -46,7 +46,14 @@ from bayestouch.errors import BadInput
 from bayestouch.io.files import write_text
 from bayestouch.params import read_toml
 
-__all__ = ["DEVICE_FORMAT", "DeviceCalibration", "write_device_file", "read_device_file", "device_calibration"]
+__all__ = [
+    "DEVICE_FORMAT",
+    "DeviceCalibration",
+    "write_device_file",
+    "read_device_file",
+    "device_calibration",
+    "device_file_text",
+]
 
 #: version of the device-file layout written by :func:`write_device_file`
 DEVICE_FORMAT = 1
@@ -96,7 +103,13 @@ def _toml_value(v) -> str:
 
 
 def write_device_file(path, cal: DeviceCalibration) -> Path:
-    """Write ``cal`` to ``path`` (TOML, atomically; the module docstring gives the layout)."""
+    """Write ``cal`` to ``path`` (TOML, atomically; the module docstring gives the layout); refused
+    (:class:`BadInput`) when :func:`read_device_file` would refuse it."""
+    return write_text(path, device_file_text(cal))
+
+
+def device_file_text(cal: DeviceCalibration) -> str:
+    """The TOML text of ``cal``, checked as :func:`read_device_file` checks a file (:class:`BadInput`)."""
     head = {
         "format": DEVICE_FORMAT,
         "taxels": int(np.size(cal.log_gain)),
@@ -125,7 +138,7 @@ def write_device_file(path, cal: DeviceCalibration) -> Path:
     # what is written is what read_device_file accepts: a calibration the data do not determine (a taxel whose gain
     # has no spread, a zero noise scale) is refused here rather than written for `fit` to refuse later
     device_calibration(tomllib.loads(text), "calibration")
-    return write_text(path, text)
+    return text
 
 
 #: the range of the [response] entries: a sensitivity scale (relative to the models' constants) and its sd

@@ -205,6 +205,15 @@ def check_recording(ds, where: str = "recording") -> None:
                 f"{where}: 'contact_normal' has {int(short.sum())} vector(s) that are not unit normals "
                 f"(first at frame {int(np.argmax(short))}); expected unit outward normals"
             )
+    if "stroke_index" in ds and ds["stroke_index"].ndim == 1 and ds["stroke_index"].size:
+        k = np.asarray(ds["stroke_index"].values)
+        runs = k[np.r_[True, k[1:] != k[:-1]]]
+        if len(np.unique(runs)) != len(runs):
+            again = runs[np.argmax([np.sum(runs[: i + 1] == r) > 1 for i, r in enumerate(runs)])]
+            raise BadInput(
+                f"{where}: 'stroke_index' {again} comes back after other strokes; expected each stroke's frames "
+                "one after another (contiguous)"
+            )
     if "time" in ds and "stroke_index" in ds:
         t = np.asarray(ds["time"].values, dtype=float)
         k = np.asarray(ds["stroke_index"].values)

@@ -14,7 +14,8 @@ same folder
 * while another process writes into the same folder is refused (an exclusive lock on ``.bayestouch.lock``, held
   until :func:`release_run_folder` or the process's end).
 
-Folders written before ``run.json`` existed resume as before (the chain's walkers × parameters are still checked).
+A run folder without ``run.json`` (deleted, or written before fingerprints existed) is refused by ``resume``: nothing
+shows its data and options.
 """
 
 from __future__ import annotations
@@ -179,6 +180,13 @@ def prepare_run_folder(out, fp: dict, *, resume: bool, overwrite: bool = False) 
                 f"--resume: {path} is damaged (not a run fingerprint), so nothing shows the run in {out} was made "
                 "with these data and options; --overwrite to start it again, or choose another --out"
             )
+    if resume and old is None and (held or (out / "smc.npz").exists()):
+        # a run without its fingerprint: nothing shows it was made with these data and options (continuing it
+        # with other data reported the old object's shape, exit 0)
+        raise BadInput(
+            f"--resume: {out} holds a run ({', '.join(held) or 'smc.npz'}) but no {FINGERPRINT_FILE}, so nothing "
+            "shows it was made with these data and options; --overwrite to start it again, or choose another --out"
+        )
     if resume and not held and not (out / "smc.npz").exists():
         print(f"bayestouch: --resume: {out} holds no run yet; starting one", file=sys.stderr)
     if resume and old is not None and (held or (out / "smc.npz").exists()):

@@ -24,6 +24,7 @@ import logging
 import math
 import multiprocessing as mp
 import socket
+import sys
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
@@ -33,7 +34,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from bayestouch.errors import BadInput
-from bayestouch.io.files import read_csv_rows, write_csv_rows, write_json
+from bayestouch.io.files import move_aside, read_csv_rows, write_csv_rows, write_json
 from bayestouch.io.runfolder import differences, fingerprint
 from bayestouch.planning.device_prober import VirtualFingerProber
 from bayestouch.planning.loop import ExploreSettings, explore
@@ -320,6 +321,11 @@ def run_experiment(
     if scheduler is not None:
         _connect(scheduler).close()  # before any work or output: an unreachable scheduler is bad input
     paths = {str(o): resolve_object(str(o)) for o in objects}
+    by_file: dict[Path, str] = {}
+    for o, p in paths.items():  # one object named twice (by name and by path) would run its trials twice
+        first = by_file.setdefault(p.resolve(), o)
+        if first != o:
+            raise BadInput(f"objects: {first} and {o} are the same object file ({p}); name each object once")
     # the objects themselves travel with the tasks: a Dask worker on another machine has no such path
     loaded = {o: load_object(p) for o, p in paths.items()}
     names = {o: p.stem if p.parent == OBJECTS_DIR else str(o) for o, p in paths.items()}
@@ -347,6 +353,11 @@ def run_experiment(
             f"--out {out} already holds results.csv; pass --resume to keep its complete trials, --overwrite to "
             "replace it, or choose another folder"
         )
+    if overwrite and not resume and csv_path.is_file():
+        # set aside, not deleted: an interrupted new run leaves the old results where the user finds them
+        old_files = [out / n for n in ("results.csv", "experiment.json", "error_vs_strokes.png") if (out / n).exists()]
+        aside = move_aside(out, old_files)
+        print(f"bayestouch experiment: --overwrite: the earlier results are kept in {aside}", file=sys.stderr)
     rows: list[dict] = []
     if resume and csv_path.is_file():
         old_meta = None

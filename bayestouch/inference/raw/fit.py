@@ -21,7 +21,14 @@ from bayestouch.inference.grating import RawTexture
 from bayestouch.inference.optimize import laplace, laplace_ball, scaled_lbfgs
 from bayestouch.inference.posterior import PosteriorModel, judged_quantities, write_posterior
 from bayestouch.inference.raw.adjustment import Adjustment, curvature_adjustment
-from bayestouch.inference.raw.data import RawData, commanded_points, host_device, load_raw_data, open_recording
+from bayestouch.inference.raw.data import (
+    RawData,
+    commanded_points,
+    host_device,
+    load_raw_data,
+    open_recording,
+    recording_mode,
+)
 from bayestouch.inference.raw.likelihood import (
     LOG_K_PRIOR_SD,
     RAW_NATURAL_NAMES,
@@ -370,10 +377,13 @@ def run_raw_fit(
         raise BadInput(f"stride must be an integer ≥ 1, got {stride}")
     t0 = time.perf_counter()
     out = Path(out)
-    ds, _ = open_recording(recording)
+    ds, where = open_recording(recording)
     cal, cal_name = calibration, None
     if calibration is not None and not isinstance(calibration, DeviceCalibration):
         cal, cal_name = read_device_file(calibration), str(calibration)
+    mode = recording_mode(ds, where)
+    if cal is not None and cal.mode != mode:  # checked before the run folder is touched (--overwrite sets aside)
+        raise BadInput(f"calibration: made in the {cal.mode} taxel mode; {where} is in the {mode} mode")
     host = host_device(Path(models), cal)
     finger = host.finger
     options = {

@@ -1,0 +1,114 @@
+"""Earlier results are never written over (issue 24, fourth review): ``--overwrite`` sets them aside into
+``replaced-<UTC>/``, a command refuses another command's results, and inputs are checked before a run folder is
+touched; the Python API checks what the command line checks."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import bayestouch as bt
+from bayestouch.errors import BadInput
+from bayestouch.params import MODELS
+
+SPHERE_REC = MODELS.parent / "data" / "recordings" / "sphere.nc"
+
+
+def _aside(folder, name):
+    return [p / name for p in folder.glob("replaced-*") if (p / name).is_file()]
+
+
+def test_simulate_and_calibrate_overwrite_set_the_earlier_file_aside(tmp_path):
+    from bayestouch.api import calibrate, simulate
+
+    out = tmp_path / "r.nc"
+    simulate("sphere", strokes=1, out=out, progress=False)
+    first = out.read_bytes()
+    with pytest.raises(BadInput, match="already exists"):
+        simulate("sphere", strokes=1, out=out, progress=False)
+    simulate("sphere", strokes=1, seed=3, out=out, overwrite=True, progress=False)
+    (kept,) = _aside(tmp_path, "r.nc")
+    assert kept.read_bytes() == first and out.read_bytes() != first
+    dev = tmp_path / "d.toml"
+    calibrate(SPHERE_REC, "sphere", out=dev)
+    text = dev.read_text()
+    calibrate(SPHERE_REC, "sphere", out=dev, overwrite=True)
+    assert [p.read_text() for p in _aside(tmp_path, "d.toml")] == [text]
+
+
+def test_experiment_overwrite_sets_the_earlier_results_aside(tmp_path, monkeypatch):
+    from bayestouch.planning import experiment as ex
+
+    def fake(task):
+        return [
+            dict.fromkeys(ex.COLUMNS, 0.0)
+            | {"planner": task["planner"], "trial": task["trial"], "object": task["object"], "stroke": s}
+            | {"seed": task["seed"]}
+            for s in range(task["budget"] + 1)
+        ]
+
+    monkeypatch.setattr(ex, "run_trial", fake)
+    kw = dict(planners=("random",), objects=("sphere",), trials=2, budget=1, seed=0, workers=1, plot=False)
+    ex.run_experiment(tmp_path, **kw, log=lambda m: None)
+    first = (tmp_path / "results.csv").read_text()
+    ex.run_experiment(tmp_path, **{**kw, "trials": 1}, overwrite=True, log=lambda m: None)
+    (kept,) = _aside(tmp_path, "results.csv")
+    assert kept.read_text() == first and (tmp_path / "results.csv").read_text() != first
+
+
+def test_a_refused_calibration_leaves_the_run_folder_as_it_was(tmp_path):
+    """fit REC --overwrite --calibration <a device file of the other taxel mode> set the finished run aside, then
+    failed: the folder held only a run.json of a run that never started."""
+    from bayestouch.io.device_file import DeviceCalibration, write_device_file
+
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "summary.json").write_text('{"finished": true}')
+    dev = write_device_file(
+        tmp_path / "e.toml", DeviceCalibration(np.zeros(256), np.full(256, 1e-3), 1.0, "empirical", {})
+    )
+    with pytest.raises(BadInput, match="empirical taxel mode"):
+        bt.fit(SPHERE_REC, run, calibration=dev, overwrite=True, progress=False)
+    assert sorted(p.name for p in run.iterdir()) == ["summary.json"]
+
+
+def test_device_run_refuses_random_stroke_options_beside_a_stroke_file():
+    """--stroke-file with --depth (or --strokes, --object …) dropped them without a word; the table of those options
+    holds the parser's own defaults, so an option left at its default is never taken as given."""
+    from bayestouch.cli.device import RANDOM_STROKE_DEFAULTS
+    from bayestouch.cli.main import build_parser
+
+    args = build_parser().parse_args(["device", "run", "--port", "p", "--out", "r.nc"])
+    assert {k: getattr(args, k) for k in RANDOM_STROKE_DEFAULTS} == RANDOM_STROKE_DEFAULTS
+
+
+@pytest.mark.parametrize(
+    "call,needle",
+    [
+        (lambda p: bt.fit(p * 1000), "span"),  # millimetres: was a scipy "upper bound less than lower bound"
+        (lambda p: bt.fit(p + 1e-3j), "complex"),
+        (lambda p: bt.fit(np.column_stack([p[:, :2], np.full(len(p), 0.01)])), "one plane"),
+        (lambda p: bt.fit(p, seed=-1), "seed"),
+        (lambda p: bt.fit(p, seed=1.7), "seed"),
+        (lambda p: bt.fit(p, steps=-5), "steps"),
+        (lambda p: bt.fit(p, steps=0), "steps"),
+        (lambda p: bt.fit(p, budget_s=True), "budget_s"),
+    ],
+)
+def test_the_api_fit_checks_what_the_cli_checks(call, needle):
+    d = np.random.default_rng(1).normal(size=(60, 3))
+    pts = np.array([0.03, 0.02, 0.015]) * d / np.linalg.norm(d, axis=1, keepdims=True)
+    with pytest.raises(BadInput, match=needle):
+        call(pts)
+
+
+def test_a_damaged_summary_is_named_when_a_fit_is_loaded(tmp_path):
+    """Fit.load on a truncated summary.json raised a bare JSONDecodeError, on {} its repr a KeyError."""
+    for text, needle in [
+        ('{"derived": {', "cannot be read as JSON"),
+        ("{}", "not the summary of a fit"),
+        ("[1]", "not"),
+    ]:
+        (tmp_path / "summary.json").write_text(text)
+        with pytest.raises(BadInput, match=needle):
+            bt.Fit.load(tmp_path)
