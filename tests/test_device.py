@@ -651,20 +651,8 @@ def test_cli_run_with_a_stuck_heater_keeps_the_stroke_it_completed(device, tmp_p
     assert len(sim.model.out) == 1  # the second stroke was never sent
 
 
-def test_cli_run_interrupted_with_overwrite_keeps_the_earlier_recording(device, tmp_path, capsys, monkeypatch):
-    """--overwrite over a complete recording, then Ctrl-C after one stroke: the partial run is written, and the
-    earlier recording is set aside whole (before, the one complete stroke replaced it)."""
-    from bayestouch.cli.device import run_device
-    from bayestouch.hardware.device import FingerDevice
-    from bayestouch.io.recording import read_recording
-
-    sim, dev = device()
-    dev.close()
-    f = _stroke_file(tmp_path / "strokes.json", [make_plan(30), make_plan(20)])
-    out = tmp_path / "dev.nc"
-    argv = ["device", "run", "--port", str(tmp_path / "finger"), "--stroke-file", str(f), "--out", str(out)]
-    assert run_device(_parser().parse_args([*argv, "--quiet"])) == 0
-    complete = out.read_bytes()
+def _interrupt_second_stroke(monkeypatch) -> None:
+    """Make ``FingerDevice.run_stroke`` raise KeyboardInterrupt (Ctrl-C) when the second stroke starts."""
     real, calls = FingerDevice.run_stroke, []
 
     def stroke_then_interrupt(self, plan):
@@ -674,6 +662,22 @@ def test_cli_run_interrupted_with_overwrite_keeps_the_earlier_recording(device, 
         return real(self, plan)
 
     monkeypatch.setattr(FingerDevice, "run_stroke", stroke_then_interrupt)
+
+
+def test_cli_run_interrupted_with_overwrite_keeps_the_earlier_recording(device, tmp_path, capsys, monkeypatch):
+    """--overwrite over a complete recording, then Ctrl-C after one stroke: the partial run is written, and the
+    earlier recording is set aside whole (before, the one complete stroke replaced it)."""
+    from bayestouch.cli.device import run_device
+    from bayestouch.io.recording import read_recording
+
+    sim, dev = device()
+    dev.close()
+    f = _stroke_file(tmp_path / "strokes.json", [make_plan(30), make_plan(20)])
+    out = tmp_path / "dev.nc"
+    argv = ["device", "run", "--port", str(tmp_path / "finger"), "--stroke-file", str(f), "--out", str(out)]
+    assert run_device(_parser().parse_args([*argv, "--quiet"])) == 0
+    complete = out.read_bytes()
+    _interrupt_second_stroke(monkeypatch)
     with pytest.raises(KeyboardInterrupt):
         run_device(_parser().parse_args([*argv, "--overwrite", "--quiet"]))
     assert read_recording(out)["taxel_current"].shape[0] == 30
@@ -695,21 +699,11 @@ def test_cli_run_interrupted_keeps_the_complete_strokes(device, tmp_path, capsys
     """Ctrl-C (or SIGTERM, handled alike) after a complete stroke: the stroke is written to the .nc, marked
     incomplete, and the interrupt goes on (exit 130 from the CLI); before, only the journal held it."""
     from bayestouch.cli.device import run_device
-    from bayestouch.hardware.device import FingerDevice
     from bayestouch.io.recording import read_recording
 
     sim, dev = device()
     dev.close()
-    real = FingerDevice.run_stroke
-    calls = []
-
-    def stroke_then_interrupt(self, plan):
-        calls.append(plan)
-        if len(calls) == 2:
-            raise KeyboardInterrupt
-        return real(self, plan)
-
-    monkeypatch.setattr(FingerDevice, "run_stroke", stroke_then_interrupt)
+    _interrupt_second_stroke(monkeypatch)
     f = _stroke_file(tmp_path / "strokes.json", [make_plan(30), make_plan(20)])
     out = tmp_path / "dev.nc"
     argv = ["device", "run", "--port", str(tmp_path / "finger"), "--stroke-file", str(f), "--out", str(out)]
