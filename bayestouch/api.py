@@ -108,8 +108,16 @@ class Fit:
         if self._idata is None:
             import arviz as az
 
-            with az.rc_context({"data.load": "eager"}):
-                self._idata = az.from_netcdf(str(self.folder / "posterior.nc"))
+            path = self.folder / "posterior.nc"
+            if not path.is_file():
+                raise BadInput(f"{path}: no such file (an interrupted fit writes it when continued with --resume)")
+            try:
+                with az.rc_context({"data.load": "eager"}):
+                    self._idata = az.from_netcdf(str(path))
+            except (OSError, ValueError, KeyError) as e:  # truncated or not netCDF
+                raise BadInput(
+                    f"{path}: cannot be read as the posterior ({type(e).__name__}); a damaged file"
+                ) from None
         return self._idata
 
     def summary(self):

@@ -198,6 +198,10 @@ TABLE = [
     ("fit {tmp}/good.csv --out {tmp}/a_fit_run --resume", "but no run.json"),
     ("experiment --objects sphere,{sphere} --trials 1 --out {tmp}/x", "are the same object file"),
     # options that do not apply were dropped without a word
+    ("explore --planner random --per-second --out {tmp}/e", "--per-second applies to the eig planner"),
+    ("device run --port {tmp}/no_such_port --duration 0.5 --rate 1 --out {tmp}/r.nc", "gives fewer than 2 frames"),
+    ("explore --draws 1 --out {tmp}/e", "--draws must be an integer from 10 to"),
+    ("explore --draws 0 --out {tmp}/e", "--draws must be an integer from 10 to"),
     ("fit {sphere_rec} --out {tmp}/o --texture off --noise student --nu 3", "--noise, --nu: apply to contact points"),
     ("fit {sphere_rec} --out {tmp}/o --precision mixed", "--precision: apply to contact points"),
     ("fit {tmp}/good.csv --out {tmp}/o --ffd-tau 1e-3", "--ffd-tau goes with --ffd"),

@@ -112,3 +112,28 @@ def test_a_damaged_summary_is_named_when_a_fit_is_loaded(tmp_path):
         (tmp_path / "summary.json").write_text(text)
         with pytest.raises(BadInput, match=needle):
             bt.Fit.load(tmp_path)
+
+
+def test_damaged_posterior_and_occupancy_files_are_named(tmp_path):
+    """A truncated posterior.nc gave a raw HDF5 OSError; an occupancy grid of NaN was accepted and answered NaN;
+    NaN query points were answered NaN (fourth review)."""
+    from bayestouch.io.occupancy import Occupancy, load_occupancy, write_occupancy
+
+    (tmp_path / "summary.json").write_text('{"derived": {}, "diagnostics": {}, "model": {}}')
+    fit = bt.Fit.load(tmp_path)
+    with pytest.raises(BadInput, match="no such file"):
+        fit.idata  # noqa: B018
+    (tmp_path / "posterior.nc").write_bytes(b"\x89HDF\r\n\x1a\n" + b"\0" * 40)
+    with pytest.raises(BadInput, match="cannot be read as the posterior"):
+        fit.idata  # noqa: B018
+    axis = np.linspace(-0.01, 0.01, 4)
+    good = Occupancy(axis, axis, axis, np.full((4, 4, 4), 0.5), 10)
+    write_occupancy(tmp_path / "occupancy.npz", good)
+    occ = load_occupancy(tmp_path)
+    assert np.allclose(occ.at(np.zeros((2, 3))), 0.5)
+    for bad, needle in [(np.full((2, 3), np.nan), "NaN"), (np.zeros((2, 2)), "shape")]:
+        with pytest.raises(BadInput, match=needle):
+            occ.at(bad)
+    write_occupancy(tmp_path / "occupancy.npz", good._replace(probability=np.full((4, 4, 4), np.nan)))
+    with pytest.raises(BadInput, match="outside \\[0, 1\\]"):
+        load_occupancy(tmp_path)

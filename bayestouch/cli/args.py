@@ -20,6 +20,7 @@ __all__ = [
     "size_range",
     "eps_list",
     "check_out",
+    "check_duration_rate",
     "RESULT_FILES",
     "out_path",
     "bounded_int",
@@ -181,6 +182,20 @@ def check_out(path: Path, overwrite: bool | None = None, command: str = "") -> P
             print(f"bayestouch {command}: --overwrite: the earlier results are kept in {aside}", file=sys.stderr)
     path.mkdir(parents=True, exist_ok=True)
     return path
+
+
+def check_duration_rate(duration: float, rate: float) -> None:
+    """``--duration`` (s) and ``--rate`` (frames/s) of random strokes: each in range and at least 2 frames a
+    stroke (:class:`BadInput` naming the options)."""
+    if not (0 < duration <= 600):
+        raise BadInput(f"--duration must be in (0, 600] seconds, got {duration}")
+    if not (1 <= rate <= 2000):
+        raise BadInput(f"--rate must be in [1, 2000] frames per second, got {rate}")
+    if duration * rate < 2:
+        raise BadInput(
+            f"--duration {duration:g} s at --rate {rate:g} Hz gives fewer than 2 frames per stroke; "
+            "give a longer --duration or a higher --rate"
+        )
 
 
 def size_range(text: str) -> tuple[float, float]:

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bayestouch.cli.args import bounded_int, out_path
+from bayestouch.cli.args import bounded_int, check_duration_rate, out_path
 from bayestouch.cli.args import seed as seed_arg
 from bayestouch.cli.args import segment as segment_arg
 from bayestouch.errors import BadInput
@@ -366,12 +366,10 @@ def _run(args) -> int:
         if given:  # they shape random strokes only: silently dropped before
             raise BadInput(f"{', '.join(given)}: not used with --stroke-file (its strokes are given in full)")
         plans = load_stroke_file(args.stroke_file, currents)
+    else:
+        check_duration_rate(args.duration, args.rate)
     check_port(args.port)
     if args.stroke_file is None:
-        if not (0 < args.duration <= 600):
-            raise BadInput(f"--duration must be in (0, 600] seconds, got {args.duration}")
-        if not (1 <= args.rate <= 2000):
-            raise BadInput(f"--rate must be in [1, 2000] frames per second, got {args.rate}")
         from bayestouch.scene.objects import load_object
         from bayestouch.scene.strokes import random_strokes
 

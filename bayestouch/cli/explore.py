@@ -128,10 +128,9 @@ MIN_DRAWS = 10
 def _settings(args) -> dict:
     for name in ("candidates", "draws", "steps"):
         v, hi = getattr(args, name), SETTING_LIMITS[name]
-        if not 1 <= v <= hi:
-            raise BadInput(f"--{name} must be an integer from 1 to {hi}, got {v}")
-    if args.draws < MIN_DRAWS:
-        raise BadInput(f"--draws must be at least {MIN_DRAWS} (a covariance of the posterior), got {args.draws}")
+        lo = MIN_DRAWS if name == "draws" else 1  # a covariance of the posterior needs a few draws
+        if not lo <= v <= hi:
+            raise BadInput(f"--{name} must be an integer from {lo} to {hi}, got {v}")
     if not 1 <= args.budget <= SETTING_LIMITS["budget"]:
         raise BadInput(
             f"--strokes (--budget) must be an integer number of strokes from 1 to {SETTING_LIMITS['budget']}, "
@@ -169,6 +168,8 @@ def run_explore(args) -> int:
 
     settings = ExploreSettings(**_settings(args))
     check_policy(args.planner)
+    if getattr(args, "per_second", False) and args.planner != "eig":
+        raise BadInput(f"--per-second applies to the eig planner (information per second), not to {args.planner}")
     tv = args.target_volume_sd
     if tv is not None and not (math.isfinite(tv) and tv > 0):
         raise BadInput(f"--target-volume-sd must be a positive volume in m^3, got {tv}")

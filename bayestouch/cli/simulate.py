@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bayestouch.cli.args import out_path, positive_int
+from bayestouch.cli.args import check_duration_rate, out_path, positive_int
 from bayestouch.cli.args import seed as seed_arg
 from bayestouch.errors import BadInput
 from bayestouch.params import MODELS
@@ -79,15 +79,7 @@ def run(args) -> int:
         raise BadInput(f"--out {args.out}: expected a netCDF file name ending in .nc")
     if args.out.exists() and args.out.is_dir():
         raise BadInput(f"--out {args.out} is a folder; expected a .nc file name")
-    if not (0 < args.duration <= 600):
-        raise BadInput(f"--duration must be in (0, 600] seconds, got {args.duration}")
-    if not (1 <= args.rate <= 2000):
-        raise BadInput(f"--rate must be in [1, 2000] frames per second, got {args.rate}")
-    if args.duration * args.rate < 2:
-        raise BadInput(
-            f"--duration {args.duration:g} s at --rate {args.rate:g} Hz gives fewer than 2 frames per stroke; "
-            "give a longer --duration or a higher --rate"
-        )
+    check_duration_rate(args.duration, args.rate)
     try:
         currents = [float(x) for x in args.currents.split(",")]
     except ValueError:

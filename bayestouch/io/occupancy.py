@@ -45,7 +45,12 @@ class Occupancy(NamedTuple):
 
     def at(self, points) -> np.ndarray:
         """Occupancy probability (P,) at ``points (P, 3)`` m, trilinear between grid points, 0 outside the grid."""
-        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        p = np.asarray(points, dtype=np.float64)
+        if p.ndim not in (1, 2) or p.shape[-1] != 3:
+            raise BadInput(f"points: expected (P, 3) or (3,) metres, got shape {p.shape}")
+        p = p.reshape(-1, 3)
+        if not np.all(np.isfinite(p)):
+            raise BadInput("points: hold NaN or infinite values; expected finite metres")
         f = RegularGridInterpolator((self.x, self.y, self.z), self.probability, bounds_error=False, fill_value=0.0)
         return f(p)
 
@@ -75,7 +80,10 @@ def load_occupancy(path: str | os.PathLike[str]) -> Occupancy:
     if path.is_dir():
         path = path / OCCUPANCY_FILE
     if not path.is_file():
-        raise BadInput(f"{path}: no occupancy grid here (a parts fit writes {OCCUPANCY_FILE} in its run folder)")
+        raise BadInput(
+            f"{path}: no occupancy grid here (every finished fit writes {OCCUPANCY_FILE} in its run folder; an "
+            "interrupted one writes it when continued with --resume)"
+        )
     try:
         with np.load(path) as z:
             occ = Occupancy(
@@ -90,4 +98,9 @@ def load_occupancy(path: str | os.PathLike[str]) -> Occupancy:
     shape = (occ.x.size, occ.y.size, occ.z.size)
     if occ.probability.shape != shape or min(shape) < 2:
         raise BadInput(f"{path}: probability has shape {occ.probability.shape}, expected {shape} with every side ≥ 2")
+    if not np.all((occ.probability >= 0) & (occ.probability <= 1)):  # also false for NaN
+        raise BadInput(f"{path}: probability holds values outside [0, 1] (or NaN); a damaged occupancy grid")
+    for name, axis in (("x", occ.x), ("y", occ.y), ("z", occ.z)):
+        if not (np.all(np.isfinite(axis)) and np.all(np.diff(axis) > 0)):
+            raise BadInput(f"{path}: axis {name} is not finite and increasing; a damaged occupancy grid")
     return occ
