@@ -137,3 +137,26 @@ def test_damaged_posterior_and_occupancy_files_are_named(tmp_path):
     write_occupancy(tmp_path / "occupancy.npz", good._replace(probability=np.full((4, 4, 4), np.nan)))
     with pytest.raises(BadInput, match="outside \\[0, 1\\]"):
         load_occupancy(tmp_path)
+
+
+def test_record_strokes_refuses_strokes_the_forward_model_turns_into_nan():
+    """bt.record_strokes with a NaN depth, a NaN contact, zero normals or a 5 mm depth returned NaN currents or a
+    1 kN force without a word (fourth review); each is one line naming the stroke and field. Negative control: the
+    stroke as drawn records finite currents."""
+    egg = bt.load_object("egg")
+    finger = bt.load_finger()
+    st = bt.random_strokes(egg, 1, seed=0, duration=0.2)[0]
+    ok = bt.record_strokes(egg, [st], finger, seed=0)
+    assert np.all(np.isfinite(ok["taxel_current"]))
+    c = st.contact.copy()
+    c[1] = np.nan
+    for bad, needle in [
+        ([st._replace(depth=np.nan)], "depth"),
+        ([st._replace(depth=5e-3)], "depth"),
+        ([st._replace(contact=c)], "contact"),
+        ([st._replace(normal=np.zeros_like(st.normal))], "normal"),
+        ([st._replace(time=st.time[::-1])], "time"),
+        ([], "at least one stroke"),
+    ]:
+        with pytest.raises(BadInput, match=needle):
+            bt.record_strokes(egg, bad, finger, seed=0)

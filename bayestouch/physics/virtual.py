@@ -21,7 +21,7 @@ from bayestouch.physics import forward as fw
 from bayestouch.physics.finger import drive
 from bayestouch.physics.forward import make_finger
 
-__all__ = ["VirtualFinger", "load_finger", "record_strokes", "recording_dataset"]
+__all__ = ["check_strokes", "MAX_DEPTH_M", "VirtualFinger", "load_finger", "record_strokes", "recording_dataset"]
 
 
 class VirtualFinger(NamedTuple):
@@ -49,6 +49,31 @@ def load_finger(models: Path = MODELS, seed: int = 0) -> VirtualFinger:
     return VirtualFinger(fg, wire, rod, taxel.load_taxel_mode(models / "taxels.toml"))
 
 
+#: deepest pressing depth (m) a simulated stroke takes: the simulator's own limit (``simulate --depth``); at 5 mm
+#: the forward model's pad force is ~1 kN, no finger's
+MAX_DEPTH_M = 2e-3
+
+
+def check_strokes(strokes, force_controlled: bool = False) -> None:
+    """Refuse (:class:`BadInput` naming the stroke and field) strokes the forward model would turn into NaN or
+    impossible readings: none at all; contact points that are not (T ≥ 2, 3) finite metres; normals that are not
+    finite unit vectors; times that are not finite and increasing; a depth outside (0, :data:`MAX_DEPTH_M`] m
+    (unless ``force_controlled``, where the depths are solved for)."""
+    strokes = list(strokes)
+    if not strokes:
+        raise BadInput("strokes: expected at least one stroke, got none")
+    for i, st in enumerate(strokes):
+        c, n, t = (np.asarray(v, dtype=float) for v in (st.contact, st.normal, st.time))
+        if c.ndim != 2 or c.shape[1] != 3 or len(c) < 2 or not np.all(np.isfinite(c)):
+            raise BadInput(f"stroke {i}: contact must be a (T ≥ 2, 3) array of finite metres, got shape {c.shape}")
+        if n.shape != c.shape or not np.all(np.isfinite(n)) or not np.allclose(np.linalg.norm(n, axis=1), 1, atol=1e-3):
+            raise BadInput(f"stroke {i}: normal must be ({len(c)}, 3) finite unit vectors")
+        if t.shape != (len(c),) or not np.all(np.isfinite(t)) or not np.all(np.diff(t) > 0):
+            raise BadInput(f"stroke {i}: time must be ({len(c)},) finite, strictly increasing seconds")
+        if not force_controlled and not 0 < float(st.depth) <= MAX_DEPTH_M:
+            raise BadInput(f"stroke {i}: depth must be in (0, {MAX_DEPTH_M:g}] metres, got {st.depth!r}")
+
+
 def record_strokes(
     obj,
     strokes,
@@ -68,6 +93,7 @@ def record_strokes(
     mode = mode or vf.mode
     if mode not in ("physics", "empirical"):
         raise BadInput(f"--mode must be physics or empirical, got {mode!r}")
+    check_strokes(strokes, force is not None)
     surf = obj.surface()
     keys = jax.random.split(jax.random.PRNGKey(seed), len(strokes))
     cols: dict[str, list] = {
