@@ -437,6 +437,12 @@ def simulate(
     from bayestouch.scene.objects import SceneObject, load_object
     from bayestouch.scene.strokes import random_strokes
 
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or not 0 <= seed < 2**32:
+        raise BadInput(f"seed: expected an integer in [0, 2**32), got {seed!r}")
+    if force is not None and (isinstance(force, bool) or not isinstance(force, int | float)):
+        raise BadInput(f"force: expected a number of newtons in (0, 2], got {force!r}")
+    if np.ndim(hold_currents) != 1:
+        raise BadInput(f"hold_currents: expected the three wires' currents in amperes, got {hold_currents!r}")
     depths = [float(d) for d in np.atleast_1d(np.asarray(depth, dtype=float))]
     if not depths or not all(0 < d <= 2e-3 for d in depths):
         raise BadInput(f"depth: each pressing depth must be in (0, 2e-3] metres, got {depth!r}")

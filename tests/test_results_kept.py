@@ -160,3 +160,31 @@ def test_record_strokes_refuses_strokes_the_forward_model_turns_into_nan():
     ]:
         with pytest.raises(BadInput, match=needle):
             bt.record_strokes(egg, bad, finger, seed=0)
+
+
+def test_public_geometry_simulate_and_explore_refuse_malformed_arguments():
+    """NaN or negative semi-axes gave NaN or inside-out meshes, a negative or fractional count numpy errors, and
+    simulate/explore settings raw TypeErrors, IndexErrors or emcee errors (fourth review); each is one BadInput
+    naming the argument. Negative control: the well-formed shape meshes."""
+    from bayestouch.geometry.nellipsoid import NEllipsoid
+
+    good = NEllipsoid(np.zeros(3), np.array([0.03, 0.02, 0.01]), np.zeros(3), 2.5)
+    v, _ = bt.nellipsoid_mesh(good, 8)
+    assert np.all(np.isfinite(v))
+    cases = [
+        (lambda: bt.nellipsoid_mesh(good._replace(axes=np.array([np.nan, 0.02, 0.01]))), "axes"),
+        (lambda: bt.nellipsoid_mesh(good._replace(axes=np.array([-0.03, 0.02, 0.01]))), "axes"),
+        (lambda: bt.nellipsoid_mesh(good._replace(n=np.nan)), "n must be"),
+        (lambda: bt.compare_shapes(good._replace(centre=np.array([np.nan, 0, 0])), good), "a: centre"),
+        (lambda: bt.sample_surface(good, -1), "count"),
+        (lambda: bt.sample_surface(good, 2.5), "count"),
+        (lambda: bt.simulate(seed=-1), "seed"),
+        (lambda: bt.simulate(hold_currents=0.1), "hold_currents"),
+        (lambda: bt.simulate(force="0.07"), "force"),
+        (lambda: bt.explore(bt.load_object("egg"), "random", 1, settings=bt.ExploreSettings(draws=0)), "draws"),
+        (lambda: bt.explore(bt.load_object("egg"), "random", 1, settings=bt.ExploreSettings(steps=-1)), "steps"),
+        (lambda: bt.explore(bt.load_object("egg"), "random", 1, target_volume_sd=float("nan")), "target_volume"),
+    ]
+    for call, needle in cases:
+        with pytest.raises(BadInput, match=needle):
+            call()

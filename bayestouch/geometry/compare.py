@@ -15,6 +15,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from bayestouch.backend import jax, jnp, pad_pow2
+from bayestouch.errors import BadInput
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.integrals import relative_errors, surface_integrals
 from bayestouch.geometry.mesh import as_rng, closest_points, nellipsoid_mesh, sample_mesh, sample_surface
@@ -341,6 +342,12 @@ def compare_shapes(a, b, *, res: int = 48, count: int = 200_000, seed=0, chamfer
         ``chamfer`` (m); and ``param_distance`` (a dict, :func:`~bayestouch.geometry.symmetry.param_distance`)
         when both are NEllipsoids.
     """
+
+    for name, obj in (("a", a), ("b", b)):
+        if isinstance(obj, NEllipsoid):
+            ne.check_shape(obj, name)
+        elif not np.all(np.isfinite(np.asarray(obj[0], dtype=float))):
+            raise BadInput(f"{name}: the mesh's vertices hold NaN or infinite values; expected finite metres")
 
     def as_mesh(obj):
         return nellipsoid_mesh(obj, res) if isinstance(obj, NEllipsoid) else obj

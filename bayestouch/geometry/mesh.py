@@ -14,7 +14,8 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from bayestouch.backend import jnp
-from bayestouch.geometry.nellipsoid import NEllipsoid, project_to_surface, surface_point, unit_nsphere
+from bayestouch.errors import BadInput
+from bayestouch.geometry.nellipsoid import NEllipsoid, check_shape, project_to_surface, surface_point, unit_nsphere
 
 __all__ = [
     "cube_sphere",
@@ -95,6 +96,7 @@ def nellipsoid_mesh(s: NEllipsoid, res: int = 32) -> tuple[np.ndarray, np.ndarra
     vertices : (6·res² + 2, 3) float, metres
     faces : (12·res², 3) int, outward
     """
+    check_shape(s)
     d, faces = cube_sphere(res)
     Y = unit_nsphere(jnp.asarray(d), s.n)
     return np.asarray(surface_point(s, Y)), faces
@@ -138,6 +140,8 @@ def sample_surface(s: NEllipsoid, count: int, seed=None, res: int = 48) -> np.nd
     -------
     (count, 3) float, metres
     """
+    if isinstance(count, bool) or not isinstance(count, int | np.integer) or count < 1:
+        raise BadInput(f"count: expected a positive integer number of points, got {count!r}")
     v, f = nellipsoid_mesh(s, res)
     pts, _ = sample_mesh(v, f, count, seed)
     return np.asarray(project_to_surface(s, jnp.asarray(pts)))

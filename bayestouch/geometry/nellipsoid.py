@@ -14,10 +14,12 @@ import numpy as np
 from jax.scipy.special import gammaln
 
 from bayestouch.backend import jax, jnp, pad_pow2
+from bayestouch.errors import BadInput
 from bayestouch.geometry.rotation import rotation_matrix
 
 __all__ = [
     "NEllipsoid",
+    "check_shape",
     "from_vector",
     "to_vector",
     "to_local",
@@ -66,6 +68,20 @@ class NEllipsoid(NamedTuple):
     def rotation(self):
         """(3, 3) rotation matrix of eq. 2."""
         return rotation_matrix(self.angles)
+
+
+def check_shape(s: NEllipsoid, where: str = "shape") -> None:
+    """Refuse (:class:`~bayestouch.errors.BadInput` naming ``where``) an n-ellipsoid whose parameters are not
+    numbers of the stated forms: centre (3,) finite metres, axes (3,) finite > 0 metres, angles (3,) finite
+    radians, n finite > 0 (NaN or a negative axis gave NaN or inside-out meshes without a word)."""
+    for name, shape, positive in (("centre", (3,), False), ("axes", (3,), True), ("angles", (3,), False)):
+        v = np.asarray(getattr(s, name), dtype=float)
+        if v.shape != shape or not np.all(np.isfinite(v)) or (positive and not np.all(v > 0)):
+            kind = "finite numbers > 0" if positive else "finite numbers"
+            raise BadInput(f"{where}: {name} must be {shape[0]} {kind}, got {np.asarray(getattr(s, name)).tolist()}")
+    n = np.asarray(s.n, dtype=float)
+    if n.shape != () or not np.isfinite(n) or not n > 0:
+        raise BadInput(f"{where}: n must be one finite number > 0, got {np.asarray(s.n).tolist()}")
 
 
 def from_vector(v) -> NEllipsoid:

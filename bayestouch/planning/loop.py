@@ -13,6 +13,7 @@ the relative volume error. Lengths in metres, volumes in m³. The loop's design 
 
 from __future__ import annotations
 
+import math
 import time
 import warnings
 from typing import NamedTuple
@@ -97,6 +98,36 @@ class ExploreSettings(NamedTuple):
     init_starts: int = 2
     scout: int = 4
     per_second: bool = False
+
+
+#: the smallest value of each integer field of :class:`ExploreSettings` (a covariance of the posterior needs 10
+#: draws, emcee's moves 24 walkers split in halves)
+_SETTING_MIN = {
+    "candidates": 1,
+    "draws": 10,
+    "walkers": 24,
+    "steps": 1,
+    "init_steps": 1,
+    "points": 1,
+    "init_starts": 1,
+    "scout": 1,
+}
+
+
+def check_settings(s: ExploreSettings) -> None:
+    """Refuse (:class:`BadInput` naming the field) settings the loop cannot run: integer fields below their least
+    (``draws=0`` was an IndexError, ``steps=-1`` an emcee error), an odd walker count, a noise sd or standoff that
+    is not a positive finite number of metres."""
+    for name, lo in _SETTING_MIN.items():
+        v = getattr(s, name)
+        if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < lo:
+            raise BadInput(f"settings.{name}: expected an integer ≥ {lo}, got {v!r}")
+    if s.walkers % 2:
+        raise BadInput(f"settings.walkers: expected an even number (emcee moves halves of it), got {s.walkers}")
+    for name in ("noise_sd", "standoff"):
+        v = getattr(s, name)
+        if isinstance(v, bool) or not isinstance(v, int | float) or not (math.isfinite(v) and v > 0):
+            raise BadInput(f"settings.{name}: expected a positive finite number of metres, got {v!r}")
 
 
 class StrokeRecord(NamedTuple):
@@ -307,6 +338,9 @@ def explore(
     if not isinstance(seed, int | np.integer) or seed < 0:
         raise BadInput(f"seed: expected an integer ≥ 0, got {seed!r}")
     s = settings or ExploreSettings()
+    check_settings(s)
+    if target_volume_sd is not None and not (isinstance(target_volume_sd, int | float) and target_volume_sd > 0):
+        raise BadInput(f"target_volume_sd: expected a positive volume in m^3 or None, got {target_volume_sd!r}")
     if obj is None and prober is None:
         raise BadInput("object: expected a scene object or a prober (a finger) to explore, got neither")
     if obj is None and policy == "oracle":
