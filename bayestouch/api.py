@@ -17,7 +17,6 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import sys
 import tempfile
 import weakref
 from pathlib import Path
@@ -26,7 +25,7 @@ import numpy as np
 
 from bayestouch.errors import BadInput
 from bayestouch.io.contacts import N_ELLIPSOID_PARAMS, ContactPoints, check_contact_spread, load_contact_points
-from bayestouch.io.files import atomic_path, move_aside
+from bayestouch.io.files import atomic_path, set_aside
 from bayestouch.io.runfolder import OUTPUTS, RESULT_FILES
 from bayestouch.params import MODELS
 
@@ -272,6 +271,11 @@ def _contacts(data) -> ContactPoints | None:
     return ContactPoints(points=a, source="array")
 
 
+def _check_seed(seed) -> None:
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or not 0 <= seed < 2**32:
+        raise BadInput(f"seed: expected an integer in [0, 2**32), got {seed!r}")
+
+
 def fit(
     data,
     out=None,
@@ -316,8 +320,7 @@ def fit(
     -------
     Fit
     """
-    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or not 0 <= seed < 2**32:
-        raise BadInput(f"seed must be an integer in [0, 2**32), got {seed!r}")
+    _check_seed(seed)
     if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int | np.integer) or steps < 1):
         raise BadInput(f"steps must be a positive integer (the largest chain length) or None, got {steps!r}")
     if isinstance(walkers, bool) or not isinstance(walkers, int | np.integer) or walkers < 24 or walkers % 2:
@@ -437,8 +440,7 @@ def simulate(
     from bayestouch.scene.objects import SceneObject, load_object
     from bayestouch.scene.strokes import random_strokes
 
-    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or not 0 <= seed < 2**32:
-        raise BadInput(f"seed: expected an integer in [0, 2**32), got {seed!r}")
+    _check_seed(seed)
     if force is not None and (isinstance(force, bool) or not isinstance(force, int | float)):
         raise BadInput(f"force: expected a number of newtons in (0, 2], got {force!r}")
     if np.ndim(hold_currents) != 1:
@@ -483,18 +485,9 @@ def simulate(
         progress=progress,
     )
     if out is not None:
-        set_aside(out)
+        set_aside([out], "simulate")  # an earlier recording (overwrite=True) is kept, never deleted
         write_recording(ds, out, replace=overwrite)
     return ds
-
-
-def set_aside(path) -> None:
-    """Move an existing file ``path`` into ``replaced-<UTC>/`` beside it (an ``overwrite`` keeps the earlier
-    recording or device file, never deletes it) and say where on stderr."""
-    path = Path(path)
-    if path.is_file():
-        aside = move_aside(path.parent, [path])
-        print(f"bayestouch: --overwrite: the earlier {path.name} is kept in {aside}", file=sys.stderr)
 
 
 def calibrate(recording, obj, *, models=MODELS, out=None, overwrite: bool = False):
@@ -529,6 +522,6 @@ def calibrate(recording, obj, *, models=MODELS, out=None, overwrite: bool = Fals
     cal = calibrate_device(recording, scene, models=models, object_name=str(obj) if isinstance(obj, str) else None)
     if out is not None:
         device_file_text(cal)  # refused (BadInput) before an earlier file is moved
-        set_aside(out)
+        set_aside([out], "calibrate")
         write_device_file(out, cal)
     return cal

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 import tempfile
 from pathlib import Path
 
@@ -175,11 +174,9 @@ def check_out(path: Path, overwrite: bool | None = None, command: str = "") -> P
                 f"--out {path} already holds {held[0].name} (a finished result); pass --overwrite to set it aside, "
                 "or choose another folder"
             )
-        if held:
-            from bayestouch.io.files import move_aside
+        from bayestouch.io.files import set_aside
 
-            aside = move_aside(path, held)
-            print(f"bayestouch {command}: --overwrite: the earlier results are kept in {aside}", file=sys.stderr)
+        set_aside(held, command)
     path.mkdir(parents=True, exist_ok=True)
     return path
 

@@ -387,7 +387,7 @@ def _run(args) -> int:
             raise type(e)(f"stroke {i}: {e}") from None
     from bayestouch import __version__
     from bayestouch.hardware.device import DeviceError, FingerDevice, HeaterFault, build_recording
-    from bayestouch.io.files import move_aside
+    from bayestouch.io.files import set_aside
     from bayestouch.io.recording import write_recording
 
     if args.out.exists() and not args.overwrite:
@@ -408,17 +408,12 @@ def _run(args) -> int:
         "object": "unknown (device)" if args.stroke_file else f"device; strokes planned on {args.object}",
     }
     dev = FingerDevice(args.port, timeout=args.timeout, journal=journal, limits=limits, segment=args.segment)
-
-    def set_aside() -> None:
-        """With --overwrite, the earlier recording is moved aside (never deleted) before the new one is written."""
-        if args.overwrite and args.out.exists():
-            aside = move_aside(args.out.parent, [args.out])
-            print(f"bayestouch device run: kept the earlier {args.out.name} in {aside}", file=sys.stderr)
+    replaced = [args.out] if args.overwrite else []  # set aside (never deleted) before the new recording is written
 
     def keep(note: str) -> None:
         """Write the complete strokes so far (marked incomplete) and say where everything received is."""
         if done:
-            set_aside()
+            set_aside(replaced, "device run")
             partial = build_recording(done, dev.info, {**attrs, "incomplete": "true"})
             write_recording(partial, args.out, replace=args.overwrite)
         written = f" written to {args.out}" if done else ""
@@ -451,7 +446,7 @@ def _run(args) -> int:
     finally:
         if old_term is not None:
             signal.signal(signal.SIGTERM, old_term)
-    set_aside()
+    set_aside(replaced, "device run")
     write_recording(build_recording(done, info, attrs), args.out, replace=args.overwrite)
     if args.journal is None:
         journal.unlink(missing_ok=True)

@@ -121,11 +121,11 @@ def add_planning_parsers(subparsers) -> tuple[argparse.ArgumentParser, argparse.
 #: largest values of the planner's sizes (memory grows with candidates × draws × rays, time with each): beyond
 #: them a run would end in a MemoryError or an hours-long silence
 SETTING_LIMITS = {"candidates": 4096, "draws": 100_000, "steps": 1_000_000, "budget": 1000}
-#: fewest posterior draws the planner can estimate a covariance from
-MIN_DRAWS = 10
 
 
 def _settings(args) -> dict:
+    from bayestouch.planning.loop import MIN_DRAWS  # the loop's own least (check_settings)
+
     for name in ("candidates", "draws", "steps"):
         v, hi = getattr(args, name), SETTING_LIMITS[name]
         lo = MIN_DRAWS if name == "draws" else 1  # a covariance of the posterior needs a few draws
@@ -161,7 +161,7 @@ def run_explore(args) -> int:
     (the schema of ``bayestouch simulate``, rewritten after every stroke) and ``device.journal`` (every packet
     received) are written too; without ``--object`` there is no truth and the errors are unknown (NaN)."""
     from bayestouch.io.contacts import save_contact_points
-    from bayestouch.io.files import move_aside, write_json
+    from bayestouch.io.files import set_aside, write_json
     from bayestouch.planning.loop import ExploreSettings, explore
     from bayestouch.planning.policies import check_policy
     from bayestouch.scene.objects import load_object, resolve_object
@@ -209,9 +209,7 @@ def run_explore(args) -> int:
             f"--out {out} already holds results ({', '.join(sorted({f.name for f in earlier})[:4])}"
             f"{' …' if len(earlier) > 4 else ''}); pass --overwrite to set them aside, or choose another folder"
         )
-    if earlier:  # --overwrite: set aside, never deleted, and no stale output is left beside the new ones
-        aside = move_aside(out, earlier)
-        print(f"explore: the earlier results ({len(earlier)} files) moved to {aside}", file=sys.stderr)
+    set_aside(earlier, "explore")  # --overwrite: never deleted, and no stale output is left beside the new ones
     out.mkdir(parents=True, exist_ok=True)
     truthless = obj is None
     object_name = name if name is not None else "unknown (a finger without --object)"

@@ -387,10 +387,14 @@ class FingerDevice:
         except (serial.SerialException, OSError) as e:
             raise _Disconnected(str(e)) from None
 
-    def _send(self, msg) -> tuple[int, bytes]:
+    def _packet(self, msg) -> tuple[int, bytes]:
+        """The next sequence number and ``msg``'s bytes under it (as parts in segment mode)."""
         seq = self._seq
         self._seq = (self._seq + 1) & 0xFFFF
-        raw = pr.split(pr.encode(msg, seq), self._segment)
+        return seq, pr.split(pr.encode(msg, seq), self._segment)
+
+    def _send(self, msg) -> tuple[int, bytes]:
+        seq, raw = self._packet(msg)
         self._write(raw)
         return seq, raw
 
@@ -487,13 +491,9 @@ class FingerDevice:
             self._write(raw)
 
     def _send_safe(self, msg, reconnect: bool):
-        try:
-            return self._send(msg)
-        except _Disconnected:
-            if not reconnect:
-                raise
-            self._reconnect()
-            return self._send(msg)
+        seq, raw = self._packet(msg)
+        self._write_safe(raw, reconnect)
+        return seq, raw
 
     # ------------------------------------------------------------ commands
 

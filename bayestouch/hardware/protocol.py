@@ -609,8 +609,8 @@ class Decoder:
         self.max_completed = 64
         self._completed: OrderedDict[tuple[int, int], bytes] = OrderedDict()
 
-    def _part(self, part: Part) -> bytes | None:
-        """Store one part; the whole packet body once it is complete."""
+    def _reassembled(self, part: Part) -> tuple[int, object] | None:
+        """Store one part; the whole packet's ``(seq, message)`` once every byte of it has arrived."""
         total, offset, data = int(part.total), int(part.offset), bytes(np.asarray(part.data, np.uint8))
         if not _HEADER.size + _CRC.size <= total <= MAX_PACKET or not data or offset + len(data) > total:
             raise ProtocolError(f"part of {len(data)} bytes at {offset} does not fit a packet of {total}")
@@ -618,7 +618,7 @@ class Decoder:
         if key in self._completed:
             # a packet sent again (a command retried because its answer was lost): delivered again once per
             # transmission, on its first part, so that the receiver can answer it again
-            return self._completed[key] if offset == 0 else None
+            return _decode_body(self._completed[key]) if offset == 0 else None
         if key not in self._partial:
             while self._partial and self._held + total > self.max_partial_bytes:
                 self._held -= len(self._partial.popitem(last=False)[1][0])
@@ -633,7 +633,14 @@ class Decoder:
         self._held -= total
         if _CRC.unpack_from(body, total - _CRC.size)[0] != key[0]:
             raise ProtocolError("reassembled packet does not carry its key as CRC")
-        return bytes(body)
+        body = bytes(body)
+        seq, msg = _decode_body(body)
+        if isinstance(msg, Part):
+            raise ProtocolError("a part inside a part")
+        self._completed[key] = body  # only a packet that decoded is remembered
+        if len(self._completed) > self.max_completed:
+            self._completed.popitem(last=False)
+        return seq, msg
 
     def feed(self, data: bytes) -> list[tuple[int, object]]:
         """Decode every complete packet in the bytes received so far."""
@@ -654,16 +661,10 @@ class Decoder:
                 seq, msg = decode_packet(packet)
                 if isinstance(msg, Part):
                     self.parts += 1
-                    key = (int(msg.key), int(msg.total))
-                    body = self._part(msg)
-                    if body is None:
+                    whole = self._reassembled(msg)
+                    if whole is None:
                         continue
-                    seq, msg = _decode_body(body)
-                    if isinstance(msg, Part):
-                        raise ProtocolError("a part inside a part")
-                    self._completed[key] = body  # only a packet that decoded is remembered
-                    if len(self._completed) > self.max_completed:
-                        self._completed.popitem(last=False)
+                    seq, msg = whole
                 out.append((seq, msg))
                 self.good += 1
             except ProtocolError as e:

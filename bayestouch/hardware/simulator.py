@@ -298,16 +298,17 @@ class VirtualDevice:
         """Send ``msg`` with the next sequence number (or ``seq``: a resent frame keeps its first one, so that its
         bytes and, in segment mode, its parts are those of the first transmission); returns its packet bytes.
         ``whole``: never split (a STATUS is made afresh for each request, so its parts could never combine)."""
-        if seq is None:
-            seq = self._seq
-            self._seq = (self._seq + 1) & 0xFFFF
-        raw = pr.encode(msg, seq)
+        raw = pr.encode(msg, self._next_seq() if seq is None else seq)
         self.stats["tx_packets"] += 1
         if self.faults.delay > 0 and self._rng.random() < self.faults.delay_prob:
             self._stall_until = max(self._stall_until, time.monotonic() + self.faults.delay)
             self.stats["stalls"] += 1
         self._transmit(raw, whole)
         return raw
+
+    def _next_seq(self) -> int:
+        seq, self._seq = self._seq, (self._seq + 1) & 0xFFFF
+        return seq
 
     def _transmit(self, raw: bytes, whole: bool = False) -> None:
         """Put one packet on the line: split into parts in segment mode (unless ``whole``), through the faults."""
@@ -448,8 +449,7 @@ class VirtualDevice:
         f = self._frames
         if i == self._n_sent:  # first transmission: stamp the sample time (a resent frame keeps its stamp and seq)
             self._stamps[i] = time.monotonic() - self._t0
-            self._frame_seq[i] = self._seq
-            self._seq = (self._seq + 1) & 0xFFFF
+            self._frame_seq[i] = self._next_seq()
         fields = (
             self.stroke_id,
             i,

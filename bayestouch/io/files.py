@@ -16,6 +16,7 @@ import json
 import math
 import os
 import secrets
+import sys
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
@@ -34,6 +35,7 @@ __all__ = [
     "atomic_path",
     "utc_stamp",
     "move_aside",
+    "set_aside",
     "read_csv_records",
     "file_error",
     "ragged_error",
@@ -228,6 +230,18 @@ def move_aside(folder: str | os.PathLike[str], paths) -> Path:
     aside.mkdir(parents=True)
     for p in map(Path, paths):
         p.replace(aside / p.name)
+    return aside
+
+
+def set_aside(paths, who: str) -> Path | None:
+    """``--overwrite``: move those of ``paths`` that exist (all in one folder) aside with :func:`move_aside` and say
+    where on stderr, naming the command ``who``; returns the folder, or None when none of them exists."""
+    present = [Path(p) for p in paths if Path(p).exists()]
+    if not present:
+        return None
+    aside = move_aside(present[0].parent, present)
+    names = ", ".join(p.name for p in present[:4]) + (" …" if len(present) > 4 else "")
+    print(f"bayestouch {who}: --overwrite: the earlier {names} moved to {aside}", file=sys.stderr)
     return aside
 
 

@@ -208,8 +208,10 @@ def check_recording(ds, where: str = "recording") -> None:
     if "stroke_index" in ds and ds["stroke_index"].ndim == 1 and ds["stroke_index"].size:
         k = np.asarray(ds["stroke_index"].values)
         runs = k[np.r_[True, k[1:] != k[:-1]]]
-        if len(np.unique(runs)) != len(runs):
-            again = runs[np.argmax([np.sum(runs[: i + 1] == r) > 1 for i, r in enumerate(runs)])]
+        first = np.zeros(len(runs), bool)
+        first[np.unique(runs, return_index=True)[1]] = True
+        if not first.all():  # a run of a stroke seen before (linear: a hostile file may hold a run per frame)
+            again = runs[np.argmin(first)]
             raise BadInput(
                 f"{where}: 'stroke_index' {again} comes back after other strokes; expected each stroke's frames "
                 "one after another (contiguous)"

@@ -24,7 +24,6 @@ import logging
 import math
 import multiprocessing as mp
 import socket
-import sys
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
@@ -34,7 +33,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from bayestouch.errors import BadInput
-from bayestouch.io.files import move_aside, read_csv_rows, write_csv_rows, write_json
+from bayestouch.io.files import read_csv_rows, set_aside, write_csv_rows, write_json
 from bayestouch.io.runfolder import differences, fingerprint
 from bayestouch.planning.device_prober import VirtualFingerProber
 from bayestouch.planning.loop import ExploreSettings, explore
@@ -355,9 +354,7 @@ def run_experiment(
         )
     if overwrite and not resume and csv_path.is_file():
         # set aside, not deleted: an interrupted new run leaves the old results where the user finds them
-        old_files = [out / n for n in ("results.csv", "experiment.json", "error_vs_strokes.png") if (out / n).exists()]
-        aside = move_aside(out, old_files)
-        print(f"bayestouch experiment: --overwrite: the earlier results are kept in {aside}", file=sys.stderr)
+        set_aside([out / n for n in ("results.csv", "experiment.json", "error_vs_strokes.png")], "experiment")
     rows: list[dict] = []
     if resume and csv_path.is_file():
         old_meta = None

@@ -47,6 +47,8 @@ __all__ = [
     "CONTACT_NOISE",
     "RayProber",
     "point_estimate",
+    "check_settings",
+    "MIN_DRAWS",
 ]
 
 #: radius of the believed sphere before any touch, metres (a hand-held object of a few centimetres)
@@ -100,11 +102,12 @@ class ExploreSettings(NamedTuple):
     per_second: bool = False
 
 
-#: the smallest value of each integer field of :class:`ExploreSettings` (a covariance of the posterior needs 10
-#: draws, emcee's moves 24 walkers split in halves)
+#: fewest posterior draws the planner can estimate a covariance from
+MIN_DRAWS = 10
+#: the smallest value of each integer field of :class:`ExploreSettings` (emcee's moves split 24 walkers in halves)
 _SETTING_MIN = {
     "candidates": 1,
-    "draws": 10,
+    "draws": MIN_DRAWS,
     "walkers": 24,
     "steps": 1,
     "init_steps": 1,

@@ -174,12 +174,14 @@ class HostDevice(NamedTuple):
     response_sd: float
 
 
-def recording_mode(ds, where: str) -> str:
+def recording_mode(ds, where: str, calibration: DeviceCalibration | None = None) -> str:
     """The taxel mode a recording was made in (its ``mode`` attribute, default ``physics``); :class:`BadInput`
-    naming ``where`` for another value."""
+    naming ``where`` for another value, or when ``calibration`` was made in another mode."""
     mode = str(ds.attrs.get("mode", "physics"))
     if mode not in tx.MODES:
         raise BadInput(f"{where}: attribute 'mode' is {mode!r}, expected one of {tx.MODES}")
+    if calibration is not None and calibration.mode != mode:
+        raise BadInput(f"calibration: made in the {calibration.mode} taxel mode; {where} is in the {mode} mode")
     return mode
 
 
@@ -301,9 +303,7 @@ def load_raw_data(
     for name, v in (("pressing_depth", depth), ("skin_temperature", temp), ("time", t), ("stroke_index", si)):
         if v.shape != (nF,):
             raise BadInput(f"{where}: variable '{name}' has shape {v.shape}, expected ({nF},) (frame)")
-    mode = recording_mode(ds, where)
-    if calibration is not None and calibration.mode != mode:
-        raise BadInput(f"calibration: made in the {calibration.mode} taxel mode; {where} is in the {mode} mode")
+    mode = recording_mode(ds, where, calibration)
     if device is None and finger is None:
         device = host_device(Path(models), calibration)
     if device is not None:

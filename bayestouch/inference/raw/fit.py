@@ -381,9 +381,7 @@ def run_raw_fit(
     cal, cal_name = calibration, None
     if calibration is not None and not isinstance(calibration, DeviceCalibration):
         cal, cal_name = read_device_file(calibration), str(calibration)
-    mode = recording_mode(ds, where)
-    if cal is not None and cal.mode != mode:  # checked before the run folder is touched (--overwrite sets aside)
-        raise BadInput(f"calibration: made in the {cal.mode} taxel mode; {where} is in the {mode} mode")
+    recording_mode(ds, where, cal)  # checked before the run folder is touched (--overwrite sets aside)
     host = host_device(Path(models), cal)
     finger = host.finger
     options = {
