@@ -550,3 +550,52 @@ def test_a_damaged_results_file_is_refused_naming_line_and_column(tmp_path):
     for rows, needle in cases:
         with pytest.raises(BadInput, match=needle):
             checked_rows(rows, "r.csv")
+
+
+def _split_and_spread(rng, n: int, p_miss: float, spread: float, t_max: float = 0.02, t_hit: float = 0.005):
+    """Signals (n, 3) m of one stroke: reading 0 misses (t_max) for a share ``p_miss`` of the draws and touches at
+    ``t_hit`` for the rest; readings 1 and 2 touch at t_hit + spread·z, one z ~ N(0, 1) per draw."""
+    z = rng.standard_normal(n)
+    first = np.where(rng.random(n) < p_miss, t_max, t_hit)
+    return np.column_stack([first, t_hit + spread * z, t_hit + spread * z])
+
+
+def test_reading_events_tell_inside_touch_and_miss():
+    ev = eg.reading_events(np.array([[0.0, 0.003, 0.02, np.float32(0.02) * (1 - 1e-7), 0.0199]]), 0.02)
+    np.testing.assert_array_equal(ev, [[0, 1, 2, 2, 1]])
+
+
+def test_event_eig_is_the_entropy_of_touch_or_miss_plus_the_gaussian_within():
+    """Reading 0 misses for 30 % of the draws (15 mm beyond the touch), readings 1–2 share a spread of 0.5 mm with
+    σ = 0.5 mm: the mutual information is H(0.3) + ½ log(1 + 2·0.5²/0.5²) = 0.611 + 0.549 = 1.160 nats (events
+    deterministic given θ). The Gaussian formula, taking the miss for a reading 15 mm away, credits it ~3 nats (the
+    control). A stroke on which every draw agrees gets the Gaussian value exactly."""
+    rng = np.random.default_rng(4)
+    sig = _split_and_spread(rng, 20000, 0.3, 5e-4)
+    want = -(0.3 * np.log(0.3) + 0.7 * np.log(0.7)) + 0.5 * np.log(3.0)
+    got = eg.eig_events(sig, 5e-4, 0.02)[0]
+    assert got == pytest.approx(want, abs=0.02)  # MC error of the plug-in terms at 20,000 draws: < 0.01
+    assert eg.eig_gaussian(sig, 5e-4)[0] > want + 1.5
+    agree = sig.copy()
+    agree[:, 0] = 0.005
+    assert eg.eig_events(agree, 5e-4, 0.02)[0] == pytest.approx(eg.eig_gaussian(agree, 5e-4)[0], rel=1e-12)
+    inside = sig.copy()
+    inside[:, 0] = np.where(sig[:, 0] == 0.02, 0.0, 0.005)  # a start inside is an event too
+    assert eg.eig_events(inside, 5e-4, 0.02)[0] == pytest.approx(got, abs=1e-9)
+
+
+def test_decide_with_events_prefers_information_over_a_large_miss():
+    """Candidate A only tells touch from miss (50/50, 15 mm apart: log 2 = 0.69 nats, which the Gaussian formula
+    counts as ½ log(1 + ¼·30²) = 2.7); B's three touch readings share a spread of 1.5 σ: ½ log(1 + 3·1.5²) = 1.02
+    nats. The events EIG picks B; the Gaussian EIG (the control) picks A."""
+    rng = np.random.default_rng(5)
+    n = 20000
+    a = _split_and_spread(rng, n, 0.5, 0.0)
+    z = rng.standard_normal(n)
+    b = 0.005 + 1.5 * 5e-4 * np.column_stack([z, z, z])
+    sig = np.stack([a, b], axis=1)  # (N, 2, 3)
+    assert eg.decide(sig, 5e-4).best == 0
+    dec = eg.decide(sig, 5e-4, t_max=0.02)
+    assert dec.best == 1
+    assert dec.eig[0] == pytest.approx(np.log(2.0), abs=0.01)
+    assert dec.eig[1] == pytest.approx(0.5 * np.log(1 + 3 * 1.5**2), abs=0.02)

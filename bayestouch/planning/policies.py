@@ -127,7 +127,12 @@ def choose(
     if policy == "eig":
         multi = volumes is not None and eig_mod.looks_multimodal(volumes)
         dec = eig_mod.decide(
-            sig, noise_sd, durations=strokes.duration if per_second else None, multimodal=multi, seed=rng
+            sig,
+            noise_sd,
+            durations=strokes.duration if per_second else None,
+            multimodal=multi,
+            seed=rng,
+            t_max=strokes.t_max,
         )
         return Decision(dec.best, dec.utility, dec.eig, time.perf_counter() - t0)
     if obj is None:
