@@ -20,7 +20,7 @@ from bayestouch.inference.densities import t_scale_factor
 from bayestouch.inference.grating import RawTexture
 from bayestouch.inference.optimize import laplace, laplace_ball, scaled_lbfgs
 from bayestouch.inference.posterior import PosteriorModel, judged_quantities, write_posterior
-from bayestouch.inference.raw.adjustment import Adjustment, curvature_adjustment
+from bayestouch.inference.raw.adjustment import OUTSIDE_PRIOR_WARN, Adjustment, curvature_adjustment
 from bayestouch.inference.raw.data import (
     RawData,
     commanded_points,
@@ -269,10 +269,26 @@ def misfit_warnings(summary: dict, textured: bool = False) -> list[str]:
     ]
 
 
+def adjustment_warnings(summary: dict) -> list[str]:
+    """A warning when the curvature adjustment put more than :data:`OUTSIDE_PRIOR_WARN` of the draws outside the
+    prior box (``summary.model.adjustment.outside_prior``): the strokes do not determine the shape, and the
+    intervals of the parameters held at the box's faces are the prior's, not the data's."""
+    adj = summary.get("model", {}).get("adjustment")
+    share = adj.get("outside_prior", 0.0) if isinstance(adj, dict) else 0.0
+    if share <= OUTSIDE_PRIOR_WARN:
+        return []
+    worst = max(adj.get("sd_ratio", [1.0]))
+    return [
+        f"the sandwich adjustment (sds up to {worst:.1f}x wider) put {100 * share:.0f} % of the draws outside the "
+        "prior box, where they are held at its faces: these strokes do not determine the shape, and the intervals "
+        "that reach the box are the prior's, not the data's"
+    ]
+
+
 def _raw_warnings(summary: dict, textured: bool = False) -> list[str]:
     """:func:`misfit_warnings`, and a warning when a draw came within :data:`PRUNE_CHECK` of a taxel slot the
     sampler left out (``summary.model.pruning``, :func:`prune_clearance`)."""
-    out = misfit_warnings(summary, textured)
+    out = misfit_warnings(summary, textured) + adjustment_warnings(summary)
     pr = summary.get("model", {}).get("pruning")
     if isinstance(pr, dict) and not pr.get("exact", True):
         out.append(
@@ -480,7 +496,7 @@ def run_raw_fit(
     flat = ch.kept.reshape(-1, ch.kept.shape[2])
     if prune:
         info["pruning"] = prune_clearance(flat[:: max(1, len(flat) // 256)], data, tex)
-    adjust = curvature_adjustment(flat, data, finger, texture=tex) if adjust else None
+    adjust = curvature_adjustment(flat, data, finger, texture=tex, bounds=bounds) if adjust else None
     summary = write_posterior(out, ch, raw_model(data, finger, texture=tex, info=info, adjust=adjust), seed=seed, t0=t0)
     release_run_folder(out)
     return summary
