@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -146,7 +147,7 @@ BAD_FILES = {
     ),
     "millimetres": (
         _csv(["45.0,0.0,0.0"] + [",".join(repr(float(v) * 1000) for v in r.split(",")) for r in RING[1:]]),
-        "x,y,z look like millimetres (largest |value| 45.0",
+        "x,y,z look like millimetres or centimetres (largest |value| 45.0",
     ),
     "micrometres": (
         _csv([",".join(repr(float(v) * 1e6) for v in r.split(",")) for r in RING]),
@@ -158,7 +159,7 @@ BAD_FILES = {
     ),
     "millimetres by diagonal": (
         _csv([f"{s * 1.5},{t * 1.5},{u * 0.1}" for s in (-1, 1) for t in (-1, 1) for u in range(4)]),
-        "look like millimetres (largest |value| 1.5, bounding-box diagonal 4.2",
+        "look like centimetres or millimetres (largest |value| 1.5, bounding-box diagonal 4.2",
     ),
     "identical points": (_csv(["0.01,0.02,0.03"] * 20), "all 20 points are identical (0.01, 0.02, 0.03)"),
     "zero normal": (
@@ -356,7 +357,7 @@ def test_millimetre_free_point_triggers_millimetre_error(tmp_path):
     free = _free_points(3)
     assert load_contact_points(save_contact_points(tmp_path / "m.csv", pts, free=free)).free.shape == (3, 3)
     free[1] = [45.0, 0.0, 0.0]  # one free position in millimetres
-    with pytest.raises(BadInput, match=r"x,y,z look like millimetres \(largest \|value\| 45\.0,"):
+    with pytest.raises(BadInput, match=r"x,y,z look like millimetres( or centimetres)? \(largest \|value\| 45\.0,"):
         load_contact_points(save_contact_points(tmp_path / "mm.csv", pts, free=free))
     # also by the bounding-box diagonal alone: contacts near one corner, a free position at the other
     corner = np.full((12, 3), -1.5) + _random_contacts(12)[0] * 0.01
@@ -678,3 +679,36 @@ def test_a_recording_that_appears_while_another_is_written_is_kept(tmp_path):
     write_recording(second, path)  # replace=True: replaced
     assert first_time(path) == 10.0
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["r.nc", kept.name])  # no temporary left
+
+
+_EGG = Path(__file__).resolve().parents[1] / "data" / "contacts" / "egg.csv"
+
+
+def test_centimetres_are_named_beside_millimetres(tmp_path):
+    """An 8.7 cm egg written in centimetres could be millimetres too (an 8.7 mm object): the message names both,
+    centimetres first (nearer the middle of the sizes a finger strokes), each with its factor. A file in
+    millimetres of an object too large to be centimetres names millimetres only (the control)."""
+    egg = load_contact_points(_EGG).points
+    np.savetxt(tmp_path / "cm.csv", egg * 100, delimiter=",", header="x,y,z", comments="")
+    with pytest.raises(
+        BadInput, match=r"look like centimetres or millimetres .*divide by 100 if they are centimetres, divide by 1000"
+    ):
+        load_contact_points(tmp_path / "cm.csv")
+    np.savetxt(tmp_path / "mm.csv", egg * 1e4, delimiter=",", header="x,y,z", comments="")  # as centimetres beyond ±2 m
+    with pytest.raises(BadInput, match=r"look like millimetres \(.*e\.g\. divide by 1000\)"):
+        load_contact_points(tmp_path / "mm.csv")
+
+
+def test_inward_normals_are_refused_outward_ones_kept():
+    """The egg's normals negated (a sign-convention mistake) are refused in one line naming the fix; the file's own
+    outward normals and those of a one-sided cap pass."""
+    from bayestouch.io.contacts import check_normals_outward
+
+    cp = load_contact_points(_EGG)
+    check_normals_outward(cp.points, cp.normals)
+    with pytest.raises(BadInput, match=r"normals: the normals point inwards .*negate nx,ny,nz.*--ignore-normals"):
+        check_normals_outward(cp.points, -cp.normals)
+    top = cp.points[:, 2] > np.quantile(cp.points[:, 2], 0.7)  # a cap: the centroid near the surface
+    check_normals_outward(cp.points[top], cp.normals[top])
+    with pytest.raises(BadInput, match=r"normals: expected one normal per contact"):
+        check_normals_outward(cp.points, cp.normals[:-1])

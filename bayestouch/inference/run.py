@@ -29,6 +29,7 @@ from bayestouch.inference.parts import occupancy_grid
 from bayestouch.inference.posterior import PosteriorModel, interval, judged_quantities, vmf_sample, write_posterior
 from bayestouch.inference.sampler import IndependenceMixture, prune_stuck_walkers, sample
 from bayestouch.inference.smc import tempered_smc
+from bayestouch.io.contacts import check_normals_outward
 from bayestouch.io.files import atomic_path, write_json
 from bayestouch.io.occupancy import OCCUPANCY_FILE, write_occupancy
 from bayestouch.io.runfolder import fingerprint, prepare_run_folder, release_run_folder
@@ -839,6 +840,8 @@ def run_contact_fit(
     if free is not None:
         free = np.asarray(free, float).reshape(-1, 3)
         free = free if len(free) else None
+    if normals is not None:
+        check_normals_outward(points, normals)
     sampled = cm.PARAM_NAMES
     if ffd is None:
         if precision not in ("auto", "float64", "mixed"):

@@ -43,17 +43,28 @@ __all__ = [
     "MM_MAX_DIAGONAL_M",
     "MIN_DIAGONAL_M",
     "MIN_NORMAL_LENGTH",
+    "INWARD_COSINE",
+    "check_normals_outward",
+    "TYPICAL_DIAGONAL_M",
     "N_ELLIPSOID_PARAMS",
 ]
 
 #: Above either limit (metres) the coordinates are taken to be millimetres.
 MM_MAX_ABS_M = 2.0
 MM_MAX_DIAGONAL_M = 3.5  # a 2 m cube in metres passes
+#: Bounding-box diagonal (metres) of a typical contact set, the geometric middle of the size prior's 1–30 cm
+#: (models/priors.toml): of the units that would make a file's numbers metres the loader accepts, the one nearer it
+#: is named first
+TYPICAL_DIAGONAL_M = 0.055
+_OTHER_UNITS = (("centimetres", 1e2), ("millimetres", 1e3), ("micrometres", 1e6), ("nanometres", 1e9))
 #: Below this bounding-box diagonal (metres) the contacts cannot be an object a finger strokes (the prior's smallest
 #: semi-axis is 1 mm, models/priors.toml axis_min): the coordinates are in the wrong unit.
 MIN_DIAGONAL_M = 1e-3
 #: Normals shorter than this cannot be normalised.
 MIN_NORMAL_LENGTH = 1e-12
+#: Mean cosine between the normals and the directions from the contacts' centroid to the contacts below which the
+#: normals are taken to point inwards (outward normals of a convex patch give ≥ 0; a flat patch ≈ 0)
+INWARD_COSINE = -0.5
 #: Parameters of the paper's n-ellipsoid: the fewest contact points that can determine one.
 N_ELLIPSOID_PARAMS = 12
 
@@ -113,8 +124,8 @@ def _show(text: str, limit: int = 40) -> str:
     return repr(text)
 
 
-def _likely_unit(max_abs: float, diagonal: float) -> tuple[str, float]:
-    """The unit that brings coordinates too large for metres into range, and its factor to metres.
+def _likely_units(max_abs: float, diagonal: float) -> list[tuple[str, float]]:
+    """The units coordinates written in an unknown unit are likely in, most plausible first.
 
     Parameters
     ----------
@@ -123,14 +134,52 @@ def _likely_unit(max_abs: float, diagonal: float) -> tuple[str, float]:
 
     Returns
     -------
-    (str, float)
-        ``("millimetres", 1e3)``, ``("micrometres", 1e6)`` or ``("nanometres", 1e9)``: the smallest factor whose
-        quotient lies within the metre limits; ``("some unit other than metres", 1e3)`` when none does.
+    list of (str, float)
+        At most two units (``("centimetres", 1e2)``, ``("millimetres", 1e3)``, …) whose quotient the loader would
+        accept as metres (within the metre limits, at least :data:`MIN_DIAGONAL_M` across), the one whose diagonal
+        is nearer :data:`TYPICAL_DIAGONAL_M` (in log) first; ``[("some unit other than metres", 1e3)]`` when none.
     """
-    for unit, factor in (("millimetres", 1e3), ("micrometres", 1e6), ("nanometres", 1e9)):
-        if max_abs / factor <= MM_MAX_ABS_M and diagonal / factor <= MM_MAX_DIAGONAL_M:
-            return unit, factor
-    return "some unit other than metres", 1e3
+    fits = [
+        (unit, factor)
+        for unit, factor in _OTHER_UNITS
+        if max_abs / factor <= MM_MAX_ABS_M and MIN_DIAGONAL_M <= diagonal / factor <= MM_MAX_DIAGONAL_M
+    ]
+    fits.sort(key=lambda uf: abs(np.log(diagonal / uf[1] / TYPICAL_DIAGONAL_M)))
+    return fits[:2] or [("some unit other than metres", 1e3)]
+
+
+def check_normals_outward(points, normals, where: str = "normals") -> None:
+    """Refuse normals that point inwards: the mean cosine between each normal and the direction from the contacts'
+    centroid to its contact below :data:`INWARD_COSINE` (a sign-convention mistake; the likelihood expects outward
+    normals and would otherwise report a meaningless shape).
+
+    Parameters
+    ----------
+    points : (N, 3) float, metres
+    normals : (N, 3) float
+    where : str
+        Names the normals in the message (a file, an argument).
+
+    Raises
+    ------
+    BadInput
+    """
+    p = np.asarray(points, float)
+    n = np.asarray(normals, float)
+    if p.ndim != 2 or n.shape != p.shape or p.shape[1:] != (3,):
+        raise BadInput(f"{where}: expected one normal per contact, an ({len(p)}, 3) array; got shape {n.shape}")
+    r = p - p.mean(axis=0)
+    length = np.linalg.norm(r, axis=1) * np.linalg.norm(n, axis=1)
+    ok = length > 0
+    if not ok.any():
+        return
+    cos = np.sum(r[ok] * n[ok], axis=1) / length[ok]
+    if float(cos.mean()) < INWARD_COSINE:
+        raise BadInput(
+            f"{where}: the normals point inwards (towards the contacts' centroid at {100 * (cos < 0).mean():.0f} % "
+            f"of the contacts, mean cosine {cos.mean():.2f}); expected outward normals: negate nx,ny,nz, or fit "
+            "without them (--ignore-normals)"
+        )
 
 
 def _num(v: float) -> str:
@@ -345,11 +394,15 @@ def load_contact_points(path: str | os.PathLike[str], *, min_points: int = N_ELL
     with np.errstate(over="ignore", invalid="ignore"):  # values near 1e308: the span overflows, and is refused
         diagonal = float(np.linalg.norm(np.ptp(every, axis=0)))
     if max_abs > MM_MAX_ABS_M or diagonal > MM_MAX_DIAGONAL_M:
-        unit, factor = _likely_unit(max_abs, diagonal)
+        units = _likely_units(max_abs, diagonal)
+        if len(units) == 1:
+            how = f"e.g. divide by {units[0][1]:g}"
+        else:
+            how = ", ".join(f"divide by {f:g} if they are {u}" for u, f in units)
         raise file_error(
             source,
-            f"x,y,z look like {unit} (largest |value| {_num(max_abs)}, bounding-box "
-            f"diagonal {_num(diagonal)}); give metres (e.g. divide by {factor:g}), within "
+            f"x,y,z look like {' or '.join(u for u, _ in units)} (largest |value| {_num(max_abs)}, bounding-box "
+            f"diagonal {_num(diagonal)}); give metres ({how}), within "
             f"±{MM_MAX_ABS_M} m and a bounding-box diagonal ≤ {MM_MAX_DIAGONAL_M} m",
         )
     with np.errstate(over="ignore", invalid="ignore"):
