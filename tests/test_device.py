@@ -646,6 +646,7 @@ def test_cli_run_with_a_stuck_heater_keeps_the_stroke_it_completed(device, tmp_p
     assert run_device(_parser().parse_args([*argv, "--quiet"])) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "heaters still on" in err[0] and "1 complete stroke(s) written" in err[0]
+    assert "error: stroke 1 of 2: " in err[0] and "after the stroke ended" in err[0]  # the user's numbering
     ds = read_recording(out)
     assert ds.attrs["incomplete"] == "true" and ds["taxel_current"].shape[0] == 30
     assert len(sim.model.out) == 1  # the second stroke was never sent

@@ -436,9 +436,10 @@ def _run(args) -> int:
             info = dev.info
     except (DeviceError, BadInput) as e:
         # a fault, or a stroke refused by the device's own limits after good ones: the good strokes are kept
+        at = len(done) + 1  # the user's stroke number (1-based) in the plan or stroke file
         if isinstance(e, HeaterFault) and e.data is not None:
             done.append(e.data)  # complete: the heaters stayed on after it, so no further stroke was sent
-        keep(f"error: {e}")
+        keep(f"error: stroke {at} of {len(plans)}: {e}")
         return 2  # the device failed or refused: one line, everything received kept (exit 1 is an internal error)
     except KeyboardInterrupt:
         keep("interrupted")

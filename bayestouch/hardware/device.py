@@ -678,8 +678,8 @@ class FingerDevice:
             st = self._status_after(sid)
             if st.heater_on and st.state == 0:
                 raise HeaterFault(
-                    f"{self.url}: heaters still on after stroke {sid} ended (wire currents "
-                    f"{np.round(st.wire_current, 4).tolist()} A); switch the finger off",
+                    f"{self.url}: heaters still on after the stroke ended (wire currents "
+                    f"{np.round(st.wire_current, 4).tolist()} A; the device's stroke id {sid}); switch the finger off",
                     frames=(got, dev_t, sid),
                 )
             return got, dev_t, sid
