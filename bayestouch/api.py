@@ -26,7 +26,7 @@ import numpy as np
 from bayestouch.errors import BadInput
 from bayestouch.io.contacts import N_ELLIPSOID_PARAMS, ContactPoints, check_contact_spread, load_contact_points
 from bayestouch.io.files import atomic_path, set_aside
-from bayestouch.io.runfolder import OUTPUTS, RESULT_FILES
+from bayestouch.io.runfolder import LOCK_FILE, OUTPUTS
 from bayestouch.params import MODELS
 
 __all__ = ["Fit", "fit", "simulate", "calibrate"]
@@ -117,6 +117,13 @@ class Fit:
                 raise BadInput(
                     f"{path}: cannot be read as the posterior ({type(e).__name__}); a damaged file"
                 ) from None
+            if "posterior" not in self._idata.groups():  # valid netCDF of something else (e.g. a recording)
+                groups = ", ".join(self._idata.groups()) or "none"
+                self._idata = None
+                raise BadInput(
+                    f"{path}: no posterior group (groups: {groups}); expected the ArviZ posterior.nc that "
+                    "`bayestouch fit` writes"
+                )
         return self._idata
 
     def summary(self):
@@ -222,15 +229,43 @@ class Fit:
         return figure
 
     def save(self, folder, *, overwrite: bool = False) -> Path:
-        """Copy the run's files into ``folder`` (created); a folder that holds a run is refused unless
-        ``overwrite``. Returns the folder."""
+        """Copy the run's files into ``folder`` (created).
+
+        Parameters
+        ----------
+        folder : path
+            The folder to write; one that already holds a run's files is refused unless ``overwrite``.
+        overwrite : bool
+            Replace the run in ``folder``: every file there (the earlier run's outputs and anything else beside
+            them) is first moved into ``folder/replaced-<UTC time>/``, never deleted, and a line on stderr says
+            where (as ``bayestouch fit --overwrite`` does), so no old file stays mixed with the new run.
+
+        Returns
+        -------
+        pathlib.Path
+            ``folder``.
+
+        Raises
+        ------
+        BadInput
+            ``folder`` is a file, or holds a run's files and ``overwrite`` is not given.
+        """
         folder = Path(folder)
         if folder.resolve() == self.folder.resolve():
             return folder
         if folder.exists() and not folder.is_dir():
             raise BadInput(f"save: {folder} exists and is not a folder")
-        if any((folder / f).exists() for f in RESULT_FILES) and not overwrite:
-            raise BadInput(f"save: {folder} already holds a run; pass overwrite=True to replace it")
+        held = [f for f in OUTPUTS if (folder / f).exists()]
+        if held and not overwrite:
+            raise BadInput(
+                f"save: {folder} already holds a run ({', '.join(held)}); pass overwrite=True to replace it (the "
+                "earlier files are set aside), or choose another folder"
+            )
+        if overwrite and folder.is_dir():
+            # set aside, not deleted: every file of the folder, so nothing of the earlier run (smc.npz, …) nor any
+            # other old file stays beside the new one; folders (earlier replaced-*/, …) and the lock stay
+            stale = sorted(p for p in folder.iterdir() if p.is_file() and p.name != LOCK_FILE)
+            set_aside(stale, "Fit.save")
         # each file atomically, the summary last (a kill leaves no new summary beside old results)
         for name in sorted(OUTPUTS, key=lambda n: n == "summary.json"):
             src = self.folder / name
@@ -253,14 +288,16 @@ def _contacts(data) -> ContactPoints | None:
         return load_contact_points(path)
     if type(data).__name__ == "Dataset":  # an xarray recording
         return None
-    if np.iscomplexobj(data):
-        raise BadInput("data: the contact points are complex numbers; expected real coordinates in metres")
     try:
-        a = np.asarray(data, dtype=float)
-    except (TypeError, ValueError):
+        a = np.asarray(data)
+        complex_ = a.dtype.kind == "c"
+        a = a if complex_ else a.astype(float)
+    except (TypeError, ValueError):  # also a ragged nesting
         raise BadInput(
             f"data: expected contact points as an (M, 3) array of numbers in metres, got {type(data)}"
         ) from None
+    if complex_:
+        raise BadInput("data: the contact points are complex numbers; expected real coordinates in metres")
     if a.ndim != 2 or a.shape[1] != 3 or len(a) < N_ELLIPSOID_PARAMS:
         raise BadInput(
             f"data: expected contact points as an (M, 3) array in metres with M ≥ {N_ELLIPSOID_PARAMS} (as many as "
@@ -269,6 +306,85 @@ def _contacts(data) -> ContactPoints | None:
     if not np.isfinite(a).all():
         raise BadInput("data: the contact points hold NaN or infinite values (expected finite metres)")
     return ContactPoints(points=a, source="array")
+
+
+def _shown(value) -> str:
+    """The start of ``value``'s repr, on one line (for messages)."""
+    return " ".join(repr(value).split())[:80]
+
+
+def _sequence(value) -> list | None:
+    """``value`` as a list when it is a list, tuple or 1-d array (its items unchecked), else None."""
+    if isinstance(value, list | tuple) or (isinstance(value, np.ndarray) and value.ndim == 1):
+        return list(value)
+    return None
+
+
+def _real(v) -> bool:
+    """Whether ``v`` is a real number (not a bool)."""
+    return isinstance(v, int | float | np.integer | np.floating) and not isinstance(v, bool | np.bool_)
+
+
+def _size_prior(value) -> tuple[float, float]:
+    """``size_prior`` as ``(min, max)`` metres: a pair of numbers or the command line's ``"MIN:MAX"``."""
+    import argparse
+
+    from bayestouch.cli.args import size_range
+
+    if isinstance(value, str):
+        try:
+            return size_range(value)
+        except argparse.ArgumentTypeError as e:
+            raise BadInput(f"size_prior: {e}") from None
+    pair = _sequence(value)
+    if pair is None or len(pair) != 2 or not all(_real(v) for v in pair):
+        raise BadInput(
+            f"size_prior: expected (min, max) metres with 0 < min < max, or 'MIN:MAX' (e.g. (0.01, 0.1) or "
+            f"'0.01:0.1' for objects 1-10 cm across), got {_shown(value)}"
+        )
+    return float(pair[0]), float(pair[1])
+
+
+def _ffd(value) -> tuple[int, int, int]:
+    """``ffd`` as ``(l, m, k)`` control points: three integers or the command line's ``"LxMxK"``."""
+    import argparse
+
+    from bayestouch.cli.args import one_size
+    from bayestouch.cli.fit import MAX_FFD_SIZE
+
+    expected = f"expected (l, m, k) control points per axis, each an integer in [2, {MAX_FFD_SIZE}], or 'LxMxK'"
+    if isinstance(value, str):
+        try:
+            size = one_size(value)
+        except argparse.ArgumentTypeError as e:
+            raise BadInput(f"ffd: {e}") from None
+    else:
+        size = tuple(_sequence(value) or ())
+        ok = len(size) == 3 and all(isinstance(k, int | np.integer) and not isinstance(k, bool) for k in size)
+        if not ok:
+            raise BadInput(f"ffd: {expected} (e.g. (3, 3, 3) or '3x3x3'), got {_shown(value)}")
+    if not all(2 <= k <= MAX_FFD_SIZE for k in size):
+        raise BadInput(f"ffd: {expected}, got {'x'.join(map(str, size))}")
+    return tuple(int(k) for k in size)
+
+
+def _free(value) -> np.ndarray | None:
+    """``free`` as a finite (K, 3) array of metres (None: no free-space points)."""
+    if value is None:
+        return None
+    expected = "expected free-space points as a finite (K, 3) array of numbers in metres"
+    try:
+        a = np.asarray(value)
+        if a.dtype.kind not in "iufO":  # text, complex, bools …
+            raise TypeError(a.dtype)
+        a = a.astype(float)
+    except (TypeError, ValueError):  # also a ragged nesting
+        raise BadInput(f"free: {expected}, got {type(value).__name__} {_shown(value)}") from None
+    if a.ndim != 2 or a.shape[1] != 3:
+        raise BadInput(f"free: {expected}, got shape {a.shape}")
+    if not np.isfinite(a).all():
+        raise BadInput(f"free: {expected}; it holds NaN or infinite values")
+    return a
 
 
 def _check_seed(seed) -> None:
@@ -310,8 +426,9 @@ def fit(
         Wall-clock budget of the sampling (None: none; "auto": 60 s for contacts, none for a recording). A run
         stopped by it says so and is not converged; ``resume=True`` continues it.
     **options
-        Contact level: ``noise``, ``nu``, ``normals`` (False ignores a file's normals), ``free``, ``ffd``,
-        ``ffd_tau`` (m), ``size_prior`` ((min, max) m), ``init``, ``precision``
+        Contact level: ``noise``, ``nu``, ``normals`` (False ignores a file's normals),
+        ``ffd`` ((l, m, k) control points or ``"LxMxK"``), ``ffd_tau`` (m), ``size_prior`` ((min, max) m or
+        ``"MIN:MAX"``), ``free`` ((K, 3) m), ``init``, ``precision``
         (:func:`bayestouch.inference.run.run_contact_fit`). Recording: ``texture``, ``stride``, ``calibration``
         (a device file path or :class:`~bayestouch.io.device_file.DeviceCalibration`;
         :func:`bayestouch.inference.raw.run_raw_fit`).
@@ -343,6 +460,13 @@ def fit(
         raise BadInput(
             f"fit: unknown option(s) {', '.join(unknown)} for {level} (expected any of {', '.join(allowed)})"
         )
+    if cp is not None:  # the forms the command line parses, or one-line refusals naming the option
+        if options.get("size_prior") is not None:
+            options["size_prior"] = _size_prior(options["size_prior"])
+        if options.get("ffd") is not None:
+            options["ffd"] = _ffd(options["ffd"])
+        if "free" in options:
+            options["free"] = _free(options["free"])
     temporary = None
     if out is None:
         temporary = tempfile.TemporaryDirectory(prefix="bayestouch-fit-")
@@ -485,7 +609,10 @@ def simulate(
         progress=progress,
     )
     if out is not None:
-        set_aside([out], "simulate")  # an earlier recording (overwrite=True) is kept, never deleted
+        if overwrite:  # an earlier recording is kept, never deleted
+            set_aside([out], "simulate")
+        # without overwrite, a file that appeared since the check above (another run writing the same name) is
+        # kept and this recording written beside it, with a BadInput naming both
         write_recording(ds, out, replace=overwrite)
     return ds
 
@@ -509,7 +636,7 @@ def calibrate(recording, obj, *, models=MODELS, out=None, overwrite: bool = Fals
     DeviceCalibration
     """
     from bayestouch.inference.raw.calibrate import calibrate_device
-    from bayestouch.io.device_file import device_file_text, write_device_file
+    from bayestouch.io.device_file import device_file_text
     from bayestouch.scene.objects import SceneObject, load_object
 
     if out is not None:
@@ -521,7 +648,11 @@ def calibrate(recording, obj, *, models=MODELS, out=None, overwrite: bool = Fals
     scene = obj if isinstance(obj, SceneObject) else load_object(obj, models)
     cal = calibrate_device(recording, scene, models=models, object_name=str(obj) if isinstance(obj, str) else None)
     if out is not None:
-        device_file_text(cal)  # refused (BadInput) before an earlier file is moved
-        set_aside([out], "calibrate")
-        write_device_file(out, cal)
+        text = device_file_text(cal)  # refused (BadInput) before an earlier file is moved
+        if overwrite:  # an earlier device file is kept, never deleted
+            set_aside([out], "calibrate")
+        # without overwrite, a file that appeared since the check above (another run writing the same name) is
+        # kept and this one written beside it, with a BadInput naming both
+        with atomic_path(out, replace=overwrite) as tmp, open(tmp, "w", encoding="utf-8", newline="") as fh:
+            fh.write(text)
     return cal

@@ -44,13 +44,36 @@ class Occupancy(NamedTuple):
     draws: int
 
     def at(self, points) -> np.ndarray:
-        """Occupancy probability (P,) at ``points (P, 3)`` m, trilinear between grid points, 0 outside the grid."""
-        p = np.asarray(points, dtype=np.float64)
+        """Occupancy probability at query points, trilinear between grid points, 0 outside the grid.
+
+        Parameters
+        ----------
+        points : (N, 3) or (3,) float, metres
+            Query points (one point as a (3,) sequence).
+
+        Returns
+        -------
+        (N,) float
+            The probability at each point ((1,) for one point).
+
+        Raises
+        ------
+        BadInput
+            ``points`` not real numbers (text, complex, bools, a ragged nesting), of another shape, or not finite.
+        """
+        expected = "expected (N, 3) or (3,) query points as real numbers in metres"
+        try:
+            p = np.asarray(points)
+            if p.dtype.kind not in "iufO":  # text, complex, bools …
+                raise TypeError(p.dtype)
+            p = p.astype(np.float64)
+        except (TypeError, ValueError):  # also a ragged nesting
+            raise BadInput(f"points: {expected}, got {_given(points)}") from None
         if p.ndim not in (1, 2) or p.shape[-1] != 3:
-            raise BadInput(f"points: expected (P, 3) or (3,) metres, got shape {p.shape}")
+            raise BadInput(f"points: {expected}, got shape {p.shape}")
         p = p.reshape(-1, 3)
         if not np.all(np.isfinite(p)):
-            raise BadInput("points: hold NaN or infinite values; expected finite metres")
+            raise BadInput(f"points: hold NaN or infinite values; {expected} (finite)")
         f = RegularGridInterpolator((self.x, self.y, self.z), self.probability, bounds_error=False, fill_value=0.0)
         return f(p)
 
@@ -58,6 +81,11 @@ class Occupancy(NamedTuple):
         """Volume (m³) of the grid cells whose occupancy probability is at least ``level``."""
         cell = np.diff(self.x).mean() * np.diff(self.y).mean() * np.diff(self.z).mean()
         return float(np.count_nonzero(self.probability >= level) * cell)
+
+
+def _given(value) -> str:
+    """``value``'s type and the start of its repr, on one line (for messages)."""
+    return f"{type(value).__name__} " + " ".join(repr(value)[:60].split())
 
 
 def write_occupancy(path: str | os.PathLike[str], occ: Occupancy) -> Path:
