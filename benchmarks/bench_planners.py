@@ -2,7 +2,7 @@
 
 ``bench_planners_finger``: ``run_experiment(prober="finger")`` (every stroke a guarded stroke on a virtual finger
 over the serial protocol, the pad's pose error 0.3 mm per coordinate) on the egg and the box, planners eig, random
-and gpis, ``BAYESTOUCH_PLANNERS_TRIALS`` paired trials per object (default 10: the planners of a trial share its
+and gpis, ``BAYESTOUCH_PLANNERS_TRIALS`` paired trials per object (default 20: the planners of a trial share its
 scout, seed and initial fit), ``BAYESTOUCH_PLANNERS_BUDGET`` planned strokes (default 8), default loop settings, 2
 worker processes.
 
@@ -56,7 +56,7 @@ def bench_planners_finger() -> list[dict]:
     from bayestouch.io.files import read_csv_rows
     from bayestouch.planning.experiment import run_experiment
 
-    trials = int(os.environ.get("BAYESTOUCH_PLANNERS_TRIALS", "10"))
+    trials = int(os.environ.get("BAYESTOUCH_PLANNERS_TRIALS", "20"))
     budget = int(os.environ.get("BAYESTOUCH_PLANNERS_BUDGET", "8"))
     with tempfile.TemporaryDirectory() as tmp:
         run_experiment(
