@@ -65,8 +65,16 @@ def segment(text: str) -> int | None:
     return v
 
 
+def _named_twice(items: list, shown: list[str], what: str) -> None:
+    """Refuse a comma list that names one value twice (``items`` compared, ``shown`` as the user wrote them): each
+    entry is a run of its own, and a duplicate runs it again and writes its rows twice."""
+    twice = [shown[i] for i, v in enumerate(items) if v in items[:i]]
+    if twice:
+        raise argparse.ArgumentTypeError(f"{', '.join(dict.fromkeys(twice))} named twice; name each {what} once")
+
+
 def size_list(text: str) -> list[str]:
-    """FFD lattice sizes like ``7x7x7,6x6x3`` (each ≥ 2), lower-cased."""
+    """FFD lattice sizes like ``7x7x7,6x6x3`` (each ≥ 2, each once), lower-cased."""
     sizes = [s.strip().lower() for s in text.split(",") if s.strip()]
     if not sizes:  # an empty list fell back to the defaults without a word
         raise argparse.ArgumentTypeError(f"expected at least one size like 6x6x3, got {text!r}")
@@ -74,6 +82,7 @@ def size_list(text: str) -> list[str]:
         parts = s.split("x")
         if len(parts) != 3 or not all(p.isdigit() and int(p) >= 2 for p in parts):
             raise argparse.ArgumentTypeError(f"FFD sizes must look like 6x6x3 (each ≥ 2), got {s!r}")
+    _named_twice([tuple(int(p) for p in s.split("x")) for s in sizes], sizes, "size")
     return sizes
 
 
@@ -86,15 +95,17 @@ def one_size(text: str) -> tuple[int, int, int]:
 
 
 def eps_list(text: str) -> list[float]:
-    """Comma-separated perturbation levels in [0, 0.5)."""
+    """Comma-separated perturbation levels in [0, 0.5), each once."""
+    shown = [s.strip() for s in text.split(",") if s.strip()]
     try:
-        eps = [float(s) for s in text.split(",") if s.strip()]
+        eps = [float(s) for s in shown]
     except ValueError:
         raise argparse.ArgumentTypeError(f"epsilons must be comma-separated numbers, got {text!r}") from None
     if not eps:
         raise argparse.ArgumentTypeError(f"expected at least one perturbation level like 0,0.001, got {text!r}")
     if any(not 0 <= e < 0.5 for e in eps):
         raise argparse.ArgumentTypeError(f"epsilons must lie in [0, 0.5), got {eps}")
+    _named_twice(eps, shown, "perturbation level")
     return eps
 
 

@@ -5,11 +5,37 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from bayestouch.cli.args import check_out, out_path
+from bayestouch.cli.args import out_path
 from bayestouch.cli.args import seed as seed_arg
 from bayestouch.errors import BadInput
 
 __all__ = ["add_parser", "run"]
+
+#: files another command leaves as its finished result (explore, experiment, sbc, reproduce-paper, texture-id; glob
+#: patterns): a demo into that folder is refused unless --overwrite sets them aside
+OTHER_RESULTS = (
+    "explore.json",
+    "summary_*.json",
+    "results.csv",
+    "experiment.json",
+    "sbc.json",
+    "table1.csv",
+    "table2.csv",
+)
+#: files a demo writes besides a fit's outputs: another command's (an exploration's points.csv, a finger's
+#: recording.nc) unless the folder is a demo's
+DEMO_FILES = ("points.csv", "recording.nc", "patch_summary.json")
+#: what goes with another command's results (figures, tables, a finger's journal), set aside with them
+OTHER_OUTPUTS = (
+    "explore.png",
+    "device.journal",
+    "error_vs_strokes.png",
+    "accuracy_vs_strokes.png",
+    "sbc_ranks.png",
+    "table1.md",
+    "table2.md",
+    "table2.png",
+)
 
 
 def add_parser(sub) -> argparse.ArgumentParser:
@@ -39,17 +65,27 @@ def run(args) -> int:
     """Run ``bayestouch demo`` from parsed arguments (bad input raises
     :class:`~bayestouch.errors.BadInput`)."""
     from bayestouch.demo import FULL, QUICK, run_demo
-    from bayestouch.io.runfolder import RESULT_FILES
+    from bayestouch.io.files import set_aside
+    from bayestouch.io.runfolder import RESULT_FILES, locked_run_folder
 
-    out = check_out(args.out)
-    held = [f for f in RESULT_FILES if (out / f).exists()]
-    # a demo's folder (its strokes/ made first, demo.json and report.html later) is rebuilt by the next demo
-    demo_made = any((out / f).exists() for f in ("strokes", "demo.json", "report.html"))
-    if held and not demo_made and not args.overwrite:
-        raise BadInput(
-            f"--out {out} holds a run that is not a demo's ({', '.join(held)}); pass --overwrite to replace it, or "
-            "choose another folder"
-        )
-    result = run_demo(args.out, seed=args.seed, sizes=QUICK if args.quick else FULL, progress=not args.quiet)
+    # the folder is this run's from the check below to the report (a second run into it is refused; the fit inside
+    # the demo leaves it locked)
+    with locked_run_folder(args.out) as out:
+        # a demo's folder (its strokes/ made first, demo.json and report.html later) is rebuilt by the next demo
+        demo_made = any((out / f).exists() for f in ("strokes", "demo.json", "report.html"))
+        # another command's results: the demo would write its points.csv, recording.nc … over an exploration's
+        other = sorted({p for pattern in OTHER_RESULTS for p in out.glob(pattern) if p.is_file()})
+        if not demo_made:
+            other += [out / f for f in DEMO_FILES if (out / f).exists()]
+        held = [f for f in RESULT_FILES if (out / f).exists()]
+        if (other or (held and not demo_made)) and not args.overwrite:
+            names = sorted({p.name for p in other} | ({*held} if not demo_made else set()))
+            raise BadInput(
+                f"--out {out} holds a run that is not a demo's ({', '.join(names[:4])}"
+                f"{' …' if len(names) > 4 else ''}); pass --overwrite to replace it, or choose another folder"
+            )
+        if other:  # --overwrite: set aside, never deleted (a fit's own outputs are set aside by the demo's fit)
+            set_aside([*other, *(out / f for f in OTHER_OUTPUTS if (out / f).exists())], "demo")
+        result = run_demo(args.out, seed=args.seed, sizes=QUICK if args.quick else FULL, progress=not args.quiet)
     print(result["table"])
     return 0

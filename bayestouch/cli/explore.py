@@ -160,9 +160,7 @@ def run_explore(args) -> int:
     the strokes run on a finger (:class:`bayestouch.planning.device_prober.DeviceProber`) and ``recording.nc``
     (the schema of ``bayestouch simulate``, rewritten after every stroke) and ``device.journal`` (every packet
     received) are written too; without ``--object`` there is no truth and the errors are unknown (NaN)."""
-    from bayestouch.io.contacts import save_contact_points
-    from bayestouch.io.files import set_aside, write_json
-    from bayestouch.planning.loop import ExploreSettings, explore
+    from bayestouch.planning.loop import ExploreSettings
     from bayestouch.planning.policies import check_policy
     from bayestouch.scene.objects import load_object, resolve_object
 
@@ -200,6 +198,20 @@ def run_explore(args) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise BadInput(f"--out {out} exists and is not a folder")
+    from bayestouch.io.runfolder import locked_run_folder
+
+    # the folder is this run's from the check of earlier results to the last output: a second run into it at the
+    # same time is refused in one line (the lock goes with a killed run's process)
+    with locked_run_folder(out):
+        return _explore_into(out, args, obj, name, port, centre, settings)
+
+
+def _explore_into(out: Path, args, obj, name, port, centre, settings) -> int:
+    """The exploration of :func:`run_explore`, its options checked and ``out`` held."""
+    from bayestouch.io.contacts import save_contact_points
+    from bayestouch.io.files import set_aside, write_json
+    from bayestouch.planning.loop import explore
+
     # what an exploration writes, and any other command's result (a fit's summary.json, a points.csv of the user's)
     written = {"explore.json", "explore.png", "points.csv", "device.journal", *RESULT_FILES}
     earlier = sorted(out.glob("summary_*.json")) if out.is_dir() else []

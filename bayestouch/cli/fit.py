@@ -12,11 +12,42 @@ from bayestouch.cli.args import one_size, out_path, positive_int, size_range, st
 from bayestouch.cli.args import seed as seed_arg
 from bayestouch.errors import BadInput
 
-__all__ = ["add_parser", "run", "MAX_CONTACTS"]
+__all__ = ["add_parser", "run", "MAX_CONTACTS", "OTHER_RESULTS"]
 
 #: most contacts a fit takes (more need --subsample): the contact-level posterior of 50,000 points is already far
 #: narrower than the n-ellipsoid's misfit to any real object, and its outputs hold every point's log-likelihood
 MAX_CONTACTS = 50_000
+
+
+#: files another command leaves as its finished result in its --out folder (explore, experiment, sbc,
+#: reproduce-paper, demo; glob patterns): a fit into that folder is refused unless --overwrite sets them aside
+OTHER_RESULTS = (
+    "explore.json",
+    "summary_*.json",
+    "results.csv",
+    "experiment.json",
+    "sbc.json",
+    "table1.csv",
+    "table2.csv",
+    "demo.json",
+    "report.html",
+)
+#: what goes with those results (figures, tables, the device's journal and recording, the demo's strokes), set aside
+#: with them by --overwrite; the fit's own outputs are set aside by the run folder (:mod:`bayestouch.io.runfolder`)
+OTHER_OUTPUTS = (
+    "explore.png",
+    "points.csv",
+    "device.journal",
+    "recording.nc",
+    "error_vs_strokes.png",
+    "accuracy_vs_strokes.png",
+    "sbc_ranks.png",
+    "table1.md",
+    "table2.md",
+    "table2.png",
+    "patch_summary.json",
+    "strokes",
+)
 
 
 #: most emcee walkers a fit takes
@@ -174,6 +205,43 @@ def add_parser(sub) -> argparse.ArgumentParser:
     return fp
 
 
+def _other_results(args) -> list[Path]:
+    """What in ``--out`` another command made (:data:`OTHER_RESULTS` and, when one of them is there, its companions
+    :data:`OTHER_OUTPUTS`), the fit's own input file excepted; empty when the folder holds no other command's
+    result."""
+    out = args.out
+    if not out.is_dir():
+        return []
+    data = args.points.resolve()  # the data being fitted stays where the user named it
+    found = sorted({p for pattern in OTHER_RESULTS for p in out.glob(pattern) if p.is_file() and p.resolve() != data})
+    if not found:
+        return []
+    return found + [out / name for name in OTHER_OUTPUTS if (out / name).exists() and (out / name).resolve() != data]
+
+
+def _check_other_results(args) -> None:
+    """Refuse an ``--out`` folder holding another command's results unless ``--overwrite`` (as ``explore`` refuses a
+    fit's folder); ``--resume`` of a fit already in such a folder goes on."""
+    from bayestouch.io.runfolder import FINGERPRINT_FILE
+
+    others = _other_results(args)
+    if not others or args.overwrite or (args.resume and (args.out / FINGERPRINT_FILE).is_file()):
+        return
+    names = sorted({p.name for p in others if any(p.match(pattern) for pattern in OTHER_RESULTS)})
+    raise BadInput(
+        f"--out {args.out} already holds the results of another command ({', '.join(names[:4])}"
+        f"{' …' if len(names) > 4 else ''}); pass --overwrite to set them aside, or choose another folder"
+    )
+
+
+def _set_aside_other_results(args) -> None:
+    """``--overwrite``: move another command's results in ``--out`` into ``replaced-<UTC time>/`` (never deleted)."""
+    if args.overwrite:
+        from bayestouch.io.files import set_aside
+
+        set_aside(_other_results(args), "fit")
+
+
 def _contacts(args):
     """The contact file of ``fit DATA``, ``--subsample`` applied (seeded by ``--seed``), at most
     :data:`MAX_CONTACTS` contacts: the data of the single fit and of the parts fit alike."""
@@ -230,6 +298,7 @@ def _run_parts(args) -> int:
     cp = _contacts(args)
     if cp.normals is not None and not args.ignore_normals:
         print("bayestouch fit: note: --parts does not use the file's normals (nx, ny, nz)", file=sys.stderr)
+    _set_aside_other_results(args)
     s = run_parts_fit(
         cp.points,
         args.out,
@@ -283,6 +352,17 @@ def run(args) -> int:
         raise BadInput(f"{args.points}: {what or 'no such file'} (expected a contact points CSV or a recording .nc)")
     if args.ffd_tau is not None and not (0 < args.ffd_tau < 0.1):
         raise BadInput(f"--ffd-tau must be in (0, 0.1) metres, got {args.ffd_tau}")
+    from bayestouch.io.runfolder import locked_run_folder
+
+    # the folder is this run's from the checks to the last output (a second run into it is refused, a killed
+    # run's lock goes with its process)
+    with locked_run_folder(args.out):
+        _check_other_results(args)
+        return _run_fit(args)
+
+
+def _run_fit(args) -> int:
+    """The fit of :func:`run`, its options checked and ``--out`` held."""
     if args.parts is not None:
         return _run_parts(args)
     if args.max_parts is not None:
@@ -313,6 +393,7 @@ def run(args) -> int:
         given = [k for k, v in contact_only.items() if v]
         if given:  # options of the contact level: silently without effect on a recording before
             raise BadInput(f"{', '.join(given)}: apply to contact points (.csv), not to a recording (.nc)")
+        _set_aside_other_results(args)
         s = fit(
             args.points,
             args.out,
@@ -337,6 +418,7 @@ def run(args) -> int:
         if args.nu is not None and (args.noise != "student" or not args.nu > 0):
             raise BadInput(f"--nu must be > 0 and goes with --noise student, got --nu {args.nu} --noise {args.noise}")
         noise, nu = ("student", float("inf")) if args.noise == "gaussian" else (args.noise, args.nu)
+        _set_aside_other_results(args)
         s = fit(
             cp,
             args.out,

@@ -82,8 +82,6 @@ def add_parser(sub) -> argparse.ArgumentParser:
 def run(args) -> int:
     """Run ``bayestouch reproduce-paper`` from parsed arguments (bad input raises
     :class:`~bayestouch.errors.BadInput`)."""
-    from bayestouch.paper import TABLE2_SIZES
-    from bayestouch.report.tables import write_table2
     from bayestouch.scene.objects import load_object
 
     if not (0 < args.rate <= MAX_RATE):
@@ -106,8 +104,19 @@ def run(args) -> int:
             f"--paths × --rate: up to {most:.3g} contact points on {obj.name} ({args.paths} paths of up to "
             f"{seconds:.0f} s at {args.rate:g} samples/s); at most {MAX_POINTS} fit in memory, lower --rate or --paths"
         )
+    from bayestouch.io.runfolder import locked_run_folder
+
+    # the folder is this run's from the check of earlier results to the last table (a second run is refused)
+    with locked_run_folder(args.out):
+        return _reproduce_into(args, obj)
+
+
+def _reproduce_into(args, obj) -> int:
+    """Tables 2 and 1 of :func:`run`, the options checked and ``--out`` held."""
+    from bayestouch.paper import TABLE2_SIZES, reproduce_table2
+    from bayestouch.report.tables import write_table2
+
     out = check_out(args.out, args.overwrite, "reproduce-paper")
-    from bayestouch.paper import reproduce_table2
 
     t0 = time.perf_counter()
     rows = reproduce_table2(

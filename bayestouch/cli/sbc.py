@@ -142,6 +142,15 @@ def check_sbc_args(a) -> None:
 def run_sbc(a) -> int:
     """Run the calibration from parsed arguments and print its coverage and chi-square p-values."""
     check_sbc_args(a)
+    from bayestouch.io.runfolder import locked_run_folder
+
+    # the folder is this run's from the check of earlier results to the last output (a second run is refused)
+    with locked_run_folder(a.out):
+        return _sbc_into(a)
+
+
+def _sbc_into(a) -> int:
+    """The calibration of :func:`run_sbc`, its options checked and ``--out`` held."""
     check_out(a.out, a.overwrite, "sbc")
     from bayestouch.inference.sbc import de_moves, plot_ranks, sbc
     from bayestouch.io.files import write_json

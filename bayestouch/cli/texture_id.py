@@ -66,23 +66,26 @@ def run_texture_id(args) -> int:
     """Run the experiment from parsed arguments; :class:`~bayestouch.errors.BadInput` propagates (the caller prints
     one line)."""
     from bayestouch.io.device_file import read_device_file
+    from bayestouch.io.runfolder import locked_run_folder
     from bayestouch.planning.texture_id import IdSettings, run_experiment
 
     calibration = None if args.calibration is None else read_device_file(args.calibration)
-    check_out(Path(args.out), args.overwrite, "texture-id")
-    s = run_experiment(
-        args.out,
-        textures=args.textures,
-        trials=args.trials,
-        max_strokes=args.max_strokes,
-        seed=args.seed,
-        settings=IdSettings(threshold=args.threshold, mode=args.mode),
-        policy=args.policy,
-        library=args.library,
-        stop_at_decision=not args.full,
-        progress=not args.no_progress,
-        calibration=calibration,
-    )
+    # the folder is this run's from the check of earlier results to the last output (a second run is refused)
+    with locked_run_folder(args.out):
+        check_out(Path(args.out), args.overwrite, "texture-id")
+        s = run_experiment(
+            args.out,
+            textures=args.textures,
+            trials=args.trials,
+            max_strokes=args.max_strokes,
+            seed=args.seed,
+            settings=IdSettings(threshold=args.threshold, mode=args.mode),
+            policy=args.policy,
+            library=args.library,
+            stop_at_decision=not args.full,
+            progress=not args.no_progress,
+            calibration=calibration,
+        )
     keys = ("trials", "accuracy_at_decision", "accuracy_95ci", "median_strokes_to_decision", "decided_fraction")
     print(json.dumps({k: s[k] for k in keys}))
     return 0

@@ -14,6 +14,11 @@ same folder
 * while another process writes into the same folder is refused (an exclusive lock on ``.bayestouch.lock``, held
   until :func:`release_run_folder` or the process's end).
 
+Every other command that writes an ``--out`` folder (explore, experiment, texture-id, sbc, reproduce-paper, demo,
+and fit itself around its checks) holds the same lock for its whole run with :func:`locked_run_folder`: two runs
+into one folder at once are refused in one line naming the pid of the run that holds it. The lock is the kernel's
+(``fcntl.flock``): it goes with the process that holds it, so a killed run leaves no stale lock behind.
+
 A run folder without ``run.json`` (deleted, or written before fingerprints existed) is refused by ``resume``: nothing
 shows its data and options.
 """
@@ -24,7 +29,8 @@ import hashlib
 import json
 import os
 import sys
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -48,6 +54,7 @@ __all__ = [
     "fingerprint",
     "prepare_run_folder",
     "release_run_folder",
+    "locked_run_folder",
     "LOCK_FILE",
 ]
 
@@ -209,9 +216,23 @@ def prepare_run_folder(out, fp: dict, *, resume: bool, overwrite: bool = False) 
     return out
 
 
-#: the lock file that marks a run folder as in use by a process (``fcntl.flock``, released when it exits)
+#: the lock file that marks a run folder as in use by a process (``fcntl.flock``, released when it exits); it holds
+#: the pid of the process that took it, for the message that refuses a second run
 LOCK_FILE = ".bayestouch.lock"
+#: this process's locks: the folder's resolved path -> the lock file's descriptor
 _LOCKS: dict[str, int] = {}
+#: how many :func:`locked_run_folder` blocks of this process hold each folder (:func:`release_run_folder` leaves
+#: such a folder locked: a fit inside ``bayestouch demo`` does not free the demo's folder)
+_HELD: dict[str, int] = {}
+
+
+def _holder(path: Path) -> str:
+    """`` (pid N)`` of the process named in the lock file ``path``, or nothing when it names none."""
+    try:
+        pid = path.read_text(encoding="ascii").strip()
+    except (OSError, ValueError):
+        return ""
+    return f" (pid {pid})" if pid.isdigit() else ""
 
 
 def _lock(out: Path) -> None:
@@ -220,19 +241,95 @@ def _lock(out: Path) -> None:
     key = str(out.resolve())
     if fcntl is None or key in _LOCKS:
         return
-    fd = os.open(out / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o644)
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
+    path = out / LOCK_FILE
+    while True:
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        except FileNotFoundError:  # the folder was removed by a run that gave it up empty meanwhile
+            out.mkdir(parents=True, exist_ok=True)
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            os.close(fd)
+            raise BadInput(
+                f"--out {out} is in use by another bayestouch run{_holder(path)}; wait for it to finish or choose "
+                "another folder"
+            ) from None
+        try:  # the file is still the folder's lock file (not removed by a run that gave the folder up meanwhile)
+            same = os.path.samestat(os.fstat(fd), os.stat(path))
+        except OSError:
+            same = False
+        if same:
+            break
         os.close(fd)
-        raise BadInput(
-            f"--out {out} is in use by another bayestouch run; wait for it to finish or choose another folder"
-        ) from None
+    os.ftruncate(fd, 0)
+    os.write(fd, f"{os.getpid()}\n".encode("ascii"))
     _LOCKS[key] = fd
 
 
 def release_run_folder(out) -> None:
-    """Release this process's lock on the run folder ``out`` (:func:`prepare_run_folder` takes it)."""
-    fd = _LOCKS.pop(str(Path(out).resolve()), None)
+    """Release this process's lock on the run folder ``out`` (:func:`prepare_run_folder` takes it), unless a
+    :func:`locked_run_folder` block of this process still holds the folder."""
+    key = str(Path(out).resolve())
+    if _HELD.get(key):
+        return
+    fd = _LOCKS.pop(key, None)
     if fd is not None:
         os.close(fd)
+
+
+@contextmanager
+def locked_run_folder(out) -> Iterator[Path]:
+    """Hold the output folder ``out`` for this process for the duration of a ``with`` block: created when missing,
+    locked (``.bayestouch.lock``) so that another process writing into it is refused, released at the block's end
+    (also on an error or Ctrl-C; a killed process's lock goes with it).
+
+    Blocks nest, and :func:`prepare_run_folder` / :func:`release_run_folder` inside the block (a fit into the same
+    folder) leave it locked. A folder the block created and that holds nothing but the lock file at its end (a run
+    refused before writing anything) is removed again.
+
+    Parameters
+    ----------
+    out : path
+        The output folder.
+
+    Yields
+    ------
+    pathlib.Path
+        ``out``.
+
+    Raises
+    ------
+    BadInput
+        ``out`` exists and is not a folder; another process holds it (one line naming its pid).
+    """
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise BadInput(f"--out {out} exists and is not a folder")
+    created = not out.exists()
+    out.mkdir(parents=True, exist_ok=True)
+    _lock(out)
+    key = str(out.resolve())
+    _HELD[key] = _HELD.get(key, 0) + 1
+    try:
+        yield out
+    finally:
+        _HELD[key] -= 1
+        if not _HELD[key]:
+            del _HELD[key]
+            fd = _LOCKS.pop(key, None)
+            if created:
+                _remove_if_only_lock(out)  # while still locked: no other run holds the file being removed
+            if fd is not None:
+                os.close(fd)
+
+
+def _remove_if_only_lock(out: Path) -> None:
+    """Remove the folder ``out`` when it holds nothing but (at most) the lock file."""
+    try:
+        if {p.name for p in out.iterdir()} <= {LOCK_FILE}:
+            (out / LOCK_FILE).unlink(missing_ok=True)
+            out.rmdir()
+    except OSError:
+        pass

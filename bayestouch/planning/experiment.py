@@ -6,7 +6,8 @@ every planner of one trial and object starts from the same scout and initial fit
 (``workers=1``), or on a Dask cluster (``scheduler="tcp://HOST:PORT"``, ``dask[distributed]`` installed). The
 parent collects finished trials and rewrites ``results.csv`` atomically after each
 (:func:`bayestouch.io.files.write_csv_rows`), so a killed worker or run loses no finished trial; ``resume=True`` keeps
-the trials already complete in an existing ``results.csv`` and runs only the others.
+the trials already complete in an existing ``results.csv`` and runs only the others. The folder is locked while
+the experiment runs (:func:`bayestouch.io.runfolder.locked_run_folder`): a second run into it is refused.
 
 ``results.csv`` columns: :data:`COLUMNS` (one row per stroke, stroke 0 the scout); ``error_vs_strokes.png``:
 median and 25–75 % band of the Chamfer distance and the volume error against strokes, one line per planner.
@@ -34,7 +35,7 @@ from tqdm.auto import tqdm
 
 from bayestouch.errors import BadInput
 from bayestouch.io.files import read_csv_rows, set_aside, write_csv_rows, write_json
-from bayestouch.io.runfolder import differences, fingerprint
+from bayestouch.io.runfolder import differences, fingerprint, locked_run_folder
 from bayestouch.planning.device_prober import VirtualFingerProber
 from bayestouch.planning.loop import ExploreSettings, explore
 from bayestouch.planning.policies import check_policy
@@ -332,107 +333,111 @@ def run_experiment(
     if unknown:
         raise BadInput(f"settings: unknown field(s) {sorted(unknown)}; expected {', '.join(ExploreSettings._fields)}")
     out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise BadInput(f"--out {out} exists and is not a folder")
-    out.mkdir(parents=True, exist_ok=True)
-    csv_path = out / "results.csv"
-    meta_path = out / "experiment.json"
     if prober not in PROBERS:
         raise BadInput(f"prober: expected one of {', '.join(PROBERS)}, got {prober!r}")
-    options = {"seed": int(seed), "budget": int(budget), "settings": dict(settings or {})}
-    if prober != "rays":  # the key of earlier experiments (all in the ray world) stays as it was
-        options["prober"] = prober
-    # the objects' contents are part of the key: an object file edited between runs is another experiment
-    contents = {f"object {names[o]}": p.read_bytes() for o, p in paths.items()}
-    meta = fingerprint("experiment", contents, options)
-    if csv_path.exists() and not csv_path.is_file():
-        raise BadInput(f"--out {out}: {csv_path} is not a file; expected the results.csv of an experiment, or nothing")
-    if csv_path.is_file() and not resume and not overwrite:
-        raise BadInput(
-            f"--out {out} already holds results.csv; pass --resume to keep its complete trials, --overwrite to "
-            "replace it, or choose another folder"
-        )
-    if overwrite and not resume and csv_path.is_file():
-        # set aside, not deleted: an interrupted new run leaves the old results where the user finds them
-        set_aside([out / n for n in ("results.csv", "experiment.json", "error_vs_strokes.png")], "experiment")
-    rows: list[dict] = []
-    if resume and csv_path.is_file():
-        old_meta = None
-        with contextlib.suppress(OSError, ValueError):
-            old_meta = json.loads(meta_path.read_text(encoding="utf-8"))
-        if not isinstance(old_meta, dict) or "options" not in old_meta:
-            # without it nothing says which settings the kept trials were made with
+    # the folder is this run's from the check of an earlier results.csv to the plot: a second experiment into it at
+    # the same time is refused in one line, not left to replace the first's rows (the lock goes with a killed run)
+    with locked_run_folder(out):
+        csv_path = out / "results.csv"
+        meta_path = out / "experiment.json"
+        options = {"seed": int(seed), "budget": int(budget), "settings": dict(settings or {})}
+        if prober != "rays":  # the key of earlier experiments (all in the ray world) stays as it was
+            options["prober"] = prober
+        # the objects' contents are part of the key: an object file edited between runs is another experiment
+        contents = {f"object {names[o]}": p.read_bytes() for o, p in paths.items()}
+        meta = fingerprint("experiment", contents, options)
+        if csv_path.exists() and not csv_path.is_file():
             raise BadInput(
-                f"--resume: cannot verify the settings of {csv_path}: {meta_path.name} is missing or damaged; "
-                "expected the experiment.json written with it (or pass --overwrite, or choose another --out)"
+                f"--out {out}: {csv_path} is not a file; expected the results.csv of an experiment, or nothing"
             )
-        if not old_meta.get("data_sha256"):
-            # written before the objects' contents were keyed: compared on the options alone, as then
-            old_meta = {**old_meta, "data_sha256": meta["data_sha256"]}
-        diff = differences(old_meta, meta)
-        if diff:
+        if csv_path.is_file() and not resume and not overwrite:
             raise BadInput(
-                f"--resume: {csv_path} was made with {'; '.join(diff)}; resume with the same settings or choose "
-                "another --out"
+                f"--out {out} already holds results.csv; pass --resume to keep its complete trials, --overwrite to "
+                "replace it, or choose another folder"
             )
-        old = checked_rows(read_csv_rows(csv_path), csv_path)
-        wrong = [
-            r for r in old if r.get("seed") not in (None, "") and int(r["seed"]) != _trial_seed(seed, int(r["trial"]))
+        if overwrite and not resume and csv_path.is_file():
+            # set aside, not deleted: an interrupted new run leaves the old results where the user finds them
+            set_aside([out / n for n in ("results.csv", "experiment.json", "error_vs_strokes.png")], "experiment")
+        rows: list[dict] = []
+        if resume and csv_path.is_file():
+            old_meta = None
+            with contextlib.suppress(OSError, ValueError):
+                old_meta = json.loads(meta_path.read_text(encoding="utf-8"))
+            if not isinstance(old_meta, dict) or "options" not in old_meta:
+                # without it nothing says which settings the kept trials were made with
+                raise BadInput(
+                    f"--resume: cannot verify the settings of {csv_path}: {meta_path.name} is missing or damaged; "
+                    "expected the experiment.json written with it (or pass --overwrite, or choose another --out)"
+                )
+            if not old_meta.get("data_sha256"):
+                # written before the objects' contents were keyed: compared on the options alone, as then
+                old_meta = {**old_meta, "data_sha256": meta["data_sha256"]}
+            diff = differences(old_meta, meta)
+            if diff:
+                raise BadInput(
+                    f"--resume: {csv_path} was made with {'; '.join(diff)}; resume with the same settings or choose "
+                    "another --out"
+                )
+            old = checked_rows(read_csv_rows(csv_path), csv_path)
+            wrong = [
+                r
+                for r in old
+                if r.get("seed") not in (None, "") and int(r["seed"]) != _trial_seed(seed, int(r["trial"]))
+            ]
+            if wrong:
+                raise BadInput(
+                    f"--resume: {csv_path} holds trials of another --seed (trial {wrong[0]['trial']}); resume with the "
+                    "seed they were made with or choose another --out"
+                )
+            done = _complete(old, budget)
+            rows = [r for r in old if _key(r) in done]
+        write_json(meta_path, meta)
+        done = {_key(r) for r in rows}
+        tasks = [
+            {
+                "object": names[o],
+                "scene_object": loaded[o],
+                "planner": p,
+                "trial": t,
+                "budget": int(budget),
+                "seed": _trial_seed(seed, t),
+                "settings": dict(settings or {}),
+                "prober": prober,
+            }
+            for t in range(trials)
+            for o in paths
+            for p in planners
+            if (names[o], p, t) not in done
         ]
-        if wrong:
-            raise BadInput(
-                f"--resume: {csv_path} holds trials of another --seed (trial {wrong[0]['trial']}); resume with the "
-                "seed they were made with or choose another --out"
-            )
-        done = _complete(old, budget)
-        rows = [r for r in old if _key(r) in done]
-    write_json(meta_path, meta)
-    done = {_key(r) for r in rows}
-    tasks = [
-        {
-            "object": names[o],
-            "scene_object": loaded[o],
-            "planner": p,
-            "trial": t,
-            "budget": int(budget),
-            "seed": _trial_seed(seed, t),
-            "settings": dict(settings or {}),
-            "prober": prober,
-        }
-        for t in range(trials)
-        for o in paths
-        for p in planners
-        if (names[o], p, t) not in done
-    ]
-    log = log or _log.info
-    log(
-        f"experiment: {len(tasks)} trial(s) to run, {len(done)} kept from {csv_path}"
-        if done
-        else f"experiment: {len(tasks)} trial(s) to run"
-    )
-
-    results = ResultsFile(
-        csv_path,
-        COLUMNS,
-        rows,
-        order=lambda r: (str(r["object"]), str(r["planner"]), int(r["trial"]), int(r["stroke"])),
-    )
-
-    def finished(new_rows):
-        results.add(new_rows)
-        last = new_rows[-1]
+        log = log or _log.info
         log(
-            f"  {last['object']} {last['planner']} trial {last['trial']}: chamfer {float(last['chamfer']):.4f}, "
-            f"volume error {float(last['volume_error']):.4f} after {last['stroke']} strokes"
+            f"experiment: {len(tasks)} trial(s) to run, {len(done)} kept from {csv_path}"
+            if done
+            else f"experiment: {len(tasks)} trial(s) to run"
         )
 
-    if not csv_path.is_file():
-        results.write()
-    run_tasks(tasks, run_trial, finished, workers=workers, scheduler=scheduler)
-    rows = results.rows
-    if plot and rows:
-        plot_results(rows, out / "error_vs_strokes.png")
-    return {"ran": len(tasks), "skipped": len(done), "rows": rows, "path": csv_path}
+        results = ResultsFile(
+            csv_path,
+            COLUMNS,
+            rows,
+            order=lambda r: (str(r["object"]), str(r["planner"]), int(r["trial"]), int(r["stroke"])),
+        )
+
+        def finished(new_rows):
+            results.add(new_rows)
+            last = new_rows[-1]
+            log(
+                f"  {last['object']} {last['planner']} trial {last['trial']}: chamfer {float(last['chamfer']):.4f}, "
+                f"volume error {float(last['volume_error']):.4f} after {last['stroke']} strokes"
+            )
+
+        if not csv_path.is_file():
+            results.write()
+        run_tasks(tasks, run_trial, finished, workers=workers, scheduler=scheduler)
+        rows = results.rows
+        if plot and rows:
+            plot_results(rows, out / "error_vs_strokes.png")
+        return {"ran": len(tasks), "skipped": len(done), "rows": rows, "path": csv_path}
 
 
 def _run_pool(workers: int, tasks: Sequence, run: Callable, finished: Callable) -> None:
