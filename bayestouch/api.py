@@ -26,7 +26,7 @@ import numpy as np
 from bayestouch.errors import BadInput
 from bayestouch.io.contacts import N_ELLIPSOID_PARAMS, ContactPoints, check_contact_spread, load_contact_points
 from bayestouch.io.files import atomic_path, set_aside
-from bayestouch.io.runfolder import LOCK_FILE, OUTPUTS
+from bayestouch.io.runfolder import LOCK_FILE, OUTPUTS, locked_run_folder
 from bayestouch.params import MODELS
 
 __all__ = ["Fit", "fit", "simulate", "calibrate"]
@@ -261,17 +261,18 @@ class Fit:
                 f"save: {folder} already holds a run ({', '.join(held)}); pass overwrite=True to replace it (the "
                 "earlier files are set aside), or choose another folder"
             )
-        if overwrite and folder.is_dir():
-            # set aside, not deleted: every file of the folder, so nothing of the earlier run (smc.npz, …) nor any
-            # other old file stays beside the new one; folders (earlier replaced-*/, …) and the lock stay
-            stale = sorted(p for p in folder.iterdir() if p.is_file() and p.name != LOCK_FILE)
-            set_aside(stale, "Fit.save")
-        # each file atomically, the summary last (a kill leaves no new summary beside old results)
-        for name in sorted(OUTPUTS, key=lambda n: n == "summary.json"):
-            src = self.folder / name
-            if src.is_file():
-                with atomic_path(folder / name) as tmp:
-                    shutil.copyfile(src, tmp)
+        with locked_run_folder(folder):  # a run still writing there is refused, not moved from under it
+            if overwrite:
+                # set aside, not deleted: every file of the folder, so nothing of the earlier run (smc.npz, …) nor
+                # any other old file stays beside the new one; folders (earlier replaced-*/, …) and the lock stay
+                stale = sorted(p for p in folder.iterdir() if p.is_file() and p.name != LOCK_FILE)
+                set_aside(stale, "Fit.save")
+            # each file atomically, the summary last (a kill leaves no new summary beside old results)
+            for name in sorted(OUTPUTS, key=lambda n: n == "summary.json"):
+                src = self.folder / name
+                if src.is_file():
+                    with atomic_path(folder / name) as tmp:
+                        shutil.copyfile(src, tmp)
         return folder
 
 

@@ -7,12 +7,14 @@ occupancy query points and a ``posterior.nc`` without a posterior are one-line :
 from __future__ import annotations
 
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 import bayestouch as bt
 from bayestouch.errors import BadInput
+from bayestouch.io.runfolder import LOCK_FILE
 from bayestouch.params import MODELS
 
 SPHERE_REC = MODELS.parent / "data" / "recordings" / "sphere.nc"
@@ -61,11 +63,12 @@ def test_save_with_overwrite_sets_every_earlier_file_aside_and_says_where(tmp_pa
     assert fit.save(dst, overwrite=True) == dst
     (aside,) = _aside(dst)
     assert {p.name: p.read_bytes() for p in aside.iterdir()} == old  # every earlier file kept, byte for byte
-    assert {p.name: p.read_bytes() for p in dst.iterdir() if p.is_file()} == new  # nothing stale beside the new run
+    # nothing stale beside the new run (the folder's lock file, empty of any holder, stays as in a fit's folder)
+    assert {p.name: p.read_bytes() for p in dst.iterdir() if p.is_file() and p.name != LOCK_FILE} == new
     assert str(aside) in capsys.readouterr().err
     # a second overwrite keeps the first set-aside folder and adds another
     fit.save(dst, overwrite=True)
-    assert len(_aside(dst)) == 2 and {p.name for p in dst.iterdir() if p.is_file()} == set(new)
+    assert len(_aside(dst)) == 2 and {p.name for p in dst.iterdir() if p.is_file()} - {LOCK_FILE} == set(new)
 
 
 def test_save_refuses_a_folder_holding_any_file_of_a_run(tmp_path):
@@ -273,3 +276,55 @@ def test_fit_refuses_ragged_contact_points_naming_data():
     with pytest.raises(BadInput, match=r"data: expected contact points as an \(M, 3\) array") as e:
         bt.fit([[0.01, 0.0, 0.0], [0.0, 0.01]], progress=False)
     _one_line(e)
+
+
+def test_size_prior_with_ffd_is_refused_in_the_api_as_on_the_command_line(tmp_path):
+    """The FFD-marginalised fit keeps its own prior: bt.fit(size_prior=…, ffd=…) is refused in one line (it ran,
+    silently dropping the size prior), before any folder is made."""
+    import bayestouch as bt
+    from bayestouch.errors import BadInput
+
+    pts = bt.load_contact_points(Path(__file__).resolve().parents[1] / "data" / "contacts" / "egg.csv").points
+    out = tmp_path / "run"
+    with pytest.raises(BadInput, match="size_prior: the FFD-marginalised fit keeps its own prior"):
+        bt.fit(pts, out, size_prior=(0.01, 0.1), ffd=(3, 3, 3), steps=50)
+    assert not out.exists()
+
+
+def test_save_waits_for_no_one_it_refuses_a_folder_in_use(tmp_path):
+    """Fit.save(overwrite=True) into a folder another process is writing is refused in one line; nothing there is
+    moved (it would have set the running fit's files aside from under it)."""
+    import subprocess
+    import sys
+
+    import bayestouch as bt
+    from bayestouch.errors import BadInput
+
+    src = tmp_path / "src"
+    pts = bt.load_contact_points(Path(__file__).resolve().parents[1] / "data" / "contacts" / "egg.csv").points
+    fit = bt.fit(pts, src, steps=60, seed=0)
+    busy = tmp_path / "busy"
+    busy.mkdir()
+    (busy / "summary.json").write_text("{}")
+    holder = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import sys, time\nfrom bayestouch.io.runfolder import locked_run_folder\n"
+            f"with locked_run_folder({str(busy)!r}):\n    print('held', flush=True)\n    time.sleep(60)\n",
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        with pytest.raises(BadInput, match="in use by another bayestouch run"):
+            fit.save(busy, overwrite=True)
+        assert (busy / "summary.json").read_text() == "{}"
+        assert not any(p.name.startswith("replaced-") for p in busy.iterdir())
+    finally:
+        holder.kill()
+        holder.wait()
+        holder.stdout.close()
+    fit.save(busy, overwrite=True)  # the holder gone, the earlier file is set aside
+    assert any(p.name.startswith("replaced-") for p in busy.iterdir())

@@ -822,6 +822,8 @@ def run_contact_fit(
     t0 = time.perf_counter()
     out = Path(out)
     priors = cm.load_priors()
+    if size_prior is not None and ffd is not None:
+        raise BadInput("size_prior: the FFD-marginalised fit keeps its own prior; give size_prior or ffd, not both")
     if size_prior is not None:
         priors = cm.with_size_prior(priors, *size_prior)
     if init not in ("auto", "smc", "optimize"):
