@@ -41,13 +41,14 @@ def read_toml(path, kind: str = "parameter file", example: str = "models/finger.
     """Parse a TOML file; a missing or malformed file is a one-line :class:`BadInput`.
 
     ``kind`` and ``example`` name the file in the message ("object file …, expected a TOML file such as
-    models/objects/egg.toml").
+    models/objects/egg.toml"). A leading UTF-8 byte-order mark (as some Windows editors save) is dropped, as the
+    CSV and JSON readers drop it; TOML itself does not allow one.
     """
     p = Path(path)
     if not p.is_file():
         raise BadInput(f"{kind} {p} does not exist (expected a TOML file such as {example})")
     try:
-        return tomllib.loads(p.read_text(encoding="utf-8"))
+        return tomllib.loads(p.read_text(encoding="utf-8-sig"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
         raise BadInput(f"{p}: not valid TOML ({str(e).splitlines()[0]})") from None
 

@@ -68,7 +68,8 @@ class DeviceCalibration(NamedTuple):
     log_gain_sd : (N,) float
         Standard error of ``log_gain`` (> 0).
     noise_scale : float
-        Residual sd over the modelled read-out sd at the calibration (dimensionless, ≥ 0).
+        Residual sd over the modelled read-out sd at the calibration (dimensionless, within the fit's prior box
+        [0.1, 1e4] of ``models/priors.toml``).
     mode : str
         Taxel response mode of the calibration recording ("physics" or "empirical").
     info : dict
@@ -143,6 +144,51 @@ def device_file_text(cal: DeviceCalibration) -> str:
 
 #: the range of the [response] entries: a sensitivity scale (relative to the models' constants) and its sd
 _RESPONSE_RANGE = {"scale": (1e-3, 1e3), "scale_sd": (1e-6, 10.0)}
+#: the keys each table of a device file may hold (anything else, a misspelt ``[responce]`` say, is refused rather
+#: than ignored): [device] holds the calibration's mode and noise scale and the provenance that
+#: :func:`bayestouch.inference.raw.calibrate.calibrate_device` records
+_KNOWN = {
+    "device": (
+        "format",
+        "taxels",
+        "mode",
+        "noise_scale",
+        "object",
+        "recording",
+        "strokes",
+        "frames",
+        "software",
+        "response",
+    ),
+    "gains": ("log_gain", "log_gain_sd"),
+    "response": ("scale", "scale_sd"),
+}
+
+
+def _noise_scale_range() -> tuple[float, float]:
+    """The box of the fit's noise multiplier k, ``[raw_priors]`` noise_scale_min and noise_scale_max of
+    ``models/priors.toml`` (dimensionless): a device file's noise scale outside it is one no fit can hold."""
+    # imported here: bayestouch.inference.raw imports this module
+    from bayestouch.inference.raw.priors import load_raw_priors
+
+    pri = load_raw_priors()
+    return float(pri["noise_scale_min"]), float(pri["noise_scale_max"])
+
+
+def _check_known(doc: dict, where: str) -> None:
+    """Refuse (:class:`BadInput`, one line) a table or key of a parsed device file that :data:`_KNOWN` lacks."""
+    tables = [f"[{t}]" for t in _KNOWN]
+    unknown = [f"[{k}]" if isinstance(v, dict) else k for k, v in doc.items() if k not in _KNOWN]
+    if unknown:
+        raise BadInput(
+            f"{where}: unknown table(s) {', '.join(unknown)}; expected {', '.join(tables)} (as `bayestouch "
+            "calibrate` writes them)"
+        )
+    for table, keys in _KNOWN.items():
+        tab = doc.get(table)
+        extra = [k for k in tab if k not in keys] if isinstance(tab, dict) else []
+        if extra:
+            raise BadInput(f"{where}: [{table}] unknown key(s) {', '.join(extra)}; expected {', '.join(keys)}")
 
 
 def read_device_file(path, n_taxels: int | None = None) -> DeviceCalibration:
@@ -157,7 +203,8 @@ def read_device_file(path, n_taxels: int | None = None) -> DeviceCalibration:
     Raises
     ------
     BadInput
-        A missing or unreadable file, or a field that is absent or out of range (one line naming it).
+        A missing or unreadable file, a table or key the layout does not have, or a field that is absent or out of
+        range (one line naming it); the noise scale must lie in the fit's prior box of ``models/priors.toml``.
     """
     p = Path(path)
     where = f"device file {p}"
@@ -172,10 +219,11 @@ def read_device_file(path, n_taxels: int | None = None) -> DeviceCalibration:
 
 def device_calibration(doc: dict, where: str) -> DeviceCalibration:
     """The :class:`DeviceCalibration` of a parsed device file ``doc``; raises :class:`BadInput` (``where`` named)
-    on a field that is absent or out of range."""
+    on a table or key the layout does not have, or a field that is absent or out of range."""
     dev, gains = doc.get("device"), doc.get("gains")
     if not isinstance(dev, dict) or not isinstance(gains, dict):
         raise BadInput(f"{where}: expected the tables [device] and [gains] written by `bayestouch calibrate`")
+    _check_known(doc, where)
     if dev.get("format") != DEVICE_FORMAT:
         raise BadInput(f"{where}: [device] format is {dev.get('format')!r}, expected {DEVICE_FORMAT}")
     mode = dev.get("mode")
@@ -185,6 +233,12 @@ def device_calibration(doc: dict, where: str) -> DeviceCalibration:
     if not isinstance(k, int | float) or isinstance(k, bool) or not (math.isfinite(k) and k > 0):
         # 0 would declare the read-out noiseless: a likelihood of unbounded precision
         raise BadInput(f"{where}: [device] noise_scale must be a finite number > 0, got {k!r}")
+    lo, hi = _noise_scale_range()
+    if not lo <= k <= hi:
+        raise BadInput(
+            f"{where}: [device] noise_scale must be in [{lo:g}, {hi:g}] (the fit's prior box for the residual sd over "
+            f"the modelled read-out sd, models/priors.toml), got {k!r}"
+        )
     arrays = {}
     for name in ("log_gain", "log_gain_sd"):
         v = gains.get(name)

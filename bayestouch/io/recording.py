@@ -27,6 +27,7 @@ __all__ = [
     "PHYSICAL_RANGES",
     "COORDINATES",
     "CONVENTIONS",
+    "DIMS",
     "build_dataset",
     "with_coordinates",
     "write_recording",
@@ -80,28 +81,37 @@ DESCRIPTIONS = {
 }
 
 
+#: the dimensions of each variable of a recording, in order (a variable stored another way round is refused by
+#: :func:`check_recording`)
+DIMS = {
+    "time": ("frame",),
+    "stroke_index": ("frame",),
+    "taxel_current": ("frame", "taxel"),
+    "taxel_current_clean": ("frame", "taxel"),
+    "pressure": ("frame", "taxel"),
+    "contact_force": ("frame",),
+    "friction_force": ("frame",),
+    "pressing_depth": ("frame",),
+    "contact_point": ("frame", "xyz"),
+    "contact_normal": ("frame", "xyz"),
+    "wire_current": ("frame", "wire"),
+    "wire_temperature": ("frame", "wire"),
+    "skin_temperature": ("frame",),
+    "finger_tip_position": ("frame", "xyz"),
+    "finger_curvature": ("frame", "uv"),
+    "taxel_u": ("taxel",),
+    "taxel_v": ("taxel",),
+    "taxel_reference": ("taxel",),
+    "stroke_depth": ("stroke",),
+}
+_DIM_NAMES = {d for dims in DIMS.values() for d in dims}
+
+
 def build_dataset(frames: dict[str, np.ndarray], taxel_u, taxel_v, reference, depths, attrs: dict):
     """An ``xarray.Dataset`` from per-frame arrays (keys of :data:`UNITS`, first axis = frame)."""
-    dims = {
-        "time": ("frame",),
-        "stroke_index": ("frame",),
-        "taxel_current": ("frame", "taxel"),
-        "taxel_current_clean": ("frame", "taxel"),
-        "pressure": ("frame", "taxel"),
-        "contact_force": ("frame",),
-        "friction_force": ("frame",),
-        "pressing_depth": ("frame",),
-        "contact_point": ("frame", "xyz"),
-        "contact_normal": ("frame", "xyz"),
-        "wire_current": ("frame", "wire"),
-        "wire_temperature": ("frame", "wire"),
-        "skin_temperature": ("frame",),
-        "finger_tip_position": ("frame", "xyz"),
-        "finger_curvature": ("frame", "uv"),
-    }
     data = {}
     for k, v in frames.items():
-        data[k] = xr.Variable(dims[k], np.asarray(v), {"units": UNITS[k], "long_name": DESCRIPTIONS.get(k, k)})
+        data[k] = xr.Variable(DIMS[k], np.asarray(v), {"units": UNITS[k], "long_name": DESCRIPTIONS.get(k, k)})
     data["taxel_u"] = xr.Variable(("taxel",), np.asarray(taxel_u), {"units": "m"})
     data["taxel_v"] = xr.Variable(("taxel",), np.asarray(taxel_v), {"units": "m"})
     data["taxel_reference"] = xr.Variable(
@@ -159,9 +169,21 @@ CURRENT_FLOOR_A = 1e-15
 
 
 def check_recording(ds, where: str = "recording") -> None:
-    """Raise :class:`~bayestouch.errors.BadInput` naming the first variable of ``ds`` that holds a non-finite value,
-    a value outside :data:`PHYSICAL_RANGES` or (taxel currents) a non-zero magnitude below
-    :data:`CURRENT_FLOOR_A`, with how many values and the first frame; ``where`` names the recording."""
+    """Raise :class:`~bayestouch.errors.BadInput` naming the first variable of ``ds`` whose dimensions are not those
+    of :data:`DIMS` (e.g. ``taxel_current`` stored (taxel, frame)), or that holds a non-finite value, a value outside
+    :data:`PHYSICAL_RANGES` or (taxel currents) a non-zero magnitude below :data:`CURRENT_FLOOR_A`, with how many
+    values and the first frame; ``where`` names the recording.
+
+    A variable whose dimensions bear none of the recording's names (a file written by other software) is left to
+    the shape checks of its reader."""
+    for name in list(ds.variables):
+        dims, want = tuple(str(d) for d in ds[name].dims), DIMS.get(str(name))
+        if want is not None and dims != want and set(dims) & _DIM_NAMES:
+            turned = " (transposed?)" if sorted(dims) == sorted(want) else ""
+            raise BadInput(
+                f"{where}: variable '{name}' has dimensions {dims}; expected {want}{turned} as `bayestouch "
+                "simulate` writes it"
+            )
     for name in list(ds.variables):
         unit = ds[name].attrs.get("units")
         if name in UNITS and unit is not None and str(unit) != UNITS[name]:

@@ -32,6 +32,7 @@ __all__ = [
     "load_object",
     "object_from_dict",
     "DEFECT_KINDS",
+    "WAVELENGTH_RANGE_M",
 ]
 
 DEFECT_KINDS = ("bump", "shallow", "crack")
@@ -208,6 +209,11 @@ AXIS_MIN_M = 1e-3
 WORKSPACE_M = 2.0
 #: most control points per axis of an object's FFD lattice
 FFD_DIM_MAX = 16
+#: a texture's wavelength range, metres: 10 µm (far below a taxel pitch) to 5 cm (a wave longer than the pad is no
+#: texture); object files and the texture library (:mod:`bayestouch.scene.textures`) both hold to it
+WAVELENGTH_RANGE_M = (1e-5, 0.05)
+#: largest |angle| of an object file, radians: one full turn (a value beyond it is most likely degrees)
+ANGLE_MAX_RAD = 2 * np.pi
 
 
 def _known(d: dict, keys: tuple, where: str, table: str) -> None:
@@ -236,6 +242,16 @@ def _num(d: dict, key: str, where: str, *, positive: bool = True, default=None) 
     if positive and not v > 0:
         raise BadInput(f"{where}: '{key}' must be > 0, got {v}")
     return float(v)
+
+
+def _radians(values, key: str, where: str) -> None:
+    """Refuse an angle of ``values`` beyond ±:data:`ANGLE_MAX_RAD` (degrees given for radians)."""
+    big = [float(v) for v in values if abs(v) > ANGLE_MAX_RAD]
+    if big:
+        raise BadInput(
+            f"{where}: '{key}' must be within ±2π (±{ANGLE_MAX_RAD:.4g}), got {big[0]:g}: radians expected; "
+            f"{big[0]:g} looks like degrees"
+        )
 
 
 def _int(d: dict, key: str, where: str, lo: int, hi: int, default: int) -> int:
@@ -278,6 +294,7 @@ def object_from_dict(doc: dict, where: str = "object", source: Path | None = Non
             "recordings are checked against; give metres"
         )
     angles = _vec3(shape, "angles_rad", f"{where} [shape]") if "angles_rad" in shape else (0.0, 0.0, 0.0)
+    _radians(angles, "angles_rad", f"{where} [shape]")
     n = _num(shape, "n", f"{where} [shape]")
     if not 1.0 <= n <= N_MAX:
         raise BadInput(
@@ -318,6 +335,10 @@ def object_from_dict(doc: dict, where: str = "object", source: Path | None = Non
             _int(t, "seed", w, 0, 2**63 - 1, 0),
             _int(t, "modes", w, 1, 4096, 16),
         )
+        lo, hi = WAVELENGTH_RANGE_M
+        if not lo <= texture.wavelength <= hi:
+            raise BadInput(f"{w}: 'wavelength_m' must be in [{lo:g}, {hi:g}] metres, got {texture.wavelength:g}")
+        _radians((texture.orientation,), "orientation_rad", w)
         if min(texture.amplitude, texture.roughness) < 0:
             raise BadInput(
                 f"{w}: amplitude_m and roughness_m must be ≥ 0 metres (a depth, not a sign), got "

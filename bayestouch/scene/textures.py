@@ -19,7 +19,7 @@ from bayestouch.backend import jnp
 from bayestouch.errors import BadInput
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.params import MODELS, read_toml
-from bayestouch.scene.objects import SceneObject, TextureSpec, build_surface, object_from_dict
+from bayestouch.scene.objects import WAVELENGTH_RANGE_M, SceneObject, TextureSpec, build_surface, object_from_dict
 from bayestouch.scene.strokes import Stroke, stroke_from_path
 from bayestouch.scene.surface import Surface, Texture
 
@@ -139,7 +139,7 @@ def library_from_dict(doc: dict, where: str = "texture library", source: Path | 
             raise BadInput(f"{w}: 'name' must be a unique non-empty string, got {name!r}")
         w = f"{where} [[texture]] '{name}'"
         amp = _number(t, "amplitude_m", w, 0.0, 5e-4, default=0.0)
-        lam = _number(t, "wavelength_m", w, 1e-5, 0.05)
+        lam = _number(t, "wavelength_m", w, *WAVELENGTH_RANGE_M)
         ori = _number(t, "orientation_rad", w, -2 * np.pi, 2 * np.pi, default=0.0)
         rough = _number(t, "roughness_m", w, 0.0, 5e-4, default=0.0)
         seed = t.get("seed", 0)

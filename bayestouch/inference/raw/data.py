@@ -20,7 +20,7 @@ from bayestouch.params import MODELS
 from bayestouch.physics import forward as fw
 from bayestouch.physics import noise as nz
 from bayestouch.physics import taxel as tx
-from bayestouch.physics.virtual import load_finger
+from bayestouch.physics.virtual import MAX_DEPTH_M, load_finger
 
 __all__ = [
     "RawData",
@@ -34,11 +34,24 @@ __all__ = [
     "load_raw_data",
     "commanded_points",
     "MIN_FRAMES",
+    "LAYOUT_TOLERANCE_M",
+    "FRAME_RATE_RANGE_HZ",
+    "MAX_PAD_SPEED",
+    "check_taxel_layout",
 ]
 
 #: fewest frames with contact a raw-current fit reads (after --stride): a stride longer than the strokes left
 #: one frame, a "fit" of one pad position
 MIN_FRAMES = 5
+#: largest difference (m) between a recording's taxel_u/taxel_v and the finger model's pad coordinates: the fit
+#: places every taxel at the model's coordinates, so a recording of another layout (or order) is refused
+LAYOUT_TOLERANCE_M = 1e-6
+#: frame rates (Hz, the median within each stroke) a recording may have: generous bounds around any taxel read-out
+#: (``simulate --rate`` takes 1 to 2000 Hz); outside, ``time`` is in another unit than seconds (ms: frames 20 s apart)
+FRAME_RATE_RANGE_HZ = (0.1, 1e5)
+#: fastest mean pad speed (m/s) of a stroke, contact-point path over duration: twenty times the finger's safety limit
+#: (5 cm/s, bayestouch.hardware.safety) and a hundred times the paper's 1 cm/s; faster is a time unit mistake
+MAX_PAD_SPEED = 1.0
 
 
 class RawData(NamedTuple):
@@ -118,10 +131,14 @@ def open_recording(ds_or_path):
     Raises
     ------
     BadInput
-        No such file, or a file that cannot be read as netCDF.
+        No such file, a file that cannot be read as netCDF, a damaged recording
+        (:func:`~bayestouch.io.recording.check_recording`), or pressing depths and times no finger records
+        (deeper than :data:`~bayestouch.physics.virtual.MAX_DEPTH_M`, a frame rate outside
+        :data:`FRAME_RATE_RANGE_HZ`, a pad faster than :data:`MAX_PAD_SPEED`).
     """
     if not isinstance(ds_or_path, str | Path):
         check_recording(ds_or_path)
+        _recording_kinematics(ds_or_path, "recording")
         return ds_or_path, "recording"
     p = Path(ds_or_path)
     if not p.is_file():
@@ -133,6 +150,7 @@ def open_recording(ds_or_path):
             f"recording {p}: cannot be read as netCDF ({type(e).__name__}); expected a .nc recording"
         ) from None
     check_recording(ds, f"recording {p}")
+    _recording_kinematics(ds, str(p))
     return ds, str(p)
 
 
@@ -147,6 +165,74 @@ def need_variable(ds, name, ndim, where):
     if not np.all(np.isfinite(v)):
         raise BadInput(f"{where}: variable '{name}' contains NaN or infinite values; expected finite numbers")
     return v
+
+
+def _check_kinematics(where: str, t, si, contact, depth) -> None:
+    """Refuse (:class:`BadInput` naming the variable) pressing depths beyond :data:`MAX_DEPTH_M` and times whose
+    frame rate lies outside :data:`FRAME_RATE_RANGE_HZ` or that move the pad faster than :data:`MAX_PAD_SPEED`
+    (SI values the simulator and the finger cannot produce: another unit written under the SI one)."""
+    deep = depth > MAX_DEPTH_M
+    if deep.any():
+        i = int(np.argmax(deep))
+        raise BadInput(
+            f"{where}: 'pressing_depth' holds {int(deep.sum())} value(s) deeper than {MAX_DEPTH_M:g} m (first at frame "
+            f"{i}: {depth[i]:g} m), the limit of `bayestouch simulate` and `device run`; expected metres (0 or less: "
+            "no contact)"
+        )
+    lo, hi = FRAME_RATE_RANGE_HZ
+    for k in np.unique(si):
+        sel = np.flatnonzero(si == k)
+        if sel.size < 2:
+            continue
+        dt = float(np.median(np.diff(t[sel])))
+        if not 1.0 / hi <= dt <= 1.0 / lo:
+            raise BadInput(
+                f"{where}: 'time' puts the frames {dt:.3g} s apart in stroke {int(k)} ({1.0 / dt:.3g} Hz); expected a "
+                f"frame rate in [{lo:g}, {hi:g}] Hz with times in seconds (milliseconds written as seconds?)"
+            )
+        duration = float(t[sel[-1]] - t[sel[0]])
+        path = float(np.sum(np.linalg.norm(np.diff(contact[sel], axis=0), axis=1)))
+        if path > MAX_PAD_SPEED * duration:
+            raise BadInput(
+                f"{where}: 'time' moves the pad at {path / duration:.3g} m/s in stroke {int(k)} ({path:.3g} m of "
+                f"'contact_point' in {duration:.3g} s); expected at most {MAX_PAD_SPEED:g} m/s with times in seconds"
+            )
+
+
+def _recording_kinematics(ds, where: str) -> None:
+    """:func:`_check_kinematics` of a recording that has its time, stroke index, contact points and depths in their
+    shapes (otherwise :func:`load_raw_data` names what is missing or misshapen)."""
+    names = ("time", "stroke_index", "contact_point", "pressing_depth")
+    if not all(n in ds.variables for n in names):
+        return
+    t, si, contact, depth = (np.asarray(ds[n].values, dtype=float) for n in names)
+    if t.ndim != 1 or si.shape != t.shape or depth.shape != t.shape or contact.shape != (t.size, 3):
+        return
+    if all(np.all(np.isfinite(a)) for a in (t, si, contact, depth)):
+        _check_kinematics(where, t, si.astype(int), contact, depth)
+
+
+def check_taxel_layout(ds, finger, where: str = "recording") -> None:
+    """Refuse (:class:`BadInput` naming the variable) a recording whose ``taxel_u``/``taxel_v`` (where it has them)
+    differ from the pad coordinates of ``finger`` (its ``grid``, metres) by more than :data:`LAYOUT_TOLERANCE_M`:
+    the raw-current fit places every ``taxel_current`` column at the finger model's coordinates, so a recording of
+    another layout, in another unit or with its taxels in another order would be fitted as if it were this one's."""
+    grid = np.asarray(finger.grid).reshape(-1, 2)
+    for col, name in enumerate(("taxel_u", "taxel_v")):
+        if name not in ds.variables:
+            continue
+        v = np.asarray(ds[name].values, dtype=float)
+        want = grid[:, col]
+        if v.shape != want.shape:
+            raise BadInput(f"{where}: variable '{name}' has shape {v.shape}, expected ({want.size},) (taxel)")
+        off = np.where(np.isfinite(v), np.abs(v - want), np.inf)
+        if np.max(off) > LAYOUT_TOLERANCE_M:
+            i = int(np.argmax(off))
+            raise BadInput(
+                f"{where}: variable '{name}' differs from the finger's taxel layout by up to {off[i]:.3g} m "
+                f"(taxel {i}: {v[i]:g} m, the model's {want[i]:g} m); the fit places each taxel at the pad coordinates "
+                "of the finger model (--models), so expected the same taxels in the same order, in metres"
+            )
 
 
 def nominal_log_gain_sd(finger) -> float:
@@ -283,6 +369,12 @@ def load_raw_data(
     Returns
     -------
     (RawData, Finger)
+
+    Raises
+    ------
+    BadInput
+        A recording :func:`open_recording` refuses, a variable that is missing or misshapen, or a taxel layout
+        (``taxel_u``, ``taxel_v``) other than the finger's (:func:`check_taxel_layout`).
     """
     ds, where = open_recording(ds_or_path)
     if int(stride) < 1:
@@ -311,6 +403,7 @@ def load_raw_data(
     N = int(np.asarray(finger.reference).size)
     if nT != N:
         raise BadInput(f"{where}: variable 'taxel_current' has {nT} taxels, expected {N} (the finger's array)")
+    check_taxel_layout(ds, finger, where)
     ref = np.asarray(finger.reference).ravel().astype(bool)
     if "taxel_reference" in ds.variables and not np.array_equal(np.asarray(ds["taxel_reference"].values) != 0, ref):
         raise BadInput(f"{where}: variable 'taxel_reference' differs from the finger's reference taxels")
