@@ -121,6 +121,19 @@ def test_a_recording_with_another_taxel_layout_is_refused(rec):
     load_raw_data(rec.assign_coords(taxel_u=rec.taxel_u + 1e-8))  # within the tolerance
 
 
+def test_a_fit_refused_for_its_layout_leaves_no_run_folder(rec, tmp_path):
+    """The layout is checked before the run folder is made: a refused fit leaves nothing behind (it left a folder
+    with run.json)."""
+    from bayestouch.inference.raw import run_raw_fit
+    from bayestouch.io.recording import write_recording
+
+    bad = write_recording(rec.assign_coords(taxel_u=rec.taxel_u * 1000), tmp_path / "uv_mm.nc")
+    out = tmp_path / "run"
+    with pytest.raises(BadInput, match=r"'taxel_u' differs from the finger's taxel layout"):
+        run_raw_fit(bad, out, progress=False)
+    assert not out.exists()
+
+
 def test_a_pressing_depth_beyond_the_simulators_limit_is_refused(rec):
     """Depths × 100 (30 mm) fitted without a word; simulate and device run stop at MAX_DEPTH_M."""
     from bayestouch.physics.virtual import MAX_DEPTH_M

@@ -23,6 +23,7 @@ from bayestouch.inference.posterior import PosteriorModel, judged_quantities, wr
 from bayestouch.inference.raw.adjustment import OUTSIDE_PRIOR_WARN, Adjustment, curvature_adjustment
 from bayestouch.inference.raw.data import (
     RawData,
+    check_taxel_layout,
     commanded_points,
     host_device,
     load_raw_data,
@@ -400,6 +401,7 @@ def run_raw_fit(
     recording_mode(ds, where, cal)  # checked before the run folder is touched (--overwrite sets aside)
     host = host_device(Path(models), cal)
     finger = host.finger
+    check_taxel_layout(ds, finger, where)  # before the run folder is made: a refused fit leaves nothing behind
     options = {
         "walkers": int(walkers),
         "seed": int(seed),
