@@ -21,6 +21,7 @@ __all__ = [
     "check_out",
     "check_duration_rate",
     "RESULT_FILES",
+    "every_earlier_file",
     "out_path",
     "bounded_int",
     "stat",
@@ -115,6 +116,10 @@ def out_path(text: str) -> Path:
     if not text.strip():
         raise argparse.ArgumentTypeError("expected a file or folder name, got an empty path")
     path = Path(text)
+    try:
+        path.exists()  # a name the file system refuses (a component over its length limit, …)
+    except OSError as e:
+        raise argparse.ArgumentTypeError(f"{text[:80]}{'…' if len(text) > 80 else ''}: {e.strerror}") from None
     if path.is_symlink() and not path.exists():
         raise argparse.ArgumentTypeError(f"{text} is a symbolic link to nothing (dangling, or a loop)")
     base = next((a for a in path.absolute().parents if a.exists()), None)
@@ -187,9 +192,18 @@ def check_out(path: Path, overwrite: bool | None = None, command: str = "") -> P
             )
         from bayestouch.io.files import set_aside
 
-        set_aside(held, command)
+        set_aside(every_earlier_file(path) if held else [], command)
     path.mkdir(parents=True, exist_ok=True)
     return path
+
+
+def every_earlier_file(folder: Path) -> list[Path]:
+    """The files of ``folder`` that ``--overwrite`` sets aside once it holds a finished result: every file but the
+    folder's lock (sub-folders, such as earlier ``replaced-*/``, stay), so no output of the earlier run (meshes,
+    figures, grids) is left beside the new one."""
+    from bayestouch.io.runfolder import LOCK_FILE
+
+    return sorted(p for p in folder.iterdir() if p.is_file() and p.name != LOCK_FILE)
 
 
 def check_duration_rate(duration: float, rate: float) -> None:

@@ -208,6 +208,7 @@ def run_explore(args) -> int:
 
 def _explore_into(out: Path, args, obj, name, port, centre, settings) -> int:
     """The exploration of :func:`run_explore`, its options checked and ``out`` held."""
+    from bayestouch.cli.args import every_earlier_file
     from bayestouch.io.contacts import save_contact_points
     from bayestouch.io.files import set_aside, write_json
     from bayestouch.planning.loop import explore
@@ -221,7 +222,8 @@ def _explore_into(out: Path, args, obj, name, port, centre, settings) -> int:
             f"--out {out} already holds results ({', '.join(sorted({f.name for f in earlier})[:4])}"
             f"{' …' if len(earlier) > 4 else ''}); pass --overwrite to set them aside, or choose another folder"
         )
-    set_aside(earlier, "explore")  # --overwrite: never deleted, and no stale output is left beside the new ones
+    if earlier:  # --overwrite: never deleted, and no file of the earlier run (its meshes, figures …) left beside
+        set_aside(every_earlier_file(out), "explore")
     out.mkdir(parents=True, exist_ok=True)
     truthless = obj is None
     object_name = name if name is not None else "unknown (a finger without --object)"

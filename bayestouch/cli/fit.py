@@ -393,6 +393,9 @@ def _run_fit(args) -> int:
         given = [k for k, v in contact_only.items() if v]
         if given:  # options of the contact level: silently without effect on a recording before
             raise BadInput(f"{', '.join(given)}: apply to contact points (.csv), not to a recording (.nc)")
+        from bayestouch.inference.raw.data import open_recording
+
+        open_recording(args.points)  # a file that is no recording is refused before anything is set aside
         _set_aside_other_results(args)
         s = fit(
             args.points,

@@ -7,6 +7,7 @@ Set ``BAYESTOUCH_DEBUG=1`` to see tracebacks of internal errors.
 from __future__ import annotations
 
 import argparse
+import errno
 import logging
 import os
 import re
@@ -88,6 +89,22 @@ def _log_to_stderr() -> None:
     logger.setLevel(logging.INFO)
 
 
+#: errno values of an OSError that is the user's file system refusing a path or a write (a name over its length
+#: limit, a read-only or full disk, a symbolic-link loop): one line and exit 2, like a missing file
+USER_FILE_ERRNOS = frozenset(
+    {errno.ENAMETOOLONG, errno.EROFS, errno.ENOSPC, errno.EDQUOT, errno.ELOOP, errno.EFBIG, errno.EMLINK}
+)
+
+
+def _report_internal(args, e: Exception) -> int:
+    print(
+        f"bayestouch {args.command}: internal error: {type(e).__name__}: {e} "
+        "(set BAYESTOUCH_DEBUG=1 for the traceback)",
+        file=sys.stderr,
+    )
+    return 1
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the ``bayestouch`` command with ``argv`` (default ``sys.argv[1:]``); returns the exit code.
 
@@ -113,15 +130,19 @@ def main(argv: list[str] | None = None) -> int:
     except (PermissionError, FileNotFoundError, IsADirectoryError, NotADirectoryError) as e:
         print(f"bayestouch {args.command}: error: {e.strerror or e}: {e.filename}", file=sys.stderr)
         return 2
+    except OSError as e:
+        if e.errno in USER_FILE_ERRNOS:  # the user's file system refused a path or a write: not a bug
+            name = str(e.filename or "")
+            shown = f"{name[:80]}…" if len(name) > 80 else name
+            print(f"bayestouch {args.command}: error: {e.strerror}: {shown}", file=sys.stderr)
+            return 2
+        if os.environ.get("BAYESTOUCH_DEBUG"):
+            raise
+        return _report_internal(args, e)
     except KeyboardInterrupt:
         print(f"bayestouch {args.command}: interrupted", file=sys.stderr)
         return 130
     except Exception as e:  # internal error: one line unless debugging
         if os.environ.get("BAYESTOUCH_DEBUG"):
             raise
-        print(
-            f"bayestouch {args.command}: internal error: {type(e).__name__}: {e} "
-            "(set BAYESTOUCH_DEBUG=1 for the traceback)",
-            file=sys.stderr,
-        )
-        return 1
+        return _report_internal(args, e)

@@ -138,6 +138,7 @@ def open_recording(ds_or_path):
     """
     if not isinstance(ds_or_path, str | Path):
         check_recording(ds_or_path)
+        _core_variables(ds_or_path, "recording")
         _recording_kinematics(ds_or_path, "recording")
         return ds_or_path, "recording"
     p = Path(ds_or_path)
@@ -150,8 +151,19 @@ def open_recording(ds_or_path):
             f"recording {p}: cannot be read as netCDF ({type(e).__name__}); expected a .nc recording"
         ) from None
     check_recording(ds, f"recording {p}")
+    _core_variables(ds, f"recording {p}")
     _recording_kinematics(ds, str(p))
     return ds, str(p)
+
+
+#: variables every use of a recording reads (the fits and the calibration), checked when it is opened, before a
+#: run folder is touched: a file that lacks them (another netCDF, a posterior.nc) is refused with nothing set aside
+CORE_VARIABLES = (("taxel_current", 2), ("time", 1), ("stroke_index", 1))
+
+
+def _core_variables(ds, where: str) -> None:
+    for name, ndim in CORE_VARIABLES:
+        need_variable(ds, name, ndim, where)
 
 
 def need_variable(ds, name, ndim, where):

@@ -1,0 +1,64 @@
+"""Sixth review: refusals that must come before anything of a finished run is set aside, and file-system errors
+as one line."""
+
+from pathlib import Path
+
+from bayestouch.cli import main
+from bayestouch.io.contacts import save_contact_points
+from bayestouch.io.runfolder import LOCK_FILE
+
+EGG = Path(__file__).resolve().parents[1] / "data" / "contacts" / "egg.csv"
+FAST = ["--walkers", "24", "--steps", "60", "--init", "optimize", "--no-early-stop", "--budget", "0", "--quiet"]
+
+
+def _run(argv) -> int:
+    """The command's exit code, whether it returns it or argparse exits with it."""
+    try:
+        return main(argv)
+    except SystemExit as e:
+        return int(e.code)
+
+
+def _snapshot(folder: Path) -> dict:
+    """The files of ``folder`` by name (the folder's lock file, which stays with the folder, left out)."""
+    return {p.name: p.read_bytes() for p in folder.iterdir() if p.is_file() and p.name != LOCK_FILE}
+
+
+def test_a_refused_recording_fit_sets_nothing_aside(tmp_path, capsys):
+    """`fit RUN/posterior.nc --out RUN --overwrite` (a file that is no recording): refused in one line with exit 2
+    before the finished run is moved (it was set aside, and a raw-level run.json left in its place)."""
+    run = tmp_path / "run"
+    assert main(["fit", str(EGG), "--out", str(run), *FAST]) == 0
+    capsys.readouterr()
+    before = _snapshot(run)
+    assert main(["fit", str(run / "posterior.nc"), "--out", str(run), "--overwrite"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "variable 'taxel_current' is missing" in err[0]
+    assert _snapshot(run) == before
+    assert not any(p.name.startswith("replaced-") for p in run.iterdir())
+
+
+def test_a_name_too_long_for_the_file_system_is_one_line(tmp_path, capsys):
+    """A path component over 255 characters: exit 2 and one line naming the path (it was a traceback, exit 1)."""
+    pts = save_contact_points(tmp_path / "p.csv", __import__("numpy").loadtxt(EGG, delimiter=",", skiprows=1)[:, :3])
+    long = tmp_path / ("e" * 300)
+    assert _run(["fit", str(pts), "--out", str(long), *FAST]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) <= 3 and "name too long" in err[-1].lower()  # argparse: usage line(s) and one error line
+    assert _run(["fit", str(tmp_path / ("p" * 300 + ".csv")), "--out", str(tmp_path / "o"), *FAST]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "name too long" in err[0].lower()
+
+
+def test_explore_overwrite_sets_every_file_of_a_fit_aside(tmp_path, capsys):
+    """`explore --overwrite` into a fit's folder moved the fit's summary and chain but left its meshes and
+    occupancy grid beside the new exploration: every earlier file now goes aside together."""
+    run = tmp_path / "run"
+    assert main(["fit", str(EGG), "--out", str(run), *FAST]) == 0
+    before = _snapshot(run)
+    assert {"mean_shape.ply", "occupancy.npz"} <= set(before)
+    argv = ["explore", "--object", "sphere", "--strokes", "1", "--steps", "60", "--draws", "50", "--out", str(run)]
+    assert main([*argv, "--overwrite"]) == 0
+    (aside,) = [p for p in run.iterdir() if p.name.startswith("replaced-")]
+    assert _snapshot(aside) == before
+    assert not ({"mean_shape.ply", "uncertainty_mesh.ply", "occupancy.npz", "chain.h5"} & set(_snapshot(run)))
