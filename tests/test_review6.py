@@ -62,3 +62,24 @@ def test_explore_overwrite_sets_every_file_of_a_fit_aside(tmp_path, capsys):
     (aside,) = [p for p in run.iterdir() if p.name.startswith("replaced-")]
     assert _snapshot(aside) == before
     assert not ({"mean_shape.ply", "uncertainty_mesh.ply", "occupancy.npz", "chain.h5"} & set(_snapshot(run)))
+
+
+def test_currents_beyond_the_read_outs_full_scale_are_refused(tmp_path, capsys):
+    """Currents × 1000 (milliamps written as amperes, 200× the ADC's 2 µA full scale) were fitted and calibrated
+    without a word; both are refused naming taxel_current. The shipped recording passes (the control)."""
+    import xarray as xr
+
+    from bayestouch.inference.raw.data import load_raw_data
+    from bayestouch.io.recording import write_recording
+
+    rec = Path(__file__).resolve().parents[1] / "data" / "recordings" / "sphere.nc"
+    load_raw_data(rec)
+    with xr.open_dataset(rec, engine="h5netcdf") as ds:
+        big = write_recording(ds.load().assign(taxel_current=ds.taxel_current * 1000), tmp_path / "mA.nc")
+    for argv in (
+        ["fit", str(big), "--out", str(tmp_path / "o")],
+        ["calibrate", str(big), "--object", "sphere", "--out", str(tmp_path / "c.toml")],
+    ):
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "'taxel_current' reaches" in err[0] and "full scale" in err[0]

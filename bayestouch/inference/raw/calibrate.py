@@ -20,6 +20,7 @@ import numpy as np
 from bayestouch.backend import jnp
 from bayestouch.errors import BadInput
 from bayestouch.inference.raw.data import (
+    check_full_scale,
     host_device,
     load_raw_data,
     need_variable,
@@ -167,6 +168,7 @@ def calibrate_device(recording, obj, *, models=MODELS, object_name: str | None =
     ref = np.asarray(finger.reference).ravel().astype(bool)
     if cur.ndim != 2 or cur.shape[1] != ref.size:
         raise BadInput(f"{where}: variable 'taxel_current' must be (frame, {ref.size}) for this finger")
+    check_full_scale(cur, float(finger.noise.adc_full_scale), where)
     floor = float(nz.adc_lsb(finger.noise))
 
     # reference taxels: unloaded, so their deviation from the frame's reference median is their log-gain

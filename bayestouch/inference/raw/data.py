@@ -224,6 +224,25 @@ def _recording_kinematics(ds, where: str) -> None:
         _check_kinematics(where, t, si.astype(int), contact, depth)
 
 
+#: readings above the read-out's full scale by more than this factor are refused (the quantiser stops at full scale;
+#: the margin leaves room for a device whose own full scale is a little above the models' value)
+FULL_SCALE_MARGIN = 2.0
+
+
+def check_full_scale(current, full_scale: float, where: str = "recording") -> None:
+    """Refuse (:class:`BadInput` naming ``taxel_current``) readings ``current`` (A) above :data:`FULL_SCALE_MARGIN`
+    × the read-out's ADC full scale ``full_scale`` (A, ``models/noise.toml`` ``adc_full_scale``): no read-out
+    reports them, so the file holds another unit (milliamps written as amperes)."""
+    c = np.abs(np.asarray(current, dtype=float))
+    top = float(np.max(c)) if c.size else 0.0
+    if top > FULL_SCALE_MARGIN * full_scale:
+        raise BadInput(
+            f"{where}: 'taxel_current' reaches {top:.3g} A, {top / full_scale:.3g}× the read-out's full scale "
+            f"{full_scale:g} A (models/noise.toml adc_full_scale), which no read-out reports; expected amperes "
+            "(another unit written as A?)"
+        )
+
+
 def check_taxel_layout(ds, finger, where: str = "recording") -> None:
     """Refuse (:class:`BadInput` naming the variable) a recording whose ``taxel_u``/``taxel_v`` (where it has them)
     differ from the pad coordinates of ``finger`` (its ``grid``, metres) by more than :data:`LAYOUT_TOLERANCE_M`:
@@ -416,6 +435,7 @@ def load_raw_data(
     if nT != N:
         raise BadInput(f"{where}: variable 'taxel_current' has {nT} taxels, expected {N} (the finger's array)")
     check_taxel_layout(ds, finger, where)
+    check_full_scale(cur, float(finger.noise.adc_full_scale), where)
     ref = np.asarray(finger.reference).ravel().astype(bool)
     if "taxel_reference" in ds.variables and not np.array_equal(np.asarray(ds["taxel_reference"].values) != 0, ref):
         raise BadInput(f"{where}: variable 'taxel_reference' differs from the finger's reference taxels")
