@@ -13,6 +13,7 @@ fitting, geometry or physics module of bayestouch turns float64 on for it too; g
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
 
 import jax
@@ -30,9 +31,11 @@ def enable_compilation_cache() -> str | None:
 
     A first contact-level fit in a fresh process spends ~10 s compiling about a hundred programs (the likelihood,
     its gradient, the evolutionary search, the summaries' maps and many small array operations); later runs read
-    them back. The folder is ``$BAYESTOUCH_JAX_CACHE`` when set (``0`` or an empty value disables the cache), else
-    ``$XDG_CACHE_HOME/bayestouch/jax`` (``~/.cache/bayestouch/jax``). It takes effect only if nothing has been
-    compiled yet in the process; results are identical with or without it.
+    them back. The folder is ``$BAYESTOUCH_JAX_CACHE`` when set (``~`` expands; ``0``, ``false``, ``no``, ``off`` or
+    an empty value disable the cache; ``1``, ``true``, ``yes``, ``on`` keep the default), else
+    ``$XDG_CACHE_HOME/bayestouch/jax`` (``~/.cache/bayestouch/jax``). A value that cannot be a folder (a file) is
+    said on stderr and the cache stays off. It takes effect only if nothing has been compiled yet in the process;
+    results are identical with or without it.
 
     Returns
     -------
@@ -40,12 +43,19 @@ def enable_compilation_cache() -> str | None:
         The cache folder, or None when disabled or not writable.
     """
     env = os.environ.get("BAYESTOUCH_JAX_CACHE")
-    if env is not None and env.strip() in ("", "0"):
+    word = None if env is None else env.strip().lower()
+    if word in ("", "0", "false", "no", "off"):
         return None
-    base = Path(env) if env else Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "bayestouch" / "jax"
+    default = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "bayestouch" / "jax"
+    base = default if word in (None, "1", "true", "yes", "on") else Path(env.strip()).expanduser()
     try:
         base.mkdir(parents=True, exist_ok=True)
-    except OSError:
+    except OSError as e:
+        print(
+            f"bayestouch: BAYESTOUCH_JAX_CACHE: {base} cannot be a cache folder ({e.strerror}); compiling without the "
+            "cache (expected a folder, or 0 to turn it off)",
+            file=sys.stderr,
+        )
         return None
     jax.config.update("jax_compilation_cache_dir", str(base))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)

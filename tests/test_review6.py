@@ -83,3 +83,29 @@ def test_currents_beyond_the_read_outs_full_scale_are_refused(tmp_path, capsys):
         assert main(argv) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and "'taxel_current' reaches" in err[0] and "full scale" in err[0]
+
+
+def test_the_cache_variable_means_what_a_user_writes(tmp_path, monkeypatch, capsys):
+    """``~`` expands (it made a folder literally named ~), ``1``/``on`` keep the default place (``1`` made a folder
+    named 1), ``off`` turns the cache off, and a file given as the folder is said on stderr."""
+    from bayestouch import backend
+
+    monkeypatch.setattr(backend.jax.config, "update", lambda *a: None)  # this process's JAX is left as it is
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("BAYESTOUCH_JAX_CACHE", "~/jaxcache")
+    assert backend.enable_compilation_cache() == str(tmp_path / "home" / "jaxcache")
+    assert not (tmp_path / "~").exists()
+    for on in ("1", "on", "True"):
+        monkeypatch.setenv("BAYESTOUCH_JAX_CACHE", on)
+        assert backend.enable_compilation_cache() == str(tmp_path / "xdg" / "bayestouch" / "jax")
+    assert not (tmp_path / "1").exists()
+    for off in ("0", "off", "no", ""):
+        monkeypatch.setenv("BAYESTOUCH_JAX_CACHE", off)
+        assert backend.enable_compilation_cache() is None
+    (tmp_path / "afile").write_text("x")
+    monkeypatch.setenv("BAYESTOUCH_JAX_CACHE", str(tmp_path / "afile"))
+    capsys.readouterr()
+    assert backend.enable_compilation_cache() is None
+    assert "BAYESTOUCH_JAX_CACHE" in capsys.readouterr().err
