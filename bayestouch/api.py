@@ -24,7 +24,13 @@ from pathlib import Path
 import numpy as np
 
 from bayestouch.errors import BadInput
-from bayestouch.io.contacts import N_ELLIPSOID_PARAMS, ContactPoints, check_contact_spread, load_contact_points
+from bayestouch.io.contacts import (
+    N_ELLIPSOID_PARAMS,
+    ContactPoints,
+    check_contact_spread,
+    contact_points_from_table,
+    load_contact_points,
+)
 from bayestouch.io.files import atomic_path, set_aside
 from bayestouch.io.runfolder import LOCK_FILE, OUTPUTS, locked_run_folder
 from bayestouch.params import MODELS
@@ -50,7 +56,7 @@ class Fit:
     """
 
     def __init__(self, folder, *, _temporary: tempfile.TemporaryDirectory | None = None):
-        self.folder = Path(folder)
+        self.folder = _folder_path(folder, "folder")
         path = self.folder / "summary.json"
         if not path.is_file():
             raise BadInput(f"{self.folder}: no summary.json (expected the folder of a finished `bayestouch fit`)")
@@ -250,7 +256,8 @@ class Fit:
         BadInput
             ``folder`` is a file, or holds a run's files and ``overwrite`` is not given.
         """
-        folder = Path(folder)
+        _check_bool(overwrite, "overwrite")
+        folder = _folder_path(folder, "folder")
         if folder.resolve() == self.folder.resolve():
             return folder
         if folder.exists() and not folder.is_dir():
@@ -276,10 +283,27 @@ class Fit:
         return folder
 
 
+def _check_bool(value, name: str) -> None:
+    """Refuse a switch that is not ``True`` or ``False`` (a numpy bool is accepted): ``"no"`` is truthy."""
+    if not isinstance(value, bool | np.bool_):
+        raise BadInput(f"{name}: expected True or False, got {_shown(value)}")
+
+
+def _folder_path(folder, name: str) -> Path:
+    """``folder`` as a Path, or a one-line refusal naming ``name`` when it is not a path (str or os.PathLike)."""
+    if isinstance(folder, str | os.PathLike):
+        text = os.fspath(folder)
+        if isinstance(text, str):
+            return Path(text)
+    raise BadInput(f"{name}: expected a path (str or os.PathLike) of a run folder, got {_shown(folder)}")
+
+
 def _contacts(data) -> ContactPoints | None:
     """``data`` as contact points, or None for a recording (path ending .nc or an xarray Dataset)."""
     if isinstance(data, ContactPoints):
         return data
+    if hasattr(data, "columns") and hasattr(data, "itertuples"):  # a pandas DataFrame: its columns by name
+        return contact_points_from_table(data, "data")
     if isinstance(data, str | os.PathLike):
         path = Path(data)
         if path.suffix.lower() == ".nc":
@@ -438,6 +462,13 @@ def fit(
     -------
     Fit
     """
+    for name, value in (
+        ("resume", resume),
+        ("overwrite", overwrite),
+        ("progress", progress),
+        ("stop_when_converged", stop_when_converged),
+    ):
+        _check_bool(value, name)
     _check_seed(seed)
     if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int | np.integer) or steps < 1):
         raise BadInput(f"steps must be a positive integer (the largest chain length) or None, got {steps!r}")
@@ -475,10 +506,10 @@ def fit(
     common = dict(
         seed=int(seed),
         walkers=int(walkers),
-        resume=resume,
-        overwrite=overwrite,
-        progress=progress,
-        stop_when_converged=stop_when_converged,
+        resume=bool(resume),
+        overwrite=bool(overwrite),
+        progress=bool(progress),
+        stop_when_converged=bool(stop_when_converged),
     )
     try:
         if cp is None:
@@ -565,6 +596,8 @@ def simulate(
     from bayestouch.scene.objects import SceneObject, load_object
     from bayestouch.scene.strokes import random_strokes
 
+    _check_bool(progress, "progress")
+    _check_bool(overwrite, "overwrite")
     _check_seed(seed)
     if force is not None and (isinstance(force, bool) or not isinstance(force, int | float)):
         raise BadInput(f"force: expected a number of newtons in (0, 2], got {force!r}")
@@ -573,7 +606,7 @@ def simulate(
     depths = [float(d) for d in np.atleast_1d(np.asarray(depth, dtype=float))]
     if not depths or not all(0 < d <= 2e-3 for d in depths):
         raise BadInput(f"depth: each pressing depth must be in (0, 2e-3] metres, got {depth!r}")
-    if not isinstance(strokes, int | np.integer) or strokes < 1:
+    if isinstance(strokes, bool | np.bool_) or not isinstance(strokes, int | np.integer) or strokes < 1:
         raise BadInput(f"strokes: expected an integer ≥ 1, got {strokes!r}")
     if force is not None and not (0 < force <= 2.0):
         raise BadInput(f"force: expected newtons in (0, 2], got {force!r}")
@@ -640,6 +673,7 @@ def calibrate(recording, obj, *, models=MODELS, out=None, overwrite: bool = Fals
     from bayestouch.io.device_file import device_file_text
     from bayestouch.scene.objects import SceneObject, load_object
 
+    _check_bool(overwrite, "overwrite")
     if out is not None:
         out = Path(out)
         if out.suffix != ".toml":

@@ -136,10 +136,24 @@ def sample_surface(s: NEllipsoid, count: int, seed=None, res: int = 48) -> np.nd
     Draws uniformly on a fine inscribed mesh, then moves each point radially onto the exact surface;
     the density error is of the order of the mesh's relative area error (≈ 1e-3 at ``res = 48``).
 
+    Parameters
+    ----------
+    s : NEllipsoid or SceneObject
+        The shape (a scene object's ``shape`` is used).
+    count : int
+        Number of points, ≥ 1.
+
     Returns
     -------
     (count, 3) float, metres
     """
+    if not isinstance(s, NEllipsoid):
+        if isinstance(getattr(s, "shape", None), NEllipsoid):  # a SceneObject: its n-ellipsoid
+            s = s.shape
+        else:
+            raise BadInput(
+                f"shape: expected an NEllipsoid (or a SceneObject, whose shape is used), got {type(s).__name__}"
+            )
     if isinstance(count, bool) or not isinstance(count, int | np.integer) or count < 1:
         raise BadInput(f"count: expected a positive integer number of points, got {count!r}")
     v, f = nellipsoid_mesh(s, res)

@@ -35,6 +35,7 @@ from bayestouch.io.files import atomic_write, file_error, ragged_error, read_csv
 
 __all__ = [
     "check_contact_spread",
+    "contact_points_from_table",
     "COPLANAR_RATIO",
     "ContactPoints",
     "load_contact_points",
@@ -187,8 +188,9 @@ def _num(v: float) -> str:
     return repr(float(f"{float(v):.6g}"))
 
 
-def _where(row: int, line: int) -> str:
-    return f"data row {row}, file line {line}"
+def _where(row: int, line: int | None) -> str:
+    """Where a cell is, for messages (``line`` None: a table, not a file)."""
+    return f"data row {row}" if line is None else f"data row {row}, file line {line}"
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -289,9 +291,16 @@ def check_contact_spread(points, where: str, axis_max: float) -> None:
     p = np.asarray(points, dtype=float)
     half = 0.5 * float(np.max(np.ptp(p, axis=0)))
     if half > axis_max:
+        max_abs = float(np.max(np.abs(p)))
+        with np.errstate(over="ignore", invalid="ignore"):
+            diagonal = float(np.linalg.norm(np.ptp(p, axis=0)))
+        units = _likely_units(max_abs, diagonal)
+        how = ", ".join(f"divide by {f:g} if they are {u}" for u, f in units)
         raise BadInput(
             f"{where}: the contacts span {2 * half:.3g} m, more than twice the prior's largest semi-axis "
-            f"({axis_max:g} m, models/priors.toml axis_max): no object the fit can represent holds them"
+            f"({axis_max:g} m, models/priors.toml axis_max): no object the fit can represent holds them; "
+            f"expected metres: the coordinates look like {' or '.join(u for u, _ in units)} "
+            f"(largest |value| {_num(max_abs)}) ({how}), unless they hold several objects"
         )
     sv = np.linalg.svd(p - p.mean(axis=0), compute_uv=False)
     if sv[-1] <= COPLANAR_RATIO * sv[0]:
@@ -349,24 +358,30 @@ def load_contact_points(path: str | os.PathLike[str], *, min_points: int = N_ELL
         if first is None:
             raise file_error(source, f"is empty (no header line); expected a CSV file with header {_EXPECTED_HEADER}")
         _, header = first
-        index = _parse_header(header, source)
-        columns = [c for c in (*_POS, *_NORMAL, _FORCE) if c in index]
-        has_contact = _CONTACT in index
-        n_fields = len(header)
+        return _contacts_from_records(header, records, source, min_points)
 
-        values: list[list[float]] = []  # contacts: the cells of `columns`
-        rows: list[int] = []  # their data rows and file lines, for messages
-        lines: list[int] = []
-        free_values: list[list[float]] = []  # finger positions without contact: x, y, z
-        for row, (line, fields) in enumerate(records, start=1):
-            if len(fields) != n_fields:
-                raise ragged_error(source, line, len(fields), n_fields, row)
-            if has_contact and not _parse_contact(fields[index[_CONTACT]], row, line, source):
-                free_values.append([_parse_cell(fields[index[c]], c, row, line, source) for c in _POS])
-                continue
-            values.append([_parse_cell(fields[index[c]], c, row, line, source) for c in columns])
-            rows.append(row)
-            lines.append(line)
+
+def _contacts_from_records(header: list[str], records, source: str, min_points: int) -> ContactPoints:
+    """The checks and parsing of :func:`load_contact_points` after the header: ``records`` yields ``(line,
+    fields)`` (``line`` None for a table, not a file), the cells as text."""
+    index = _parse_header(header, source)
+    columns = [c for c in (*_POS, *_NORMAL, _FORCE) if c in index]
+    has_contact = _CONTACT in index
+    n_fields = len(header)
+
+    values: list[list[float]] = []  # contacts: the cells of `columns`
+    rows: list[int] = []  # their data rows and file lines, for messages
+    lines: list[int] = []
+    free_values: list[list[float]] = []  # finger positions without contact: x, y, z
+    for row, (line, fields) in enumerate(records, start=1):
+        if len(fields) != n_fields:
+            raise ragged_error(source, line, len(fields), n_fields, row)
+        if has_contact and not _parse_contact(fields[index[_CONTACT]], row, line, source):
+            free_values.append([_parse_cell(fields[index[c]], c, row, line, source) for c in _POS])
+            continue
+        values.append([_parse_cell(fields[index[c]], c, row, line, source) for c in columns])
+        rows.append(row)
+        lines.append(line)
 
     n, k = len(values), len(free_values)
     if n < max(min_points, 1):
@@ -463,6 +478,62 @@ def load_contact_points(path: str | os.PathLike[str], *, min_points: int = N_ELL
             )
 
     return ContactPoints(points=points, normals=normals, force=force, source=source, free=free)
+
+
+def _cell_text(v) -> str:
+    """A table cell as the CSV text :func:`load_contact_points` parses (missing values: empty; floats exact)."""
+    if v is None:
+        return ""
+    if isinstance(v, bool | np.bool_):
+        return "1" if v else "0"
+    if isinstance(v, float | np.floating):
+        return "" if math.isnan(v) else repr(float(v))
+    if isinstance(v, int | np.integer):
+        return str(int(v))
+    try:  # pandas' NA, NaT …
+        if v != v:
+            return ""
+    except (TypeError, ValueError):
+        pass
+    return str(v)
+
+
+def contact_points_from_table(table, where: str = "data", *, min_points: int = N_ELLIPSOID_PARAMS) -> ContactPoints:
+    """Contact points from a table with named columns (a ``pandas.DataFrame``), read by name as
+    :func:`load_contact_points` reads a CSV file's columns, with the same checks.
+
+    Parameters
+    ----------
+    table : object with ``columns`` and ``itertuples`` (a ``pandas.DataFrame``)
+        Columns ``x, y, z`` (metres, required), ``nx, ny, nz`` (all or none), ``force`` (newtons) and ``contact``
+        (1/0, True/False); names case-insensitive, other columns ignored, missing cells (NaN) as empty cells.
+    where : str
+        The argument's name, for messages.
+    min_points : int, optional
+        Fewest contacts accepted.
+
+    Returns
+    -------
+    ContactPoints
+        As :func:`load_contact_points`, with ``source`` = ``where``.
+
+    Raises
+    ------
+    BadInput
+        One line naming ``where``: no ``x, y, z`` columns (naming the table's columns), or any problem
+        :func:`load_contact_points` refuses (naming the data row and column).
+    """
+    header = [str(c) for c in table.columns]
+    names = {h.strip().lower() for h in header}
+    missing = [c for c in _POS if c not in names]
+    if missing:
+        have = ", ".join(_show(h, 30) for h in header[:12]) + (", …" if len(header) > 12 else "")
+        raise BadInput(
+            f"{where}: a table without column(s) {','.join(missing)} (its columns: {have or 'none'}); expected "
+            f"columns {_EXPECTED_HEADER} (metres), named, in any order"
+        )
+    records = ((None, [_cell_text(v) for v in row]) for row in table.itertuples(index=False, name=None))
+    return _contacts_from_records(header, records, where, min_points)
 
 
 # ---------------------------------------------------------------------------------------------------------

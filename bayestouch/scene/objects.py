@@ -7,6 +7,7 @@ functions (metres, positive outward). The texture height field of the physics is
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -407,5 +408,8 @@ def load_object(path, models=None) -> SceneObject:
     """Read an object TOML file (metres, radians), or an object by name (``"egg"``: from ``models/objects`` when
     that parameter folder has it, else the shipped one; :func:`resolve_object`); a bad file raises
     :class:`BadInput` naming the field."""
+    if not isinstance(path, str | os.PathLike) or not isinstance(os.fspath(path), str):
+        shown = " ".join(repr(path).split())[:60]
+        raise BadInput(f"path: expected a path or an object name (e.g. 'egg'), got {type(path).__name__} {shown}")
     p = Path(path) if Path(path).suffix == ".toml" else resolve_object(str(path), models)
     return object_from_dict(read_toml(p, "object file", "models/objects/egg.toml"), str(p), p)

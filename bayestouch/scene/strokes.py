@@ -84,8 +84,8 @@ def random_strokes(
     depth : float, metres
         Pressing depth.
     """
-    if count < 1:
-        raise BadInput(f"strokes: count must be ≥ 1, got {count}")
+    if isinstance(count, bool | np.bool_) or not isinstance(count, int | np.integer) or count < 1:
+        raise BadInput(f"count: expected an integer number of strokes ≥ 1, got {count!r}")
     if not (duration > 0 and speed > 0 and rate > 0):
         raise BadInput("strokes: duration (s), speed (m/s) and rate (Hz) must be > 0")
     rng = as_rng(seed)
