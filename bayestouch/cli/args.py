@@ -21,6 +21,8 @@ __all__ = [
     "check_out",
     "check_duration_rate",
     "RESULT_FILES",
+    "COMMAND_RESULTS",
+    "COMMAND_OUTPUTS",
     "every_earlier_file",
     "out_path",
     "bounded_int",
@@ -172,6 +174,38 @@ RESULT_FILES = (
     "explore.json",
     "points.csv",
     "recording.nc",
+)
+
+
+#: files another command leaves as its finished result in its --out folder (explore, experiment, sbc,
+#: reproduce-paper, demo; glob patterns): a fit or a demo into that folder is refused unless --overwrite sets them
+#: aside
+COMMAND_RESULTS = (
+    "explore.json",
+    "summary_*.json",
+    "results.csv",
+    "experiment.json",
+    "sbc.json",
+    "table1.csv",
+    "table2.csv",
+    "demo.json",
+    "report.html",
+)
+#: what goes with those results (figures, tables, the device's journal and recording, the demo's strokes), set aside
+#: with them by --overwrite
+COMMAND_OUTPUTS = (
+    "explore.png",
+    "points.csv",
+    "device.journal",
+    "recording.nc",
+    "error_vs_strokes.png",
+    "accuracy_vs_strokes.png",
+    "sbc_ranks.png",
+    "table1.md",
+    "table2.md",
+    "table2.png",
+    "patch_summary.json",
+    "strokes",
 )
 
 

@@ -5,37 +5,20 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from bayestouch.cli.args import out_path
+from bayestouch.cli.args import COMMAND_OUTPUTS, COMMAND_RESULTS, out_path
 from bayestouch.cli.args import seed as seed_arg
 from bayestouch.errors import BadInput
 
 __all__ = ["add_parser", "run"]
 
-#: files another command leaves as its finished result (explore, experiment, sbc, reproduce-paper, texture-id; glob
-#: patterns): a demo into that folder is refused unless --overwrite sets them aside
-OTHER_RESULTS = (
-    "explore.json",
-    "summary_*.json",
-    "results.csv",
-    "experiment.json",
-    "sbc.json",
-    "table1.csv",
-    "table2.csv",
-)
 #: files a demo writes besides a fit's outputs: another command's (an exploration's points.csv, a finger's
 #: recording.nc) unless the folder is a demo's
 DEMO_FILES = ("points.csv", "recording.nc", "patch_summary.json")
-#: what goes with another command's results (figures, tables, a finger's journal), set aside with them
-OTHER_OUTPUTS = (
-    "explore.png",
-    "device.journal",
-    "error_vs_strokes.png",
-    "accuracy_vs_strokes.png",
-    "sbc_ranks.png",
-    "table1.md",
-    "table2.md",
-    "table2.png",
-)
+#: another command's results (:data:`bayestouch.cli.args.COMMAND_RESULTS`, glob patterns; the demo's own excepted):
+#: a demo into that folder is refused unless --overwrite sets them aside, with what goes with them (figures, tables,
+#: a finger's journal; not the files a demo writes itself)
+OTHER_RESULTS = tuple(p for p in COMMAND_RESULTS if p not in ("demo.json", "report.html"))
+OTHER_OUTPUTS = tuple(f for f in COMMAND_OUTPUTS if f not in (*DEMO_FILES, "strokes"))
 
 
 def add_parser(sub) -> argparse.ArgumentParser:

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bayestouch.cli.args import one_size, out_path, positive_int, size_range, stat
+from bayestouch.cli.args import COMMAND_OUTPUTS, COMMAND_RESULTS, one_size, out_path, positive_int, size_range, stat
 from bayestouch.cli.args import seed as seed_arg
 from bayestouch.errors import BadInput
 
@@ -19,35 +19,11 @@ __all__ = ["add_parser", "run", "MAX_CONTACTS", "OTHER_RESULTS"]
 MAX_CONTACTS = 50_000
 
 
-#: files another command leaves as its finished result in its --out folder (explore, experiment, sbc,
-#: reproduce-paper, demo; glob patterns): a fit into that folder is refused unless --overwrite sets them aside
-OTHER_RESULTS = (
-    "explore.json",
-    "summary_*.json",
-    "results.csv",
-    "experiment.json",
-    "sbc.json",
-    "table1.csv",
-    "table2.csv",
-    "demo.json",
-    "report.html",
-)
-#: what goes with those results (figures, tables, the device's journal and recording, the demo's strokes), set aside
-#: with them by --overwrite; the fit's own outputs are set aside by the run folder (:mod:`bayestouch.io.runfolder`)
-OTHER_OUTPUTS = (
-    "explore.png",
-    "points.csv",
-    "device.journal",
-    "recording.nc",
-    "error_vs_strokes.png",
-    "accuracy_vs_strokes.png",
-    "sbc_ranks.png",
-    "table1.md",
-    "table2.md",
-    "table2.png",
-    "patch_summary.json",
-    "strokes",
-)
+#: another command's results and what goes with them (:data:`bayestouch.cli.args.COMMAND_RESULTS`, glob patterns,
+#: and :data:`~bayestouch.cli.args.COMMAND_OUTPUTS`); the fit's own outputs are set aside by the run folder
+#: (:mod:`bayestouch.io.runfolder`)
+OTHER_RESULTS = COMMAND_RESULTS
+OTHER_OUTPUTS = COMMAND_OUTPUTS
 
 
 #: most emcee walkers a fit takes
