@@ -244,7 +244,7 @@ def test_experiment_writes_results_and_resumes_without_redoing(tmp_path, monkeyp
         run_experiment(tmp_path, **{**kw, "plot": False})
     with pytest.raises(BadInput, match="seed 3 \\(now 7\\)"):
         run_experiment(tmp_path, **{**kw, "plot": False, "seed": 7}, resume=True)
-    with pytest.raises(BadInput, match="budget 1 \\(now 2\\)"):
+    with pytest.raises(BadInput, match="budget \\(--strokes\\) 1 \\(now 2\\)"):
         run_experiment(tmp_path, **{**kw, "plot": False, "budget": 2}, resume=True)
     assert read_csv_rows(tmp_path / "results.csv") == rows and calls == []
     # an incomplete trial (its last stroke missing) is run again, the complete one is kept

@@ -372,7 +372,8 @@ def run_experiment(
             if not old_meta.get("data_sha256"):
                 # written before the objects' contents were keyed: compared on the options alone, as then
                 old_meta = {**old_meta, "data_sha256": meta["data_sha256"]}
-            diff = differences(old_meta, meta)
+            # the command line's names beside the keys: `budget` is `--strokes` there
+            diff = [d.replace("budget ", "budget (--strokes) ", 1) for d in differences(old_meta, meta)]
             if diff:
                 raise BadInput(
                     f"--resume: {csv_path} was made with {'; '.join(diff)}; resume with the same settings or choose "
