@@ -435,8 +435,9 @@ def fit(
 
     Parameters
     ----------
-    data : (M, 3) float array (metres), :class:`~bayestouch.io.contacts.ContactPoints`, path or xarray Dataset
-        Contact points (an array, a ``ContactPoints`` with optional normals and free-space points, or a CSV as
+    data : (M, 3) float array (metres), :class:`~bayestouch.io.contacts.ContactPoints`, table, path or xarray Dataset
+        Contact points (an array, a ``ContactPoints`` with optional normals and free-space points, a table such as
+        a pandas DataFrame with the CSV's named columns ``x, y, z[, nx, ny, nz][, force][, contact]``, or a CSV as
         ``bayestouch fit`` reads), or a recording (a ``.nc`` path or the ``xarray.Dataset`` of
         :func:`bayestouch.read_recording`).
     out : path, optional
