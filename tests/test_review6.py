@@ -76,13 +76,19 @@ def test_currents_beyond_the_read_outs_full_scale_are_refused(tmp_path, capsys):
     load_raw_data(rec)
     with xr.open_dataset(rec, engine="h5netcdf") as ds:
         big = write_recording(ds.load().assign(taxel_current=ds.taxel_current * 1000), tmp_path / "mA.nc")
+    run = tmp_path / "run"  # a finished fit: a refused --overwrite must not set it aside
+    assert main(["fit", str(EGG), "--out", str(run), *FAST]) == 0
+    before = _snapshot(run)
+    capsys.readouterr()
     for argv in (
         ["fit", str(big), "--out", str(tmp_path / "o")],
+        ["fit", str(big), "--out", str(run), "--overwrite"],
         ["calibrate", str(big), "--object", "sphere", "--out", str(tmp_path / "c.toml")],
     ):
         assert main(argv) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and "'taxel_current' reaches" in err[0] and "full scale" in err[0]
+    assert not (tmp_path / "o").exists() and _snapshot(run) == before
 
 
 def test_the_cache_variable_means_what_a_user_writes(tmp_path, monkeypatch, capsys):

@@ -23,10 +23,12 @@ from bayestouch.inference.posterior import PosteriorModel, judged_quantities, wr
 from bayestouch.inference.raw.adjustment import OUTSIDE_PRIOR_WARN, Adjustment, curvature_adjustment
 from bayestouch.inference.raw.data import (
     RawData,
+    check_full_scale,
     check_taxel_layout,
     commanded_points,
     host_device,
     load_raw_data,
+    need_variable,
     open_recording,
     recording_mode,
 )
@@ -401,7 +403,9 @@ def run_raw_fit(
     recording_mode(ds, where, cal)  # checked before the run folder is touched (--overwrite sets aside)
     host = host_device(Path(models), cal)
     finger = host.finger
-    check_taxel_layout(ds, finger, where)  # before the run folder is made: a refused fit leaves nothing behind
+    # before the run folder is made (or a finished run in it set aside): a refused fit leaves nothing behind
+    check_taxel_layout(ds, finger, where)
+    check_full_scale(need_variable(ds, "taxel_current", 2, where), float(finger.noise.adc_full_scale), where)
     options = {
         "walkers": int(walkers),
         "seed": int(seed),
