@@ -32,7 +32,7 @@ from bayestouch.io.contacts import (
     load_contact_points,
 )
 from bayestouch.io.files import atomic_path, set_aside
-from bayestouch.io.runfolder import LOCK_FILE, OUTPUTS, locked_run_folder
+from bayestouch.io.runfolder import OUTPUTS, every_earlier_file, locked_run_folder
 from bayestouch.params import MODELS
 
 __all__ = ["Fit", "fit", "simulate", "calibrate"]
@@ -272,8 +272,7 @@ class Fit:
             if overwrite:
                 # set aside, not deleted: every file of the folder, so nothing of the earlier run (smc.npz, …) nor
                 # any other old file stays beside the new one; folders (earlier replaced-*/, …) and the lock stay
-                stale = sorted(p for p in folder.iterdir() if p.is_file() and p.name != LOCK_FILE)
-                set_aside(stale, "Fit.save")
+                set_aside(every_earlier_file(folder), "Fit.save")
             # each file atomically, the summary last (a kill leaves no new summary beside old results)
             for name in sorted(OUTPUTS, key=lambda n: n == "summary.json"):
                 src = self.folder / name

@@ -23,7 +23,6 @@ __all__ = [
     "RESULT_FILES",
     "COMMAND_RESULTS",
     "COMMAND_OUTPUTS",
-    "every_earlier_file",
     "out_path",
     "bounded_int",
     "stat",
@@ -225,19 +224,11 @@ def check_out(path: Path, overwrite: bool | None = None, command: str = "") -> P
                 "or choose another folder"
             )
         from bayestouch.io.files import set_aside
+        from bayestouch.io.runfolder import every_earlier_file
 
         set_aside(every_earlier_file(path) if held else [], command)
     path.mkdir(parents=True, exist_ok=True)
     return path
-
-
-def every_earlier_file(folder: Path) -> list[Path]:
-    """The files of ``folder`` that ``--overwrite`` sets aside once it holds a finished result: every file but the
-    folder's lock (sub-folders, such as earlier ``replaced-*/``, stay), so no output of the earlier run (meshes,
-    figures, grids) is left beside the new one."""
-    from bayestouch.io.runfolder import LOCK_FILE
-
-    return sorted(p for p in folder.iterdir() if p.is_file() and p.name != LOCK_FILE)
 
 
 def check_duration_rate(duration: float, rate: float) -> None:

@@ -208,9 +208,9 @@ def run_explore(args) -> int:
 
 def _explore_into(out: Path, args, obj, name, port, centre, settings) -> int:
     """The exploration of :func:`run_explore`, its options checked and ``out`` held."""
-    from bayestouch.cli.args import every_earlier_file
     from bayestouch.io.contacts import save_contact_points
     from bayestouch.io.files import set_aside, write_json
+    from bayestouch.io.runfolder import every_earlier_file
     from bayestouch.planning.loop import explore
 
     # what an exploration writes, and any other command's result (a fit's summary.json, a points.csv of the user's)

@@ -55,6 +55,7 @@ __all__ = [
     "prepare_run_folder",
     "release_run_folder",
     "locked_run_folder",
+    "every_earlier_file",
     "LOCK_FILE",
 ]
 
@@ -277,6 +278,13 @@ def release_run_folder(out) -> None:
     fd = _LOCKS.pop(key, None)
     if fd is not None:
         os.close(fd)
+
+
+def every_earlier_file(folder) -> list[Path]:
+    """The files of ``folder`` that an overwrite sets aside once it holds a finished result: every file but the
+    folder's lock (sub-folders, such as earlier ``replaced-*/``, stay), so no output of the earlier run (meshes,
+    figures, grids) is left beside the new one."""
+    return sorted(p for p in Path(folder).iterdir() if p.is_file() and p.name != LOCK_FILE)
 
 
 @contextmanager
