@@ -1,0 +1,413 @@
+"""Simulation-based calibration where users are: sparse, one-sided, contaminated contact sets, the default
+likelihood and the default sampler (:func:`bayestouch.inference.run.run_contact_fit`: tempered SMC from the prior,
+then emcee), truths drawn from the fit's own prior.
+
+For each data set: a truth θ* from the contact-level prior that ``run_contact_fit`` samples (``models/priors.toml``
+with the stated size prior :data:`SIZE_PRIOR_M`, "objects 2–10 cm across"): log semi-axes normal (the size
+prior) inside the prior box, rotation uniform over rotations (Haar), n and σ log-uniform over their prior boxes,
+outlier fractions w_in, w_out uniform on [0, ½ outlier_max]; then contacts along 4–6 strokes within a cap of
+directions of 100–180° (the user-set generator of :mod:`benchmarks.bench_user_sets`, 40–120 contacts, noise sd σ
+per coordinate, free-space finger positions on each stroke's approach), and each contact displaced into the solid
+with probability w_in or out into free space with probability w_out, by a half-Cauchy distance of the prior's
+outlier scale along the normal (the model's outlier law, cut at :data:`OUTLIER_CAP` scales: a displacement of
+metres would be refused as a unit error). The fit starts from the prior (no truth is passed) and has its default
+60-s budget.
+
+The rank of each symmetry-invariant quantity's truth (centre m, sorted semi-axes m, n, σ m, volume m³) among
+:data:`DRAWS` posterior draws (thinned by the chain's τ) is uniform on {0, …, L} if the posterior is calibrated
+(Talts et al. 2018, Theorem 1). Reported: 90 % interval coverage per quantity with its binomial 95 % band, a
+chi-square test of the ranks in :data:`BINS` bins (two-sided in the sense that both too-narrow and too-wide
+posteriors fail it), and the rank ECDF's difference from uniform with simultaneous 95 % bands
+(``az.plot_ecdf``-style, :func:`ecdf_band`). The same ranks recomputed with every data set's draws squeezed to
+0.7 of their spread about their median (a 30 %-too-narrow posterior) and stretched to 1.3 are the negative
+controls: the tests must reject them (power).
+
+Where the generator departs from the model (the model is a likelihood of signed distances, not a generative law of
+3-D points; the free-space positions are conditioned on lying outside; the centre's prior is flat over a box taken
+from the data): ``docs/sbc.md``. Outputs: ``benchmarks/results/sbc_users.csv`` (one row per data set, written as
+each finishes so that an interrupted run continues), ``sbc_users.json`` and ``docs/img/sbc_users_ecdf.png``.
+``BAYESTOUCH_SBC_SETS`` sets the number of data sets (default 200), ``BAYESTOUCH_SBC_WORKERS`` the processes (2).
+"""
+
+from __future__ import annotations
+
+import csv
+import functools
+import json
+import math
+import multiprocessing as mp
+import os
+import tempfile
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+
+import numpy as np
+from scipy.stats import binom, chi2
+
+__all__ = [
+    "SIZE_PRIOR_M",
+    "QUANTITIES",
+    "draw_truth",
+    "make_sbc_set",
+    "posterior_invariants",
+    "thinned_draws",
+    "ranks_of",
+    "squeezed_ranks",
+    "coverage",
+    "chi2_uniform",
+    "ecdf_band",
+    "summarise",
+    "bench_sbc_users",
+]
+
+#: the stated size prior of every fit and every truth: objects 2–10 cm across (``--size-prior 0.02:0.1``)
+SIZE_PRIOR_M = (0.02, 0.10)
+#: contacts per data set (inclusive), the range of issue 19
+POINTS_RANGE = (40, 120)
+#: displaced contacts' half-Cauchy distance is cut at this many outlier scales (5 cm for the 5 mm default)
+OUTLIER_CAP = 10.0
+#: posterior draws per data set (ranks lie in {0, …, L})
+DRAWS = 99
+#: rank-histogram bins of the chi-square test
+BINS = 10
+#: the negative controls' factors on the draws' spread about their median
+SQUEEZE = (0.7, 1.3)
+#: ranked quantities: symmetry-invariant (axes sorted a₁ ≥ a₂ ≥ a₃), SI units
+QUANTITIES = ("x_G", "y_G", "z_G", "a_1", "a_2", "a_3", "n", "sigma", "volume")
+
+HERE = Path(__file__).resolve().parent
+RESULTS = HERE / "results"
+FIGURE = HERE.parent / "docs" / "img" / "sbc_users_ecdf.png"
+
+
+def _priors():
+    from bayestouch.inference import contact as cm
+
+    return cm.with_size_prior(cm.load_priors(), *SIZE_PRIOR_M)
+
+
+def draw_truth(rng: np.random.Generator) -> dict:
+    """A truth from the prior that the fit samples (module docstring): semi-axes (3,) m, n, σ m, w_in, w_out."""
+    from bayestouch.inference import contact as cm
+
+    p = _priors()
+    mu, sd = cm.size_prior(p)
+    lo, hi = math.log(p.axis_min), math.log(p.axis_max)
+    axes = np.empty(3)
+    for j in range(3):  # the size prior's normal on log a inside the box [axis_min, axis_max]
+        while True:
+            v = rng.normal(mu, sd)
+            if lo <= v <= hi:
+                axes[j] = math.exp(v)
+                break
+    n = math.exp(rng.uniform(math.log(p.n_min), math.log(p.n_max)))
+    sigma = math.exp(rng.uniform(math.log(p.sigma_min), math.log(p.sigma_max)))
+    w = rng.uniform(0.0, 0.5 * p.outlier_max, 2)
+    return {"axes": axes, "n": n, "sigma": sigma, "w_in": float(w[0]), "w_out": float(w[1])}
+
+
+def make_sbc_set(seed: int) -> dict:
+    """One data set: ``truth`` (:class:`~bayestouch.geometry.nellipsoid.NEllipsoid`), ``theta`` (the draw of
+    :func:`draw_truth`), ``points`` (M, 3) m, ``free`` (K, 3) m, ``outlier_sign`` (M,) int (−1 inward, +1 outward)
+    and the stroke design (``cap_deg``, ``coverage``)."""
+    from bayestouch.backend import jnp
+    from bayestouch.geometry import nellipsoid as ne
+    from benchmarks.bench_user_sets import make_user_set
+
+    r_truth, r_design, r_out = np.random.default_rng([seed, 0x5BC]).spawn(3)
+    th = draw_truth(r_truth)
+    m = int(r_design.integers(POINTS_RANGE[0], POINTS_RANGE[1] + 1))
+    d = make_user_set(
+        int(r_design.integers(2**31 - 1)),
+        n=th["n"],
+        axes=th["axes"],
+        n_points=m,
+        noise_m=th["sigma"],
+        outlier_fraction=0.0,
+    )
+    pts = np.array(d.points)
+    u = r_out.uniform(size=m)
+    sign = np.where(u < th["w_in"], -1, np.where(u < th["w_in"] + th["w_out"], 1, 0))
+    scale = _priors().outlier_scale
+    dist = np.abs(scale * np.tan(0.5 * np.pi * r_out.uniform(size=m)))  # half-Cauchy of that scale
+    while (big := dist > OUTLIER_CAP * scale).any():
+        dist[big] = np.abs(scale * np.tan(0.5 * np.pi * r_out.uniform(size=int(big.sum()))))
+    moved = sign != 0
+    if moved.any():
+        nrm = np.asarray(ne.evaluate(ne.normals, d.truth, jnp.asarray(pts[moved])))
+        pts[moved] = pts[moved] + (sign[moved] * dist[moved])[:, None] * nrm
+    return {
+        "truth": d.truth,
+        "theta": th,
+        "points": pts,
+        "free": np.array(d.free_space),
+        "outlier_sign": sign,
+        "cap_deg": d.cap_deg,
+        "coverage": d.coverage,
+        "seed": seed,
+    }
+
+
+def truth_invariants(s) -> np.ndarray:
+    """The ranked quantities (9,) of a true n-ellipsoid and its σ (m): :data:`QUANTITIES`."""
+    from bayestouch.geometry import nellipsoid as ne
+
+    truth, sigma = s["truth"], s["theta"]["sigma"]
+    axes = -np.sort(-np.asarray(truth.axes, float))
+    return np.array([*np.asarray(truth.centre, float), *axes, float(truth.n), sigma, float(ne.volume(truth))])
+
+
+def posterior_invariants(posterior) -> np.ndarray:
+    """The ranked quantities (chain, draw, 9) of a run's ``posterior.nc`` posterior group (an xarray Dataset)."""
+    axes = np.stack([posterior[k].values for k in ("a", "b", "c")], axis=-1)
+    axes = -np.sort(-axes, axis=-1)
+    cols = [posterior[k].values for k in ("x_G", "y_G", "z_G")]
+    cols += [axes[..., 0], axes[..., 1], axes[..., 2]]
+    cols += [posterior[k].values for k in ("n", "sigma", "volume")]
+    return np.stack(cols, axis=-1)
+
+
+def thinned_draws(values, tau: float, count: int, rng: np.random.Generator) -> tuple[np.ndarray, bool]:
+    """``count`` draws (count, Q) without replacement from ``values (walkers, steps, Q)`` thinned by ⌈τ⌉ steps;
+    from the unthinned chain when the thinned pool is smaller (second value True: the draws are correlated)."""
+    v = np.asarray(values, float)
+    step = max(1, int(math.ceil(tau))) if np.isfinite(tau) else 1
+    pool = v[:, ::step].reshape(-1, v.shape[-1])
+    short = len(pool) < count
+    if short:
+        pool = v.reshape(-1, v.shape[-1])
+    return pool[rng.choice(len(pool), count, replace=False)], short
+
+
+def ranks_of(truth, draws) -> np.ndarray:
+    """Ranks (Q,): the number of ``draws (L, Q)`` strictly below ``truth (Q,)``."""
+    return np.sum(np.asarray(draws) < np.asarray(truth)[None, :], axis=0)
+
+
+def squeezed_ranks(truth, draws, factor: float) -> np.ndarray:
+    """Ranks (Q,) of ``truth`` among ``draws (L, Q)`` moved to ``factor`` times their spread about their median:
+    a posterior ``factor`` times as wide (< 1: overconfident)."""
+    d = np.asarray(draws, float)
+    med = np.median(d, axis=0)
+    return ranks_of(truth, med + factor * (d - med))
+
+
+def coverage(ranks, draws: int = DRAWS, level: float = 0.9) -> tuple[np.ndarray, float, tuple[float, float]]:
+    """Coverage (Q,) of the central ``level`` interval of L draws from ranks (N, Q) (the k-th to (L+1−k)-th order
+    statistic, k = round((1 − level)(L + 1)/2)), the exact coverage under calibration, and the central 95 % range of
+    the covered fraction of N calibrated data sets (binomial)."""
+    r = np.asarray(ranks)
+    k = int(round((1 - level) / 2 * (draws + 1)))
+    inside = (r >= k) & (r <= draws - k)
+    p = (draws + 1 - 2 * k) / (draws + 1)
+    n = r.shape[0]
+    return inside.mean(axis=0), p, (binom.ppf(0.025, n, p) / n, binom.ppf(0.975, n, p) / n)
+
+
+def chi2_uniform(ranks, draws: int = DRAWS, bins: int = BINS) -> np.ndarray:
+    """p-values (Q,) of the chi-square test of ranks (N, Q) binned in ``bins`` against the uniform law on
+    {0, …, L} (expected counts from the exact number of rank values per bin)."""
+    r = np.asarray(ranks)
+    b = (r * bins) // (draws + 1)
+    per_bin = np.bincount((np.arange(draws + 1) * bins) // (draws + 1), minlength=bins)
+    expected = r.shape[0] * per_bin / (draws + 1)
+    obs = np.stack([np.bincount(b[:, q], minlength=bins) for q in range(r.shape[1])], axis=1)
+    stat = np.sum((obs - expected[:, None]) ** 2 / expected[:, None], axis=0)
+    return chi2.sf(stat, bins - 1)
+
+
+@functools.lru_cache(maxsize=32)
+def ecdf_band(n: int, draws: int = DRAWS, prob: float = 0.95, sims: int = 4000, seed: int = 0):
+    """Simultaneous ``prob`` band of the ECDF difference F̂(z) − z of ``n`` calibrated ranks on {0, …, L}, at
+    z = (r + 1)/(L + 1) for r = 0 … L − 1, by simulation (Säilynoja, Bürkner & Vehtari 2022, the bands of
+    ``az.plot_ecdf``): one factor on the pointwise binomial sds so that ``prob`` of simulated ECDFs stay inside at
+    every z. Returns (z (L,), lower (L,), upper (L,))."""
+    rng = np.random.default_rng(seed)
+    z = np.arange(1, draws + 1) / (draws + 1)
+    sd = np.sqrt(z * (1 - z) / n)
+    sim = rng.integers(0, draws + 1, size=(sims, n))
+    F = np.stack([np.mean(sim <= r, axis=1) for r in range(draws)], axis=1)  # (sims, L)
+    worst = np.max(np.abs(F - z[None]) / sd[None], axis=1)
+    c = float(np.quantile(worst, prob))
+    return z, -c * sd, c * sd
+
+
+def ecdf_outside(ranks, draws: int = DRAWS, prob: float = 0.95) -> np.ndarray:
+    """Whether each quantity's rank ECDF (ranks (N, Q)) leaves the simultaneous band of :func:`ecdf_band`: a
+    test of uniformity at level 1 − ``prob`` that looks at every z at once."""
+    r = np.asarray(ranks)
+    z, lo, hi = ecdf_band(r.shape[0], draws, prob)
+    F = np.stack([np.mean(r <= k, axis=0) for k in range(draws)], axis=0)  # (L, Q)
+    diff = F - z[:, None]
+    return np.any((diff < lo[:, None]) | (diff > hi[:, None]), axis=0)
+
+
+def fit_sbc_set(seed: int, budget_s: float | None = None) -> dict:
+    """Generate data set ``seed``, fit it with ``run_contact_fit`` (defaults; the size prior of
+    :data:`SIZE_PRIOR_M`), and return its CSV row: truths, ranks (nominal and the negative controls), design and
+    diagnostics."""
+    import arviz as az
+
+    from bayestouch.inference.run import DEFAULT_BUDGET_S, run_contact_fit
+
+    s = make_sbc_set(seed)
+    truth = truth_invariants(s)
+    with tempfile.TemporaryDirectory(prefix="bt-sbc-") as tmp:
+        t0 = time.perf_counter()
+        summary = run_contact_fit(
+            s["points"],
+            Path(tmp),
+            seed=seed,
+            progress=False,
+            free=s["free"],
+            size_prior=SIZE_PRIOR_M,
+            budget_s=DEFAULT_BUDGET_S if budget_s is None else budget_s,
+        )
+        seconds = time.perf_counter() - t0
+        post = az.from_netcdf(Path(tmp) / "posterior.nc").posterior
+        values = posterior_invariants(post)
+    dg = summary["diagnostics"]
+    draws, short = thinned_draws(values, dg["autocorr_time_max"], DRAWS, np.random.default_rng([seed, 0xD2]))
+    row = {
+        "seed": seed,
+        "points": len(s["points"]),
+        "cap_deg": s["cap_deg"],
+        "coverage": s["coverage"],
+        "inward": int(np.sum(s["outlier_sign"] < 0)),
+        "outward": int(np.sum(s["outlier_sign"] > 0)),
+        "w_in": s["theta"]["w_in"],
+        "w_out": s["theta"]["w_out"],
+        "converged": bool(dg["converged"]),
+        "multimodal": bool(dg.get("multimodal", False)),
+        "tau_max": dg["autocorr_time_max"],
+        "short": short,
+        "seconds": seconds,
+    }
+    for q, name in enumerate(QUANTITIES):
+        row[f"true_{name}"] = float(truth[q])
+    for tag, r in (
+        ("rank", ranks_of(truth, draws)),
+        ("rank_squeeze", squeezed_ranks(truth, draws, SQUEEZE[0])),
+        ("rank_stretch", squeezed_ranks(truth, draws, SQUEEZE[1])),
+    ):
+        for q, name in enumerate(QUANTITIES):
+            row[f"{tag}_{name}"] = int(r[q])
+    return row
+
+
+def _read_rows(path: Path) -> list[dict]:
+    if not path.exists():
+        return []
+    with path.open(newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def _ranks(rows, tag: str) -> np.ndarray:
+    return np.array([[int(r[f"{tag}_{q}"]) for q in QUANTITIES] for r in rows])
+
+
+def summarise(rows: list[dict]) -> dict:
+    """Coverage, chi-square p-values and ECDF-band verdicts of the nominal ranks and of the negative controls."""
+    out = {"sets": len(rows), "draws": DRAWS, "bins": BINS, "quantities": list(QUANTITIES)}
+    for tag in ("rank", "rank_squeeze", "rank_stretch"):
+        r = _ranks(rows, tag)
+        cov, p, band = coverage(r)
+        out[tag] = {
+            "coverage_90": dict(zip(QUANTITIES, map(float, cov), strict=True)),
+            "coverage_expected": p,
+            "coverage_band95": [float(band[0]), float(band[1])],
+            "chi2_p": dict(zip(QUANTITIES, map(float, chi2_uniform(r)), strict=True)),
+            "ecdf_outside_band95": dict(zip(QUANTITIES, map(bool, ecdf_outside(r)), strict=True)),
+        }
+    flags = [str(r["converged"]) == "True" for r in rows]
+    out["converged"] = int(sum(flags))
+    out["short_chains"] = int(sum(str(r["short"]) == "True" for r in rows))
+    out["seconds_median"] = float(np.median([float(r["seconds"]) for r in rows]))
+    return out
+
+
+def plot_ecdf(rows: list[dict], path: Path) -> None:
+    """Rank-ECDF differences from uniform with their simultaneous 95 % band, one panel per quantity: nominal ranks
+    and the 30 %-too-narrow control."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    r, sq = _ranks(rows, "rank"), _ranks(rows, "rank_squeeze")
+    z, lo, hi = ecdf_band(len(rows))
+    fig, axs = plt.subplots(3, 3, figsize=(10, 8), sharex=True, sharey=True)
+    for q, ax in enumerate(axs.ravel()):
+        ax.fill_between(z, lo, hi, color="0.85", label="95 % simultaneous band")
+        for ranks, style, label in ((r, "C0-", "posterior"), (sq, "C3--", "30 % too narrow (control)")):
+            F = np.array([np.mean(ranks[:, q] <= k) for k in range(DRAWS)])
+            ax.plot(z, F - z, style, lw=1.2, label=label)
+        ax.axhline(0, color="k", lw=0.5)
+        ax.set_title(QUANTITIES[q])
+    for ax in axs[-1]:
+        ax.set_xlabel("fractional rank")
+    for ax in axs[:, 0]:
+        ax.set_ylabel("ECDF − uniform")
+    axs[0, 0].legend(fontsize=7, loc="lower left")
+    fig.suptitle(f"SBC where users are: {len(rows)} sparse, one-sided, contaminated sets, default fit")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _worker_init() -> None:
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+
+def bench_sbc_users() -> list[dict]:
+    """Run (or continue) the SBC over ``BAYESTOUCH_SBC_SETS`` data sets (default 200) and return the harness rows."""
+    count = int(os.environ.get("BAYESTOUCH_SBC_SETS", "200"))
+    workers = int(os.environ.get("BAYESTOUCH_SBC_WORKERS", "2"))
+    RESULTS.mkdir(exist_ok=True)
+    path = RESULTS / "sbc_users.csv"
+    rows = _read_rows(path)
+    done = {int(r["seed"]) for r in rows}
+    todo = [s for s in range(count) if s not in done]
+    t0 = time.perf_counter()
+    ctx = mp.get_context("spawn")
+    with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_worker_init) as pool:
+        futures = [pool.submit(fit_sbc_set, s) for s in todo]
+        for fut in as_completed(futures):
+            row = fut.result()
+            new = not path.exists()
+            with path.open("a", newline="") as f:
+                w = csv.DictWriter(f, fieldnames=list(row))
+                if new:
+                    w.writeheader()
+                w.writerow(row)
+            rows.append({k2: str(v) for k2, v in row.items()})
+            print(f"[sbc_users] {len(rows)}/{count} sets, {time.perf_counter() - t0:.0f} s", flush=True)
+    rows = sorted((r for r in rows if int(r["seed"]) < count), key=lambda r: int(r["seed"]))
+    summary = summarise(rows)
+    (RESULTS / "sbc_users.json").write_text(json.dumps(summary, indent=1) + "\n")
+    plot_ecdf(rows, FIGURE)
+    out = []
+    for tag, label in (
+        ("rank", "posterior"),
+        ("rank_squeeze", "30 %-too-narrow control"),
+        ("rank_stretch", "30 %-too-wide control"),
+    ):
+        s = summary[tag]
+        for q in QUANTITIES:
+            out.append(
+                {
+                    "metric": f"90 % interval coverage, {q} ({label})",
+                    "value": s["coverage_90"][q],
+                    "unit": "1",
+                    "expected": s["coverage_expected"],
+                    "band95": s["coverage_band95"],
+                    "chi2_p": s["chi2_p"][q],
+                    "ecdf_outside_band95": s["ecdf_outside_band95"][q],
+                    "sets": summary["sets"],
+                }
+            )
+    out.append({"metric": "converged fits", "value": summary["converged"], "unit": "sets", "sets": summary["sets"]})
+    out.append({"metric": "seconds per fit (median)", "value": summary["seconds_median"], "unit": "s"})
+    return out
