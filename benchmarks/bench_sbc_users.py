@@ -280,6 +280,9 @@ def fit_sbc_set(seed: int, budget_s: float | None = None) -> dict:
         "w_out": s["theta"]["w_out"],
         "converged": bool(dg["converged"]),
         "multimodal": bool(dg.get("multimodal", False)),
+        "misfit": bool(dg.get("misfit", False)),
+        "residual_rho": (dg.get("residual_neighbour_correlation") or {}).get("rho"),
+        "residual_z": (dg.get("residual_neighbour_correlation") or {}).get("z"),
         "tau_max": dg["autocorr_time_max"],
         "short": short,
         "seconds": seconds,
@@ -301,6 +304,18 @@ def _read_rows(path: Path) -> list[dict]:
         return []
     with path.open(newline="") as f:
         return list(csv.DictReader(f))
+
+
+def _write_rows(path: Path, rows: list[dict]) -> None:
+    """All rows, under the union of their columns (rows of an earlier version of the benchmark leave the newer
+    columns empty), replacing ``path`` atomically."""
+    from bayestouch.io.files import atomic_path
+
+    fields = list(dict.fromkeys(k for r in rows for k in r))
+    with atomic_path(path) as tmp, Path(tmp).open("w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=fields, restval="")
+        w.writeheader()
+        w.writerows(sorted(rows, key=lambda r: int(r["seed"])))
 
 
 def _ranks(rows, tag: str) -> np.ndarray:
@@ -375,14 +390,8 @@ def bench_sbc_users() -> list[dict]:
     with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_worker_init) as pool:
         futures = [pool.submit(fit_sbc_set, s) for s in todo]
         for fut in as_completed(futures):
-            row = fut.result()
-            new = not path.exists()
-            with path.open("a", newline="") as f:
-                w = csv.DictWriter(f, fieldnames=list(row))
-                if new:
-                    w.writeheader()
-                w.writerow(row)
-            rows.append({k2: str(v) for k2, v in row.items()})
+            rows.append({k: str(v) for k, v in fut.result().items()})
+            _write_rows(path, rows)
             print(f"[sbc_users] {len(rows)}/{count} sets, {time.perf_counter() - t0:.0f} s", flush=True)
     rows = sorted((r for r in rows if int(r["seed"]) < count), key=lambda r: int(r["seed"]))
     summary = summarise(rows)

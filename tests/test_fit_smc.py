@@ -55,6 +55,8 @@ def test_default_fit_of_a_one_sided_contaminated_set(tmp_path):
     assert par["w_in"]["mean"] > 0.04 and par["w_out"]["mean"] < par["w_in"]["mean"]
     assert diag["modes"] and abs(sum(m["weight"] for m in diag["modes"]) - 1) < 1e-9
     assert "multimodal" in diag and "smc_modes" in diag
+    # the right shape leaves noise: no misfit (bayestouch.inference.misfit), and the summary says so
+    assert diag["misfit"] is False and diag["residual_neighbour_correlation"]["rho"] < 0.3
     # the smallest semi-axis is the sphere's radius, which the cap constrains
     assert abs(par["c"]["mean"] - 0.02) < 0.002
     saved = json.loads((tmp_path / "summary.json").read_text())

@@ -430,6 +430,12 @@ def _run_fit(args) -> int:
                 f"  mode {i}: weight {m['weight']:.0%}, volume {mv['mean'] * 1e6:.3f} cm³ "
                 f"(90 % {mv['q05'] * 1e6:.3f}–{mv['q95'] * 1e6:.3f}), n {m['n']['mean']:.2f}"
             )
+    if d.get("misfit"):
+        rc = d["residual_neighbour_correlation"]
+        print(
+            f"MISFIT: neighbouring contacts' residuals correlate (rank rho {rc['rho']:.2f}): the shape does not "
+            "explain the contacts as noise; the intervals above are not to be trusted"
+        )
     for w in d.get("warnings", []):
         print(f"bayestouch fit: warning: {w}", file=sys.stderr)
     return 0

@@ -23,6 +23,7 @@ from bayestouch.geometry.symmetry import aliases, align_batch, canonicalize_batc
 from bayestouch.inference import contact as cm
 from bayestouch.inference import ffd_marginal as fm
 from bayestouch.inference.de import de_search
+from bayestouch.inference.misfit import residual_structure
 from bayestouch.inference.modes import find_modes, gaussian_mixture
 from bayestouch.inference.optimize import fd_hessian
 from bayestouch.inference.parts import occupancy_grid
@@ -966,6 +967,7 @@ def run_contact_fit(
     summary = write_posterior(out, ch, model, seed=seed, t0=t0)
     if ffd is None:  # a lattice moves the surface off the n-ellipsoid the draws describe
         _write_occupancy(out, ch, summary, seed)
+        _report_misfit(summary, ch, points, seed)
     summary = _report_modes(out, summary, ch, model, seed, smc)
     release_run_folder(out)
     return summary
@@ -984,6 +986,22 @@ def _write_occupancy(out: Path, ch, summary: dict, seed: int) -> None:
     theta = np.column_stack([flat[pick, :10], np.zeros((len(pick), 3))])
     write_occupancy(out / OCCUPANCY_FILE, occupancy_grid(theta, 1))
     summary["files"] = [*summary["files"], OCCUPANCY_FILE]
+
+
+def _report_misfit(summary: dict, ch, points, seed: int) -> None:
+    """Add the residuals' neighbour correlation (:func:`bayestouch.inference.misfit.residual_structure`) to the
+    summary's diagnostics, ``misfit`` and a warning when the shape leaves structure, not noise."""
+    r = residual_structure(points, ch.kept.reshape(-1, ch.kept.shape[2]), seed)
+    diag = summary["diagnostics"]
+    diag["misfit"] = r["misfit"]
+    diag["residual_neighbour_correlation"] = {k: r[k] for k in ("rho", "z", "pairs")}
+    if r["misfit"]:
+        diag["warnings"] = [
+            *diag.get("warnings", []),
+            f"misfit: neighbouring contacts' residuals correlate (rank rho {r['rho']:.2f}, {r['z']:.1f} sd above 0): "
+            "the shape leaves structure, not noise (a mode that is not the data's, or an object outside the "
+            "n-ellipsoid family); its intervals are not to be trusted",
+        ]
 
 
 def surrounds(points, theta, fraction: float = SURROUND_FRACTION) -> bool:
