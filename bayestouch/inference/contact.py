@@ -10,7 +10,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from jax.scipy.special import log_ndtr
+from jax.scipy.special import log_ndtr, ndtr
 from scipy.special import gammaln
 from scipy.stats import truncnorm
 
@@ -45,6 +45,7 @@ __all__ = [
     "pointwise_log_likelihood",
     "outlier_log_density",
     "outlier_terms",
+    "side_weight",
     "free_space_terms",
     "OUTLIER_SCALE",
     "principal_frame",
@@ -361,12 +362,23 @@ def outlier_log_density(d, log_u, inv_scale):
     return log_u - jnp.log1p(x * x)
 
 
+def side_weight(z, w_in, w_out):
+    """The outlier fraction on a contact's side of the surface at z = d/σ (any float dtype): w_in inside, w_out
+    outside, switching smoothly across the surface as w_in + (w_out − w_in) Φ(z).
+
+    Within a few σ of the surface the Gaussian core outweighs the outliers' density by far, so the switch's width
+    changes the likelihood negligibly; a jump (w_in for d < 0, w_out for d > 0) made it discontinuous in θ wherever
+    a contact lies on the surface, and L-BFGS and HMC stopped at those kinks (``docs/contact_model.md``)."""
+    return w_in + (w_out - w_in) * ndtr(z)
+
+
 def outlier_terms(d, ls, w_in, w_out, log_u, inv_scale):
     """Per-point log-likelihood of the two-sided outlier model (any float dtype): Gaussian core of sd e^ls, and
     contacts displaced into the solid (d < 0, fraction w_in) or out into free space (d > 0, fraction w_out), each
-    half-Cauchy on its side (:func:`outlier_log_density`)."""
+    half-Cauchy on its side (:func:`outlier_log_density`), the fraction switching across the surface as
+    :func:`side_weight`."""
     log_core = -0.5 * d * d * jnp.exp(-2.0 * ls) - ls - 0.5 * _LOG_2PI
-    log_w = jnp.log(jnp.maximum(jnp.where(d > 0, w_out, w_in), _TINY_W))
+    log_w = jnp.log(jnp.maximum(side_weight(d * jnp.exp(-ls), w_in, w_out), _TINY_W))
     return jnp.logaddexp(jnp.log1p(-(w_in + w_out)) + log_core, log_w + outlier_log_density(d, log_u, inv_scale))
 
 
@@ -462,7 +474,7 @@ def _log_lik_mixed(th, data: _Data, noise: str, nu: float):
     if noise == "outlier":
         c = -(ls + 0.5 * _LOG_2PI)  # (W,) float64
         w_in, w_out = th[:, 11].astype(_F32)[:, None], th[:, 12].astype(_F32)[:, None]
-        log_w = jnp.log(jnp.maximum(jnp.where(d > 0, w_out, w_in), _F32(_TINY_W)))
+        log_w = jnp.log(jnp.maximum(side_weight(z, w_in, w_out), _F32(_TINY_W)))
         log_o = outlier_log_density(d, (data.log_u - c).astype(_F32)[:, None], _F32(data.out_inv))
         rel = jnp.logaddexp(jnp.log1p(-(w_in + w_out)) - 0.5 * z * z, log_w + log_o)
     elif np.isinf(nu):

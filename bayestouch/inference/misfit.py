@@ -6,7 +6,7 @@ independent outlier), so the residuals of two neighbouring contacts are uncorrel
 (a mode that is not the data's: a wrong exponent or orientation the sampler settled in; an object outside the
 n-ellipsoid family) leaves a smooth error surface, and neighbouring contacts share it: their residuals correlate.
 :func:`residual_structure` measures that as the rank (Spearman) correlation ρ between each contact's residual and its
-nearest other contact's, at posterior draws, against its permutation null (residuals shuffled over the contacts),
+nearest other contact's (neighbours on the surface: :func:`surface_feet`), at posterior draws, against its permutation null (residuals shuffled over the contacts),
 and flags a misfit when ρ is both large and many null sds above 0. Ranks keep displaced contacts from dominating.
 Thresholds and what they were measured on: ``docs/contact_model.md`` (Misfit).
 """
@@ -17,6 +17,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.stats import rankdata
 
+from bayestouch.geometry import nellipsoid as ne
 from bayestouch.inference import contact as cm
 
 __all__ = [
@@ -26,13 +27,14 @@ __all__ = [
     "PERMUTATIONS",
     "MIN_PAIRS",
     "neighbour_pairs",
+    "surface_feet",
     "rank_correlation",
     "residual_structure",
 ]
 
 #: a misfit is flagged when the median neighbour correlation of the residuals exceeds MISFIT_RHO and lies more than
-#: MISFIT_Z permutation sds above 0 (one-sided p ≈ 0.001 under the null). Measured: correct posteriors 0.06–0.14
-#: (z 0.4–1.1); a mode 213 nats below the truth's 0.81 (z 7.2); semi-axes 5 % too long 0.41–0.45 (z 3.3–3.5)
+#: MISFIT_Z permutation sds above 0 (one-sided p ≈ 0.001 under the null). Measured (``docs/contact_model.md``):
+#: correct posteriors 0.02–0.03; a mode 213 nats below the truth's 0.63 (z 5.7); n 3 taken for 2 0.70–0.75
 MISFIT_RHO = 0.3
 MISFIT_Z = 3.0
 #: posterior draws the residuals are computed at, and the permutations of the null
@@ -52,6 +54,17 @@ def neighbour_pairs(points) -> np.ndarray:
     i = np.arange(len(p))
     j = np.where(nn[:, 1] == i, nn[:, 0], nn[:, 1])
     return np.unique(np.sort(np.stack([i, j], axis=1), axis=1), axis=0)
+
+
+def surface_feet(theta, points) -> np.ndarray:
+    """The points (M, 3) m moved along the surface normal of θ (≥ 10,) by their first-order distance: where on the
+    surface each contact lies. Neighbours are taken among these, not among the contacts themselves: a contact
+    displaced millimetres off the surface is otherwise nearest to other displaced ones, and their shared large
+    residuals would read as structure."""
+    p = np.asarray(points, float)
+    s = cm.shape_of(np.asarray(theta, float)[:10])
+    d = np.asarray(cm.residuals(np.asarray(theta, float)[:10], p))
+    return p - d[:, None] * np.asarray(ne.normals(s, p))
 
 
 def rank_correlation(values, pairs) -> float:
@@ -76,12 +89,12 @@ def residual_structure(points, thetas, seed: int = 0) -> dict:
         z > :data:`MISFIT_Z`); ``rho``/``z`` None and ``misfit`` False with fewer than :data:`MIN_PAIRS` pairs.
     """
     p = np.asarray(points, float)
-    pairs = neighbour_pairs(p)
-    if len(pairs) < MIN_PAIRS:
-        return {"rho": None, "z": None, "pairs": int(len(pairs)), "misfit": False}
     th = np.asarray(thetas, float)
     rng = np.random.default_rng([seed, 0x3F17])
     pick = rng.choice(len(th), min(MISFIT_DRAWS, len(th)), replace=False)
+    pairs = neighbour_pairs(surface_feet(th[pick[0]], p))
+    if len(pairs) < MIN_PAIRS:
+        return {"rho": None, "z": None, "pairs": int(len(pairs)), "misfit": False}
     rhos, last = [], None
     for t in th[pick]:
         last = np.asarray(cm.residuals(t[:10], p))
