@@ -5,10 +5,11 @@ Under the contact model every contact's signed distance to the true surface is i
 independent outlier), so the residuals of two neighbouring contacts are uncorrelated. A shape that does not fit
 (a mode that is not the data's: a wrong exponent or orientation the sampler settled in; an object outside the
 n-ellipsoid family) leaves a smooth error surface, and neighbouring contacts share it: their residuals correlate.
-:func:`residual_structure` measures that as the rank (Spearman) correlation ρ between each contact's residual and its
-nearest other contact's (neighbours on the surface: :func:`surface_feet`), at posterior draws, against its permutation null (residuals shuffled over the contacts),
-and flags a misfit when ρ is both large and many null sds above 0. Ranks keep displaced contacts from dominating.
-Thresholds and what they were measured on: ``docs/contact_model.md`` (Misfit).
+:func:`residual_structure` measures that as the rank (Spearman) correlation ρ between each contact's residual and
+its nearest other contact's (neighbours on the surface: :func:`surface_feet`), at posterior draws, against its
+permutation null (residuals shuffled over the contacts), and flags a misfit when ρ is both large and many null sds
+above 0. Ranks keep displaced contacts from dominating. Thresholds and what they were measured on:
+``docs/contact_model.md`` (Misfit).
 """
 
 from __future__ import annotations
