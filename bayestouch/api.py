@@ -87,6 +87,8 @@ class Fit:
         state = "converged" if d["converged"] else "NOT converged"
         if d.get("multimodal"):
             state += f", MULTIMODAL ({len(d['modes'])} shapes)"
+        if d.get("misfit"):
+            state += ", MISFIT"
         return (
             f"<bayestouch.Fit {self.results['model'].get('level', '?')} level: volume {v['mean'] * 1e6:.3f} ± "
             f"{v['sd'] * 1e6:.3f} cm³, {state}, {len(self.warnings)} warning(s); {self.folder}>"
@@ -101,6 +103,13 @@ class Fit:
     def multimodal(self) -> bool:
         """Whether the posterior holds separated shapes (``results["diagnostics"]["modes"]`` describes them)."""
         return bool(self.results["diagnostics"].get("multimodal", False))
+
+    @property
+    def misfit(self) -> bool:
+        """Whether the shape leaves structure in the contacts' residuals rather than noise (a mode that is not the
+        data's, or an object outside the model's family; ``results["diagnostics"]["residual_neighbour_correlation"]``
+        holds the statistic, ``docs/contact_model.md`` the method). False where the check does not apply."""
+        return bool(self.results["diagnostics"].get("misfit", False))
 
     @property
     def warnings(self) -> list[str]:
@@ -232,6 +241,8 @@ class Fit:
         ax2.set(xlabel="volume (cm³)", yticks=[], title=f"volume, 90 % interval {q05:.3f}–{q95:.3f} cm³")
         if not self.converged:
             figure.suptitle("NOT CONVERGED: the chain has not passed its checks", color="C3")
+        elif self.misfit:
+            figure.suptitle("MISFIT: the shape leaves structure in the residuals, not noise", color="C3")
         return figure
 
     def save(self, folder, *, overwrite: bool = False) -> Path:

@@ -233,3 +233,19 @@ def test_simulate_and_calibrate_verbs_match_the_commands(tmp_path):
     cal = bt.calibrate(ds, "sphere", out=tmp_path / "finger.toml")
     assert np.shape(cal.log_gain) == (ds.sizes["taxel"],) and np.all(np.isfinite(cal.log_gain_sd))
     np.testing.assert_allclose(read_device_file(tmp_path / "finger.toml").log_gain, cal.log_gain, rtol=1e-6)
+
+
+def test_misfit_is_a_property_and_is_said(result, tmp_path):
+    """A correct fit is no misfit; the same run with the wrong shape's verdict written into its summary (as the
+    fit writes it) reads as one in the property, the repr and the figure's title."""
+    assert result.misfit is False
+    assert "MISFIT" not in repr(result)
+    saved = result.save(tmp_path / "run")
+    summary = json.loads((saved / "summary.json").read_text())
+    summary["diagnostics"]["misfit"] = True
+    (saved / "summary.json").write_text(json.dumps(summary))
+    wrong = bt.Fit.load(saved)
+    assert wrong.misfit is True and "MISFIT" in repr(wrong)
+    assert wrong.converged  # the figure names the first problem: here the misfit
+    fig = wrong.plot()
+    assert "MISFIT" in fig._suptitle.get_text()
