@@ -8,10 +8,12 @@ prior) inside the prior box, rotation uniform over rotations (Haar), n and σ lo
 outlier fractions w_in, w_out uniform on [0, ½ outlier_max]; then contacts along 4–6 strokes within a cap of
 directions of 100–180° (the user-set generator of :mod:`benchmarks.bench_user_sets`, 40–120 contacts, noise sd σ
 per coordinate, free-space finger positions on each stroke's approach), and each contact displaced into the solid
-with probability w_in or out into free space with probability w_out, by a half-Cauchy distance of the prior's
-outlier scale along the normal (the model's outlier law, cut at :data:`OUTLIER_CAP` scales: a displacement of
-metres would be refused as a unit error). The fit starts from the prior (no truth is passed) and has its default
-60-s budget.
+with probability w_in or out into free space with probability w_out: its surface point moved along the normal by
+a half-Cauchy distance of the prior's outlier scale (the model's outlier law), redrawn until the model's signed
+distance of the moved contact is that displacement to :data:`OUTLIER_MATCH` (an inward displacement deeper than
+the body ends near its centre or beyond its far side, which neither the model nor a real finger produces) and
+within :data:`OUTLIER_CAP` scales (a displacement of metres would be refused as a unit error). The fit starts from
+the prior (no truth is passed) and has its default 60-s budget.
 
 The rank of each symmetry-invariant quantity's truth (centre m, sorted semi-axes m, n, σ m, volume m³) among
 :data:`DRAWS` posterior draws (thinned by the chain's τ) is uniform on {0, …, L} if the posterior is calibrated
@@ -67,6 +69,12 @@ SIZE_PRIOR_M = (0.02, 0.10)
 POINTS_RANGE = (40, 120)
 #: displaced contacts' half-Cauchy distance is cut at this many outlier scales (5 cm for the 5 mm default)
 OUTLIER_CAP = 10.0
+#: a displaced contact is kept where the model's first-order signed distance of it (under the truth) is the drawn
+#: displacement to this fraction; redrawn otherwise, at most MAX_OUTLIER_DRAWS times (an inward
+#: displacement deeper than the body, which would end near its centre or beyond its far side, is not what the model
+#: describes, nor physical: a contact pressed into the solid does not pass through it)
+OUTLIER_MATCH = 0.2
+MAX_OUTLIER_DRAWS = 200
 #: posterior draws per data set (ranks lie in {0, …, L})
 DRAWS = 99
 #: rank-histogram bins of the chi-square test
@@ -113,6 +121,7 @@ def make_sbc_set(seed: int) -> dict:
     and the stroke design (``cap_deg``, ``coverage``)."""
     from bayestouch.backend import jnp
     from bayestouch.geometry import nellipsoid as ne
+    from bayestouch.inference import contact as cm
     from benchmarks.bench_user_sets import make_user_set
 
     r_truth, r_design, r_out = np.random.default_rng([seed, 0x5BC]).spawn(3)
@@ -130,13 +139,30 @@ def make_sbc_set(seed: int) -> dict:
     u = r_out.uniform(size=m)
     sign = np.where(u < th["w_in"], -1, np.where(u < th["w_in"] + th["w_out"], 1, 0))
     scale = _priors().outlier_scale
-    dist = np.abs(scale * np.tan(0.5 * np.pi * r_out.uniform(size=m)))  # half-Cauchy of that scale
-    while (big := dist > OUTLIER_CAP * scale).any():
-        dist[big] = np.abs(scale * np.tan(0.5 * np.pi * r_out.uniform(size=int(big.sum()))))
-    moved = sign != 0
-    if moved.any():
-        nrm = np.asarray(ne.evaluate(ne.normals, d.truth, jnp.asarray(pts[moved])))
-        pts[moved] = pts[moved] + (sign[moved] * dist[moved])[:, None] * nrm
+    t = d.truth
+    theta = np.concatenate(
+        [np.asarray(t.centre), np.log(np.asarray(t.axes)), np.asarray(t.angles), [math.log(th["n"])]]
+    )
+    moved = np.flatnonzero(sign != 0)
+    base = pts[moved].copy()
+    nrm = np.asarray(ne.evaluate(ne.normals, t, jnp.asarray(base))) if len(moved) else np.zeros((0, 3))
+    if len(moved):  # a displaced contact is a surface point moved along the normal, without the core's noise
+        base = base - np.asarray(cm.residuals(theta, base))[:, None] * nrm
+    todo = np.ones(len(moved), bool)
+    for _ in range(MAX_OUTLIER_DRAWS):
+        if not todo.any():
+            break
+        k = int(todo.sum())
+        dist = np.abs(scale * np.tan(0.5 * np.pi * r_out.uniform(size=k)))  # half-Cauchy of that scale
+        want = sign[moved][todo] * dist
+        pts[moved[todo]] = base[todo] + want[:, None] * nrm[todo]
+        got = np.asarray(cm.residuals(theta, pts[moved[todo]]))
+        # kept where the model's signed distance of the displaced contact is the displacement drawn
+        ok = (dist <= OUTLIER_CAP * scale) & (np.abs(got - want) <= OUTLIER_MATCH * dist)
+        idx = np.flatnonzero(todo)
+        todo[idx[ok]] = False
+    sign[moved[todo]] = 0  # no displacement of this sign that the model can represent: left on the surface
+    pts[moved[todo]] = base[todo]
     return {
         "truth": d.truth,
         "theta": th,
