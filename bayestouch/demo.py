@@ -214,7 +214,7 @@ def run_demo(
 
     res = explore(obj, "eig", sizes.budget, seed=seed, settings=settings, on_stroke=on_stroke, truth=truth)
     bar.close()
-    save_contact_points(out / "points.csv", res.points)
+    save_contact_points(out / "points.csv", res.points, overwrite=True)
 
     # 2. the posterior of everything touched
     say(

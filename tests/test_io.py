@@ -425,7 +425,7 @@ def test_failure_mid_write_leaves_old_file_and_no_temp(tmp_path):
 @pytest.mark.parametrize(
     "writer",
     [
-        lambda p: save_contact_points(p, np.ones((3, 3)) * [1, 2, 3]),
+        lambda p: save_contact_points(p, np.ones((3, 3)) * [1, 2, 3], overwrite=True),
         lambda p: write_csv_rows(p, [{"a": 9}]),
         lambda p: write_json(p, {"a": 9}),
     ],

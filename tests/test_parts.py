@@ -233,7 +233,7 @@ def test_fit_cli_parts_writes_a_run_and_refuses_to_resume_other_data(tmp_path, c
 
     pts, _, _ = _two_sphere_contacts(np.random.default_rng(0), count=80)
     csv = tmp_path / "pts.csv"
-    save_contact_points(csv, pts)
+    save_contact_points(csv, pts, overwrite=True)
     out = tmp_path / "run"
     args = ["--parts", "1", "--quiet", "--budget", "20", "--steps", "300"]  # K = 2's outputs: the recovery test
     assert main(["fit", str(csv), "--out", str(out), *args]) == 0
@@ -246,7 +246,7 @@ def test_fit_cli_parts_writes_a_run_and_refuses_to_resume_other_data(tmp_path, c
     if not s["diagnostics"]["converged"]:  # a short run says so, on the CLI too
         assert "not converged" in printed.err
     # another object's points do not continue this run
-    save_contact_points(csv, pts * 1.1)
+    save_contact_points(csv, pts * 1.1, overwrite=True)
     assert main(["fit", str(csv), "--out", str(out), *args, "--resume"]) == 2
     assert "other points" in capsys.readouterr().err
 

@@ -208,12 +208,13 @@ COMMAND_OUTPUTS = (
 )
 
 
-def check_out(path: Path, overwrite: bool | None = None, command: str = "") -> Path:
+def check_out(path: Path, overwrite: bool | None = None, command: str = "", inputs=()) -> Path:
     """The output folder ``--out``, created; a path that exists and is not a folder is bad input.
 
     With ``overwrite`` given (a command with ``--overwrite``), a folder that holds a finished result
     (:data:`RESULT_FILES`) is refused unless ``overwrite``, which moves those files into ``replaced-<UTC>/``
-    (:func:`bayestouch.io.files.move_aside`): a command never writes over another run's results."""
+    (:func:`bayestouch.io.files.move_aside`): a command never writes over another run's results. ``inputs``, the
+    command's own input files, stay where they are (an object or library kept in the output folder)."""
     if path.exists() and not path.is_dir():
         raise BadInput(f"--out {path} exists and is not a folder")
     if overwrite is not None and path.is_dir():
@@ -226,7 +227,7 @@ def check_out(path: Path, overwrite: bool | None = None, command: str = "") -> P
         from bayestouch.io.files import set_aside
         from bayestouch.io.runfolder import every_earlier_file
 
-        set_aside(every_earlier_file(path) if held else [], command)
+        set_aside(every_earlier_file(path, inputs) if held else [], command)
     path.mkdir(parents=True, exist_ok=True)
     return path
 

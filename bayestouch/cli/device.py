@@ -385,6 +385,15 @@ def _run(args) -> int:
             check_plan(p, limits)
         except BadInput as e:
             raise type(e)(f"stroke {i}: {e}") from None
+    from bayestouch.io.runfolder import locked_output_file
+
+    # the recording and its journal are this run's until it ends: a second run into the same --out is refused
+    with locked_output_file(args.out):
+        return _run_locked(args, plans, limits)
+
+
+def _run_locked(args, plans, limits) -> int:
+    """The strokes of ``device run``, its options checked and ``--out`` held (:func:`_run`)."""
     from bayestouch import __version__
     from bayestouch.hardware.device import DeviceError, FingerDevice, HeaterFault, build_recording
     from bayestouch.io.files import set_aside

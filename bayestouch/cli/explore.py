@@ -223,7 +223,7 @@ def _explore_into(out: Path, args, obj, name, port, centre, settings) -> int:
             f"{' …' if len(earlier) > 4 else ''}); pass --overwrite to set them aside, or choose another folder"
         )
     if earlier:  # --overwrite: never deleted, and no file of the earlier run (its meshes, figures …) left beside
-        set_aside(every_earlier_file(out), "explore")
+        set_aside(every_earlier_file(out, (args.object,)), "explore")
     out.mkdir(parents=True, exist_ok=True)
     truthless = obj is None
     object_name = name if name is not None else "unknown (a finger without --object)"
@@ -265,7 +265,7 @@ def _explore_into(out: Path, args, obj, name, port, centre, settings) -> int:
         res = _explore_device(obj, args, port, out, kw)
         if res is None:
             return 2  # the device failed: said in one line, the complete strokes kept
-    save_contact_points(out / "points.csv", res.points)
+    save_contact_points(out / "points.csv", res.points, overwrite=True)
     write_json(
         out / "explore.json",
         {

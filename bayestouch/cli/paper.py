@@ -116,7 +116,7 @@ def _reproduce_into(args, obj) -> int:
     from bayestouch.paper import TABLE2_SIZES, reproduce_table2
     from bayestouch.report.tables import write_table2
 
-    out = check_out(args.out, args.overwrite, "reproduce-paper")
+    out = check_out(args.out, args.overwrite, "reproduce-paper", inputs=(args.object,))
 
     t0 = time.perf_counter()
     rows = reproduce_table2(

@@ -72,7 +72,7 @@ def run_texture_id(args) -> int:
     calibration = None if args.calibration is None else read_device_file(args.calibration)
     # the folder is this run's from the check of earlier results to the last output (a second run is refused)
     with locked_run_folder(args.out):
-        check_out(Path(args.out), args.overwrite, "texture-id")
+        check_out(Path(args.out), args.overwrite, "texture-id", inputs=(args.library, args.calibration))
         s = run_experiment(
             args.out,
             textures=args.textures,

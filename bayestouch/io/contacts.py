@@ -559,6 +559,8 @@ def save_contact_points(
     normals: np.ndarray | None = None,
     force: np.ndarray | None = None,
     free: np.ndarray | None = None,
+    *,
+    overwrite: bool = False,
 ) -> Path:
     """Write contact points to a CSV file that :func:`load_contact_points` reads back bit for bit.
 
@@ -577,6 +579,8 @@ def save_contact_points(
     free : (K, 3) float, metres, optional
         Finger positions without contact (free space, outside the object). Not allowed together with a
         :class:`ContactPoints` that has free positions.
+    overwrite : bool
+        Replace an existing file at ``path`` (default: refused, the file is left as it was).
 
     Returns
     -------
@@ -587,7 +591,7 @@ def save_contact_points(
     ------
     BadInput
         Wrong shapes, non-finite values, zero-length normals, negative force (naming ``points``,
-        ``normals``, ``force`` or ``free``); nothing is written.
+        ``normals``, ``force`` or ``free``), an existing file without ``overwrite``; nothing is written.
     OSError
         The file cannot be written; an existing file is left as it was.
 
@@ -598,6 +602,10 @@ def save_contact_points(
     contacts first with ``contact`` = 1, then the K free positions with ``contact`` = 0 and empty normal and
     force cells. Without free positions the file has no ``contact`` column.
     """
+    if not isinstance(overwrite, bool | np.bool_):
+        raise BadInput(f"overwrite: expected True or False, got {overwrite!r}")
+    if not overwrite and Path(path).exists():
+        raise BadInput(f"{path} already exists; pass overwrite=True to replace it, or choose another file")
     if isinstance(cp_or_points, ContactPoints):
         if normals is not None and cp_or_points.normals is not None:
             raise BadInput("normals given both in the ContactPoints and as an argument; expected one of them")

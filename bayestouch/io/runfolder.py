@@ -25,6 +25,7 @@ shows its data and options.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -55,6 +56,7 @@ __all__ = [
     "prepare_run_folder",
     "release_run_folder",
     "locked_run_folder",
+    "locked_output_file",
     "every_earlier_file",
     "LOCK_FILE",
 ]
@@ -63,6 +65,8 @@ __all__ = [
 FINGERPRINT_FILE = "run.json"
 #: files whose presence means the folder holds a run (finished or resumable)
 RESULT_FILES = ("summary.json", "chain.h5", "posterior.nc")
+#: files of a run interrupted after its tempering stage (resumable from them)
+STAGE_FILES = ("smc.npz", *(f"smc_parts{k}.npz" for k in range(1, 5)))
 #: every file of a fit's run folder: what ``overwrite`` removes before the new run starts, what
 #: :meth:`bayestouch.api.Fit.save` copies
 OUTPUTS = (
@@ -176,6 +180,8 @@ def prepare_run_folder(out, fp: dict, *, resume: bool, overwrite: bool = False) 
     out.mkdir(parents=True, exist_ok=True)
     _lock(out)
     held = [f for f in RESULT_FILES if (out / f).exists()]
+    # an interrupted run's finished tempering is a run too: a fresh start would delete it
+    started = [f for f in STAGE_FILES if (out / f).exists()]
     old = None
     path = out / FINGERPRINT_FILE
     if path.exists():
@@ -204,11 +210,11 @@ def prepare_run_folder(out, fp: dict, *, resume: bool, overwrite: bool = False) 
                 f"--resume: {out} holds a run made with {'; '.join(diff)}; resume it with its own data and "
                 "options, or choose another --out (or --overwrite to replace it)"
             )
-    elif not resume and held:
+    elif not resume and (held or started):
         if not overwrite:
             raise BadInput(
-                f"--out {out} already holds a run ({', '.join(held)}); pass --resume to continue it, --overwrite to "
-                "replace it, or choose another folder"
+                f"--out {out} already holds a run ({', '.join(held + started)}); pass --resume to continue it, "
+                "--overwrite to replace it, or choose another folder"
             )
         # set aside, not deleted: an interrupted or failed new run leaves the old result where the user finds it
         aside = move_aside(out, [out / name for name in OUTPUTS if (out / name).exists()])
@@ -280,11 +286,52 @@ def release_run_folder(out) -> None:
         os.close(fd)
 
 
-def every_earlier_file(folder) -> list[Path]:
+def every_earlier_file(folder, keep=()) -> list[Path]:
     """The files of ``folder`` that an overwrite sets aside once it holds a finished result: every file but the
-    folder's lock (sub-folders, such as earlier ``replaced-*/``, stay), so no output of the earlier run (meshes,
-    figures, grids) is left beside the new one."""
-    return sorted(p for p in Path(folder).iterdir() if p.is_file() and p.name != LOCK_FILE)
+    folder's lock and the paths in ``keep`` (the command's own inputs, such as a texture library or an object file
+    kept in its output folder: set aside, the run could not read them), so no output of the earlier run (meshes,
+    figures, grids) is left beside the new one. Sub-folders, such as earlier ``replaced-*/``, stay."""
+    kept = {Path(k).resolve() for k in keep if k is not None}
+    return sorted(p for p in Path(folder).iterdir() if p.is_file() and p.name != LOCK_FILE and p.resolve() not in kept)
+
+
+@contextmanager
+def locked_output_file(path) -> Iterator[Path]:
+    """Hold the output file ``path`` (e.g. a recording and its journal ``path.journal``) for this process during a
+    ``with`` block: a lock file ``.NAME.bayestouch.lock`` beside it (``fcntl.flock``, gone with a killed process);
+    a second process asking for the same file is refused in one line naming the holder's pid (two ``device run``
+    into one ``--out`` each took the other's journal for an earlier run's and one deleted it)."""
+    target = Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    lock = target.parent / f".{target.name}.bayestouch.lock"
+    if fcntl is None:
+        yield target
+        return
+    while True:
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            os.close(fd)
+            raise BadInput(
+                f"--out {target} is being written by another bayestouch run{_holder(lock)}; wait for it to finish "
+                "or choose another file"
+            ) from None
+        try:  # still the lock file (not removed by a holder that finished meanwhile)
+            same = os.path.samestat(os.fstat(fd), os.stat(lock))
+        except OSError:
+            same = False
+        if same:
+            break
+        os.close(fd)
+    os.ftruncate(fd, 0)
+    os.write(fd, f"{os.getpid()}\n".encode("ascii"))
+    try:
+        yield target
+    finally:
+        with contextlib.suppress(OSError):
+            lock.unlink()
+        os.close(fd)
 
 
 @contextmanager

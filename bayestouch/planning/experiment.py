@@ -37,7 +37,7 @@ from bayestouch.errors import BadInput
 from bayestouch.io.files import read_csv_rows, set_aside, write_csv_rows, write_json
 from bayestouch.io.runfolder import differences, fingerprint, locked_run_folder
 from bayestouch.planning.device_prober import VirtualFingerProber
-from bayestouch.planning.loop import ExploreSettings, explore
+from bayestouch.planning.loop import ExploreSettings, check_settings, explore
 from bayestouch.planning.policies import check_policy
 from bayestouch.scene.objects import OBJECTS_DIR, load_object, resolve_object
 
@@ -300,7 +300,15 @@ def run_experiment(
     dict
         ``{"ran": trials run now, "skipped": trials kept from before, "rows": all rows, "path": results.csv}``.
     """
-    planners = list(planners)
+    # a comma-separated string is the command line's form: iterated, it read as one-letter planners ("'r'")
+    planners = [p.strip() for p in planners.split(",") if p.strip()] if isinstance(planners, str) else list(planners)
+    if isinstance(objects, str):
+        objects = [o.strip() for o in objects.split(",") if o.strip()]
+    for name, value in (("resume", resume), ("overwrite", overwrite)):
+        if not isinstance(value, bool | np.bool_):  # "no" is truthy: it set an earlier experiment aside
+            raise BadInput(f"{name}: expected True or False, got {value!r}")
+    if isinstance(workers, bool) or not isinstance(workers, int | np.integer):
+        raise BadInput(f"workers: expected an integer ≥ 1, got {workers!r}")
     if not planners:
         raise BadInput("planners: expected a comma-separated list like eig,random,oracle")
     for p in planners:
@@ -329,9 +337,14 @@ def run_experiment(
     # the objects themselves travel with the tasks: a Dask worker on another machine has no such path
     loaded = {o: load_object(p) for o, p in paths.items()}
     names = {o: p.stem if p.parent == OBJECTS_DIR else str(o) for o, p in paths.items()}
+    if settings is not None and not isinstance(settings, dict):
+        raise BadInput(f"settings: expected a dict of ExploreSettings fields, got {type(settings).__name__}")
     unknown = set(settings or {}) - set(ExploreSettings._fields)
     if unknown:
         raise BadInput(f"settings: unknown field(s) {sorted(unknown)}; expected {', '.join(ExploreSettings._fields)}")
+    # checked before the folder is touched: a refused setting had left experiment.json and a header-only
+    # results.csv that refused the next, valid call
+    check_settings(ExploreSettings(**(settings or {})))
     out = Path(out)
     if prober not in PROBERS:
         raise BadInput(f"prober: expected one of {', '.join(PROBERS)}, got {prober!r}")

@@ -76,7 +76,8 @@ def random_strokes(
     Parameters
     ----------
     duration : float, seconds
-        Length of each stroke in time (the path length is ``speed * duration``).
+        Length of each stroke in time (the path length is ``speed * duration``), at most one loop around the
+        object along its section (longer is refused: it was cut to one loop without a word).
     speed : float, m/s
         The paper's 1 cm/s by default.
     rate : float, Hz
@@ -95,6 +96,12 @@ def random_strokes(
         nrm = rng.normal(size=3)
         off = rng.uniform(-max_offset, max_offset) * amin
         path = section_path(obj, nrm, off, rng.uniform(0, 2 * np.pi), 2 * np.pi, speed, rate)
+        if duration > path.time[-1] + 1.5 / rate:  # the stroke would end after one loop round the section
+            raise BadInput(
+                f"duration: {duration:g} s is longer than one loop around {obj.name} along a random section "
+                f"({path.time[-1]:.1f} s at {speed:g} m/s); a stroke covers at most one loop, so give at most "
+                f"about {path.time[-1]:.0f} s (or more strokes)"
+            )
         keep = path.time <= duration + 1e-12
         out.append(stroke_from_path(path.points[keep], path.normals[keep], path.time[keep], depth))
     return out

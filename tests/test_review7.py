@@ -1,0 +1,119 @@
+"""Fixes from the seventh adversarial review of issue 24 (nothing lost, nothing silently wrong): an interrupted
+run's tempering, a command's own inputs in its output folder, an existing contact file, two device runs into one
+recording, an experiment's switches and settings, a stroke longer than one loop."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from bayestouch.cli.args import check_out
+from bayestouch.errors import BadInput
+from bayestouch.io.contacts import load_contact_points, save_contact_points
+from bayestouch.io.runfolder import fingerprint, locked_output_file, prepare_run_folder, release_run_folder
+from bayestouch.planning.experiment import run_experiment
+from bayestouch.scene.objects import load_object
+from bayestouch.scene.strokes import random_strokes
+
+
+def test_an_interrupted_runs_tempering_is_a_run(tmp_path):
+    """A folder holding only run.json and smc.npz (a fit killed after its SMC) is refused without --resume or
+    --overwrite (a fresh start deleted smc.npz without a word); --overwrite sets it aside."""
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "smc.npz").write_bytes(b"finished tempering")
+    fp = fingerprint("contact", {"points": np.zeros((3, 3))}, {"seed": 0})
+    with pytest.raises(BadInput, match=r"already holds a run \(smc.npz\)"):
+        prepare_run_folder(out, fp, resume=False)
+    release_run_folder(out)
+    assert (out / "smc.npz").read_bytes() == b"finished tempering"
+    prepare_run_folder(out, fp, resume=False, overwrite=True)
+    release_run_folder(out)
+    assert not (out / "smc.npz").exists()
+    (aside,) = out.glob("replaced-*")
+    assert (aside / "smc.npz").read_bytes() == b"finished tempering"
+
+
+def test_overwrite_leaves_the_commands_own_inputs_in_place(tmp_path):
+    """texture-id --library or reproduce-paper --object kept in --out: --overwrite sets the earlier results aside
+    but not the input the new run reads."""
+    out = tmp_path / "t"
+    out.mkdir()
+    (out / "summary.json").write_text("{}")
+    (out / "results.csv").write_text("a\n1\n")
+    (out / "lib.toml").write_text("# library")
+    check_out(out, True, "texture-id", inputs=(out / "lib.toml", None))
+    assert (out / "lib.toml").read_text() == "# library"
+    assert not (out / "summary.json").exists() and not (out / "results.csv").exists()
+    (aside,) = out.glob("replaced-*")
+    assert sorted(p.name for p in aside.iterdir()) == ["results.csv", "summary.json"]
+
+
+def test_an_existing_contact_file_is_not_replaced_without_overwrite(tmp_path):
+    path = save_contact_points(tmp_path / "mine.csv", np.arange(60.0).reshape(20, 3) * 1e-3)
+    before = path.read_bytes()
+    with pytest.raises(BadInput, match="already exists; pass overwrite=True"):
+        save_contact_points(path, np.zeros((20, 3)))
+    assert path.read_bytes() == before
+    with pytest.raises(BadInput, match="overwrite: expected True or False"):
+        save_contact_points(path, np.zeros((20, 3)), overwrite="yes")
+    save_contact_points(path, np.ones((20, 3)) * 1e-3 * np.arange(20)[:, None], overwrite=True)
+    assert len(load_contact_points(path).points) == 20 and path.read_bytes() != before
+
+
+def test_a_second_writer_of_one_recording_is_refused(tmp_path):
+    """Another process holding the output file (a device run) refuses this one in one line naming its pid; the
+    lock file goes when the holder ends, and the file is free again."""
+    out = tmp_path / "cc.nc"
+    holder = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import sys, time; from bayestouch.io.runfolder import locked_output_file\n"
+            f"with locked_output_file({str(out)!r}):\n    print('held', flush=True); time.sleep(30)",
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        with pytest.raises(BadInput, match=rf"being written by another bayestouch run \(pid {holder.pid}\)"):
+            with locked_output_file(out):
+                pass
+    finally:
+        holder.kill()
+        holder.wait()
+        holder.stdout.close()
+    time.sleep(0.1)
+    with locked_output_file(out):  # a killed holder's lock goes with it
+        pass
+    assert not any(p.name.endswith(".bayestouch.lock") for p in tmp_path.iterdir())
+
+
+def test_experiment_switches_and_settings_are_checked_before_the_folder(tmp_path):
+    out = tmp_path / "exp"
+    with pytest.raises(BadInput, match="overwrite: expected True or False"):
+        run_experiment(out, planners=["random"], objects=["sphere"], trials=1, budget=1, overwrite="no")
+    with pytest.raises(BadInput, match="resume: expected True or False"):
+        run_experiment(out, planners=["random"], objects=["sphere"], trials=1, budget=1, resume="no")
+    with pytest.raises(BadInput, match="workers: expected an integer"):
+        run_experiment(out, planners=["random"], objects=["sphere"], trials=1, budget=1, workers="1")
+    with pytest.raises(BadInput, match="steps"):
+        run_experiment(out, planners=["random"], objects=["sphere"], trials=1, budget=1, settings={"steps": -5})
+    assert not out.exists()  # nothing written that would refuse the next, valid call
+    # a comma-separated string is the command line's form, not a list of one-letter planners
+    with pytest.raises(BadInput, match="'bogus'"):
+        run_experiment(out, planners="random,bogus", objects="sphere", trials=1, budget=1)
+
+
+def test_a_stroke_longer_than_one_loop_is_refused():
+    """--duration beyond one loop round the section was cut to the loop without a word (60 s gave 15 s)."""
+    sphere = load_object("sphere")
+    with pytest.raises(BadInput, match=r"duration: 60 s is longer than one loop around sphere"):
+        random_strokes(sphere, 1, seed=0, duration=60.0)
+    (st,) = random_strokes(sphere, 1, seed=0, duration=5.0)
+    assert abs(st.time[-1] - 5.0) < 0.05
