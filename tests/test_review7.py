@@ -117,3 +117,33 @@ def test_a_stroke_longer_than_one_loop_is_refused():
         random_strokes(sphere, 1, seed=0, duration=60.0)
     (st,) = random_strokes(sphere, 1, seed=0, duration=5.0)
     assert abs(st.time[-1] - 5.0) < 0.05
+
+
+def test_a_second_demo_keeps_every_file_of_the_first(tmp_path, monkeypatch, capsys):
+    """The demo rebuilds a demo's folder; the earlier demo's recording, points, report and per-stroke summaries were
+    overwritten without a word (and the fit's message named an --overwrite nobody gave). Now every file of it is
+    moved into replaced-*/ and the demo says where."""
+    import bayestouch.demo as demo
+    from bayestouch.cli.main import main
+
+    out = tmp_path / "dm"
+    (out / "strokes").mkdir(parents=True)
+    files = {"demo.json": "{}", "report.html": "<html>", "recording.nc": "rec", "points.csv": "x,y,z\n"}
+    for name, text in files.items():
+        (out / name).write_text(text)
+    (out / "strokes" / "summary_0.json").write_text("{}")
+
+    def fake_run_demo(folder, **kw):
+        (folder / "demo.json").write_text('{"new": 1}')
+        return {"table": "new demo"}
+
+    monkeypatch.setattr(demo, "run_demo", fake_run_demo)
+    capsys.readouterr()
+    assert main(["demo", "--quick", "--quiet", "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    (aside,) = out.glob("replaced-*")
+    assert f"the earlier demo in {out} is kept in {aside}" in err and "--overwrite" not in err
+    for name, text in files.items():
+        assert (aside / name).read_text() == text
+    assert (aside / "strokes" / "summary_0.json").exists()
+    assert (out / "demo.json").read_text() == '{"new": 1}'

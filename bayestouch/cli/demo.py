@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from bayestouch.cli.args import COMMAND_OUTPUTS, COMMAND_RESULTS, out_path
@@ -39,7 +40,8 @@ def add_parser(sub) -> argparse.ArgumentParser:
     dp.add_argument(
         "--overwrite",
         action="store_true",
-        help="replace a run in --out that is not an earlier demo's (a demo's own folder is rebuilt without it)",
+        help="replace a run in --out that is not an earlier demo's (an earlier demo's folder is rebuilt without it, "
+        "its files kept in --out/replaced-<UTC time>/)",
     )
     return dp
 
@@ -48,8 +50,8 @@ def run(args) -> int:
     """Run ``bayestouch demo`` from parsed arguments (bad input raises
     :class:`~bayestouch.errors.BadInput`)."""
     from bayestouch.demo import FULL, QUICK, run_demo
-    from bayestouch.io.files import set_aside
-    from bayestouch.io.runfolder import RESULT_FILES, locked_run_folder
+    from bayestouch.io.files import move_aside, set_aside
+    from bayestouch.io.runfolder import RESULT_FILES, every_earlier_file, locked_run_folder
 
     # the folder is this run's from the check below to the report (a second run into it is refused; the fit inside
     # the demo leaves it locked)
@@ -69,6 +71,14 @@ def run(args) -> int:
             )
         if other:  # --overwrite: set aside, never deleted (a fit's own outputs are set aside by the demo's fit)
             set_aside([*other, *(out / f for f in OTHER_OUTPUTS if (out / f).exists())], "demo")
+        if demo_made:  # the earlier demo is rebuilt, and every file of it kept (its recording was overwritten)
+            earlier = [*every_earlier_file(out), *([out / "strokes"] if (out / "strokes").is_dir() else [])]
+            if earlier:
+                aside = move_aside(out, earlier)
+                print(
+                    f"bayestouch demo: the earlier demo in {out} is kept in {aside} (delete it when no longer needed)",
+                    file=sys.stderr,
+                )
         result = run_demo(args.out, seed=args.seed, sizes=QUICK if args.quick else FULL, progress=not args.quiet)
     print(result["table"])
     return 0
