@@ -602,7 +602,7 @@ def simulate(
         The recording (:mod:`bayestouch.io.recording`).
     """
     from bayestouch import __version__
-    from bayestouch.io.recording import write_recording
+    from bayestouch.io.recording import MAX_FRAMES, write_recording
     from bayestouch.physics.virtual import load_finger, recording_dataset
     from bayestouch.scene.objects import SceneObject, load_object
     from bayestouch.scene.strokes import random_strokes
@@ -610,6 +610,28 @@ def simulate(
     _check_bool(progress, "progress")
     _check_bool(overwrite, "overwrite")
     _check_seed(seed)
+    if device_seed is not None:
+        _check_seed(device_seed)
+    for name, value in (("duration", duration), ("rate", rate)):
+        if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
+            unit = "seconds" if name == "duration" else "frames/s"
+            raise BadInput(f"{name}: expected a number ({unit}), got {value!r}")
+    if not (0 < duration <= 600 and 1 <= rate <= 2000 and duration * rate >= 2):
+        raise BadInput(
+            f"duration, rate: expected 0 < duration ≤ 600 s, 1 ≤ rate ≤ 2000 frames/s and at least 2 frames a stroke, "
+            f"got {duration!r} s at {rate!r} frames/s"
+        )
+    if isinstance(strokes, int | np.integer) and not isinstance(strokes, bool):
+        if strokes * int(np.ceil(duration * rate)) > MAX_FRAMES:
+            raise BadInput(
+                f"strokes × duration × rate: {strokes} × {duration:g} s × {rate:g}/s is more than {MAX_FRAMES} frames "
+                "in one recording; split it into several"
+            )
+    if not isinstance(models, str | os.PathLike):
+        raise BadInput(f"models: expected the path of a parameter folder, got {type(models).__name__}")
+    models = Path(models)
+    if out is not None and Path(out).suffix != ".nc":
+        raise BadInput(f"out: a recording is a netCDF file; expected a name ending in .nc, got {out!r}")
     if force is not None and (isinstance(force, bool) or not isinstance(force, int | float)):
         raise BadInput(f"force: expected a number of newtons in (0, 2], got {force!r}")
     if np.ndim(hold_currents) != 1:
@@ -621,7 +643,10 @@ def simulate(
         raise BadInput(f"strokes: expected an integer ≥ 1, got {strokes!r}")
     if force is not None and not (0 < force <= 2.0):
         raise BadInput(f"force: expected newtons in (0, 2], got {force!r}")
-    currents = [float(c) for c in hold_currents]
+    try:
+        currents = [float(c) for c in hold_currents]
+    except (TypeError, ValueError):
+        raise BadInput(f"hold_currents: expected the three wires' currents in amperes, got {hold_currents!r}") from None
     if len(currents) != 3:
         raise BadInput(f"hold_currents: expected the three wires' currents in amperes, got {len(currents)} values")
     scene = obj if isinstance(obj, SceneObject) else load_object(obj, models)

@@ -7,6 +7,7 @@ from __future__ import annotations
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -147,3 +148,37 @@ def test_a_second_demo_keeps_every_file_of_the_first(tmp_path, monkeypatch, caps
         assert (aside / name).read_text() == text
     assert (aside / "strokes" / "summary_0.json").exists()
     assert (out / "demo.json").read_text() == '{"new": 1}'
+
+
+def test_api_bad_arguments_are_one_line_refusals(tmp_path):
+    """Calls that ended in a TypeError, AttributeError, h5py OSError or IsADirectoryError."""
+    import bayestouch as bt
+
+    cases = [
+        (lambda: bt.simulate("sphere", device_seed=1.5), "seed: expected an integer"),
+        (lambda: bt.simulate("sphere", device_seed=-1), "seed: expected an integer"),
+        (lambda: bt.simulate("sphere", duration="2"), "duration: expected a number"),
+        (lambda: bt.simulate("sphere", hold_currents=["a", "b", "c"]), "hold_currents: expected"),
+        (lambda: bt.simulate("sphere", strokes=10**7), "more than 200000 frames"),
+        (lambda: bt.simulate("sphere", out=tmp_path / "rec.txt"), "ending in .nc"),
+        (lambda: bt.simulate("sphere", models=5), "models: expected the path"),
+        (lambda: bt.explore(5, "random", 1), "object: expected an object name"),
+        (lambda: bt.explore("sphere", "random", 1, settings={"bogus": 1}), r"unknown field\(s\) \['bogus'\]"),
+        (lambda: bt.read_recording(tmp_path), "is a folder"),
+        (lambda: bt.read_recording(tmp_path / "none.nc"), "no such recording"),
+    ]
+    (tmp_path / "egg.csv").write_text("x,y,z\n0,0,0\n")
+    cases.append((lambda: bt.read_recording(tmp_path / "egg.csv"), "not a recording"))
+    rec = sorted((Path(__file__).parents[1] / "data" / "recordings").glob("*.nc"))[0]
+    cases.append((lambda: bt.fit(rec, calibration=5), "calibration: expected a device file"))
+    for call, message in cases:
+        with pytest.raises(BadInput, match=message):
+            call()
+
+
+def test_api_simulate_takes_the_models_folder_as_a_string():
+    import bayestouch as bt
+    from bayestouch.params import MODELS
+
+    ds = bt.simulate("sphere", strokes=1, duration=0.2, models=str(MODELS))
+    assert ds.sizes["frame"] == 11  # 0 to 0.2 s at 50 frames/s, both ends

@@ -13,11 +13,7 @@ from bayestouch.cli.args import seed as seed_arg
 from bayestouch.errors import BadInput
 from bayestouch.params import MODELS
 
-__all__ = ["add_parser", "run", "MAX_FRAMES"]
-
-#: most frames of one simulated recording (a frame holds every taxel's current and the finger's state: 200,000
-#: frames of a 16 × 16 skin are ~0.5 GB in memory)
-MAX_FRAMES = 200_000
+__all__ = ["add_parser", "run"]
 
 
 def add_parser(sub) -> argparse.ArgumentParser:
@@ -96,6 +92,8 @@ def run(args) -> int:
         raise BadInput(f"--depth must be metres or a comma list of metres like 2e-4,3e-4, got {args.depth!r}") from None
     if not all(0 < d <= 2e-3 for d in depths):
         raise BadInput(f"--depth: each pressing depth must be in (0, 2e-3] metres, got {args.depth}")
+    from bayestouch.io.recording import MAX_FRAMES
+
     frames = args.strokes * int(np.ceil(args.duration * args.rate))
     if frames > MAX_FRAMES:
         raise BadInput(

@@ -23,6 +23,7 @@ from bayestouch.errors import BadInput
 from bayestouch.io.files import atomic_path
 
 __all__ = [
+    "MAX_FRAMES",
     "UNITS",
     "PHYSICAL_RANGES",
     "COORDINATES",
@@ -35,6 +36,9 @@ __all__ = [
     "check_recording",
 ]
 
+#: most frames of one simulated recording (a frame holds every taxel's current and the finger's state: 200,000
+#: frames of a 16 × 16 skin are ~0.5 GB in memory)
+MAX_FRAMES = 200_000
 #: variables stored as coordinates (along ``frame`` and ``taxel``)
 COORDINATES = ("time", "stroke_index", "taxel_u", "taxel_v")
 #: the CF version the files follow (global attribute ``Conventions``)
@@ -143,9 +147,23 @@ def write_recording(ds, path, *, replace: bool = True) -> Path:
 
 
 def read_recording(path):
-    """Open a recording (``xarray.Dataset``, loaded into memory)."""
-    with xr.open_dataset(path, engine="h5netcdf") as ds:
-        return with_coordinates(ds.load())
+    """Open a recording (``xarray.Dataset``, loaded into memory).
+
+    Raises
+    ------
+    BadInput
+        ``path`` is missing, a folder, or not a netCDF (HDF5) file.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise BadInput(f"{p}: no such recording")
+    if p.is_dir():
+        raise BadInput(f"{p} is a folder; expected a recording (.nc) file")
+    try:
+        with xr.open_dataset(p, engine="h5netcdf") as ds:
+            return with_coordinates(ds.load())
+    except (OSError, ValueError) as e:
+        raise BadInput(f"{p}: not a recording (a netCDF file written by bayestouch): {e}") from None
 
 
 #: the physically possible range of each recorded quantity (SI units): a value outside, or a non-finite one, is a

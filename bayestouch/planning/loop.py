@@ -14,6 +14,7 @@ the relative volume error. Lengths in metres, volumes in m³. The loop's design 
 from __future__ import annotations
 
 import math
+import os
 import time
 import warnings
 from typing import NamedTuple
@@ -33,6 +34,7 @@ from bayestouch.inference.run import NATURAL_NAMES, initial_theta, natural_draws
 from bayestouch.inference.sampler import sample
 from bayestouch.planning.candidates import Strokes, make_candidates, select
 from bayestouch.planning.policies import check_policy, choose
+from bayestouch.scene.objects import SceneObject, load_object
 from bayestouch.scene.raycast import CONTACT, INSIDE, MISS, true_ray_distances
 
 __all__ = [
@@ -308,9 +310,9 @@ def explore(
 
     Parameters
     ----------
-    obj : SceneObject or None
-        The true object (:func:`bayestouch.scene.objects.load_object`); None with a ``prober`` that touches a
-        real object (no truth: NaN errors; the ``oracle`` policy needs it).
+    obj : SceneObject, str, path or None
+        The true object (:func:`bayestouch.scene.objects.load_object`; a name or TOML file is loaded); None with a
+        ``prober`` that touches a real object (no truth: NaN errors; the ``oracle`` policy needs it).
     policy : {"eig", "random", "coverage", "gpis", "oracle"}
     budget : int
         Planned strokes after the scout (≥ 1).
@@ -318,8 +320,8 @@ def explore(
         The scout, its noise and the initial fit depend on ``seed`` only (common to every policy: comparisons
         between policies start from the same posterior); the policies' choices, later noise and sampling on
         ``(seed, policy)``.
-    settings : ExploreSettings, optional
-        Default ``ExploreSettings()``.
+    settings : ExploreSettings or dict, optional
+        Default ``ExploreSettings()``; a dict gives some of its fields.
     target_volume_sd : float, m³, optional
         Stop early once the volume's posterior sd is below this.
     on_stroke : callable, optional
@@ -336,10 +338,23 @@ def explore(
     ExploreResult
     """
     check_policy(policy)
+    if isinstance(obj, str | os.PathLike):  # a name or a TOML file, as every other verb takes
+        obj = load_object(obj)
+    elif obj is not None and not isinstance(obj, SceneObject):
+        raise BadInput(f"object: expected an object name, a TOML file or a SceneObject, got {type(obj).__name__}")
     if not isinstance(budget, int | np.integer) or budget < 1:
         raise BadInput(f"budget: expected an integer number of strokes ≥ 1, got {budget!r}")
     if not isinstance(seed, int | np.integer) or seed < 0:
         raise BadInput(f"seed: expected an integer ≥ 0, got {seed!r}")
+    if isinstance(settings, dict):  # the form run_experiment takes
+        unknown = set(settings) - set(ExploreSettings._fields)
+        if unknown:
+            raise BadInput(
+                f"settings: unknown field(s) {sorted(unknown)}; expected {', '.join(ExploreSettings._fields)}"
+            )
+        settings = ExploreSettings(**settings)
+    elif settings is not None and not isinstance(settings, ExploreSettings):
+        raise BadInput(f"settings: expected an ExploreSettings or a dict of its fields, got {type(settings).__name__}")
     s = settings or ExploreSettings()
     check_settings(s)
     if target_volume_sd is not None and not (isinstance(target_volume_sd, int | float) and target_volume_sd > 0):

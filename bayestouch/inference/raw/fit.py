@@ -6,6 +6,7 @@ and writes the run folder. The model: ``docs/raw_model.md``.
 
 from __future__ import annotations
 
+import os
 import time
 from functools import partial
 from pathlib import Path
@@ -398,6 +399,10 @@ def run_raw_fit(
     out = Path(out)
     ds, where = open_recording(recording)
     cal, cal_name = calibration, None
+    if calibration is not None and not isinstance(calibration, DeviceCalibration | str | os.PathLike):
+        raise BadInput(
+            f"calibration: expected a device file (TOML path) or a DeviceCalibration, got {type(calibration).__name__}"
+        )
     if calibration is not None and not isinstance(calibration, DeviceCalibration):
         cal, cal_name = read_device_file(calibration), str(calibration)
     recording_mode(ds, where, cal)  # checked before the run folder is touched (--overwrite sets aside)
