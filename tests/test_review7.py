@@ -182,3 +182,13 @@ def test_api_simulate_takes_the_models_folder_as_a_string():
 
     ds = bt.simulate("sphere", strokes=1, duration=0.2, models=str(MODELS))
     assert ds.sizes["frame"] == 11  # 0 to 0.2 s at 50 frames/s, both ends
+
+
+def test_fit_noise_names_gaussian_and_takes_it(tmp_path):
+    import bayestouch as bt
+
+    pts = np.random.default_rng(0).normal(size=(40, 3)) * 0.02
+    with pytest.raises(BadInput, match="expected one of auto, gaussian, student"):
+        bt.fit(pts, noise="bogus")
+    with pytest.raises(BadInput, match="nu: the gaussian noise model"):
+        bt.fit(pts, noise="gaussian", nu=4.0)

@@ -776,13 +776,13 @@ def run_contact_fit(
         200, 400, …), which on a near-Gaussian posterior cuts τ from ~45 steps to ~5.
     normals : (M, 3) float, optional
         Measured outward normals: adds the von Mises-Fisher term (and κ).
-    noise : {"auto", "outlier", "student", "multiplicative", "mixture"}
+    noise : {"auto", "outlier", "student", "gaussian", "multiplicative", "mixture"}
         Residual model (:mod:`bayestouch.inference.contact`). ``"outlier"``: a Gaussian core with contacts
         displaced into the solid and out into free space as separate outlier events (fractions w_in, w_out).
-        ``"auto"`` (default): ``"outlier"`` for a fit started by SMC, ``"student"`` (robust, 11 parameters) for a
-        fit from the optimum (dense data surrounding the object), with ``start`` (an exploration's 11-parameter
-        ensemble) or with ``ffd``; ``nu`` is
-        Student-t's degrees of freedom (default from ``models/priors.toml``; inf is Gaussian).
+        ``"gaussian"``: Student-t with ν = ∞ (as ``bayestouch fit --noise gaussian``). ``"auto"`` (default):
+        ``"outlier"`` for a fit started by SMC, ``"student"`` (robust, 11 parameters) for a fit from the optimum
+        (dense data surrounding the object), with ``start`` (an exploration's 11-parameter ensemble) or with
+        ``ffd``; ``nu`` is Student-t's degrees of freedom (default from ``models/priors.toml``; inf is Gaussian).
     free : (K, 3) float, metres, optional
         Free-space points: finger positions that touched nothing (outside the object).
     size_prior : (min, max) float, metres, optional
@@ -829,6 +829,14 @@ def run_contact_fit(
         priors = cm.with_size_prior(priors, *size_prior)
     if init not in ("auto", "smc", "optimize"):
         raise BadInput(f"init: expected 'auto', 'smc' or 'optimize', got {init!r}")
+    if noise not in ("auto", "gaussian", *cm.NOISE_MODELS):
+        raise BadInput(
+            f"noise: unknown noise model {noise!r}; expected one of auto, gaussian, {', '.join(cm.NOISE_MODELS)}"
+        )
+    if noise == "gaussian":  # the command line's name for Student-t with ν = ∞
+        if nu is not None and not np.isinf(nu):
+            raise BadInput(f"nu: the gaussian noise model has no degrees of freedom (nu = inf), got nu={nu}")
+        noise, nu = "student", float("inf")
     theta0 = None
     if init == "auto":
         init = "smc"
