@@ -45,7 +45,9 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 import numpy as np
-from scipy.stats import binom, chi2
+from scipy.stats import binom
+
+from bayestouch.inference import sbc
 
 __all__ = [
     "SIZE_PRIOR_M",
@@ -207,8 +209,9 @@ def thinned_draws(values, tau: float, count: int, rng: np.random.Generator) -> t
 
 
 def ranks_of(truth, draws) -> np.ndarray:
-    """Ranks (Q,): the number of ``draws (L, Q)`` strictly below ``truth (Q,)``."""
-    return np.sum(np.asarray(draws) < np.asarray(truth)[None, :], axis=0)
+    """Ranks (Q,): the number of ``draws (L, Q)`` strictly below ``truth (Q,)``
+    (:func:`bayestouch.inference.sbc.ranks_of` for one data set)."""
+    return sbc.ranks_of(np.asarray(truth)[None], np.asarray(draws)[None])[0]
 
 
 def squeezed_ranks(truth, draws, factor: float) -> np.ndarray:
@@ -220,27 +223,18 @@ def squeezed_ranks(truth, draws, factor: float) -> np.ndarray:
 
 
 def coverage(ranks, draws: int = DRAWS, level: float = 0.9) -> tuple[np.ndarray, float, tuple[float, float]]:
-    """Coverage (Q,) of the central ``level`` interval of L draws from ranks (N, Q) (the k-th to (L+1−k)-th order
-    statistic, k = round((1 − level)(L + 1)/2)), the exact coverage under calibration, and the central 95 % range of
-    the covered fraction of N calibrated data sets (binomial)."""
-    r = np.asarray(ranks)
-    k = int(round((1 - level) / 2 * (draws + 1)))
-    inside = (r >= k) & (r <= draws - k)
-    p = (draws + 1 - 2 * k) / (draws + 1)
-    n = r.shape[0]
-    return inside.mean(axis=0), p, (binom.ppf(0.025, n, p) / n, binom.ppf(0.975, n, p) / n)
+    """Coverage (Q,) of the central ``level`` interval of L draws from ranks (N, Q) and its exact value under
+    calibration (:func:`bayestouch.inference.sbc.coverage_of`), and the central 95 % range of the covered fraction
+    of N calibrated data sets (binomial)."""
+    cov, p = sbc.coverage_of(ranks, draws, level)
+    n = np.asarray(ranks).shape[0]
+    return cov, p, (binom.ppf(0.025, n, p) / n, binom.ppf(0.975, n, p) / n)
 
 
 def chi2_uniform(ranks, draws: int = DRAWS, bins: int = BINS) -> np.ndarray:
-    """p-values (Q,) of the chi-square test of ranks (N, Q) binned in ``bins`` against the uniform law on
-    {0, …, L} (expected counts from the exact number of rank values per bin)."""
-    r = np.asarray(ranks)
-    b = (r * bins) // (draws + 1)
-    per_bin = np.bincount((np.arange(draws + 1) * bins) // (draws + 1), minlength=bins)
-    expected = r.shape[0] * per_bin / (draws + 1)
-    obs = np.stack([np.bincount(b[:, q], minlength=bins) for q in range(r.shape[1])], axis=1)
-    stat = np.sum((obs - expected[:, None]) ** 2 / expected[:, None], axis=0)
-    return chi2.sf(stat, bins - 1)
+    """p-values (Q,) of the chi-square test of ranks (N, Q) in ``bins`` bins against the uniform law on {0, …, L}
+    (:func:`bayestouch.inference.sbc.uniformity_pvalues`)."""
+    return sbc.uniformity_pvalues(ranks, draws, bins)
 
 
 @functools.lru_cache(maxsize=32)
@@ -363,6 +357,17 @@ def summarise(rows: list[dict]) -> dict:
         }
     flags = [str(r["converged"]) == "True" for r in rows]
     out["converged"] = int(sum(flags))
+    out["multimodal"] = int(sum(str(r["multimodal"]) == "True" for r in rows))
+    out["misfit"] = int(sum(str(r.get("misfit")) == "True" for r in rows))
+    # a truth beyond every draw of a shape quantity: does the fit say something is wrong?
+    shape = [q for q in QUANTITIES if q.startswith("a_") or q == "volume"]
+    beyond = [r for r in rows if any(int(r[f"rank_{q}"]) in (0, DRAWS) for q in shape)]
+    said = [
+        r
+        for r in beyond
+        if str(r["converged"]) != "True" or str(r["multimodal"]) == "True" or str(r.get("misfit")) == "True"
+    ]
+    out["truth_beyond_every_draw"] = {"sets": len(beyond), "flagged": len(said)}
     out["short_chains"] = int(sum(str(r["short"]) == "True" for r in rows))
     out["seconds_median"] = float(np.median([float(r["seconds"]) for r in rows]))
     return out
