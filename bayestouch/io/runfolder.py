@@ -242,28 +242,22 @@ def _holder(path: Path) -> str:
     return f" (pid {pid})" if pid.isdigit() else ""
 
 
-def _lock(out: Path) -> None:
-    """Hold an exclusive lock on ``out`` for this process (a second process writing into the same folder is
-    refused); a folder this process already holds is not locked twice."""
-    key = str(out.resolve())
-    if fcntl is None or key in _LOCKS:
-        return
-    path = out / LOCK_FILE
+def _acquire(path: Path, refusal: str, parent: Path) -> int:
+    """An exclusive ``flock`` on the lock file ``path`` (created, in ``parent``, re-created when a holder that
+    gave it up removed it meanwhile), holding this process's pid; :class:`BadInput` ``refusal`` + the holder's pid
+    when another process holds it. Returns the open descriptor."""
     while True:
         try:
             fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
         except FileNotFoundError:  # the folder was removed by a run that gave it up empty meanwhile
-            out.mkdir(parents=True, exist_ok=True)
+            parent.mkdir(parents=True, exist_ok=True)
             continue
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
             os.close(fd)
-            raise BadInput(
-                f"--out {out} is in use by another bayestouch run{_holder(path)}; wait for it to finish or choose "
-                "another folder"
-            ) from None
-        try:  # the file is still the folder's lock file (not removed by a run that gave the folder up meanwhile)
+            raise BadInput(refusal.replace("{holder}", _holder(path))) from None
+        try:  # the file is still the lock file (not removed by a holder that gave it up meanwhile)
             same = os.path.samestat(os.fstat(fd), os.stat(path))
         except OSError:
             same = False
@@ -272,7 +266,20 @@ def _lock(out: Path) -> None:
         os.close(fd)
     os.ftruncate(fd, 0)
     os.write(fd, f"{os.getpid()}\n".encode("ascii"))
-    _LOCKS[key] = fd
+    return fd
+
+
+def _lock(out: Path) -> None:
+    """Hold an exclusive lock on ``out`` for this process (a second process writing into the same folder is
+    refused); a folder this process already holds is not locked twice."""
+    key = str(out.resolve())
+    if fcntl is None or key in _LOCKS:
+        return
+    _LOCKS[key] = _acquire(
+        out / LOCK_FILE,
+        f"--out {out} is in use by another bayestouch run{{holder}}; wait for it to finish or choose another folder",
+        out,
+    )
 
 
 def release_run_folder(out) -> None:
@@ -307,25 +314,12 @@ def locked_output_file(path) -> Iterator[Path]:
     if fcntl is None:
         yield target
         return
-    while True:
-        fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            os.close(fd)
-            raise BadInput(
-                f"--out {target} is being written by another bayestouch run{_holder(lock)}; wait for it to finish "
-                "or choose another file"
-            ) from None
-        try:  # still the lock file (not removed by a holder that finished meanwhile)
-            same = os.path.samestat(os.fstat(fd), os.stat(lock))
-        except OSError:
-            same = False
-        if same:
-            break
-        os.close(fd)
-    os.ftruncate(fd, 0)
-    os.write(fd, f"{os.getpid()}\n".encode("ascii"))
+    fd = _acquire(
+        lock,
+        f"--out {target} is being written by another bayestouch run{{holder}}; wait for it to finish or choose "
+        "another file",
+        target.parent,
+    )
     try:
         yield target
     finally:
