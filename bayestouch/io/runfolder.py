@@ -309,6 +309,7 @@ def locked_output_file(path) -> Iterator[Path]:
     a second process asking for the same file is refused in one line naming the holder's pid (two ``device run``
     into one ``--out`` each took the other's journal for an earlier run's and one deleted it)."""
     target = Path(path)
+    made = not target.parent.exists()  # a folder made only for the lock goes again when nothing else is in it
     target.parent.mkdir(parents=True, exist_ok=True)
     lock = target.parent / f".{target.name}.bayestouch.lock"
     if fcntl is None:
@@ -326,6 +327,9 @@ def locked_output_file(path) -> Iterator[Path]:
         with contextlib.suppress(OSError):
             lock.unlink()
         os.close(fd)
+        if made:
+            with contextlib.suppress(OSError):  # not empty: the run wrote its recording or journal there
+                target.parent.rmdir()
 
 
 @contextmanager

@@ -353,7 +353,7 @@ def explore(
                 f"settings: unknown field(s) {sorted(unknown)}; expected {', '.join(ExploreSettings._fields)}"
             )
         settings = ExploreSettings(**settings)
-    elif settings is not None and not isinstance(settings, ExploreSettings):
+    elif settings is not None and not (isinstance(settings, tuple) and hasattr(settings, "_fields")):
         raise BadInput(f"settings: expected an ExploreSettings or a dict of its fields, got {type(settings).__name__}")
     s = settings or ExploreSettings()
     check_settings(s)
