@@ -98,9 +98,9 @@ def test_truths_follow_the_fits_prior():
 
 
 def test_data_sets_carry_the_priors_outliers_and_noise():
-    """Over 40 sets the displaced fractions match the drawn w_in, w_out (binomial), displaced contacts lie on their
+    """Over 15 sets the displaced fractions match the drawn w_in, w_out (binomial), displaced contacts lie on their
     side of the surface, and the others within 5 noise sds of it."""
-    sets = [sb.make_sbc_set(s) for s in range(40)]
+    sets = [sb.make_sbc_set(s) for s in range(15)]
     m = np.array([len(s["points"]) for s in sets])
     assert m.min() >= sb.POINTS_RANGE[0] and m.max() <= sb.POINTS_RANGE[1]
     n_in = sum(int(np.sum(s["outlier_sign"] < 0)) for s in sets)
