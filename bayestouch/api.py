@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bayestouch.errors import BadInput
+from bayestouch.errors import BadInput, check_bool
 from bayestouch.io.contacts import (
     N_ELLIPSOID_PARAMS,
     ContactPoints,
@@ -267,7 +267,7 @@ class Fit:
         BadInput
             ``folder`` is a file, or holds a run's files and ``overwrite`` is not given.
         """
-        _check_bool(overwrite, "overwrite")
+        check_bool(overwrite, "overwrite")
         folder = _folder_path(folder, "folder")
         if folder.resolve() == self.folder.resolve():
             return folder
@@ -291,12 +291,6 @@ class Fit:
                     with atomic_path(folder / name) as tmp:
                         shutil.copyfile(src, tmp)
         return folder
-
-
-def _check_bool(value, name: str) -> None:
-    """Refuse a switch that is not ``True`` or ``False`` (a numpy bool is accepted): ``"no"`` is truthy."""
-    if not isinstance(value, bool | np.bool_):
-        raise BadInput(f"{name}: expected True or False, got {_shown(value)}")
 
 
 def _folder_path(folder, name: str) -> Path:
@@ -479,7 +473,7 @@ def fit(
         ("progress", progress),
         ("stop_when_converged", stop_when_converged),
     ):
-        _check_bool(value, name)
+        check_bool(value, name)
     _check_seed(seed)
     if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int | np.integer) or steps < 1):
         raise BadInput(f"steps must be a positive integer (the largest chain length) or None, got {steps!r}")
@@ -607,8 +601,8 @@ def simulate(
     from bayestouch.scene.objects import SceneObject, load_object
     from bayestouch.scene.strokes import random_strokes
 
-    _check_bool(progress, "progress")
-    _check_bool(overwrite, "overwrite")
+    check_bool(progress, "progress")
+    check_bool(overwrite, "overwrite")
     _check_seed(seed)
     if device_seed is not None:
         _check_seed(device_seed)
@@ -709,7 +703,7 @@ def calibrate(recording, obj, *, models=MODELS, out=None, overwrite: bool = Fals
     from bayestouch.io.device_file import device_file_text
     from bayestouch.scene.objects import SceneObject, load_object
 
-    _check_bool(overwrite, "overwrite")
+    check_bool(overwrite, "overwrite")
     if out is not None:
         out = Path(out)
         if out.suffix != ".toml":

@@ -6,8 +6,18 @@ turns it into that line on stderr and exit code 2, never a traceback.
 
 from __future__ import annotations
 
-__all__ = ["BadInput"]
+import numpy as np
+
+__all__ = ["BadInput", "check_bool"]
 
 
 class BadInput(ValueError):
     """Invalid user input (file, argument, parameter). ``str(err)`` is one line: field, problem, expected form."""
+
+
+def check_bool(value, name: str) -> None:
+    """Refuse a switch ``name`` that is not ``True`` or ``False`` (a numpy bool is accepted): ``"no"`` is truthy,
+    and taken as True it had set earlier results aside."""
+    if not isinstance(value, bool | np.bool_):
+        shown = " ".join(repr(value).split())[:80]
+        raise BadInput(f"{name}: expected True or False, got {shown}")

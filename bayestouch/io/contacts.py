@@ -30,7 +30,7 @@ from typing import IO, Any, NamedTuple
 
 import numpy as np
 
-from bayestouch.errors import BadInput
+from bayestouch.errors import BadInput, check_bool
 from bayestouch.io.files import atomic_write, file_error, ragged_error, read_csv_records
 
 __all__ = [
@@ -602,8 +602,7 @@ def save_contact_points(
     contacts first with ``contact`` = 1, then the K free positions with ``contact`` = 0 and empty normal and
     force cells. Without free positions the file has no ``contact`` column.
     """
-    if not isinstance(overwrite, bool | np.bool_):
-        raise BadInput(f"overwrite: expected True or False, got {overwrite!r}")
+    check_bool(overwrite, "overwrite")
     if not overwrite and Path(path).exists():
         raise BadInput(f"{path} already exists; pass overwrite=True to replace it, or choose another file")
     if isinstance(cp_or_points, ContactPoints):

@@ -33,11 +33,11 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
-from bayestouch.errors import BadInput
+from bayestouch.errors import BadInput, check_bool
 from bayestouch.io.files import read_csv_rows, set_aside, write_csv_rows, write_json
 from bayestouch.io.runfolder import differences, fingerprint, locked_run_folder
 from bayestouch.planning.device_prober import VirtualFingerProber
-from bayestouch.planning.loop import ExploreSettings, check_settings, explore
+from bayestouch.planning.loop import ExploreSettings, check_settings, explore, settings_from
 from bayestouch.planning.policies import check_policy
 from bayestouch.scene.objects import OBJECTS_DIR, load_object, resolve_object
 
@@ -304,9 +304,8 @@ def run_experiment(
     planners = [p.strip() for p in planners.split(",") if p.strip()] if isinstance(planners, str) else list(planners)
     if isinstance(objects, str):
         objects = [o.strip() for o in objects.split(",") if o.strip()]
-    for name, value in (("resume", resume), ("overwrite", overwrite)):
-        if not isinstance(value, bool | np.bool_):  # "no" is truthy: it set an earlier experiment aside
-            raise BadInput(f"{name}: expected True or False, got {value!r}")
+    check_bool(resume, "resume")
+    check_bool(overwrite, "overwrite")
     if isinstance(workers, bool) or not isinstance(workers, int | np.integer):
         raise BadInput(f"workers: expected an integer ≥ 1, got {workers!r}")
     if not planners:
@@ -339,12 +338,9 @@ def run_experiment(
     names = {o: p.stem if p.parent == OBJECTS_DIR else str(o) for o, p in paths.items()}
     if settings is not None and not isinstance(settings, dict):
         raise BadInput(f"settings: expected a dict of ExploreSettings fields, got {type(settings).__name__}")
-    unknown = set(settings or {}) - set(ExploreSettings._fields)
-    if unknown:
-        raise BadInput(f"settings: unknown field(s) {sorted(unknown)}; expected {', '.join(ExploreSettings._fields)}")
     # checked before the folder is touched: a refused setting had left experiment.json and a header-only
     # results.csv that refused the next, valid call
-    check_settings(ExploreSettings(**(settings or {})))
+    check_settings(settings_from(settings or {}))
     out = Path(out)
     if prober not in PROBERS:
         raise BadInput(f"prober: expected one of {', '.join(PROBERS)}, got {prober!r}")

@@ -50,6 +50,7 @@ __all__ = [
     "RayProber",
     "point_estimate",
     "check_settings",
+    "settings_from",
     "MIN_DRAWS",
 ]
 
@@ -117,6 +118,15 @@ _SETTING_MIN = {
     "init_starts": 1,
     "scout": 1,
 }
+
+
+def settings_from(fields: dict) -> ExploreSettings:
+    """:class:`ExploreSettings` with the given ``fields`` (a dict, as :func:`explore` and
+    :func:`bayestouch.planning.experiment.run_experiment` take them), an unknown field refused by name."""
+    unknown = set(fields) - set(ExploreSettings._fields)
+    if unknown:
+        raise BadInput(f"settings: unknown field(s) {sorted(unknown)}; expected {', '.join(ExploreSettings._fields)}")
+    return ExploreSettings(**fields)
 
 
 def check_settings(s: ExploreSettings) -> None:
@@ -347,12 +357,7 @@ def explore(
     if not isinstance(seed, int | np.integer) or seed < 0:
         raise BadInput(f"seed: expected an integer ≥ 0, got {seed!r}")
     if isinstance(settings, dict):  # the form run_experiment takes
-        unknown = set(settings) - set(ExploreSettings._fields)
-        if unknown:
-            raise BadInput(
-                f"settings: unknown field(s) {sorted(unknown)}; expected {', '.join(ExploreSettings._fields)}"
-            )
-        settings = ExploreSettings(**settings)
+        settings = settings_from(settings)
     elif settings is not None and not (isinstance(settings, tuple) and hasattr(settings, "_fields")):
         raise BadInput(f"settings: expected an ExploreSettings or a dict of its fields, got {type(settings).__name__}")
     s = settings or ExploreSettings()
