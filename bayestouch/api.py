@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bayestouch.errors import BadInput, check_bool
+from bayestouch.errors import BadInput, check_bool, file_problem
 from bayestouch.io.contacts import (
     N_ELLIPSOID_PARAMS,
     ContactPoints,
@@ -312,8 +312,8 @@ def _contacts(data) -> ContactPoints | None:
         path = Path(data)
         if path.suffix.lower() == ".nc":
             return None
-        if not path.is_file():
-            raise BadInput(f"data: {path}: no such file (expected a contact points CSV or a recording .nc)")
+        if problem := file_problem(path):
+            raise BadInput(f"data: {path}: {problem} (expected a contact points CSV or a recording .nc)")
         return load_contact_points(path)
     if type(data).__name__ == "Dataset":  # an xarray recording
         return None
@@ -532,6 +532,11 @@ def fit(
                 normals = cp.normals
             elif normals is False:
                 normals = None
+            elif normals is True or isinstance(normals, str | bytes):
+                raise BadInput(
+                    f"fit: normals={normals!r}: expected an (n, 3) array of outward unit normals, one per contact, "
+                    "False to ignore the data's normals, or None (the default) to use them"
+                )
             free = opts.pop("free", cp.free)
             run_contact_fit(
                 cp.points,
@@ -597,7 +602,7 @@ def simulate(
     """
     from bayestouch import __version__
     from bayestouch.io.recording import MAX_FRAMES, write_recording
-    from bayestouch.physics.virtual import load_finger, recording_dataset
+    from bayestouch.physics.virtual import finger_name, load_finger, recording_dataset
     from bayestouch.scene.objects import SceneObject, load_object
     from bayestouch.scene.strokes import random_strokes
 
@@ -664,6 +669,7 @@ def simulate(
             "object_file": str(obj) if isinstance(obj, str | os.PathLike) else scene.name,
             "seed": seed,
             **({} if device_seed is None else {"device_seed": finger_seed}),
+            "finger": finger_name(finger_seed),
             "mode": mode or vf.mode,
             "wire_hold_currents_A": ",".join(f"{c:g}" for c in currents),
             "software": f"bayestouch {__version__}",

@@ -491,7 +491,12 @@ def _report(out: Path, obj, truth, res, summary: dict, patch_summary: dict, patc
         "demo.json",
     ]
     return write_report(
-        out, title=f"bayestouch demo: {obj.name}, eig exploration", intro=intro, sections=sections, files=files
+        out,
+        title=f"bayestouch demo: {obj.name}, eig exploration",
+        intro=intro,
+        sections=sections,
+        files=files,
+        overwrite=True,  # the demo's folder is rebuilt by every run
     )
 
 

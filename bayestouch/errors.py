@@ -6,9 +6,11 @@ turns it into that line on stderr and exit code 2, never a traceback.
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
-__all__ = ["BadInput", "check_bool"]
+__all__ = ["BadInput", "check_bool", "file_problem"]
 
 
 class BadInput(ValueError):
@@ -21,3 +23,13 @@ def check_bool(value, name: str) -> None:
     if not isinstance(value, bool | np.bool_):
         shown = " ".join(repr(value).split())[:80]
         raise BadInput(f"{name}: expected True or False, got {shown}")
+
+
+def file_problem(path: str | os.PathLike[str]) -> str:
+    """Why ``path`` cannot be read as a file, in a few words for a one-line message ("no such file", "is a folder,
+    not a file", "is not a regular file"), or ``""`` when it is a regular file."""
+    if os.path.isfile(path):
+        return ""
+    if os.path.isdir(path):
+        return "is a folder, not a file"
+    return "is not a regular file" if os.path.exists(path) else "no such file"

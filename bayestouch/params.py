@@ -19,7 +19,7 @@ import tomllib
 from pathlib import Path
 from typing import Any, NamedTuple
 
-from bayestouch.errors import BadInput
+from bayestouch.errors import BadInput, file_problem
 
 __all__ = ["Spec", "read_toml", "read_section", "build", "MODELS"]
 
@@ -45,8 +45,8 @@ def read_toml(path, kind: str = "parameter file", example: str = "models/finger.
     CSV and JSON readers drop it; TOML itself does not allow one.
     """
     p = Path(path)
-    if not p.is_file():
-        raise BadInput(f"{kind} {p} does not exist (expected a TOML file such as {example})")
+    if problem := file_problem(p):
+        raise BadInput(f"{kind} {p}: {problem} (expected a TOML file such as {example})")
     try:
         return tomllib.loads(p.read_text(encoding="utf-8-sig"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:

@@ -167,7 +167,7 @@ def test_simulate_cli_writes_recording(tmp_path, capsys):
     for args, needle in [
         (["--currents", "0.9,0,0"], "wire currents"),
         (["--duration", "-1"], "--duration"),
-        (["--object", str(tmp_path / "none.toml")], "does not exist"),
+        (["--object", str(tmp_path / "none.toml")], "no such file"),
     ]:
         argv = ["simulate", "--object", egg, "--out", str(out), "--quiet", *args]
         assert main(argv) == 2

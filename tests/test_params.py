@@ -45,8 +45,10 @@ def test_missing_entries_and_files(tmp_path):
         read_section(doc, "wire", SPECS, "f.toml")
     with pytest.raises(BadInput, match=r"missing table \[rod\]"):
         read_section(doc, "rod", SPECS, "f.toml")
-    with pytest.raises(BadInput, match="does not exist"):
+    with pytest.raises(BadInput, match="no such file"):
         read_toml(tmp_path / "none.toml")
+    with pytest.raises(BadInput, match=r"is a folder, not a file \(expected a TOML file"):
+        read_toml(tmp_path)
     (tmp_path / "bad.toml").write_text("x = {")
     with pytest.raises(BadInput, match="not valid TOML"):
         read_toml(tmp_path / "bad.toml")

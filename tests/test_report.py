@@ -9,6 +9,7 @@ import os
 import numpy as np
 import pytest
 
+from bayestouch.errors import BadInput
 from bayestouch.report.page import Figure, Table, check_in_browser, find_browser, write_report
 
 # CI installs Debian's chromium (.ci/run) and sets BAYESTOUCH_REQUIRE_BROWSER=1: there a missing browser fails
@@ -51,6 +52,18 @@ def test_report_lists_figures_tables_and_existing_files(tmp_path):
 def test_report_refuses_a_missing_figure(tmp_path):
     with pytest.raises(FileNotFoundError, match="missing.png"):
         write_report(tmp_path, title="t", intro="", sections=[("s", [Figure("missing.png", "gone")])])
+
+
+def test_report_refuses_to_replace_an_earlier_page_unless_told(tmp_path):
+    first = _page(tmp_path, ["a.png"]).read_text()
+    with pytest.raises(BadInput, match="report.html exists; pass overwrite=True"):
+        write_report(tmp_path, title="second", intro="", sections=[])
+    assert (tmp_path / "report.html").read_text() == first  # the earlier page is untouched
+    write_report(tmp_path, title="second", intro="", sections=[], overwrite=True)
+    assert "<title>second</title>" in (tmp_path / "report.html").read_text()
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []  # no temporary file left
+    with pytest.raises(BadInput, match="overwrite"):
+        write_report(tmp_path, title="t", intro="", sections=[], overwrite="no")
 
 
 @browser

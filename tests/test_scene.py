@@ -61,7 +61,7 @@ def test_bad_object_documents(doc, needle):
 
 
 def test_bad_object_files(tmp_path):
-    with pytest.raises(BadInput, match="does not exist"):
+    with pytest.raises(BadInput, match="no such file"):
         load_object(tmp_path / "nope.toml")
     bad = tmp_path / "bad.toml"
     bad.write_text("[shape\ncentre_m = [")

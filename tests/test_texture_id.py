@@ -69,7 +69,7 @@ def test_bad_toml_file(tmp_path):
     p.write_text("[library\nmodes = 16\n")
     with pytest.raises(BadInput, match="not valid TOML"):
         tx.load_library(p)
-    with pytest.raises(BadInput, match="does not exist"):
+    with pytest.raises(BadInput, match="no such file"):
         tx.load_library(tmp_path / "missing.toml")
 
 

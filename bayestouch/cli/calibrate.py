@@ -53,6 +53,8 @@ def run(args) -> int:
         f"wrote {args.out}: {np.size(cal.log_gain)} taxels from {cal.info['strokes']} stroke(s) over "
         f"{args.object}, log-gain sd {np.median(cal.log_gain_sd):.2g} (median), noise scale {cal.noise_scale:.2f}"
     )
+    if "response" in cal.info:  # the response factor stays the fit's prior (±30 %)
+        print(f"bayestouch calibrate: the taxels' response is {cal.info['response']}", file=sys.stderr)
     if cal.noise_scale > MISFIT_NOISE_SCALE:
         print(
             f"bayestouch calibrate: warning: the residuals are {cal.noise_scale:.1f}x the modelled read-out noise: "

@@ -10,7 +10,7 @@ import numpy as np
 
 from bayestouch.cli.args import COMMAND_OUTPUTS, COMMAND_RESULTS, one_size, out_path, positive_int, size_range, stat
 from bayestouch.cli.args import seed as seed_arg
-from bayestouch.errors import BadInput
+from bayestouch.errors import BadInput, file_problem
 
 __all__ = ["add_parser", "run", "MAX_CONTACTS", "OTHER_RESULTS"]
 
@@ -323,9 +323,8 @@ def run(args) -> int:
         raise BadInput(f"--budget must be ≥ 0 seconds (0: no budget), got {args.budget}")
     if args.out.exists() and not args.out.is_dir():
         raise BadInput(f"--out {args.out} exists and is not a folder")
-    if not args.points.is_file():
-        what = "is a folder" if args.points.is_dir() else ("is not a regular file" if args.points.exists() else "")
-        raise BadInput(f"{args.points}: {what or 'no such file'} (expected a contact points CSV or a recording .nc)")
+    if problem := file_problem(args.points):
+        raise BadInput(f"{args.points}: {problem} (expected a contact points CSV or a recording .nc)")
     if args.ffd_tau is not None and not (0 < args.ffd_tau < 0.1):
         raise BadInput(f"--ffd-tau must be in (0, 0.1) metres, got {args.ffd_tau}")
     from bayestouch.io.runfolder import locked_run_folder

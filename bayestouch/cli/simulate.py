@@ -46,8 +46,9 @@ def add_parser(sub) -> argparse.ArgumentParser:
     sp.add_argument(
         "--depth",
         default=None,
-        help="pressing depth in metres, or a comma list cycled over the strokes, e.g. 2e-4,3e-4,4e-4 for a "
-        "calibration that identifies the taxels' response (default 3e-4)",
+        help="pressing depth in metres, or a comma list cycled over the strokes, e.g. 2e-4,3e-4,4e-4 with "
+        "--mode empirical for a calibration that identifies the taxels' response (the physics mode's pressure "
+        "signal is below the read-out noise at such depths) (default 3e-4)",
     )
     sp.add_argument(
         "--force",

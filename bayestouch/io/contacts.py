@@ -41,6 +41,7 @@ __all__ = [
     "load_contact_points",
     "save_contact_points",
     "MM_MAX_ABS_M",
+    "unit_hint",
     "MM_MAX_DIAGONAL_M",
     "MIN_DIAGONAL_M",
     "MIN_NORMAL_LENGTH",
@@ -125,20 +126,22 @@ def _show(text: str, limit: int = 40) -> str:
     return repr(text)
 
 
-def _likely_units(max_abs: float, diagonal: float) -> list[tuple[str, float]]:
-    """The units coordinates written in an unknown unit are likely in, most plausible first.
+def unit_hint(max_abs: float, diagonal: float) -> str:
+    """What coordinates written in an unknown unit look like, and how to give metres, for a one-line message:
+    ``"look like centimetres or millimetres (largest |value| 4.5, bounding-box diagonal 8.7); give metres (divide
+    by 100 if they are centimetres, divide by 1000 if they are millimetres)"``.
 
     Parameters
     ----------
     max_abs, diagonal : float
-        Largest absolute coordinate and bounding-box diagonal as written in the file (unknown unit).
+        Largest absolute coordinate and bounding-box diagonal as written (unknown unit).
 
     Returns
     -------
-    list of (str, float)
-        At most two units (``("centimetres", 1e2)``, ``("millimetres", 1e3)``, …) whose quotient the loader would
+    str
+        Names at most two units (centimetres, millimetres, micrometres, nanometres) whose quotient the loader would
         accept as metres (within the metre limits, at least :data:`MIN_DIAGONAL_M` across), the one whose diagonal
-        is nearer :data:`TYPICAL_DIAGONAL_M` (in log) first; ``[("some unit other than metres", 1e3)]`` when none.
+        is nearer :data:`TYPICAL_DIAGONAL_M` (in log) first; "some unit other than metres" when none fits.
     """
     fits = [
         (unit, factor)
@@ -146,10 +149,20 @@ def _likely_units(max_abs: float, diagonal: float) -> list[tuple[str, float]]:
         if max_abs / factor <= MM_MAX_ABS_M and MIN_DIAGONAL_M <= diagonal / factor <= MM_MAX_DIAGONAL_M
     ]
     fits.sort(key=lambda uf: abs(np.log(diagonal / uf[1] / TYPICAL_DIAGONAL_M)))
-    return fits[:2] or [("some unit other than metres", 1e3)]
+    if fits:
+        how = ", ".join(f"divide by {f:g} if they are {u}" for u, f in fits[:2])
+        names = " or ".join(u for u, _ in fits[:2])
+    else:
+        how, names = "e.g. divide by 1000", "some unit other than metres"
+    return (
+        f"look like {names} (largest |value| {_num(max_abs)}, bounding-box diagonal {_num(diagonal)}); "
+        f"give metres ({how})"
+    )
 
 
-def check_normals_outward(points, normals, where: str = "normals") -> None:
+def check_normals_outward(
+    points, normals, where: str = "normals", fix: str = "negate nx,ny,nz, or fit without them (--ignore-normals)"
+) -> None:
     """Refuse normals that point inwards: the mean cosine between each normal and the direction from the contacts'
     centroid to its contact below :data:`INWARD_COSINE` (a sign-convention mistake; the likelihood expects outward
     normals and would otherwise report a meaningless shape).
@@ -160,6 +173,8 @@ def check_normals_outward(points, normals, where: str = "normals") -> None:
     normals : (N, 3) float
     where : str
         Names the normals in the message (a file, an argument).
+    fix : str
+        What the message tells the user to do.
 
     Raises
     ------
@@ -178,8 +193,7 @@ def check_normals_outward(points, normals, where: str = "normals") -> None:
     if float(cos.mean()) < INWARD_COSINE:
         raise BadInput(
             f"{where}: the normals point inwards (towards the contacts' centroid at {100 * (cos < 0).mean():.0f} % "
-            f"of the contacts, mean cosine {cos.mean():.2f}); expected outward normals: negate nx,ny,nz, or fit "
-            "without them (--ignore-normals)"
+            f"of the contacts, mean cosine {cos.mean():.2f}); expected outward normals: {fix}"
         )
 
 
@@ -294,13 +308,10 @@ def check_contact_spread(points, where: str, axis_max: float) -> None:
         max_abs = float(np.max(np.abs(p)))
         with np.errstate(over="ignore", invalid="ignore"):
             diagonal = float(np.linalg.norm(np.ptp(p, axis=0)))
-        units = _likely_units(max_abs, diagonal)
-        how = ", ".join(f"divide by {f:g} if they are {u}" for u, f in units)
         raise BadInput(
             f"{where}: the contacts span {2 * half:.3g} m, more than twice the prior's largest semi-axis "
             f"({axis_max:g} m, models/priors.toml axis_max): no object the fit can represent holds them; "
-            f"expected metres: the coordinates look like {' or '.join(u for u, _ in units)} "
-            f"(largest |value| {_num(max_abs)}) ({how}), unless they hold several objects"
+            f"unless they hold several objects, the coordinates {unit_hint(max_abs, diagonal)}"
         )
     sv = np.linalg.svd(p - p.mean(axis=0), compute_uv=False)
     if sv[-1] <= COPLANAR_RATIO * sv[0]:
@@ -409,16 +420,10 @@ def _contacts_from_records(header: list[str], records, source: str, min_points: 
     with np.errstate(over="ignore", invalid="ignore"):  # values near 1e308: the span overflows, and is refused
         diagonal = float(np.linalg.norm(np.ptp(every, axis=0)))
     if max_abs > MM_MAX_ABS_M or diagonal > MM_MAX_DIAGONAL_M:
-        units = _likely_units(max_abs, diagonal)
-        if len(units) == 1:
-            how = f"e.g. divide by {units[0][1]:g}"
-        else:
-            how = ", ".join(f"divide by {f:g} if they are {u}" for u, f in units)
         raise file_error(
             source,
-            f"x,y,z look like {' or '.join(u for u, _ in units)} (largest |value| {_num(max_abs)}, bounding-box "
-            f"diagonal {_num(diagonal)}); give metres ({how}), within "
-            f"±{MM_MAX_ABS_M} m and a bounding-box diagonal ≤ {MM_MAX_DIAGONAL_M} m",
+            f"x,y,z {unit_hint(max_abs, diagonal)}, within ±{MM_MAX_ABS_M} m and a bounding-box diagonal "
+            f"≤ {MM_MAX_DIAGONAL_M} m",
         )
     with np.errstate(over="ignore", invalid="ignore"):
         span = float(np.linalg.norm(np.ptp(points, axis=0)))

@@ -12,6 +12,7 @@ device's remaining uncertainty reaches the shape posterior. The file is TOML::
     mode = "empirical"            # taxel response mode of the calibration recording
     noise_scale = 1.3             # residual sd / modelled read-out sd at the calibration (dimensionless)
     object = "sphere"
+    finger = "virtual finger 3"   # the finger calibrated (the recording's ``finger`` attribute), where it names one
     recording = "sha256 of the recording's arrays"
     strokes = 2
     frames = 202
@@ -42,7 +43,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from bayestouch.errors import BadInput
+from bayestouch.errors import BadInput, file_problem
 from bayestouch.io.files import write_text
 from bayestouch.params import read_toml
 
@@ -159,6 +160,7 @@ _KNOWN = {
         "frames",
         "software",
         "response",
+        "finger",
     ),
     "gains": ("log_gain", "log_gain_sd"),
     "response": ("scale", "scale_sd"),
@@ -208,8 +210,8 @@ def read_device_file(path, n_taxels: int | None = None) -> DeviceCalibration:
     """
     p = Path(path)
     where = f"device file {p}"
-    if not p.is_file():
-        raise BadInput(f"{where}: no such file; expected the TOML written by `bayestouch calibrate`")
+    if problem := file_problem(p):
+        raise BadInput(f"{where}: {problem}; expected the TOML written by `bayestouch calibrate`")
     doc = read_toml(p, "device file", "DEVICE.toml from `bayestouch calibrate`")
     cal = device_calibration(doc, where)
     if n_taxels is not None and np.size(cal.log_gain) != int(n_taxels):

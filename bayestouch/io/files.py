@@ -24,7 +24,7 @@ from typing import IO, Any
 
 import numpy as np
 
-from bayestouch.errors import BadInput
+from bayestouch.errors import BadInput, file_problem
 
 __all__ = [
     "write_csv_rows",
@@ -88,10 +88,8 @@ def read_csv_records(path: str | os.PathLike[str], source: str) -> Iterator[tupl
         The record's fields as written.
     """
     p = Path(path)
-    if not p.exists():
-        raise file_error(source, "no such file (expected a CSV file with header x,y,z)")
-    if p.is_dir():
-        raise file_error(source, "is a folder, not a file (expected a CSV file with header x,y,z)")
+    if problem := file_problem(p):
+        raise file_error(source, f"{problem} (expected a CSV file with header x,y,z)")
     try:
         with open(p, encoding="utf-8-sig", newline="") as f:
             reader = csv.reader(f)

@@ -147,6 +147,11 @@ def differences(old: dict, new: dict) -> list[str]:
     return out
 
 
+#: the switches as the messages name them: the command line's flag and the Python keyword (run_contact_fit,
+#: bayestouch.fit and the command line share these checks)
+RESUME, OVERWRITE, OUT = "--resume (resume=True)", "--overwrite (overwrite=True)", "--out (out=)"
+
+
 def prepare_run_folder(out, fp: dict, *, resume: bool, overwrite: bool = False) -> Path:
     """Check ``out`` for a fit with fingerprint ``fp`` (:func:`fingerprint`) and record ``fp`` there (module
     docstring).
@@ -174,7 +179,7 @@ def prepare_run_folder(out, fp: dict, *, resume: bool, overwrite: bool = False) 
     """
     out = Path(out)
     if resume and overwrite:
-        raise BadInput("--resume and --overwrite exclude each other: continue the run in the folder, or replace it")
+        raise BadInput(f"{RESUME} and {OVERWRITE} exclude each other: continue the run in the folder, or replace it")
     if out.exists() and not out.is_dir():
         raise BadInput(f"--out {out} exists and is not a folder")
     out.mkdir(parents=True, exist_ok=True)
@@ -191,15 +196,15 @@ def prepare_run_folder(out, fp: dict, *, resume: bool, overwrite: bool = False) 
             old = {}
         if not (isinstance(old, dict) and "level" in old and "options" in old) and resume:
             raise BadInput(
-                f"--resume: {path} is damaged (not a run fingerprint), so nothing shows the run in {out} was made "
-                "with these data and options; --overwrite to start it again, or choose another --out"
+                f"{RESUME}: {path} is damaged (not a run fingerprint), so nothing shows the run in {out} was made "
+                f"with these data and options; {OVERWRITE} to start it again, or choose another {OUT}"
             )
     if resume and old is None and (held or (out / "smc.npz").exists()):
         # a run without its fingerprint: nothing shows it was made with these data and options (continuing it
         # with other data reported the old object's shape, exit 0)
         raise BadInput(
-            f"--resume: {out} holds a run ({', '.join(held) or 'smc.npz'}) but no {FINGERPRINT_FILE}, so nothing "
-            "shows it was made with these data and options; --overwrite to start it again, or choose another --out"
+            f"{RESUME}: {out} holds a run ({', '.join(held) or 'smc.npz'}) but no {FINGERPRINT_FILE}, so nothing "
+            f"shows it was made with these data and options; {OVERWRITE} to start it again, or choose another {OUT}"
         )
     if resume and not held and not (out / "smc.npz").exists():
         print(f"bayestouch: --resume: {out} holds no run yet; starting one", file=sys.stderr)
@@ -207,14 +212,14 @@ def prepare_run_folder(out, fp: dict, *, resume: bool, overwrite: bool = False) 
         diff = differences(old, fp)
         if diff:
             raise BadInput(
-                f"--resume: {out} holds a run made with {'; '.join(diff)}; resume it with its own data and "
-                "options, or choose another --out (or --overwrite to replace it)"
+                f"{RESUME}: {out} holds a run made with {'; '.join(diff)}; resume it with its own data and "
+                f"options, or choose another {OUT} (or {OVERWRITE} to replace it)"
             )
     elif not resume and (held or started):
         if not overwrite:
             raise BadInput(
-                f"--out {out} already holds a run ({', '.join(held + started)}); pass --resume to continue it, "
-                "--overwrite to replace it, or choose another folder"
+                f"--out {out} already holds a run ({', '.join(held + started)}); pass {RESUME} to continue it, "
+                f"{OVERWRITE} to replace it, or choose another folder"
             )
         # set aside, not deleted: an interrupted or failed new run leaves the old result where the user finds it
         aside = move_aside(out, [out / name for name in OUTPUTS if (out / name).exists()])

@@ -21,7 +21,15 @@ from bayestouch.physics import forward as fw
 from bayestouch.physics.finger import drive
 from bayestouch.physics.forward import make_finger
 
-__all__ = ["check_strokes", "MAX_DEPTH_M", "VirtualFinger", "load_finger", "record_strokes", "recording_dataset"]
+__all__ = [
+    "check_strokes",
+    "MAX_DEPTH_M",
+    "VirtualFinger",
+    "finger_name",
+    "load_finger",
+    "record_strokes",
+    "recording_dataset",
+]
 
 
 class VirtualFinger(NamedTuple):
@@ -31,6 +39,12 @@ class VirtualFinger(NamedTuple):
     wire: object
     rod: object
     mode: str
+
+
+def finger_name(seed: int) -> str:
+    """The identity of the simulated finger whose fixed pattern ``seed`` draws, as its recordings and device files
+    name it (the ``finger`` attribute; a real finger's would be its serial number)."""
+    return f"virtual finger {int(seed)}"
 
 
 def load_finger(models: Path = MODELS, seed: int = 0) -> VirtualFinger:

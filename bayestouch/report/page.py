@@ -19,6 +19,9 @@ import tempfile
 from pathlib import Path
 from typing import NamedTuple
 
+from bayestouch.errors import BadInput, check_bool
+from bayestouch.io.files import write_text
+
 __all__ = ["Table", "Figure", "write_report", "check_in_browser", "BrowserCheck", "find_browser"]
 
 
@@ -74,8 +77,10 @@ def _table(t: Table) -> str:
     return f"<table><caption>{html.escape(t.caption)}</caption><tr>{head}</tr>{body}</table>"
 
 
-def write_report(out, *, title: str, intro: str, sections: list, files: list | None = None) -> Path:
-    """Write ``out/report.html``.
+def write_report(
+    out, *, title: str, intro: str, sections: list, files: list | None = None, overwrite: bool = False
+) -> Path:
+    """Write ``out/report.html`` (atomically: a reader sees the old page or the new one, never half of one).
 
     Parameters
     ----------
@@ -88,6 +93,8 @@ def write_report(out, *, title: str, intro: str, sections: list, files: list | N
         ``items`` is a list of :class:`Table`, :class:`Figure` or str (trusted HTML paragraphs).
     files : list of str, optional
         Names of files in ``out`` to list with links.
+    overwrite : bool
+        Replace a ``report.html`` already in ``out``; without it an earlier page is refused, not replaced.
 
     Returns
     -------
@@ -97,8 +104,13 @@ def write_report(out, *, title: str, intro: str, sections: list, files: list | N
     ------
     FileNotFoundError
         A figure's file is missing.
+    BadInput
+        ``out/report.html`` exists and ``overwrite`` is false.
     """
+    check_bool(overwrite, "overwrite")
     out = Path(out)
+    if not overwrite and (out / "report.html").exists():
+        raise BadInput(f"write_report: {out / 'report.html'} exists; pass overwrite=True to replace it")
     parts = [f"<h1>{html.escape(title)}</h1>", '<div id="broken"></div>', intro]
     for heading, items in sections:
         parts.append(f"<h2>{html.escape(heading)}</h2>")
@@ -124,9 +136,7 @@ def write_report(out, *, title: str, intro: str, sections: list, files: list | N
         f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title>'
         f"<style>{_STYLE}</style><script>{_SCRIPT}</script></head>\n<body>\n" + "\n".join(parts) + "\n</body></html>\n"
     )
-    path = out / "report.html"
-    path.write_text(page, encoding="utf-8")
-    return path
+    return write_text(out / "report.html", page)
 
 
 class BrowserCheck(NamedTuple):

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from bayestouch.backend import jax, jnp, pad_pow2
-from bayestouch.errors import BadInput
+from bayestouch.errors import BadInput, file_problem
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.mesh import nellipsoid_mesh
 from bayestouch.params import MODELS, read_toml
@@ -392,8 +392,8 @@ def resolve_object(name: str, models=None) -> Path:
     """
     p = Path(name)
     if p.suffix == ".toml":
-        if not p.is_file():
-            raise BadInput(f"object: no such file {p} (expected a TOML object file like models/objects/egg.toml)")
+        if problem := file_problem(p):
+            raise BadInput(f"object {p}: {problem} (expected a TOML object file like models/objects/egg.toml)")
         return p
     folders = [Path(models) / "objects"] if models is not None else []
     for folder in [*folders, OBJECTS_DIR]:

@@ -202,8 +202,16 @@ def calibrate_device(recording, obj, *, models=MODELS, object_name: str | None =
         "recording": dataset_digest(ds).hex(),
         "strokes": int(np.unique(si[data.frames]).size),
         "frames": int(len(data.frames)),
+        **({"finger": str(ds.attrs["finger"])} if "finger" in ds.attrs else {}),
     }
     if identified:
         return DeviceCalibration(log_gain, log_gain_sd, k, mode, info, 1.0 + b, b_sd)
-    info["response"] = "not identified by these strokes (record strokes at several depths or over a curved object)"
+    signal, noise = float(np.max(np.abs(delta))), float(np.median(np.asarray(data.noise_sd)))
+    if signal < noise:  # the physics mode's piezotronic response: Δ ln I ~ 1e-4 at these depths
+        info["response"] = (
+            f"not identified: the pressure signal of these strokes (largest |Δ ln I| {signal:.2g}) is below the "
+            f"read-out noise ({noise:.2g} in ln I) in the {mode} taxel mode"
+        )
+    else:
+        info["response"] = "not identified by these strokes (record strokes at several depths or over a curved object)"
     return DeviceCalibration(log_gain, log_gain_sd, k, mode, info)

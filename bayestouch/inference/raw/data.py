@@ -12,7 +12,7 @@ from typing import NamedTuple
 import numpy as np
 
 from bayestouch.backend import jax, jnp
-from bayestouch.errors import BadInput
+from bayestouch.errors import BadInput, file_problem
 from bayestouch.inference.raw.priors import RESPONSE_SCALE_SD
 from bayestouch.io.device_file import DeviceCalibration
 from bayestouch.io.recording import check_recording, read_recording
@@ -142,8 +142,8 @@ def open_recording(ds_or_path):
         _recording_kinematics(ds_or_path, "recording")
         return ds_or_path, "recording"
     p = Path(ds_or_path)
-    if not p.is_file():
-        raise BadInput(f"recording {p}: no such file; expected a .nc recording from bayestouch simulate")
+    if problem := file_problem(p):
+        raise BadInput(f"recording {p}: {problem}; expected a .nc recording from bayestouch simulate")
     try:
         ds = read_recording(p)
     except Exception as e:  # not netCDF/HDF5
@@ -293,12 +293,19 @@ class HostDevice(NamedTuple):
 
 def recording_mode(ds, where: str, calibration: DeviceCalibration | None = None) -> str:
     """The taxel mode a recording was made in (its ``mode`` attribute, default ``physics``); :class:`BadInput`
-    naming ``where`` for another value, or when ``calibration`` was made in another mode."""
+    naming ``where`` for another value, or when ``calibration`` was made in another mode or on another finger (when
+    the recording and the device file both name their finger, attribute ``finger``)."""
     mode = str(ds.attrs.get("mode", "physics"))
     if mode not in tx.MODES:
         raise BadInput(f"{where}: attribute 'mode' is {mode!r}, expected one of {tx.MODES}")
     if calibration is not None and calibration.mode != mode:
         raise BadInput(f"calibration: made in the {calibration.mode} taxel mode; {where} is in the {mode} mode")
+    recorded, calibrated = ds.attrs.get("finger"), None if calibration is None else calibration.info.get("finger")
+    if recorded is not None and calibrated is not None and str(recorded) != str(calibrated):
+        raise BadInput(
+            f"calibration: made on {calibrated!s}; {where} was recorded by {recorded!s} (each finger's taxel gains "
+            "are its own: expected the device file calibrated on the finger that made the recording)"
+        )
     return mode
 
 
