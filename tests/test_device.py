@@ -124,6 +124,13 @@ FAULTS = {
     "corrupted": (Faults(corrupt=3e-4, seed=2), {}, lambda s, d: d.stats["bad_packets"] > 0),
     "delayed": (Faults(delay=0.4, delay_prob=0.1, seed=3), {}, lambda s, d: s.stats["stalls"] > 0),
     "disconnect": (Faults(disconnect_after=45), {}, lambda s, d: d.stats["reconnects"] == 1 == s.stats["disconnects"]),
+    # 1 % of bytes dropped or corrupted and a disconnect: the 4.5 kB handshake reply comes through only in parts
+    # after many tries, and the reconnect's handshake must be given as long (it was given 2 s and failed)
+    "lossy-disconnect": (
+        Faults(drop=0.01, corrupt=0.01, disconnect_after=45, seed=4),
+        {"timeout": 0.3},
+        lambda s, d: d.stats["reconnects"] >= 1 <= s.stats["disconnects"] and d.stats.get("segmented", 0) > 0,
+    ),
     # reconnecting slower than the 0.3 s watchdog, 0.8 s of real-time stroke left: the device abandons the stroke,
     # the client runs it again
     "disconnect-redo": (

@@ -139,3 +139,61 @@ def test_run_folder_messages_name_the_python_keywords_too(tmp_path):
     release_run_folder(out)
     with pytest.raises(BadInput, match=r"--resume \(resume=True\) and --overwrite \(overwrite=True\) exclude"):
         prepare_run_folder(out, fp, resume=True, overwrite=True)
+
+
+def test_write_report_refuses_malformed_input_in_one_line(tmp_path):
+    from bayestouch.report.page import Table, write_report
+
+    (tmp_path / "file").write_text("x")
+    (tmp_path / "run").mkdir()
+    (tmp_path / "dir_page").mkdir()
+    (tmp_path / "dir_page" / "report.html").mkdir()
+    cases = [
+        ({"out": tmp_path / "file"}, "is not a folder"),
+        ({"out": tmp_path / "dir_page", "overwrite": True}, "report.html is a folder"),
+        ({"sections": [1]}, r"sections\[0\] must be a \(heading, items\) pair"),
+        ({"sections": None}, "sections must be a list"),
+        ({"title": None}, "title must be a str"),
+        ({"sections": [("s", [Table("c", ["a"], [["1", "2"]])])]}, "row 0 has 2 cells for 1 columns"),
+        ({"sections": [("s", [3.0])]}, "holds a float; expected Table, Figure or str"),
+        ({"files": "summary.json"}, "files must be a list of file names"),
+    ]
+    for change, message in cases:
+        kw = {"out": tmp_path / "run", "title": "t", "intro": "", "sections": []} | change
+        with pytest.raises(BadInput, match=message):
+            write_report(kw.pop("out"), **kw)
+    assert not (tmp_path / "run" / "report.html").exists()
+    assert write_report(tmp_path / "run", title="t", intro="", sections=[("s", ["<p>x</p>"])]).is_file()
+
+
+def test_texture_id_refuses_another_fingers_device_file_before_setting_results_aside(tmp_path, capsys):
+    from bayestouch.io.device_file import read_device_file
+    from bayestouch.planning.texture_id import check_calibration
+
+    rec, dev = tmp_path / "cal.nc", tmp_path / "d.toml"
+    argv = ["simulate", "--object", "sphere", "--strokes", "3", "--duration", "1", "--seed", "1", "--device-seed", "3"]
+    assert main([*argv, "--mode", "empirical", "--depth", "2e-4,3e-4,4e-4", "--quiet", "--out", str(rec)]) == 0
+    assert main(["calibrate", str(rec), "--object", "sphere", "--out", str(dev)]) == 0
+    check_calibration(read_device_file(dev), "empirical", 3)  # the control: the finger the file was made on
+    out = tmp_path / "tx"
+    out.mkdir()
+    (out / "results.csv").write_text("texture,trial\n0,0\n")
+    capsys.readouterr()
+    argv = ["texture-id", "--textures", "2", "--trials", "1", "--seed", "0", "--calibration", str(dev)]
+    assert main([*argv, "--out", str(out), "--overwrite"]) == 2
+    err = capsys.readouterr().err
+    assert "made on virtual finger 3; the strokes are simulated on virtual finger 0 (--seed 0)" in err, err
+    assert (out / "results.csv").read_text() == "texture,trial\n0,0\n" and not list(out.glob("replaced-*"))
+
+
+def test_resume_differences_name_which_object_each_run_has():
+    """experiment --resume over sphere results with --objects egg named "other object egg" (the new key, as if the
+    results were egg's); each side is named now, and an edited object file stays "other"."""
+    from bayestouch.io.runfolder import differences, fingerprint
+
+    old = fingerprint("experiment", {"object sphere": b"s"}, {"seed": 0})
+    new = fingerprint("experiment", {"object egg": b"e"}, {"seed": 0})
+    assert sorted(differences(old, new)) == ["no object egg (this run has it)", "object sphere (this run lacks it)"]
+    edited = fingerprint("experiment", {"object sphere": b"s2"}, {"seed": 0})
+    assert differences(old, edited) == ["other object sphere"]
+    assert differences(old, old) == []

@@ -67,9 +67,10 @@ def run_texture_id(args) -> int:
     one line)."""
     from bayestouch.io.device_file import read_device_file
     from bayestouch.io.runfolder import locked_run_folder
-    from bayestouch.planning.texture_id import IdSettings, run_experiment
+    from bayestouch.planning.texture_id import IdSettings, check_calibration, run_experiment
 
     calibration = None if args.calibration is None else read_device_file(args.calibration)
+    check_calibration(calibration, args.mode, args.seed)  # before earlier results are set aside
     # the folder is this run's from the check of earlier results to the last output (a second run is refused)
     with locked_run_folder(args.out):
         check_out(Path(args.out), args.overwrite, "texture-id", inputs=(args.library, args.calibration))

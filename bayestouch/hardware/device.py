@@ -270,6 +270,7 @@ class FingerDevice:
         self._segment = 0  # the PART size in use (0: whole packets)
         self.url, self.timeout, self.retries = str(url), float(timeout), int(retries)
         self.connect_timeout, self.stroke_timeout = float(connect_timeout), float(stroke_timeout)
+        self._hello_s = 0.0  # the longest handshake so far (s): a reconnect's handshake may take as long
         self.reconnects, self.reconnect_wait, self.redo = int(reconnects), float(reconnect_wait), int(redo)
         self.journal_path = Path(journal) if journal else None
         self.client_limits = limits or Limits()
@@ -365,7 +366,9 @@ class FingerDevice:
             wait *= 2
             try:
                 self._open_port()
-                self.hello(max(5 * self.timeout, 2.0), reconnect=False)
+                # as long as the first handshake took, twice over: on a lossy link its long reply comes in parts
+                # after many tries (25 at 1 % byte faults), and a reconnect given 2 s never got it through
+                self.hello(max(5 * self.timeout, 2.0, 2.0 * self._hello_s), reconnect=False)
                 return
             except (DeviceError, _Disconnected) as e:
                 last = str(e)
@@ -501,6 +504,7 @@ class FingerDevice:
         """Handshake: firmware, layout, rate and limits (stored as ``info``)."""
         timeout = self.connect_timeout if timeout is None else timeout
         tries = max(1, int(np.ceil(timeout / max(self.timeout, 0.05))))
+        began = time.perf_counter()
         size = self._segment or self.segment
         if size:  # SEGMENT just before HELLO keeps the device in segment mode (PROTOCOL.md §9)
             self._segment = 0
@@ -518,6 +522,7 @@ class FingerDevice:
         if rep.protocol != pr.PROTOCOL_VERSION:
             raise DeviceError(f"{self.url}: device speaks protocol {rep.protocol}, this client {pr.PROTOCOL_VERSION}")
         self.info = rep
+        self._hello_s = max(self._hello_s, time.perf_counter() - began)
         self._log(rep)
         return rep
 

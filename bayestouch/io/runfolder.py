@@ -133,9 +133,14 @@ def differences(old: dict, new: dict) -> list[str]:
     out = []
     if old.get("level") != new["level"]:
         out.append(f"a {old.get('level')}-level run, not {new['level']}")
+    old_data = old.get("data_sha256", {})
     for k, v in new["data_sha256"].items():
-        if old.get("data_sha256", {}).get(k) != v:
+        if k not in old_data:
+            out.append(f"no {k} (this run has it)")
+        elif old_data[k] != v:
             out.append(f"other {k}")
+    for k in old_data.keys() - new["data_sha256"].keys():
+        out.append(f"{k} (this run lacks it)")
     old_opt = old.get("options", {})
     for k, v in new["options"].items():
         if k in old_opt and old_opt[k] != v:
@@ -149,7 +154,7 @@ def differences(old: dict, new: dict) -> list[str]:
 
 #: the switches as the messages name them: the command line's flag and the Python keyword (run_contact_fit,
 #: bayestouch.fit and the command line share these checks)
-RESUME, OVERWRITE, OUT = "--resume (resume=True)", "--overwrite (overwrite=True)", "--out (out=)"
+RESUME, OVERWRITE = "--resume (resume=True)", "--overwrite (overwrite=True)"
 
 
 def prepare_run_folder(out, fp: dict, *, resume: bool, overwrite: bool = False) -> Path:
@@ -197,14 +202,14 @@ def prepare_run_folder(out, fp: dict, *, resume: bool, overwrite: bool = False) 
         if not (isinstance(old, dict) and "level" in old and "options" in old) and resume:
             raise BadInput(
                 f"{RESUME}: {path} is damaged (not a run fingerprint), so nothing shows the run in {out} was made "
-                f"with these data and options; {OVERWRITE} to start it again, or choose another {OUT}"
+                f"with these data and options; {OVERWRITE} to start it again, or choose another folder"
             )
     if resume and old is None and (held or (out / "smc.npz").exists()):
         # a run without its fingerprint: nothing shows it was made with these data and options (continuing it
         # with other data reported the old object's shape, exit 0)
         raise BadInput(
             f"{RESUME}: {out} holds a run ({', '.join(held) or 'smc.npz'}) but no {FINGERPRINT_FILE}, so nothing "
-            f"shows it was made with these data and options; {OVERWRITE} to start it again, or choose another {OUT}"
+            f"shows it was made with these data and options; {OVERWRITE} to start it again, or choose another folder"
         )
     if resume and not held and not (out / "smc.npz").exists():
         print(f"bayestouch: --resume: {out} holds no run yet; starting one", file=sys.stderr)
@@ -213,7 +218,7 @@ def prepare_run_folder(out, fp: dict, *, resume: bool, overwrite: bool = False) 
         if diff:
             raise BadInput(
                 f"{RESUME}: {out} holds a run made with {'; '.join(diff)}; resume it with its own data and "
-                f"options, or choose another {OUT} (or {OVERWRITE} to replace it)"
+                f"options, or choose another folder (or {OVERWRITE} to replace it)"
             )
     elif not resume and (held or started):
         if not overwrite:

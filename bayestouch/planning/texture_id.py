@@ -33,7 +33,7 @@ from bayestouch.inference.texture_posterior import (
 from bayestouch.io.device_file import DeviceCalibration
 from bayestouch.io.files import write_text
 from bayestouch.physics.plate_strokes import known_finger, record_plate_stroke
-from bayestouch.physics.virtual import VirtualFinger, load_finger
+from bayestouch.physics.virtual import VirtualFinger, finger_name, load_finger
 from bayestouch.planning.eig import eig_pairwise
 from bayestouch.planning.experiment import ResultsFile, run_tasks, wilson_interval
 from bayestouch.scene.objects import SceneObject
@@ -45,6 +45,7 @@ __all__ = [
     "IdSettings",
     "record_stroke",
     "run_trial",
+    "check_calibration",
     "run_experiment",
     "summarise",
     "plot_accuracy",
@@ -398,6 +399,21 @@ def plot_accuracy(summary: dict, path) -> Path:
     return path
 
 
+def check_calibration(calibration: DeviceCalibration | None, mode: str, seed: int) -> None:
+    """Refuse (:class:`BadInput`) a device file made in another taxel ``mode`` or on another finger than the
+    simulated one that ``seed`` draws (when the file names its finger)."""
+    if calibration is None:
+        return
+    if calibration.mode != mode:
+        raise BadInput(f"--calibration: made in the {calibration.mode} taxel mode, not --mode {mode}")
+    calibrated, simulated = calibration.info.get("finger"), finger_name(int(seed))
+    if calibrated and str(calibrated) != simulated:
+        raise BadInput(
+            f"--calibration: made on {calibrated}; the strokes are simulated on {simulated} (--seed {seed}): "
+            "expected the device file of that finger"
+        )
+
+
 def run_experiment(
     out,
     *,
@@ -444,10 +460,9 @@ def run_experiment(
         raise BadInput(f"--trials and --max-strokes must be ≥ 1, got {trials} and {max_strokes}")
     lib = load_library(library).subset(textures)
     settings = settings.check()
+    check_calibration(calibration, settings.mode, seed)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    if calibration is not None and calibration.mode != settings.mode:
-        raise BadInput(f"--calibration: made in the {calibration.mode} taxel mode, not --mode {settings.mode}")
     vf = load_finger(seed=int(seed))
     device = host_device(calibration=calibration)
     surfs = lib.surfaces()

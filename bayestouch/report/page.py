@@ -108,9 +108,15 @@ def write_report(
         ``out/report.html`` exists and ``overwrite`` is false.
     """
     check_bool(overwrite, "overwrite")
+    _check_page(title, intro, sections, files)
     out = Path(out)
-    if not overwrite and (out / "report.html").exists():
-        raise BadInput(f"write_report: {out / 'report.html'} exists; pass overwrite=True to replace it")
+    if not out.is_dir():
+        raise BadInput(f"write_report: out {out} is not a folder; expected the run folder that holds the figures")
+    page_path = out / "report.html"
+    if page_path.is_dir():
+        raise BadInput(f"write_report: {page_path} is a folder; expected a file name free for the page")
+    if not overwrite and page_path.exists():
+        raise BadInput(f"write_report: {page_path} exists; pass overwrite=True to replace it")
     parts = [f"<h1>{html.escape(title)}</h1>", '<div id="broken"></div>', intro]
     for heading, items in sections:
         parts.append(f"<h2>{html.escape(heading)}</h2>")
@@ -136,7 +142,37 @@ def write_report(
         f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title>'
         f"<style>{_STYLE}</style><script>{_SCRIPT}</script></head>\n<body>\n" + "\n".join(parts) + "\n</body></html>\n"
     )
-    return write_text(out / "report.html", page)
+    return write_text(page_path, page)
+
+
+def _check_page(title, intro, sections, files) -> None:
+    """Refuse (:class:`BadInput`, one line) a title or intro that is not text, files that are not names, sections
+    not in the form ``[(heading, [Table | Figure | str, ...]), ...]``, and a table row longer or shorter than its
+    header."""
+    for name, value in (("title", title), ("intro", intro)):
+        if not isinstance(value, str):
+            raise BadInput(f"write_report: {name} must be a str, got {type(value).__name__}")
+    if files is not None and not (isinstance(files, list | tuple) and all(isinstance(f, str) for f in files)):
+        raise BadInput("write_report: files must be a list of file names (str) in out")
+    if not isinstance(sections, list | tuple):
+        raise BadInput(f"write_report: sections must be a list of (heading, items), got {type(sections).__name__}")
+    for k, sec in enumerate(sections):
+        if not (isinstance(sec, list | tuple) and len(sec) == 2 and isinstance(sec[0], str)):
+            raise BadInput(f"write_report: sections[{k}] must be a (heading, items) pair, got {sec!r:.60}")
+        if not isinstance(sec[1], list | tuple):
+            raise BadInput(f"write_report: sections[{k}] items must be a list, got {type(sec[1]).__name__}")
+        for it in sec[1]:
+            if isinstance(it, Table):
+                bad = [i for i, row in enumerate(it.rows) if len(row) != len(it.header)]
+                if bad:
+                    raise BadInput(
+                        f"write_report: table {it.caption!r} row {bad[0]} has {len(it.rows[bad[0]])} cells for "
+                        f"{len(it.header)} columns"
+                    )
+            elif not isinstance(it, Figure | str):
+                raise BadInput(
+                    f"write_report: sections[{k}] holds a {type(it).__name__}; expected Table, Figure or str"
+                )
 
 
 class BrowserCheck(NamedTuple):

@@ -202,7 +202,7 @@ def calibrate_device(recording, obj, *, models=MODELS, object_name: str | None =
         "recording": dataset_digest(ds).hex(),
         "strokes": int(np.unique(si[data.frames]).size),
         "frames": int(len(data.frames)),
-        **({"finger": str(ds.attrs["finger"])} if "finger" in ds.attrs else {}),
+        **({"finger": str(ds.attrs["finger"])} if str(ds.attrs.get("finger", "")).strip() else {}),
     }
     if identified:
         return DeviceCalibration(log_gain, log_gain_sd, k, mode, info, 1.0 + b, b_sd)

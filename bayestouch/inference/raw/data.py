@@ -301,7 +301,7 @@ def recording_mode(ds, where: str, calibration: DeviceCalibration | None = None)
     if calibration is not None and calibration.mode != mode:
         raise BadInput(f"calibration: made in the {calibration.mode} taxel mode; {where} is in the {mode} mode")
     recorded, calibrated = ds.attrs.get("finger"), None if calibration is None else calibration.info.get("finger")
-    if recorded is not None and calibrated is not None and str(recorded) != str(calibrated):
+    if str(recorded or "").strip() and str(calibrated or "").strip() and str(recorded) != str(calibrated):
         raise BadInput(
             f"calibration: made on {calibrated!s}; {where} was recorded by {recorded!s} (each finger's taxel gains "
             "are its own: expected the device file calibrated on the finger that made the recording)"
