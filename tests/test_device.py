@@ -721,3 +721,22 @@ def test_cli_run_interrupted_keeps_the_complete_strokes(device, tmp_path, capsys
     assert "interrupted; 1 complete stroke(s) written" in err and "journal" in err
     ds = read_recording(out)
     assert ds.attrs["incomplete"] == "true" and ds["taxel_current"].shape[0] == 30
+
+
+def test_the_virtual_finger_names_its_unit_in_the_handshake(tmp_path):
+    """A model that knows its finger (ForwardModel: "virtual finger N") is named in HELLO_REPLY's firmware
+    string, and the client reads it back; a model without one (the control) leaves the plain firmware name."""
+    from bayestouch.hardware.device import finger_of
+
+    for name in ("virtual finger 9", None):
+        model = Recorded()
+        if name:
+            model.finger = name
+        link = tmp_path / f"finger{name is None}"
+        with VirtualDevice(model, speed=0.0, link=link) as sim:
+            sim.start()
+            dev = FingerDevice(str(link), journal=tmp_path / f"j{name is None}").open()
+            try:
+                assert finger_of(dev.info.firmware) == name
+            finally:
+                dev.close()

@@ -197,3 +197,22 @@ def test_resume_differences_name_which_object_each_run_has():
     edited = fingerprint("experiment", {"object sphere": b"s2"}, {"seed": 0})
     assert differences(old, edited) == ["other object sphere"]
     assert differences(old, old) == []
+
+
+def test_a_device_that_names_its_unit_names_the_recording():
+    """The handshake's firmware string may end in "; finger=ID" (PROTOCOL.md §4): device-run recordings then name
+    their finger, so a device file of another finger is refused for them too; a device that names none (the
+    control) leaves the recording unnamed, and a named but empty ID names nothing."""
+    from bayestouch.hardware import protocol as pr
+    from bayestouch.hardware.device import build_recording, finger_of
+
+    assert finger_of("bayestouch-virtual-1; finger=virtual finger 4") == "virtual finger 4"
+    assert finger_of("bayestouch-virtual-1") is None and finger_of("fw; finger= ") is None
+    uv = np.zeros((4, 2))
+
+    def hello(fw):
+        return pr.HelloReply(1, pr.PROTOCOL_VERSION, fw, 2, 2, 50.0, 0.2, 393.0, 1.0, 1.0, 1000, uv, np.zeros(4, int))
+
+    named = build_recording([], hello("bayestouch-virtual-1; finger=virtual finger 4"))
+    assert named.attrs["finger"] == "virtual finger 4"
+    assert "finger" not in build_recording([], hello("bayestouch-virtual-1")).attrs

@@ -9,6 +9,7 @@ strokes: ``docs/hardware.md``.
 
 from __future__ import annotations
 
+import re
 import time
 from pathlib import Path
 from typing import NamedTuple
@@ -37,6 +38,7 @@ __all__ = [
     "FingerDevice",
     "DeviceError",
     "HeaterFault",
+    "finger_of",
     "StrokeData",
     "read_journal",
     "strokes_to_frames",
@@ -202,10 +204,23 @@ def strokes_to_frames(strokes: list[StrokeData]) -> dict[str, np.ndarray]:
     return {k: np.concatenate(v) for k, v in cols.items()}
 
 
+def finger_of(firmware: str) -> str | None:
+    """The unit a device names in its HELLO_REPLY firmware string (``"...; finger=ID"``, PROTOCOL.md §4), or None."""
+    m = re.search(r";\s*finger=(.+)$", str(firmware))
+    return m.group(1).strip() or None if m else None
+
+
 def build_recording(strokes: list[StrokeData], info: pr.HelloReply, attrs: dict | None = None):
-    """The ``xarray.Dataset`` of :mod:`bayestouch.io.recording` (the schema of ``bayestouch simulate``)."""
+    """The ``xarray.Dataset`` of :mod:`bayestouch.io.recording` (the schema of ``bayestouch simulate``); the finger the
+    device names in its handshake is the recording's ``finger`` attribute."""
     uv = np.asarray(info.taxel_uv, float)
-    a = {"device_firmware": info.firmware, "protocol_version": info.protocol, **(attrs or {})}
+    named = finger_of(info.firmware)
+    a = {
+        "device_firmware": info.firmware,
+        "protocol_version": info.protocol,
+        **({"finger": named} if named else {}),
+        **(attrs or {}),
+    }
     return build_dataset(
         strokes_to_frames(strokes), uv[:, 0], uv[:, 1], np.asarray(info.reference), [s.plan.depth for s in strokes], a
     )

@@ -22,7 +22,7 @@ from bayestouch.hardware.safety import (
     steady_wire_temperature,
 )
 from bayestouch.params import MODELS
-from bayestouch.physics.virtual import load_finger, record_strokes
+from bayestouch.physics.virtual import finger_name, load_finger, record_strokes
 from bayestouch.scene.raycast import CONTACT, INSIDE, MISS, true_ray_distances
 from bayestouch.scene.strokes import stroke_from_path
 
@@ -99,6 +99,7 @@ class ForwardModel:
     def __init__(self, obj, models: Path | None = None, seed: int = 0, mode: str | None = None):
         self.obj, self.seed, self.mode, self.pose_sd = obj, int(seed), mode, 3e-4
         self.vf = load_finger(Path(models or MODELS), seed=seed)
+        self.finger = finger_name(seed)  # its identity, as simulated recordings of this finger name it
         grid = np.asarray(self.vf.finger.grid)
         self.rows, self.cols = grid.shape[:2]
         self.taxel_uv = grid.reshape(-1, 2)

@@ -352,7 +352,7 @@ class VirtualDevice:
                 pr.HelloReply(
                     seq,
                     pr.PROTOCOL_VERSION,
-                    self.firmware,
+                    self.firmware + (f"; finger={m.finger}" if getattr(m, "finger", None) else ""),
                     m.rows,
                     m.cols,
                     self.rate,
