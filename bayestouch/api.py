@@ -89,6 +89,8 @@ class Fit:
             state += f", MULTIMODAL ({len(d['modes'])} shapes)"
         if d.get("misfit"):
             state += ", MISFIT"
+        if d.get("noise_large"):
+            state += ", NOISE ~ SIZE"
         return (
             f"<bayestouch.Fit {self.results['model'].get('level', '?')} level: volume {v['mean'] * 1e6:.3f} ± "
             f"{v['sd'] * 1e6:.3f} cm³, {state}, {len(self.warnings)} warning(s); {self.folder}>"
@@ -110,6 +112,12 @@ class Fit:
         data's, or an object outside the model's family; ``results["diagnostics"]["residual_neighbour_correlation"]``
         holds the statistic, ``docs/contact_model.md`` the method). False where the check does not apply."""
         return bool(self.results["diagnostics"].get("misfit", False))
+
+    @property
+    def noise_large(self) -> bool:
+        """Whether the noise scale σ is above 5 % of the smallest semi-axis (posterior medians), where the distance
+        likelihood's intervals are too narrow (``docs/sbc.md``). False where the check does not apply."""
+        return bool(self.results["diagnostics"].get("noise_large", False))
 
     @property
     def warnings(self) -> list[str]:

@@ -115,3 +115,28 @@ def test_data_sets_carry_the_priors_outliers_and_noise():
         assert np.all(np.abs(d[sig == 0]) < tol)
         assert np.all(d[sig > 0] > 0) and np.all(d[sig < 0] < 0)
     assert all(len(s["free"]) > 0 for s in sets)
+
+
+def test_local_mode_check_accepts_the_truth_and_rejects_a_wrong_one():
+    """A data set with noise 0.03 % of its smallest semi-axis: the truth sits within ½χ²₁₃ of its local mode; the
+    same truth with σ a quarter of it (a truth the data did not come from, the negative control) is rejected."""
+    s = sb.make_sbc_set(4)
+    got = sb.local_mode_gap(s)
+    assert got["noise_ratio"] < 1e-3
+    assert got["local_gap_p"] > 1e-3 and 0 <= got["local_gap"] < 20
+    wrong = {**s, "theta": {**s["theta"], "sigma": 0.25 * s["theta"]["sigma"]}}
+    bad = sb.local_mode_gap(wrong)
+    assert bad["local_gap_p"] < 1e-6 and bad["local_gap"] > got["local_gap"] + 10
+
+
+def test_noise_bands_split_coverage_and_the_local_check():
+    rows = []
+    for k, (ratio, rank, p) in enumerate([(5e-4, 50, 0.5), (5e-4, 0, 0.5), (0.2, 99, 0.001), (0.2, 40, 0.01)]):
+        row = {"seed": k, "noise_ratio": ratio, "local_gap_p": p, "local_gap": 3.0}
+        row |= {f"rank_{q}": rank for q in sb.QUANTITIES}
+        rows.append(row)
+    bands = sb.noise_bands(rows)["bands"]
+    low, high = bands[0], bands[-1]
+    assert (low["sets"], low["coverage_90_volume"], low["local_gap_rejected_5pct"]) == (2, 0.5, 0.0)
+    assert (high["sets"], high["coverage_90_volume"], high["local_gap_rejected_5pct"]) == (2, 0.5, 1.0)
+    assert bands[1]["sets"] == bands[2]["sets"] == 0 and bands[1]["coverage_90_volume"] is None

@@ -435,6 +435,11 @@ def _run_fit(args) -> int:
             f"MISFIT: neighbouring contacts' residuals correlate (rank rho {rc['rho']:.2f}): the shape does not "
             "explain the contacts as noise; the intervals above are not to be trusted"
         )
+    if d.get("noise_large"):
+        print(
+            f"NOISE: σ is {100 * d['noise_to_smallest_axis']:.0f} % of the smallest semi-axis: the distance "
+            "likelihood is an approximation there and the intervals above are too narrow"
+        )
     for w in d.get("warnings", []):
         print(f"bayestouch fit: warning: {w}", file=sys.stderr)
     return 0
