@@ -7,6 +7,7 @@ turns it into that line on stderr and exit code 2, never a traceback.
 from __future__ import annotations
 
 import os
+import stat
 
 import numpy as np
 
@@ -27,9 +28,14 @@ def check_bool(value, name: str) -> None:
 
 def file_problem(path: str | os.PathLike[str]) -> str:
     """Why ``path`` cannot be read as a file, in a few words for a one-line message ("no such file", "is a folder,
-    not a file", "is not a regular file"), or ``""`` when it is a regular file."""
-    if os.path.isfile(path):
+    not a file", "is not a regular file", the system's reason such as "file name too long"), or ``""`` when it is a
+    regular file."""
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        return "no such file"
+    except OSError as e:  # a name too long for the file system, a link loop, no permission
+        return (e.strerror or type(e).__name__).lower()
+    if stat.S_ISREG(mode):
         return ""
-    if os.path.isdir(path):
-        return "is a folder, not a file"
-    return "is not a regular file" if os.path.exists(path) else "no such file"
+    return "is a folder, not a file" if stat.S_ISDIR(mode) else "is not a regular file"
