@@ -23,7 +23,6 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import minimize
 
 from benchmarks import bench_sbc_users as su
 
@@ -56,19 +55,7 @@ def compare_modes(seed: int) -> dict:
     from bayestouch.inference.run import run_contact_fit
 
     s = su.make_sbc_set(seed)
-    f, bounds = cm.make_log_prob(s["points"], su.sbc_priors(), noise="outlier", free=s["free"])
-    lo, hi = np.asarray(bounds.lower, float), np.asarray(bounds.upper, float)
-    d = lo.size
-    box = [(None, None) if j in cm.ANGLE_COLUMNS else (lo[j], hi[j]) for j in range(d)]
-
-    def fg(x):
-        lp, ll, glp, gll = f.parts(np.asarray(x, float)[None])
-        v = float(lp[0] + ll[0])
-        return (-v, -(glp[0] + gll[0])) if np.isfinite(v) else (1e300, np.zeros(d))
-
-    def polish(x0):
-        return minimize(fg, x0, jac=True, method="L-BFGS-B", bounds=box, options={"maxiter": 2000}).x
-
+    log_post, polish = su.posterior_climb(s)
     truth = np.asarray(cm.wrap_angles(su.truth_theta(s)), float)
     truth_mode = polish(truth)
     with tempfile.TemporaryDirectory(prefix="bt-sbc-modes-") as tmp:
@@ -99,11 +86,11 @@ def compare_modes(seed: int) -> dict:
     dg = summary["diagnostics"]
     return {
         "seed": seed,
-        "truth": -fg(truth)[0],
-        "truth_mode": -fg(truth_mode)[0],
+        "truth": log_post(truth),
+        "truth_mode": log_post(truth_mode),
         "fit_best_draw": float(lp[i]),
-        "fit_mode": -fg(fit_mode)[0],
-        "fit_minus_truth_mode": -fg(fit_mode)[0] + fg(truth_mode)[0],
+        "fit_mode": log_post(fit_mode),
+        "fit_minus_truth_mode": log_post(fit_mode) - log_post(truth_mode),
         "by_group_fit_minus_truth_mode": {k: float(ll_f[v].sum() - ll_t[v].sum()) for k, v in groups.items()},
         "converged": bool(dg["converged"]),
         "multimodal": bool(dg.get("multimodal", False)),

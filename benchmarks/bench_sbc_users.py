@@ -59,6 +59,7 @@ __all__ = [
     "posterior_invariants",
     "truth_theta",
     "local_mode_gap",
+    "posterior_climb",
     "NOISE_BANDS",
     "noise_bands",
     "thinned_draws",
@@ -210,6 +211,35 @@ def truth_theta(s) -> np.ndarray:
     )
 
 
+def posterior_climb(s):
+    """The log-posterior that ``run_contact_fit`` samples for data set ``s`` (outlier noise, free space, the size
+    prior) and an L-BFGS-B climb on it.
+
+    Returns
+    -------
+    log_post : callable
+        θ (13,) → log-posterior (nats; −inf outside the prior).
+    climb : callable
+        θ₀ (13,) → the local mode reached from θ₀ (the angles unbounded, the rest inside the prior's box).
+    """
+    from bayestouch.inference import contact as cm
+
+    f, bounds = cm.make_log_prob(s["points"], sbc_priors(), noise="outlier", free=s["free"])
+    lo, hi = np.asarray(bounds.lower, float), np.asarray(bounds.upper, float)
+    d = lo.size
+    box = [(None, None) if j in cm.ANGLE_COLUMNS else (lo[j], hi[j]) for j in range(d)]
+
+    def fg(x):
+        lp, ll, glp, gll = f.parts(np.asarray(x, float)[None])
+        v = float(lp[0] + ll[0])
+        return (-v, -(glp[0] + gll[0])) if np.isfinite(v) else (1e300, np.zeros(d))
+
+    def climb(x0):
+        return minimize(fg, np.asarray(x0, float), jac=True, method="L-BFGS-B", bounds=box, options={"maxiter": 2000}).x
+
+    return (lambda x: -fg(x)[0]), climb
+
+
 def local_mode_gap(s) -> dict:
     """How far the truth lies below the mode of its own neighbourhood on the fit's log-posterior, without a fit.
 
@@ -226,20 +256,10 @@ def local_mode_gap(s) -> dict:
     """
     from bayestouch.inference import contact as cm
 
-    f, bounds = cm.make_log_prob(s["points"], sbc_priors(), noise="outlier", free=s["free"])
+    log_post, climb = posterior_climb(s)
     x0 = np.asarray(cm.wrap_angles(truth_theta(s)), float)
-    lo, hi = np.asarray(bounds.lower, float), np.asarray(bounds.upper, float)
+    gap = max(0.0, log_post(climb(x0)) - log_post(x0))
     d = x0.size
-    box = [(None, None) if j in cm.ANGLE_COLUMNS else (lo[j], hi[j]) for j in range(d)]
-
-    def fg(x):
-        lp, ll, glp, gll = f.parts(np.asarray(x, float)[None])
-        v = float(lp[0] + ll[0])
-        return (-v, -(glp[0] + gll[0])) if np.isfinite(v) else (1e300, np.zeros(d))
-
-    start = -fg(x0)[0]
-    res = minimize(fg, x0, jac=True, method="L-BFGS-B", bounds=box, options={"maxiter": 2000})
-    gap = max(0.0, float(-res.fun) - start)
     return {
         "local_gap": gap,
         "local_gap_p": float(chi2.sf(2.0 * gap, d)),
