@@ -770,7 +770,8 @@ class FingerDevice:
                 if reason == 3:
                     raise DeviceError(
                         f"{self.url}: stroke {sid} aborted by the device: contact force over "
-                        f"{self.limits.max_force:g} N"
+                        f"{self.limits.max_force:g} N (the pad pressed deeper than planned: is the object where the "
+                        "plan says, and does each normal point out of it?)"
                     )
                 if reason != 0:
                     return None  # watchdog or abort: the stroke is incomplete, run it again
