@@ -148,7 +148,7 @@ def _objects(d: dict) -> tuple[str, str, str]:
         f"{ch(s)}, GPIS {ch(g)} (target ≤ 0.8 × the better peer: {0.8 * best:.3f}). 90 % volume intervals hold the "
         f"truth in {cov(b)} (default) and {cov(p)} (parts; {chosen}); converged {b['converged']}/{b['sets']} and "
         f"{p['converged']}/{p['sets']}. Median {b['seconds']['median']:.0f} s (default) and "
-        f"{p['seconds']['median']:.0f} s (parts) a set, two sets at once on 2 cores",
+        f"{p['seconds']['median']:.0f} s (parts) a set, one set at a time on a shared 2-core machine",
         "`bench_objects` (`benchmarks/results/objects.json`)",
     )
 
