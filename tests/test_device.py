@@ -734,7 +734,7 @@ def test_the_virtual_finger_names_its_unit_in_the_handshake(tmp_path):
             model.finger = name
         link = tmp_path / f"finger{name is None}"
         with VirtualDevice(model, speed=0.0, link=link) as sim:
-            sim.start()
+            assert sim.start() is sim and sim.stats is not None  # a second start serves on, without a second thread
             dev = FingerDevice(str(link), journal=tmp_path / f"j{name is None}").open()
             try:
                 assert finger_of(dev.info.firmware) == name

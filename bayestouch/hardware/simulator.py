@@ -245,9 +245,12 @@ class VirtualDevice:
         self._master = self._slave = None
 
     def start(self) -> VirtualDevice:
-        """Start serving (opens the pty first if needed)."""
+        """Start serving (opens the pty first if needed); a device already serving is left as it is (a second
+        thread would read the pty after the first one's close)."""
         if self.model is None:
             raise ValueError("VirtualDevice.start: no frame model set")
+        if self._thread is not None and self._thread.is_alive():
+            return self
         if self._master is None:
             self.open()
         self._last_rx = time.monotonic()
