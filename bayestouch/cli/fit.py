@@ -83,9 +83,11 @@ def add_parser(sub) -> argparse.ArgumentParser:
         "--budget",
         type=float,
         default=None,
-        help="wall-clock budget of the fit (search, sampling and outputs), seconds (default: 60 for contact points, "
-        "180 with --parts, none for a recording; 0 for none); the chain runs at least 200 steps; a run stopped by "
-        "it is reported as not converged and can be continued with --resume",
+        help="wall-clock budget of the fit, seconds (default: 60 for contact points, 180 with --parts, none for a "
+        "recording; 0 for none): for contact points it covers search, sampling and outputs; for a recording it ends "
+        "the sampling, and the search before it and the outputs after it add their time (tens of seconds); the "
+        "chain runs at least 200 steps; a run stopped by it is reported as not converged and can be continued with "
+        "--resume",
     )
     fp.add_argument(
         "--noise",

@@ -360,7 +360,8 @@ def run_raw_fit(
     overwrite : bool
         Replace a run already in ``out``, which is otherwise refused.
     budget_s : float, seconds, optional
-        Stop sampling after this wall-clock time.
+        Stop sampling once this much wall-clock time has passed since the call (the search counts; the outputs
+        written after the chain add their time, tens of seconds for a textured fit).
     stride : int, optional
         Frame stride of :func:`load_raw_data`; default :data:`TEXTURE_STRIDE` when the texture is modelled,
         :data:`BARE_STRIDE` otherwise. The bare shape's first stage uses at most :data:`BARE_STRIDE`.
