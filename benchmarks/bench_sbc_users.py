@@ -464,17 +464,17 @@ def noise_bands(rows: list[dict]) -> dict:
     p_gap = np.array([float(r["local_gap_p"]) for r in rows])
     gaps = np.array([float(r["local_gap"]) for r in rows])
     ranks = _ranks(rows, "rank")
-    inside = (ranks >= round(0.05 * (DRAWS + 1))) & (ranks <= DRAWS - round(0.05 * (DRAWS + 1)))
     vol = QUANTITIES.index("volume")
     bands = []
     for lo, hi in zip(NOISE_BANDS[:-1], NOISE_BANDS[1:], strict=True):
         m = (ratio >= lo) & (ratio < hi)
+        cov = sbc.coverage_of(ranks[m], DRAWS)[0] if m.any() else None
         bands.append(
             {
                 "ratio": [lo, hi if math.isfinite(hi) else None],  # JSON has no infinity
                 "sets": int(m.sum()),
-                "coverage_90_volume": float(inside[m, vol].mean()) if m.any() else None,
-                "coverage_90_pooled": float(inside[m].mean()) if m.any() else None,
+                "coverage_90_volume": float(cov[vol]) if m.any() else None,
+                "coverage_90_pooled": float(cov.mean()) if m.any() else None,
                 "local_gap_rejected_5pct": float(np.mean(p_gap[m] < 0.05)) if m.any() else None,
                 "local_gap_median": float(np.median(gaps[m])) if m.any() else None,
             }

@@ -233,7 +233,7 @@ def _check_stroke_geometry(plans, where: str) -> None:
     """Refuse strokes whose contacts are not in metres or whose normals point into the object, as a contact file's
     are refused (the safety check would call millimetres "beyond ±10 m" or a speed limit, and would press an
     inward-normal stroke from inside the object); shapes and finiteness are left to the safety check."""
-    from bayestouch.io.contacts import MM_MAX_ABS_M, MM_MAX_DIAGONAL_M, check_normals_outward, unit_hint
+    from bayestouch.io.contacts import check_normals_outward, unit_problem
 
     good = [
         p for p in plans if p.contact.ndim == 2 and p.contact.shape[1:] == (3,) and p.normal.shape == p.contact.shape
@@ -244,11 +244,8 @@ def _check_stroke_geometry(plans, where: str) -> None:
     normal = np.vstack([p.normal for p in good])
     if not (np.all(np.isfinite(contact)) and np.all(np.isfinite(normal))):
         return
-    max_abs = float(np.max(np.abs(contact)))
-    with np.errstate(over="ignore", invalid="ignore"):
-        diagonal = float(np.linalg.norm(np.ptp(contact, axis=0)))
-    if max_abs > MM_MAX_ABS_M or diagonal > MM_MAX_DIAGONAL_M:
-        raise BadInput(f"{where}: the strokes' contact points {unit_hint(max_abs, diagonal)}")
+    if hint := unit_problem(contact):
+        raise BadInput(f"{where}: the strokes' contact points {hint}")
     check_normals_outward(contact, normal, f"{where}: normal", fix="negate every stroke's normal")
 
 

@@ -42,6 +42,7 @@ __all__ = [
     "save_contact_points",
     "MM_MAX_ABS_M",
     "unit_hint",
+    "unit_problem",
     "MM_MAX_DIAGONAL_M",
     "MIN_DIAGONAL_M",
     "MIN_NORMAL_LENGTH",
@@ -158,6 +159,19 @@ def unit_hint(max_abs: float, diagonal: float) -> str:
         f"look like {names} (largest |value| {_num(max_abs)}, bounding-box diagonal {_num(diagonal)}); "
         f"give metres ({how})"
     )
+
+
+def unit_problem(points) -> str:
+    """What is wrong with the unit of coordinates ``points (N, 3)`` (finite) read as metres: :func:`unit_hint` when
+    their largest absolute value exceeds :data:`MM_MAX_ABS_M` or their bounding-box diagonal
+    :data:`MM_MAX_DIAGONAL_M`, else ``""``."""
+    p = np.asarray(points, dtype=float)
+    max_abs = float(np.max(np.abs(p)))
+    with np.errstate(over="ignore", invalid="ignore"):  # values near 1e308: the span overflows, and is refused
+        diagonal = float(np.linalg.norm(np.ptp(p, axis=0)))
+    if max_abs > MM_MAX_ABS_M or diagonal > MM_MAX_DIAGONAL_M:
+        return unit_hint(max_abs, diagonal)
+    return ""
 
 
 def check_normals_outward(
@@ -416,14 +430,9 @@ def _contacts_from_records(header: list[str], records, source: str, min_points: 
 
     # a file in millimetres is in millimetres throughout: free positions count too
     every = points if free is None else np.vstack([points, free])
-    max_abs = float(np.max(np.abs(every)))
-    with np.errstate(over="ignore", invalid="ignore"):  # values near 1e308: the span overflows, and is refused
-        diagonal = float(np.linalg.norm(np.ptp(every, axis=0)))
-    if max_abs > MM_MAX_ABS_M or diagonal > MM_MAX_DIAGONAL_M:
+    if hint := unit_problem(every):
         raise file_error(
-            source,
-            f"x,y,z {unit_hint(max_abs, diagonal)}, within ±{MM_MAX_ABS_M} m and a bounding-box diagonal "
-            f"≤ {MM_MAX_DIAGONAL_M} m",
+            source, f"x,y,z {hint}, within ±{MM_MAX_ABS_M} m and a bounding-box diagonal ≤ {MM_MAX_DIAGONAL_M} m"
         )
     with np.errstate(over="ignore", invalid="ignore"):
         span = float(np.linalg.norm(np.ptp(points, axis=0)))

@@ -52,6 +52,7 @@ __all__ = [
     "DeviceCalibration",
     "write_device_file",
     "read_device_file",
+    "check_same_finger",
     "device_calibration",
     "device_file_text",
 ]
@@ -191,6 +192,23 @@ def _check_known(doc: dict, where: str) -> None:
         extra = [k for k in tab if k not in keys] if isinstance(tab, dict) else []
         if extra:
             raise BadInput(f"{where}: [{table}] unknown key(s) {', '.join(extra)}; expected {', '.join(keys)}")
+
+
+def check_same_finger(
+    calibration: DeviceCalibration | None, finger, source: str, *, field: str = "calibration", note: str = ""
+) -> None:
+    """Refuse (:class:`BadInput`) a device file calibrated on another finger than ``finger`` (the name a recording
+    carries, or the simulated finger's), where both name one (a blank name names none).
+
+    ``source`` says whose finger ``finger`` is ("REC.nc was recorded by"), ``field`` names the device file in the
+    message and ``note`` follows the name (" (--seed 0)")."""
+    calibrated = str((calibration.info.get("finger") if calibration is not None else None) or "").strip()
+    actual = str(finger or "").strip()
+    if calibrated and actual and calibrated != actual:
+        raise BadInput(
+            f"{field}: made on {calibrated}; {source} {actual}{note} (each finger's taxel gains are its own: expected "
+            "the device file calibrated on that finger)"
+        )
 
 
 def read_device_file(path, n_taxels: int | None = None) -> DeviceCalibration:

@@ -30,7 +30,7 @@ from bayestouch.inference.texture_posterior import (
     texture_means,
     update_posterior,
 )
-from bayestouch.io.device_file import DeviceCalibration
+from bayestouch.io.device_file import DeviceCalibration, check_same_finger
 from bayestouch.io.files import write_text
 from bayestouch.physics.plate_strokes import known_finger, record_plate_stroke
 from bayestouch.physics.virtual import VirtualFinger, finger_name, load_finger
@@ -406,12 +406,10 @@ def check_calibration(calibration: DeviceCalibration | None, mode: str, seed: in
         return
     if calibration.mode != mode:
         raise BadInput(f"--calibration: made in the {calibration.mode} taxel mode, not --mode {mode}")
-    calibrated, simulated = calibration.info.get("finger"), finger_name(int(seed))
-    if calibrated and str(calibrated) != simulated:
-        raise BadInput(
-            f"--calibration: made on {calibrated}; the strokes are simulated on {simulated} (--seed {seed}): "
-            "expected the device file of that finger"
-        )
+    simulated = finger_name(int(seed))
+    check_same_finger(
+        calibration, simulated, "the strokes are simulated on", field="--calibration", note=f" (--seed {seed})"
+    )
 
 
 def run_experiment(

@@ -14,7 +14,7 @@ import numpy as np
 from bayestouch.backend import jax, jnp
 from bayestouch.errors import BadInput, file_problem
 from bayestouch.inference.raw.priors import RESPONSE_SCALE_SD
-from bayestouch.io.device_file import DeviceCalibration
+from bayestouch.io.device_file import DeviceCalibration, check_same_finger
 from bayestouch.io.recording import check_recording, read_recording
 from bayestouch.params import MODELS
 from bayestouch.physics import forward as fw
@@ -300,12 +300,7 @@ def recording_mode(ds, where: str, calibration: DeviceCalibration | None = None)
         raise BadInput(f"{where}: attribute 'mode' is {mode!r}, expected one of {tx.MODES}")
     if calibration is not None and calibration.mode != mode:
         raise BadInput(f"calibration: made in the {calibration.mode} taxel mode; {where} is in the {mode} mode")
-    recorded, calibrated = ds.attrs.get("finger"), None if calibration is None else calibration.info.get("finger")
-    if str(recorded or "").strip() and str(calibrated or "").strip() and str(recorded) != str(calibrated):
-        raise BadInput(
-            f"calibration: made on {calibrated!s}; {where} was recorded by {recorded!s} (each finger's taxel gains "
-            "are its own: expected the device file calibrated on the finger that made the recording)"
-        )
+    check_same_finger(calibration, ds.attrs.get("finger"), f"{where} was recorded by")
     return mode
 
 
