@@ -303,6 +303,25 @@ def _samplers(doc: dict) -> tuple[str, str, str]:
     )
 
 
+def _texture(doc: dict) -> tuple[str, str, str]:
+    def pick(prefix: str, calibrated: bool) -> dict:
+        return next(
+            r for r in doc["results"] if r["metric"].startswith(prefix) and ("device file" in r["metric"]) == calibrated
+        )
+
+    acc, med = pick("accuracy at decision", False), pick("median strokes to decision", False)
+    cal, cal_med = pick("accuracy at decision", True), pick("median strokes to decision", True)
+    return (
+        "Texture identification (20 library textures, random 1 cm strokes, empirical taxel mode, a 0.5 K skin-"
+        "temperature error per stroke; the identifier reads only the readings)",
+        f"accuracy at decision {acc['value']:.2f} {_ci([acc['ci95_low'], acc['ci95_high']])} (Wilson) after a median "
+        f"of {med['value']:.0f} stroke(s) with the gains unknown; {cal['value']:.2f} "
+        f"{_ci([cal['ci95_low'], cal['ci95_high']])} after {cal_med['value']:.0f} with a device file (log-gains to "
+        f"{cal['log_gain_sd_median']:.0e}). Target ≥ 0.95 within a median of 5 (Fishel & Loeb 2012)",
+        "`bench_texture` (`benchmarks/results/bench_texture.json`)",
+    )
+
+
 #: the table's rows, in order: each ``(result file, render)``; ``render`` turns the file's JSON into
 #: ``(what, figure, benchmark)``
 ROWS: tuple[tuple[str, Callable[[dict], tuple[str, str, str]]], ...] = (
@@ -318,6 +337,7 @@ ROWS: tuple[tuple[str, Callable[[dict], tuple[str, str, str]]], ...] = (
     ("bench_planners.json", _planners),
     ("bench_samplers.json", _samplers),
     ("bench_device.json", _link_loss),
+    ("bench_texture.json", _texture),
 )
 
 

@@ -11,7 +11,7 @@ from bayestouch.cli import main as cli_main
 from bayestouch.errors import BadInput
 from bayestouch.inference import texture_posterior as tp
 from bayestouch.inference.densities import student_t_logpdf
-from bayestouch.inference.raw import host_device
+from bayestouch.inference.raw import HostDevice, host_device
 from bayestouch.physics.virtual import load_finger
 from bayestouch.planning import texture_id as ti
 from bayestouch.planning.eig import eig_pairwise
@@ -251,3 +251,31 @@ def test_identifier_never_reads_the_simulated_gains(lib):
     x0, x1 = (e - e.max() for e in exact)
     assert np.max(np.abs(x0 - x1)) > 100.0
     assert np.argmax(x0) != 3 or np.argmax(x1) != 3
+
+
+def test_tight_device_file_survives_a_skin_temperature_error(lib):
+    """Issue 24: a correct device file (the simulated finger's own gains, sd 2e-4) and a per-stroke skin-temperature
+    reading error ~ N(0, 1 K²). The de-meaned reference row leaves that error in every taxel as one common offset
+    (0.065 per kelvin, against gains the file pins to 2e-4), so it must be marginalised: the truth then wins each
+    of five strokes over five textures. Negative control: the same readings with the common offset taken as known
+    (``common_offset_sd=None``, the identifier before this fix) pick a wrong texture in most strokes — while with no
+    temperature error both agree on the truth (the marginalisation costs no decision when there is nothing to
+    take out)."""
+    small = lib.subset(5)
+    surfs = small.surfaces()
+    vf = load_finger(seed=3)
+    log_gain = np.log(np.asarray(vf.finger.gains).ravel())
+    tight = HostDevice(vf.finger, np.full(log_gain.size, 2e-4), 1.0, 2e-3)
+    for temperature_sd in (1.0, 0.0):
+        st = ti.IdSettings(shift_range=0.0, temperature_sd=temperature_sd)
+        wins, old_wins = 0, 0
+        for k in range(5):
+            rng = np.random.default_rng(7 + k)
+            spec = tx.random_stroke_spec(small.base, rng)
+            data, tangent, _ = ti.record_stroke(small.object(k), spec, vf, rng, st, tight)
+            ll = tp.texture_log_likelihood(surfs, data, tight.finger, st.shifts(), tangent)
+            old = tp.texture_log_likelihood(surfs, data, tight.finger, st.shifts(), tangent, common_offset_sd=None)
+            wins += int(np.argmax(tp.stroke_evidence(ll)) == k)
+            old_wins += int(np.argmax(tp.stroke_evidence(old)) == k)
+        assert wins == 5
+        assert old_wins <= (1 if temperature_sd > 0 else 5) and (temperature_sd > 0 or old_wins == 5)

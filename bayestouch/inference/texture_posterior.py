@@ -21,6 +21,7 @@ from bayestouch.physics import noise as nz
 from bayestouch.scene.surface import Surface, signed_distance
 
 __all__ = [
+    "COMMON_OFFSET_SD",
     "read_stroke",
     "frame_whitener",
     "texture_log_likelihood",
@@ -30,6 +31,11 @@ __all__ = [
     "update_posterior",
     "batch_posterior",
 ]
+
+COMMON_OFFSET_SD = 1.0
+"""Prior sd (ln I, dimensionless) of the offset common to all taxels of a stroke that the de-meaned reference row
+leaves in the readings: a skin-temperature reading error of ΔT kelvin moves it by 0.065 ΔT (the unstrained M–S–M
+current's temperature slope, both taxel modes), the gains' nominal spread is 0.8."""
 
 
 def read_stroke(
@@ -141,20 +147,31 @@ def _predict(surf: Surface, x, data_arrays, finger, mode: str):
     return fw.log_current_from_distance(finger, signed_distance(surf, x), kernel, temp, start, lw, mode)
 
 
-def offset_projection(z, u, precision):
+def offset_projection(z, u, precision, common_precision=None):
     """Whitened standardised residuals ``z (F, M)`` with each taxel's unknown log-gain offset δ_m ~ N(0, 1/
-    ``precision_m``) taken out, and the offsets' prior term (any array module).
+    ``precision_m``), and optionally one offset c ~ N(0, 1/``common_precision``) shared by all taxels, taken out;
+    and the offsets' prior term (any array module).
 
-    A taxel whose gain is not known reads ln I + δ_m in every frame; whitened and standardised, the offset adds
-    δ_m u_m, u = L⁻¹(1/sd) (F, M). For Gaussian readings the offset's posterior mean is
-    δ̂_m = u_mᵀ z_m / (precision_m + u_mᵀ u_m) and the marginal likelihood is that of z_m − δ̂_m u_m times
-    exp(−½ precision_m δ̂_m²), up to a factor of the data alone (log(1 + u_mᵀu_m/precision_m), the same for every
-    hypothesis). Returns (z − δ̂ u (F, M), −½ Σ_m precision_m δ̂_m²)."""
-    delta = jnp.sum(u * z, axis=0) / (precision + jnp.sum(u * u, axis=0))
-    return z - delta[None] * u, -0.5 * jnp.sum(precision * delta * delta)
+    A taxel whose gain is not known reads ln I + δ_m (+ c) in every frame; whitened and standardised, the offsets
+    add (δ_m + c) u_m, u = L⁻¹(1/sd) (F, M). For Gaussian readings the offsets' joint posterior mean is, with
+    a_m = u_mᵀu_m, b_m = u_mᵀz_m and q_m = 1/(precision_m + a_m): ĉ = Σ_m precision_m q_m b_m /
+    (common_precision + Σ_m precision_m q_m a_m) (each δ_m profiled out), δ̂_m = q_m (b_m − ĉ a_m); and the
+    marginal likelihood is that of z_m − (δ̂_m + ĉ) u_m times exp(−½ (Σ_m precision_m δ̂_m² + common_precision ĉ²)),
+    up to a factor of the data alone (the posterior precision's determinant, the same for every hypothesis).
+    Returns (z − (δ̂ + ĉ) u (F, M), −½ (Σ_m precision_m δ̂_m² + common_precision ĉ²))."""
+    a = jnp.sum(u * u, axis=0)
+    b = jnp.sum(u * z, axis=0)
+    q = 1.0 / (precision + a)
+    if common_precision is None:
+        c, prior = 0.0, 0.0
+    else:
+        c = jnp.sum(precision * q * b) / (common_precision + jnp.sum(precision * q * a))
+        prior = -0.5 * common_precision * c * c
+    delta = q * (b - c * a)
+    return z - (delta + c)[None] * u, prior - 0.5 * jnp.sum(precision * delta * delta)
 
 
-def _ll_grid(surfs: Surface, x, arrays, y, sd, whiten, shifts, tangent, finger, mode, nu, gain_prec):
+def _ll_grid(surfs: Surface, x, arrays, y, sd, whiten, shifts, tangent, finger, mode, nu, gain_prec, common_prec):
     u = whiten @ (1.0 / sd)
 
     def one_texture(tex):
@@ -165,7 +182,7 @@ def _ll_grid(surfs: Surface, x, arrays, y, sd, whiten, shifts, tangent, finger, 
             z = whiten @ jnp.where(jnp.isfinite(pred), (y - pred) / sd, 1e6)
             if gain_prec is None:
                 return jnp.sum(student_t_logpdf(z, 1.0, nu))
-            z, prior = offset_projection(z, u, gain_prec)
+            z, prior = offset_projection(z, u, gain_prec, common_prec)
             return jnp.sum(student_t_logpdf(z, 1.0, nu)) + prior
 
         return jax.vmap(one_shift)(shifts)
@@ -186,6 +203,7 @@ def texture_log_likelihood(
     nu: float = 4.0,
     noise_scale: float = 1.0,
     correlated: bool = True,
+    common_offset_sd: float | None = COMMON_OFFSET_SD,
 ) -> np.ndarray:
     """Log-likelihood (K, G) of one recorded stroke under every texture k and start-phase shift g.
 
@@ -196,7 +214,10 @@ def texture_log_likelihood(
     data : RawData
         From :func:`read_stroke` (commanded taxel positions, corrected ln I, its sd). When it carries each taxel's
         remaining log-gain sd (``data.gain_sd``: read with a host's device), the per-taxel offsets are taken out
-        (:func:`offset_projection`), so no hypothesis is scored with gains the host does not know.
+        (:func:`offset_projection`), so no hypothesis is scored with gains the host does not know, and with them
+        one offset common to all taxels, sd ``common_offset_sd``: the stroke mean of the reference row, which
+        :func:`read_stroke`'s de-meaning leaves out of ĉ and a skin-temperature reading error moves (0.065 per
+        kelvin; a loaded taxel's ln I depends on temperature beyond that by < 5e-6 per kelvin at 50 kPa).
     finger : Finger
         The device the predictions use (a host's: its gains do not enter the predicted ln I).
     shifts : (G,) float, metres
@@ -211,6 +232,9 @@ def texture_log_likelihood(
         Whiten the standardised residuals over frames (:func:`frame_whitener`) before the Student-t; the
         log-likelihood is then that of the whitened residuals (its Jacobian, −Σ log diag L per taxel, is the same
         for every hypothesis and left out, like the Student-t's −log s).
+    common_offset_sd : float or None
+        Prior sd of the common offset (ln I); None takes the reference row's stroke mean as known, which holds
+        only for a skin-temperature reading without error.
 
     Returns
     -------
@@ -232,6 +256,7 @@ def texture_log_likelihood(
         data.mode,
         float(nu),
         None if data.gain_sd is None else jnp.asarray(1.0 / np.asarray(data.gain_sd, float) ** 2),
+        None if data.gain_sd is None or common_offset_sd is None else jnp.asarray(1.0 / float(common_offset_sd) ** 2),
     )
     return np.asarray(out)
 
