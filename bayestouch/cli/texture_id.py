@@ -19,6 +19,7 @@ MAX_STROKES = 1_000
 
 def add_texture_parser(sub) -> argparse.ArgumentParser:
     """Register ``bayestouch texture-id`` on the ``bayestouch`` command's subparsers."""
+    from bayestouch.params import MODELS
     from bayestouch.scene.textures import LIBRARY
 
     p = sub.add_parser(
@@ -57,6 +58,14 @@ def add_texture_parser(sub) -> argparse.ArgumentParser:
         "models/noise.toml. The simulated finger's own gains are never read",
     )
     p.add_argument(
+        "--finger-models",
+        type=Path,
+        default=MODELS,
+        metavar="DIR",
+        help="parameter folder of the simulated finger (default models/); the identifier always assumes models/, "
+        "so a folder with other constants tries it on a finger that is not the one it knows",
+    )
+    p.add_argument(
         "--quiet", "--no-progress", dest="no_progress", action="store_true", help="no progress bar (or --no-progress)"
     )
     return p
@@ -65,10 +74,15 @@ def add_texture_parser(sub) -> argparse.ArgumentParser:
 def run_texture_id(args) -> int:
     """Run the experiment from parsed arguments; :class:`~bayestouch.errors.BadInput` propagates (the caller prints
     one line)."""
+    from bayestouch.errors import BadInput
     from bayestouch.io.device_file import read_device_file
     from bayestouch.io.runfolder import locked_run_folder
     from bayestouch.planning.texture_id import IdSettings, check_calibration, run_experiment
 
+    if not Path(args.finger_models).is_dir():
+        raise BadInput(
+            f"--finger-models: {args.finger_models} is not a folder (expected a parameter folder like models/)"
+        )
     calibration = None if args.calibration is None else read_device_file(args.calibration)
     check_calibration(calibration, args.mode, args.seed)  # before earlier results are set aside
     # the folder is this run's from the check of earlier results to the last output (a second run is refused)
@@ -86,6 +100,7 @@ def run_texture_id(args) -> int:
             stop_at_decision=not args.full,
             progress=not args.no_progress,
             calibration=calibration,
+            finger_models=args.finger_models,
         )
     keys = ("trials", "accuracy_at_decision", "accuracy_95ci", "median_strokes_to_decision", "decided_fraction")
     print(json.dumps({k: s[k] for k in keys}))

@@ -9,6 +9,8 @@ marginalised over a grid of G shifts (metres). Derivation and measurements: ``do
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from scipy.special import logsumexp
 
@@ -26,8 +28,12 @@ __all__ = [
     "frame_whitener",
     "texture_log_likelihood",
     "offset_projection",
+    "Nuisances",
+    "stroke_nuisances",
+    "nuisance_projection",
     "texture_means",
     "stroke_evidence",
+    "texture_evidence",
     "update_posterior",
     "batch_posterior",
 ]
@@ -171,23 +177,132 @@ def offset_projection(z, u, precision, common_precision=None):
     return z - (delta + c)[None] * u, prior - 0.5 * jnp.sum(precision * delta * delta)
 
 
-def _ll_grid(surfs: Surface, x, arrays, y, sd, whiten, shifts, tangent, finger, mode, nu, gain_prec, common_prec):
-    u = whiten @ (1.0 / sd)
+class Nuisances(NamedTuple):
+    """What one stroke's likelihood marginalises besides the shift, precomputed once per stroke
+    (:func:`stroke_nuisances`; arrays, dimensionless).
 
-    def one_texture(tex):
+    whiten : (F, F) float
+        L⁻¹ of :func:`frame_whitener`.
+    inv_sd : (F, M) float
+        1 / the sd of each reading's own noise (the common ĉ error left out when it is modelled).
+    u : (F, M) float
+        ``whiten @ inv_sd``: a per-taxel offset's pattern in the whitened residuals.
+    q : (M,) float
+        1/(precision_m + u_mᵀu_m); zeros where the gains are known.
+    gain_prec : (M,) float or None
+        Prior precision of each taxel's log-gain offset.
+    common_prec : float or None
+        Prior precision of the stroke-wide common offset (only when ``frame_prec`` is None).
+    frame_prec : (F, F) float or None
+        Prior precision S⁻¹ of the per-frame common error e (the reference row's ĉ error, variance
+        ``RawData.common_var``, plus the stroke-wide offset as a constant direction).
+    frame_post_cov : (F, F) float or None
+        A⁻¹, A = S⁻¹ + Σ_m E_mᵀ Q_m E_m (E_m = whiten · diag(inv_sd_m), Q_m the taxel offset's projector).
+    """
+
+    whiten: np.ndarray
+    inv_sd: np.ndarray
+    u: np.ndarray
+    q: np.ndarray
+    gain_prec: np.ndarray | None
+    common_prec: float | None
+    frame_prec: np.ndarray | None
+    frame_post_cov: np.ndarray | None
+
+
+def stroke_nuisances(
+    data: RawData,
+    finger,
+    *,
+    noise_scale: float = 1.0,
+    correlated: bool = True,
+    common_offset_sd: float | None = COMMON_OFFSET_SD,
+    frame_common: bool = True,
+) -> Nuisances:
+    """The nuisance terms of one stroke (:class:`Nuisances`; arguments as :func:`texture_log_likelihood`)."""
+    F, M = np.shape(data.log_current)
+    var = (noise_scale * np.asarray(data.noise_sd, float)) ** 2
+    cv = None if data.common_var is None or not frame_common else noise_scale**2 * np.asarray(data.common_var, float)
+    if cv is not None:
+        var = var - cv[:, None]
+    inv_sd = 1.0 / np.sqrt(var)
+    own = data._replace(noise_sd=np.sqrt(var))
+    whiten = frame_whitener(own, finger) if correlated else np.eye(F)
+    u = whiten @ inv_sd
+    a = np.sum(u * u, axis=0)
+    if data.gain_sd is None:
+        gain_prec, q, kappa = None, np.zeros(M), 0.0
+    else:
+        gain_prec = 1.0 / np.asarray(data.gain_sd, float) ** 2
+        q = 1.0 / (gain_prec + a)
+        kappa = 0.0 if common_offset_sd is None else float(common_offset_sd) ** 2
+    if cv is None:
+        common_prec = None if kappa == 0.0 else 1.0 / kappa
+        return Nuisances(whiten, inv_sd, u, q, gain_prec, common_prec, None, None)
+    # S = the ĉ error's covariance over frames + κ 11ᵀ; A = S⁻¹ + V∘(inv_sd inv_sdᵀ) − Σ_m q_m t_m t_mᵀ,
+    # t_m = D_m Wᵀ u_m
+    if data.common_cov is None:
+        S = np.diag(cv)
+    else:
+        S = noise_scale**2 * np.asarray(data.common_cov, float)
+    S = S + kappa + 1e-9 * np.mean(cv) * np.eye(F)
+    frame_prec = np.linalg.inv(S)
+    t = inv_sd * (whiten.T @ u)
+    A = frame_prec + (whiten.T @ whiten) * (inv_sd @ inv_sd.T) - (t * q) @ t.T
+    return Nuisances(whiten, inv_sd, u, q, gain_prec, None, frame_prec, np.linalg.inv(A))
+
+
+def nuisance_projection(z, nuis: Nuisances):
+    """Whitened standardised residuals ``z (F, M)`` with every nuisance of :class:`Nuisances` taken out at its
+    posterior mean, and their prior term (any array module; :func:`offset_projection` for the per-taxel and
+    stroke-wide offsets alone).
+
+    The reference row's correction ĉ_f of each frame is a median over a few reference taxels: its error e_f
+    (variance ``RawData.common_var``) is one and the same in every taxel of frame f. Counted as independent noise
+    per reading it is counted M times over, and a hypothesis whose prediction differs from another's by a pattern
+    with a non-zero mean over the taxels of a frame gains evidence from it: measured on two textures 5.7 % apart
+    in grating amplitude, the log evidence ratio varied 1.8× more over noise draws than the model allowed
+    (var/(2·mean) 3.1 where a calibrated likelihood gives 1), and one trial in 120 decided for the wrong twin with
+    p(truth) = 3e-5. Here e ~ N(0, S) is marginalised with the offsets: the model is
+    z_m = E_m e + δ_m u_m + noise, E_m = L⁻¹ diag(1/sd_m); with each δ_m profiled (Q_m = I − q_m u_m u_mᵀ),
+    ê = A⁻¹ Σ_m E_mᵀ Q_m z_m, δ̂_m = q_m u_mᵀ (z_m − E_m ê), and for Gaussian readings the marginal likelihood is
+    that of z − E ê − δ̂ u times exp(−½ (êᵀ S⁻¹ ê + Σ_m precision_m δ̂_m²)), up to a factor of the data alone.
+    Measured with it: var/(2·mean) 0.89 over 12 draws.
+
+    Returns
+    -------
+    residual : (F, M)
+    log_factor : float
+    """
+    W, inv_sd, u, q = nuis.whiten, nuis.inv_sd, nuis.u, nuis.q
+    if nuis.frame_prec is None:
+        if nuis.gain_prec is None:
+            return z, 0.0
+        return offset_projection(z, u, nuis.gain_prec, nuis.common_prec)
+    qz = z - u * (q * jnp.sum(u * z, axis=0))[None]
+    e = nuis.frame_post_cov @ jnp.sum(inv_sd * (W.T @ qz), axis=1)
+    r = z - W @ (inv_sd * e[:, None])
+    log_factor = -0.5 * e @ nuis.frame_prec @ e
+    if nuis.gain_prec is None:
+        return r, log_factor
+    delta = q * jnp.sum(u * r, axis=0)
+    return r - delta[None] * u, log_factor - 0.5 * jnp.sum(nuis.gain_prec * delta * delta)
+
+
+def _ll_grid(surfs: Surface, x, arrays, y, nuis: Nuisances, shifts, tangent, finger, mode, nu):
+    def one_texture(args):
+        tex, shifts_k = args
         surf = surfs._replace(texture=tex)
 
         def one_shift(o):
             pred = _predict(surf, x + o * tangent, arrays, finger, mode)
-            z = whiten @ jnp.where(jnp.isfinite(pred), (y - pred) / sd, 1e6)
-            if gain_prec is None:
-                return jnp.sum(student_t_logpdf(z, 1.0, nu))
-            z, prior = offset_projection(z, u, gain_prec, common_prec)
+            z = nuis.whiten @ jnp.where(jnp.isfinite(pred), (y - pred) * nuis.inv_sd, 1e6)
+            z, prior = nuisance_projection(z, nuis)
             return jnp.sum(student_t_logpdf(z, 1.0, nu)) + prior
 
-        return jax.vmap(one_shift)(shifts)
+        return jax.vmap(one_shift)(shifts_k)
 
-    return jax.lax.map(one_texture, surfs.texture)
+    return jax.lax.map(one_texture, (surfs.texture, shifts))
 
 
 _ll_grid_jit = jax.jit(_ll_grid, static_argnames=("mode", "nu"))
@@ -204,6 +319,7 @@ def texture_log_likelihood(
     noise_scale: float = 1.0,
     correlated: bool = True,
     common_offset_sd: float | None = COMMON_OFFSET_SD,
+    frame_common: bool = True,
 ) -> np.ndarray:
     """Log-likelihood (K, G) of one recorded stroke under every texture k and start-phase shift g.
 
@@ -220,8 +336,8 @@ def texture_log_likelihood(
         kelvin; a loaded taxel's ln I depends on temperature beyond that by < 5e-6 per kelvin at 50 kPa).
     finger : Finger
         The device the predictions use (a host's: its gains do not enter the predicted ln I).
-    shifts : (G,) float, metres
-        Shifts of the pad along the stroke.
+    shifts : (G,) or (K, G) float, metres
+        Shifts of the pad along the stroke (the same for every texture, or each texture's own).
     tangent : (3,) float
         Unit stroke direction (world frame).
     nu : float
@@ -235,30 +351,106 @@ def texture_log_likelihood(
     common_offset_sd : float or None
         Prior sd of the common offset (ln I); None takes the reference row's stroke mean as known, which holds
         only for a skin-temperature reading without error.
+    frame_common : bool
+        Model the reference row's per-frame error as common to every taxel of a frame (``data.common_var``,
+        :func:`nuisance_projection`); False counts it as independent noise per reading (which over-counts it).
 
     Returns
     -------
     (K, G) float
         Up to a constant common to all (k, g) when ``correlated``.
     """
-    F = len(data.temperature)
-    whiten = frame_whitener(data, finger) if correlated else np.eye(F)
+    K = int(np.shape(jax.tree.leaves(surfs.texture)[0])[0])
+    shifts = np.broadcast_to(np.asarray(shifts, dtype=float), (K, np.shape(shifts)[-1]))
+    nuis = stroke_nuisances(
+        data,
+        finger,
+        noise_scale=noise_scale,
+        correlated=correlated,
+        common_offset_sd=common_offset_sd,
+        frame_common=frame_common,
+    )
     out = _ll_grid_jit(
         surfs,
         jnp.asarray(data.taxel_position),
         _arrays(data),
         jnp.asarray(data.log_current),
-        noise_scale * jnp.asarray(data.noise_sd),
-        jnp.asarray(whiten),
-        jnp.asarray(shifts, dtype=float),
+        jax.tree.map(jnp.asarray, nuis),
+        jnp.asarray(shifts),
         jnp.asarray(tangent, dtype=float),
         finger,
         data.mode,
         float(nu),
-        None if data.gain_sd is None else jnp.asarray(1.0 / np.asarray(data.gain_sd, float) ** 2),
-        None if data.gain_sd is None or common_offset_sd is None else jnp.asarray(1.0 / float(common_offset_sd) ** 2),
     )
     return np.asarray(out)
+
+
+def texture_evidence(
+    surfs: Surface,
+    data: RawData,
+    finger,
+    shifts,
+    tangent,
+    *,
+    peaks: int = 2,
+    subdivide: int = 8,
+    **likelihood,
+) -> np.ndarray:
+    """log p(stroke | k) (K,): the likelihood integrated over a uniform start-phase shift, the grid refined where
+    each texture's likelihood peaks.
+
+    A strong texture signal makes the likelihood in the shift a peak a few µm wide (measured: 5 µm at 0.5 nats
+    below the top for a 44 µm grating of 2.3 mm period), narrower than the grid step (25 µm): on the grid alone
+    the evidence depends on how near a node happens to fall to each texture's peak, off by up to tens of nats
+    between two textures alike to a few per cent, enough to decide confidently for the wrong twin. So the grid
+    ``shifts`` is a first pass: around each texture's ``peaks`` highest local maxima the node and its two
+    neighbours are replaced by ``subdivide`` nodes each (the midpoint rule on cells of step/``subdivide``), and the
+    evidence is the midpoint-rule integral over the grid's whole range divided by that range.
+
+    Parameters
+    ----------
+    surfs, data, finger, tangent
+        As :func:`texture_log_likelihood`.
+    shifts : (G,) float, metres
+        A uniform grid of shifts (G ≥ 3), the cell centres of the prior's support.
+    peaks : int
+        Local maxima refined per texture.
+    subdivide : int
+        Fine cells per refined grid cell.
+    **likelihood
+        ``nu``, ``noise_scale``, ``correlated``, ``common_offset_sd`` of :func:`texture_log_likelihood`.
+
+    Returns
+    -------
+    (K,) float
+        Up to a constant common to all k.
+    """
+    shifts = np.asarray(shifts, float)
+    G = shifts.size
+    h = float(shifts[1] - shifts[0]) if G > 1 else 0.0
+    if G < 3 or not np.allclose(np.diff(shifts), h) or h <= 0:
+        return stroke_evidence(texture_log_likelihood(surfs, data, finger, shifts, tangent, **likelihood))
+    ll = texture_log_likelihood(surfs, data, finger, shifts, tangent, **likelihood)
+    K = ll.shape[0]
+    n_cells = 3 * peaks
+    weight = np.full((K, G), h)
+    fine = np.zeros((K, n_cells * subdivide))
+    fine_w = np.zeros_like(fine)
+    offsets = (np.arange(subdivide) + 0.5) * h / subdivide - 0.5 * h
+    for k in range(K):
+        row = np.concatenate([[-np.inf], ll[k], [-np.inf]])
+        local = np.flatnonzero((row[1:-1] >= row[:-2]) & (row[1:-1] >= row[2:]))
+        top = local[np.argsort(ll[k, local])[::-1][:peaks]]
+        cells = sorted({c for g in top for c in (g - 1, g, g + 1) if 0 <= c < G})
+        for j, c in enumerate(cells):
+            weight[k, c] = 0.0
+            fine[k, j * subdivide : (j + 1) * subdivide] = shifts[c] + offsets
+            fine_w[k, j * subdivide : (j + 1) * subdivide] = h / subdivide
+        fine[k, len(cells) * subdivide :] = shifts[0]  # padding, weight 0
+    ll_fine = texture_log_likelihood(surfs, data, finger, fine, tangent, **likelihood)
+    with np.errstate(divide="ignore"):
+        terms = np.concatenate([ll + np.log(weight), ll_fine + np.log(fine_w)], axis=1)
+    return logsumexp(terms, axis=1) - np.log(G * h)
 
 
 def _means(surfs: Surface, x, arrays, finger, mode):

@@ -25,13 +25,13 @@ from bayestouch.errors import BadInput
 from bayestouch.inference.raw import HostDevice, RawData, host_device
 from bayestouch.inference.texture_posterior import (
     read_stroke,
-    stroke_evidence,
-    texture_log_likelihood,
+    texture_evidence,
     texture_means,
     update_posterior,
 )
 from bayestouch.io.device_file import DeviceCalibration, check_same_finger
 from bayestouch.io.files import write_text
+from bayestouch.params import MODELS
 from bayestouch.physics.plate_strokes import known_finger, record_plate_stroke
 from bayestouch.physics.virtual import VirtualFinger, finger_name, load_finger
 from bayestouch.planning.eig import eig_pairwise
@@ -278,7 +278,7 @@ def run_trial(
         else:
             spec = random_stroke_spec(lib.base, rng, speed=settings.speed, depth=settings.depth)
         data, tangent, shift = record_stroke(obj, spec, vf, rng, settings, device)
-        ll = texture_log_likelihood(
+        evidence = texture_evidence(
             surfs,
             data,
             device.finger,
@@ -288,7 +288,7 @@ def run_trial(
             noise_scale=settings.noise_scale,
             correlated=settings.correlated,
         )
-        log_post = update_posterior(log_post, stroke_evidence(ll))
+        log_post = update_posterior(log_post, evidence)
         post = np.exp(log_post)
         k_map = int(np.argmax(post))
         decided = decided or bool(post[k_map] >= settings.threshold)
@@ -425,6 +425,7 @@ def run_experiment(
     stop_at_decision: bool = True,
     progress: bool = True,
     calibration: DeviceCalibration | None = None,
+    finger_models=MODELS,
 ) -> dict:
     """Every one of the first ``textures`` library entries is the truth in ``trials`` trials.
 
@@ -448,6 +449,9 @@ def run_experiment(
         The identifier's device file (``bayestouch calibrate``; its taxel mode must be ``settings.mode``); without
         it the identifier knows the models' constants with unit gains and their nominal spread. The simulated
         finger's own gains (drawn from ``seed``) are never read.
+    finger_models : path
+        Parameter folder of the simulated finger (the truth; default ``models/``). The identifier always assumes
+        ``models/``: a folder whose constants differ tries it on a finger that is not the one it knows.
 
     Returns
     -------
@@ -461,7 +465,7 @@ def run_experiment(
     check_calibration(calibration, settings.mode, seed)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    vf = load_finger(seed=int(seed))
+    vf = load_finger(Path(finger_models), seed=int(seed))
     device = host_device(calibration=calibration)
     surfs = lib.surfaces()
     t0 = time.perf_counter()
@@ -497,6 +501,7 @@ def run_experiment(
             if calibration is None
             else f"device file: gains and their errors of a {calibration.mode}-mode calibration",
             "settings": {k: (list(v) if isinstance(v, tuple) else v) for k, v in settings.__dict__.items()},
+            "finger_models": str(finger_models),
         }
     )
     write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")

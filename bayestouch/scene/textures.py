@@ -28,6 +28,9 @@ __all__ = [
     "TextureLibrary",
     "load_library",
     "library_from_dict",
+    "LARGE_LIBRARY",
+    "generate_library",
+    "library_toml",
     "StrokeSpec",
     "plate_stroke",
     "random_stroke_spec",
@@ -35,6 +38,8 @@ __all__ = [
 
 #: the shipped texture library
 LIBRARY = MODELS / "textures.toml"
+#: the shipped large library (:func:`generate_library` with its defaults, written by :func:`library_toml`)
+LARGE_LIBRARY = MODELS / "textures_large.toml"
 _FLAT_FRACTION = 0.6  # strokes stay within this fraction of the semi-axes (flat part of the n = 10 plate)
 
 
@@ -150,6 +155,99 @@ def library_from_dict(doc: dict, where: str = "texture library", source: Path | 
         names.append(name)
         specs.append(TextureSpec(amp, lam, ori, rough, seed, modes))
     return TextureLibrary(tuple(names), tuple(specs), base, source)
+
+
+def generate_library(count: int = 100, twins: int = 20, seed: int = 0) -> dict:
+    """A library document (the :func:`library_from_dict` form) of ``count`` drawn textures and ``twins`` close
+    copies of some of them, on the shipped library's test object.
+
+    Each drawn texture is, with probabilities 0.3 / 0.45 / 0.25, only rough (RMS roughness log-uniform in
+    5–40 µm, correlation length log-uniform in 0.5–4 mm), a grating (period log-uniform in 0.5–4 mm, amplitude
+    log-uniform in 10–100 µm, orientation uniform in [0, π)) or a grating with roughness (both): the ranges of
+    ``models/textures.toml``, drawn continuously so that neighbours in the library differ by any amount. A twin
+    copies one drawn texture (its roughness realisation too) and changes one property by a small factor — the
+    amplitude or roughness by 5–20 %, the period by 3–10 %, or the orientation by 5–15° — the close pairs a
+    library of real samples has (Fishel & Loeb 2012 used 117 textures, several pairs of them nearly alike).
+
+    Parameters
+    ----------
+    count : int
+        Drawn textures (≥ 2).
+    twins : int
+        Close copies (0 ≤ twins ≤ count).
+    seed : int
+        Seed of the draw (``np.random.default_rng(seed)``).
+
+    Returns
+    -------
+    dict
+        ``library``, ``object`` and ``texture`` tables.
+    """
+    if count < 2 or not 0 <= twins <= count:
+        raise BadInput(f"generate_library: need count ≥ 2 and 0 ≤ twins ≤ count, got {count} and {twins}")
+    rng = np.random.default_rng(seed)
+    base = read_toml(LIBRARY, "texture library", "models/textures.toml")
+
+    def logu(lo: float, hi: float) -> float:
+        return float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
+
+    entries = []
+    for i in range(count):
+        kind = rng.choice(3, p=[0.3, 0.45, 0.25])
+        t = {"amplitude_m": 0.0, "wavelength_m": 0.0, "orientation_rad": 0.0, "roughness_m": 0.0}
+        if kind == 0:
+            t.update(roughness_m=logu(5e-6, 40e-6), wavelength_m=logu(0.5e-3, 4e-3))
+        else:
+            t.update(amplitude_m=logu(10e-6, 100e-6), wavelength_m=logu(0.5e-3, 4e-3))
+            t["orientation_rad"] = float(rng.uniform(0.0, np.pi))
+            if kind == 2:
+                t["roughness_m"] = logu(5e-6, 40e-6)
+        t = {"name": f"t{i:03d}_" + ("rough", "grating", "grating_rough")[kind], **t, "seed": 1000 + i}
+        entries.append(t)
+    for j, i in enumerate(rng.choice(count, size=twins, replace=False)):
+        t = dict(entries[i])
+        grating = t["amplitude_m"] > 0
+        what = rng.choice(["size", "period", "orientation"] if grating else ["size", "period"])
+        sign = float(rng.choice([-1.0, 1.0]))
+        if what == "size":
+            key = "amplitude_m" if grating else "roughness_m"
+            t[key] *= 1.0 + sign * rng.uniform(0.05, 0.20)
+        elif what == "period":
+            t["wavelength_m"] *= 1.0 + sign * rng.uniform(0.03, 0.10)
+        else:
+            t["orientation_rad"] = float(np.mod(t["orientation_rad"] + sign * np.deg2rad(rng.uniform(5, 15)), np.pi))
+        t["name"] = f"{entries[i]['name']}_twin{j:02d}_{what}"
+        entries.append(t)
+    return {
+        "library": {
+            "description": f"{count} drawn textures and {twins} close twins (generate_library seed {seed})",
+            "modes": base["library"]["modes"],
+        },
+        "object": base["object"],
+        "texture": entries,
+    }
+
+
+def library_toml(doc: dict, header: str = "") -> str:
+    """TOML text of a library document (:func:`generate_library`), each line of ``header`` as a comment."""
+
+    def value(v) -> str:
+        if isinstance(v, str):
+            return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+        if isinstance(v, bool):
+            return str(v).lower()
+        if isinstance(v, list):
+            return "[" + ", ".join(value(x) for x in v) + "]"
+        return repr(v)
+
+    lines = [f"# {h}".rstrip() for h in header.splitlines()]
+    lines += ["", "[library]"] + [f"{k} = {value(v)}" for k, v in doc["library"].items()]
+    obj = {k: v for k, v in doc["object"].items() if k != "shape"}
+    lines += ["", "[object]"] + [f"{k} = {value(v)}" for k, v in obj.items()]
+    lines += ["", "[object.shape]"] + [f"{k} = {value(v)}" for k, v in doc["object"]["shape"].items()]
+    for t in doc["texture"]:
+        lines += ["", "[[texture]]"] + [f"{k} = {value(v)}" for k, v in t.items()]
+    return "\n".join(lines) + "\n"
 
 
 def load_library(path=LIBRARY) -> TextureLibrary:

@@ -94,6 +94,12 @@ class RawData(NamedTuple):
         Standard deviation of each selected taxel's remaining log-gain (dimensionless) about the gain divided out of
         ``log_current``: the likelihood marginalises one offset per taxel with this prior sd
         (:func:`~bayestouch.inference.raw.likelihood.taxel_offsets`). None: the gains are known exactly.
+    common_var : (F,) float or None
+        Variance of the reference row's correction ĉ of each frame (dimensionless): part of ``noise_sd``² but one
+        and the same error in every taxel of the frame, which a likelihood may model as such.
+    common_cov : (F, F) float or None
+        Covariance over frames of that common error (π/2 · the reference taxels' white, 1/f and random-walk
+        covariance / their number, within each stroke; de-meaned like ĉ when the reference taxels are).
     """
 
     taxel_position: np.ndarray
@@ -112,6 +118,8 @@ class RawData(NamedTuple):
     baseline: np.ndarray | None = None
     response_scale: float = 1.0
     response_sd: float | None = None
+    common_var: np.ndarray | None = None
+    common_cov: np.ndarray | None = None
 
 
 def open_recording(ds_or_path):
@@ -529,7 +537,16 @@ def load_raw_data(
         jnp.asarray(lw),
         mode,
     )
-    data = data._replace(baseline=np.asarray(baseline))
+    # the error of ĉ over frames: the median of n reference taxels' noise (π/2 · σ²/n per frame, the same factor on
+    # the slow parts), independent between strokes, de-meaned with the reference taxels
+    tf, sf = t[frames], si[frames]
+    ref_cov = np.diag(np.mean(white[:, ref], axis=1)) + nz.flicker_autocovariance(finger.noise, tf[:, None] - tf)
+    ref_cov = ref_cov + float(finger.noise.drift_local) ** 2 * np.minimum(t_in[:, None], t_in[None, :])
+    common_cov = 0.5 * np.pi / ref.sum() * ref_cov * (sf[:, None] == sf[None, :])
+    if demean_reference:
+        centre = np.eye(len(frames)) - 1.0 / len(frames)
+        common_cov = centre @ common_cov @ centre
+    data = data._replace(baseline=np.asarray(baseline), common_var=s_ref, common_cov=common_cov)
     if device is not None:
         data = data._replace(
             gain_sd=np.asarray(device.log_gain_sd, float).ravel()[taxels],
