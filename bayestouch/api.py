@@ -691,7 +691,7 @@ def simulate(
             set_aside([out], "simulate")
         # without overwrite, a file that appeared since the check above (another run writing the same name) is
         # kept and this recording written beside it, with a BadInput naming both
-        write_recording(ds, out, replace=overwrite)
+        write_recording(ds, out, overwrite=overwrite)
     return ds
 
 

@@ -290,7 +290,7 @@ def _taxels(obj, res, out: Path, seed: int, sizes: DemoSizes, progress: bool):
         },
         progress=progress,
     )
-    write_recording(ds, out / "recording.nc")
+    write_recording(ds, out / "recording.nc", overwrite=True)  # the demo folder was checked by its caller
     recording = read_recording(out / "recording.nc")
     # the most loaded frame of the last stroke, with its neighbours: a window of 5 frames
     force = np.asarray(recording["contact_force"].values)

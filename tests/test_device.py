@@ -686,8 +686,7 @@ def test_cli_run_interrupted_with_overwrite_keeps_the_earlier_recording(device, 
     assert run_device(_parser().parse_args([*argv, "--quiet"])) == 0
     complete = out.read_bytes()
     _interrupt_second_stroke(monkeypatch)
-    with pytest.raises(KeyboardInterrupt):
-        run_device(_parser().parse_args([*argv, "--overwrite", "--quiet"]))
+    assert run_device(_parser().parse_args([*argv, "--overwrite", "--quiet"])) == 130
     assert read_recording(out)["taxel_current"].shape[0] == 30
     (aside,) = tmp_path.glob("replaced-*")
     assert (aside / "dev.nc").read_bytes() == complete
@@ -715,12 +714,46 @@ def test_cli_run_interrupted_keeps_the_complete_strokes(device, tmp_path, capsys
     f = _stroke_file(tmp_path / "strokes.json", [make_plan(30), make_plan(20)])
     out = tmp_path / "dev.nc"
     argv = ["device", "run", "--port", str(tmp_path / "finger"), "--stroke-file", str(f), "--out", str(out)]
-    with pytest.raises(KeyboardInterrupt):
-        run_device(_parser().parse_args([*argv, "--quiet"]))
+    assert run_device(_parser().parse_args([*argv, "--quiet"])) == 130
     err = capsys.readouterr().err
     assert "interrupted; 1 complete stroke(s) written" in err and "journal" in err
+    assert err.count(": interrupted") == 1  # said once (the ninth review saw two lines)
     ds = read_recording(out)
     assert ds.attrs["incomplete"] == "true" and ds["taxel_current"].shape[0] == 30
+
+
+def test_cli_run_writes_each_complete_stroke_and_survives_a_hangup(device, tmp_path, capsys, monkeypatch):
+    """Issue 24, ninth review: a SIGKILL or SIGHUP (a closed terminal, a dropped ssh) during ``device run`` left no
+    recording, only the journal. Now the complete strokes are on disk as a recording marked incomplete before the
+    next stroke starts (what a SIGKILL at that moment leaves), and SIGHUP is handled like Ctrl-C: exit 130, the
+    strokes kept. Control: the file is not there before the first stroke ends."""
+    import os
+    import signal
+
+    from bayestouch.cli.device import run_device
+    from bayestouch.io.recording import read_recording
+
+    sim, dev = device()
+    dev.close()
+    out = tmp_path / "dev.nc"
+    real, seen = FingerDevice.run_stroke, []
+
+    def stroke(self, plan):
+        seen.append(read_recording(out)["taxel_current"].shape[0] if out.exists() else 0)
+        if len(seen) == 3:
+            os.kill(os.getpid(), signal.SIGHUP)
+        return real(self, plan)
+
+    monkeypatch.setattr(FingerDevice, "run_stroke", stroke)
+    f = _stroke_file(tmp_path / "strokes.json", [make_plan(30), make_plan(20), make_plan(25)])
+    argv = ["device", "run", "--port", str(tmp_path / "finger"), "--stroke-file", str(f), "--out", str(out)]
+    assert run_device(_parser().parse_args([*argv, "--quiet"])) == 130
+    assert seen[:2] == [0, 30]  # on disk after the first stroke, before the second started
+    err = capsys.readouterr().err
+    assert "interrupted; 2 complete stroke(s) written" in err
+    ds = read_recording(out)
+    assert ds.attrs["incomplete"] == "true" and ds["taxel_current"].shape[0] == 50
+    assert signal.getsignal(signal.SIGHUP) is signal.SIG_DFL or callable(signal.getsignal(signal.SIGHUP))
 
 
 def test_the_virtual_finger_names_its_unit_in_the_handshake(tmp_path):

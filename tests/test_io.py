@@ -657,28 +657,36 @@ def test_normals_of_any_length_up_to_the_float_limit_are_normalised(tmp_path):
 
 def test_a_recording_that_appears_while_another_is_written_is_kept(tmp_path):
     """Two simulations into one new --out: the second to finish replaced the first's recording (review of issue 24).
-    Without overwrite the file already there is kept and the new one written beside it, both named; with
+    A recording already there is refused unless overwrite (ninth review: the API replaced it by default); one
+    that appears while this one is written is kept and the new one written beside it, both named; with
     overwrite it is replaced (the control)."""
     import xarray as xr
 
+    from bayestouch.io.files import atomic_path
     from bayestouch.io.recording import write_recording
 
     path = tmp_path / "r.nc"
     first, second = (xr.Dataset({"time": ("frame", np.arange(3.0) + k)}) for k in (0, 10))
-    write_recording(first, path, replace=False)  # nothing there yet: written
-    with pytest.raises(BadInput, match=r"r\.nc appeared while this run wrote it.*this run's file is .*r\.\d{8}T"):
-        write_recording(second, path, replace=False)
+    write_recording(first, path)  # nothing there yet: written
 
     def first_time(p):
         with xr.open_dataset(p, engine="h5netcdf") as ds:
             return float(ds.time[0])
 
-    assert first_time(path) == 0.0  # the first is kept
-    (kept,) = tmp_path.glob("r.*T*Z.nc")
+    with pytest.raises(BadInput, match=r"r\.nc already exists; pass overwrite=True"):
+        write_recording(second, path)  # the default never replaces a recording
+    assert first_time(path) == 0.0
+    late = tmp_path / "late.nc"
+    with pytest.raises(BadInput, match=r"late\.nc appeared while this run wrote it.*this run's file is .*late\.\d{8}T"):
+        with atomic_path(late, replace=False) as tmp:
+            second.to_netcdf(tmp, engine="h5netcdf")
+            first.to_netcdf(late, engine="h5netcdf")  # another process wrote the same name meanwhile
+    assert first_time(late) == 0.0  # the first is kept
+    (kept,) = tmp_path.glob("late.*T*Z.nc")
     assert first_time(kept) == 10.0
-    write_recording(second, path)  # replace=True: replaced
+    write_recording(second, path, overwrite=True)  # overwrite: replaced
     assert first_time(path) == 10.0
-    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["r.nc", kept.name])  # no temporary left
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["r.nc", "late.nc", kept.name])  # no temporary left
 
 
 _EGG = Path(__file__).resolve().parents[1] / "data" / "contacts" / "egg.csv"

@@ -28,6 +28,12 @@ def test_a_folder_holding_a_run_is_refused_without_resume_or_overwrite(tmp_path)
     with pytest.raises(BadInput, match="already holds a run.*--resume.*--overwrite"):
         prepare_run_folder(out, _fp(pts), resume=False)
     assert (out / "summary.json").read_text() == '{"old": true}'  # nothing lost
+    # a finished run whose chain is gone cannot be continued: a fresh chain replaced its results, exit 0 (issue
+    # 24, ninth review)
+    with pytest.raises(BadInput, match="not its chain.h5, so it cannot be continued.*--overwrite"):
+        prepare_run_folder(out, _fp(pts), resume=True)
+    assert (out / "summary.json").read_text() == '{"old": true}'
+    (out / "chain.h5").write_bytes(b"chain")
     prepare_run_folder(out, _fp(pts), resume=True)  # the same data and options resume
     prepare_run_folder(out, _fp(pts, seed=1), resume=False, overwrite=True)
     assert not (out / "summary.json").exists()  # the old run's outputs went before the new run starts ...

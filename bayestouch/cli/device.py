@@ -440,29 +440,45 @@ def _run_locked(args, plans, limits) -> int:
     dev = FingerDevice(args.port, timeout=args.timeout, journal=journal, limits=limits, segment=args.segment)
     replaced = [args.out] if args.overwrite else []  # set aside (never deleted) before the new recording is written
 
+    written = {"strokes": 0, "at": float("-inf"), "cost": 0.0}
+
+    def save(extra: dict) -> None:
+        """Write the complete strokes so far to ``--out`` (atomically; the old file set aside before the first)."""
+        t = time.perf_counter()
+        set_aside(replaced, "device run")
+        replaced.clear()
+        write_recording(build_recording(done, dev.info, {**attrs, **extra}), args.out, overwrite=written["strokes"] > 0)
+        written.update(strokes=len(done), at=time.perf_counter(), cost=time.perf_counter() - t)
+
     def keep(note: str) -> None:
         """Write the complete strokes so far (marked incomplete) and say where everything received is."""
-        if done:
-            set_aside(replaced, "device run")
-            partial = build_recording(done, dev.info, {**attrs, "incomplete": "true"})
-            write_recording(partial, args.out, replace=args.overwrite)
-        written = f" written to {args.out}" if done else ""
+        if done and written["strokes"] < len(done):
+            save({"incomplete": "true"})
+        kept = f" written to {args.out}" if done else ""
         got = f"everything received is in {journal}" if journal.exists() else "nothing was received"
-        print(f"bayestouch device run: {note}; {len(done)} complete stroke(s){written}; {got}", file=sys.stderr)
+        print(f"bayestouch device run: {note}; {len(done)} complete stroke(s){kept}; {got}", file=sys.stderr)
 
-    def terminated(signum, frame):  # SIGTERM (a scheduler, kill): handled as Ctrl-C, the strokes kept
+    def terminated(signum, frame):  # SIGTERM (a scheduler, kill), SIGHUP (a closed terminal): handled as Ctrl-C
         raise KeyboardInterrupt
 
-    try:
-        old_term = signal.signal(signal.SIGTERM, terminated)
-    except ValueError:  # not the main thread: no handler can be installed there
-        old_term = None
+    old_handlers = {}
+    for sig in (signal.SIGTERM, getattr(signal, "SIGHUP", None)):
+        if sig is None:
+            continue
+        try:
+            old_handlers[sig] = signal.signal(sig, terminated)
+        except ValueError:  # not the main thread: no handler can be installed there
+            pass
     try:
         with dev:
             from tqdm.auto import tqdm
 
             for p in tqdm(plans, desc="strokes", unit="stroke", disable=args.quiet):
                 done.append(dev.run_stroke(p))
+                # the complete strokes so far, on disk as a recording marked incomplete (a SIGKILL or a power cut
+                # leaves them readable, not only in the journal); at most every few seconds for long runs
+                if len(done) < len(plans) and time.perf_counter() - written["at"] > max(2.0, 5 * written["cost"]):
+                    save({"incomplete": "true"})
             info = dev.info
     except (DeviceError, BadInput) as e:
         # a fault, or a stroke refused by the device's own limits after good ones: the good strokes are kept
@@ -473,12 +489,12 @@ def _run_locked(args, plans, limits) -> int:
         return 2  # the device failed or refused: one line, everything received kept (exit 1 is an internal error)
     except KeyboardInterrupt:
         keep("interrupted")
-        raise
+        return 130  # said once, with what was kept (not again by the command line's own Ctrl-C line)
     finally:
-        if old_term is not None:
-            signal.signal(signal.SIGTERM, old_term)
+        for sig, handler in old_handlers.items():
+            signal.signal(sig, handler)
     set_aside(replaced, "device run")
-    write_recording(build_recording(done, info, attrs), args.out, replace=args.overwrite)
+    write_recording(build_recording(done, info, attrs), args.out, overwrite=args.overwrite or written["strokes"] > 0)
     if args.journal is None:
         journal.unlink(missing_ok=True)
     n = sum(len(s.plan.time) for s in done)

@@ -134,14 +134,31 @@ def with_coordinates(ds):
     return ds.set_coords([k for k in COORDINATES if k in ds.data_vars])
 
 
-def write_recording(ds, path, *, replace: bool = True) -> Path:
-    """Write a dataset as netCDF (h5netcdf engine) atomically: an existing file is replaced only when the
-    new one is complete; with ``replace=False`` a file that appeared at ``path`` meanwhile is kept and the new one
-    written beside it (:func:`bayestouch.io.files.atomic_path`)."""
+def write_recording(ds, path, *, overwrite: bool = False, replace: bool | None = None) -> Path:
+    """Write a dataset as netCDF (h5netcdf engine) atomically (:func:`bayestouch.io.files.atomic_path`).
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+    path : path
+    overwrite : bool
+        Replace a recording already at ``path`` (only once the new one is complete). Without it an existing file is
+        refused (:class:`BadInput`), and a file that appears at ``path`` while this one is written is kept, the
+        new one beside it: a recording is never replaced by accident.
+    replace : bool, optional
+        The former name of ``overwrite`` (kept for scripts that pass it).
+
+    Returns
+    -------
+    pathlib.Path
+    """
     path = Path(path)
+    overwrite = bool(overwrite if replace is None else replace)
+    if not overwrite and path.exists():
+        raise BadInput(f"{path} already exists; pass overwrite=True to replace it, or choose another file")
     # atomic_path: a temporary file of the usual umask-derived mode (mkstemp's 0600 made recordings unreadable to
     # the group where every other output is not), fsynced before it replaces the old file
-    with atomic_path(path, replace=replace) as tmp:
+    with atomic_path(path, replace=overwrite) as tmp:
         ds.to_netcdf(tmp, engine="h5netcdf")
     return path
 

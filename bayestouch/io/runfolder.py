@@ -213,6 +213,12 @@ def prepare_run_folder(out, fp: dict, *, resume: bool, overwrite: bool = False) 
         )
     if resume and not held and not (out / "smc.npz").exists():
         print(f"bayestouch: --resume: {out} holds no run yet; starting one", file=sys.stderr)
+    if resume and held and "chain.h5" not in held and not started:
+        # a finished run whose chain is gone cannot be continued: a fresh chain would replace its results
+        raise BadInput(
+            f"{RESUME}: {out} holds a run ({', '.join(held)}) but not its chain.h5, so it cannot be continued; "
+            f"{OVERWRITE} to start again (its results are set aside), or choose another folder"
+        )
     if resume and old is not None and (held or (out / "smc.npz").exists()):
         diff = differences(old, fp)
         if diff:

@@ -147,7 +147,7 @@ class DeviceProber:
             )
         )
         if self.recording_path is not None:
-            write_recording(self.dataset(), self.recording_path)
+            write_recording(self.dataset(), self.recording_path, overwrite=True)  # this run's, after each stroke
         return pts, free
 
     def dataset(self):
