@@ -773,3 +773,23 @@ def test_the_virtual_finger_names_its_unit_in_the_handshake(tmp_path):
                 assert finger_of(dev.info.firmware) == name
             finally:
                 dev.close()
+
+
+def test_stroke_file_times_and_sizes_are_checked_before_anything_is_sent(tmp_path):
+    """Issue 24, ninth review: a stroke file with times in milliseconds was run (a 2000 s stroke, 33 minutes of
+    heated wires), refused only by the fit of its recording; 2000 strokes passed the 1000-stroke cap. Now each is
+    refused by ``load_stroke_file``, before a port is opened. Control: the same plans in seconds load."""
+    from bayestouch.cli.device import MAX_DEVICE_STROKES, load_stroke_file
+
+    currents = [0.15, 0.05, 0.05]
+    plan = make_plan(100)
+    assert len(load_stroke_file(_stroke_file(tmp_path / "s.json", [plan]), currents)) == 1
+    ms = plan._replace(time=plan.time * 1000)
+    with pytest.raises(BadInput, match=r"stroke 0: 'time' puts the frames 20 s apart.*milliseconds"):
+        load_stroke_file(_stroke_file(tmp_path / "ms.json", [ms]), currents)
+    long = make_plan(9001, speed=1e-6)
+    long = long._replace(time=np.arange(9001) * 0.1)  # 10 Hz for 900 s
+    with pytest.raises(BadInput, match=r"stroke 0 lasts 900 s; at most 600 s"):
+        load_stroke_file(_stroke_file(tmp_path / "long.json", [long]), currents)
+    with pytest.raises(BadInput, match=rf"{MAX_DEVICE_STROKES + 1} strokes; at most {MAX_DEVICE_STROKES}"):
+        load_stroke_file(_stroke_file(tmp_path / "many.json", [make_plan(2)] * (MAX_DEVICE_STROKES + 1)), currents)

@@ -55,6 +55,12 @@ def test_library_loads(lib):
         (lambda d: d["texture"][1].update(seed=1.5), "seed"),
         (lambda d: d["object"]["shape"].update(axes_m=[45.0, 25.0, 5.0]), "axes_m"),
         (lambda d: d.update(texture=d["texture"][:1]), "[[texture]]"),
+        # issue 24, ninth review: a misspelt key took its default (rough5 became smooth's twin, exit 0) ...
+        (lambda d: d["texture"][1].update(roughnes_m=d["texture"][1].pop("roughness_m")), "unknown key 'roughnes_m'"),
+        (lambda d: d["library"].update(mode=16), "unknown key 'mode'"),
+        (lambda d: d.update(textures=[]), "unknown key 'textures'"),
+        # ... and two identical textures could never be told apart
+        (lambda d: d["texture"][2].update({k: v for k, v in d["texture"][1].items() if k != "name"}), "the same"),
     ],
 )
 def test_bad_library_names_the_field(edit, field):

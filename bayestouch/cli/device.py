@@ -36,6 +36,8 @@ MAX_DELAY_S = 60.0
 #: most random strokes of one ``device run`` (1000 strokes of 2 s at 50 Hz: 100,000 frames, half of what
 #: ``simulate`` writes into one recording)
 MAX_DEVICE_STROKES = 1000
+#: longest stroke (s) of a stroke file, as ``--duration``'s cap (:func:`bayestouch.cli.args.check_duration_rate`)
+MAX_STROKE_S = 600.0
 
 
 def _prob(text: str) -> float:
@@ -196,6 +198,11 @@ def load_stroke_file(path: Path, hold_currents) -> list:
     items = doc.get("strokes") if isinstance(doc, dict) else None
     if not isinstance(items, list) or not items:
         raise BadInput(f'--stroke-file {path}: expected an object with a non-empty list "strokes"')
+    if len(items) > MAX_DEVICE_STROKES:
+        raise BadInput(
+            f"--stroke-file {path}: {len(items)} strokes; at most {MAX_DEVICE_STROKES} in one recording "
+            "(split the file)"
+        )
     if set(doc) != {"strokes"}:
         raise BadInput(
             f'--stroke-file {path}: unknown key(s) {sorted(set(doc) - {"strokes"})}; expected only "strokes"'
@@ -225,8 +232,33 @@ def load_stroke_file(path: Path, hold_currents) -> list:
                 f"--stroke-file {path}: stroke {i} needs numeric time, contact, normal and depth "
                 f"({type(e).__name__}: {e})"
             ) from None
+    _check_stroke_times(plans, f"--stroke-file {path}")
     _check_stroke_geometry(plans, f"--stroke-file {path}")
     return plans
+
+
+def _check_stroke_times(plans, where: str) -> None:
+    """Refuse, before anything is sent, stroke times that are not seconds (a frame rate outside the recordings' own
+    range), a stroke longer than ``--duration``'s cap, and more frames than a recording holds (a stroke file in
+    milliseconds ran 33 minutes of heated wires, and was refused only by the fit afterwards)."""
+    from bayestouch.inference.raw.data import frame_interval_problem
+    from bayestouch.io.recording import MAX_FRAMES
+
+    frames = 0
+    for i, p in enumerate(plans):
+        t = p.time
+        if t.ndim != 1 or t.size < 2 or not np.all(np.isfinite(t)):
+            continue  # shapes and finiteness: the safety check's
+        if problem := frame_interval_problem(t):
+            raise BadInput(f"{where}: stroke {i}: 'time' {problem}")
+        if t[-1] - t[0] > MAX_STROKE_S:
+            raise BadInput(
+                f"{where}: stroke {i} lasts {t[-1] - t[0]:.4g} s; at most {MAX_STROKE_S:g} s (as --duration), times "
+                "in seconds"
+            )
+        frames += t.size
+    if frames > MAX_FRAMES:
+        raise BadInput(f"{where}: {frames} frames in all; at most {MAX_FRAMES} in one recording (split the file)")
 
 
 def _check_stroke_geometry(plans, where: str) -> None:

@@ -96,6 +96,18 @@ def _number(d: dict, key: str, where: str, lo: float, hi: float, default=None) -
     return float(v)
 
 
+#: the fields of a ``[[texture]]`` table
+_TEXTURE_KEYS = ("name", "amplitude_m", "wavelength_m", "orientation_rad", "roughness_m", "seed")
+
+
+def _known_keys(table: dict, known: set, where: str) -> None:
+    """:class:`BadInput` naming the first key of ``table`` that is not in ``known`` (a misspelt field was ignored,
+    its default taken, exit 0)."""
+    unknown = sorted(k for k in table if k not in known)
+    if unknown:
+        raise BadInput(f"{where}: unknown key '{unknown[0]}'; expected {', '.join(sorted(known))}")
+
+
 def library_from_dict(doc: dict, where: str = "texture library", source: Path | None = None) -> TextureLibrary:
     """Build a :class:`TextureLibrary` from a parsed TOML document (see ``models/textures.toml``).
 
@@ -119,9 +131,11 @@ def library_from_dict(doc: dict, where: str = "texture library", source: Path | 
     BadInput
         A bad field, naming the table, the entry and the field.
     """
+    _known_keys(doc, {"library", "object", "texture"}, where)
     lib = doc.get("library", {})
     if not isinstance(lib, dict):
         raise BadInput(f"{where}: [library] must be a table with 'modes'")
+    _known_keys(lib, {"description", "modes"}, f"{where} [library]")
     modes = lib.get("modes", 16)
     if not isinstance(modes, int) or isinstance(modes, bool) or not 1 <= modes <= 256:
         raise BadInput(f"{where} [library]: 'modes' must be an integer in [1, 256], got {modes!r}")
@@ -143,6 +157,7 @@ def library_from_dict(doc: dict, where: str = "texture library", source: Path | 
         if not isinstance(name, str) or not name or name in names:
             raise BadInput(f"{w}: 'name' must be a unique non-empty string, got {name!r}")
         w = f"{where} [[texture]] '{name}'"
+        _known_keys(t, set(_TEXTURE_KEYS), w)
         amp = _number(t, "amplitude_m", w, 0.0, 5e-4, default=0.0)
         lam = _number(t, "wavelength_m", w, *WAVELENGTH_RANGE_M)
         ori = _number(t, "orientation_rad", w, -2 * np.pi, 2 * np.pi, default=0.0)
@@ -152,8 +167,14 @@ def library_from_dict(doc: dict, where: str = "texture library", source: Path | 
             raise BadInput(f"{w}: 'seed' must be a non-negative integer, got {seed!r}")
         if max(amp, rough) > 0.2 * cmin:
             raise BadInput(f"{w}: 'amplitude_m'/'roughness_m' must stay below a fifth of the object's smallest axis")
+        spec = TextureSpec(amp, lam, ori, rough, seed, modes)
+        if spec in specs:
+            raise BadInput(
+                f"{w}: the same texture as '{names[specs.index(spec)]}' (every field alike); a library's textures "
+                "must differ"
+            )
         names.append(name)
-        specs.append(TextureSpec(amp, lam, ori, rough, seed, modes))
+        specs.append(spec)
     return TextureLibrary(tuple(names), tuple(specs), base, source)
 
 

@@ -36,6 +36,7 @@ __all__ = [
     "MIN_FRAMES",
     "LAYOUT_TOLERANCE_M",
     "FRAME_RATE_RANGE_HZ",
+    "frame_interval_problem",
     "MAX_PAD_SPEED",
     "check_taxel_layout",
 ]
@@ -187,6 +188,24 @@ def need_variable(ds, name, ndim, where):
     return v
 
 
+def frame_interval_problem(times) -> str | None:
+    """What is wrong with one stroke's frame ``times`` (s) when their median interval puts the frame rate outside
+    :data:`FRAME_RATE_RANGE_HZ` (another unit written as seconds), else None: the one check a recording on load and
+    a stroke file before anything is sent share."""
+    t = np.asarray(times, float)
+    if t.size < 2:
+        return None
+    dt = float(np.median(np.diff(t)))
+    lo, hi = FRAME_RATE_RANGE_HZ
+    if 1.0 / hi <= dt <= 1.0 / lo:
+        return None
+    rate = f"{1.0 / dt:.3g} Hz" if dt > 0 else "no frame rate"
+    return (
+        f"puts the frames {dt:.3g} s apart ({rate}); expected a frame rate in [{lo:g}, {hi:g}] Hz with times in "
+        "seconds (milliseconds written as seconds?)"
+    )
+
+
 def _check_kinematics(where: str, t, si, contact, depth) -> None:
     """Refuse (:class:`BadInput` naming the variable) pressing depths beyond :data:`MAX_DEPTH_M` and times whose
     frame rate lies outside :data:`FRAME_RATE_RANGE_HZ` or that move the pad faster than :data:`MAX_PAD_SPEED`
@@ -199,17 +218,12 @@ def _check_kinematics(where: str, t, si, contact, depth) -> None:
             f"{i}: {depth[i]:g} m), the limit of `bayestouch simulate` and `device run`; expected metres (0 or less: "
             "no contact)"
         )
-    lo, hi = FRAME_RATE_RANGE_HZ
     for k in np.unique(si):
         sel = np.flatnonzero(si == k)
         if sel.size < 2:
             continue
-        dt = float(np.median(np.diff(t[sel])))
-        if not 1.0 / hi <= dt <= 1.0 / lo:
-            raise BadInput(
-                f"{where}: 'time' puts the frames {dt:.3g} s apart in stroke {int(k)} ({1.0 / dt:.3g} Hz); expected a "
-                f"frame rate in [{lo:g}, {hi:g}] Hz with times in seconds (milliseconds written as seconds?)"
-            )
+        if problem := frame_interval_problem(t[sel]):
+            raise BadInput(f"{where}: 'time' {problem} in stroke {int(k)}")
         duration = float(t[sel[-1]] - t[sel[0]])
         path = float(np.sum(np.linalg.norm(np.diff(contact[sel], axis=0), axis=1)))
         if path > MAX_PAD_SPEED * duration:
