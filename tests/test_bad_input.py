@@ -82,6 +82,10 @@ TABLE = [
     ("simulate --object {tmp}/negative_amplitude.toml --out {tmp}/r.nc", "amplitude_m"),
     ("simulate --object {tmp}/negative_roughness.toml --out {tmp}/r.nc", "roughness_m"),
     ("fit {tmp}/good.csv --out {tmp}/o --nu -2", "--nu"),
+    # issue 24, ninth review: ν = 1e300 or 1e-300 overflowed to an exit 1 after JAX warnings
+    ("fit {tmp}/good.csv --out {tmp}/o --noise student --nu 1e300", "--nu must be in [0.5, 1000]"),
+    ("fit {tmp}/good.csv --out {tmp}/o --noise student --nu 1e-300", "--nu must be in [0.5, 1000]"),
+    ("fit {tmp}/good.csv --out {tmp}/o --noise student --nu nan", "--nu must be in [0.5, 1000]"),
     ("fit {tmp}/good.csv --out {tmp}/o --steps 0", "--steps"),
     ("fit {tmp}/good.csv --out {tmp}/o --noise laplace", "--noise"),
     ("fit {tmp}/good.csv --out {tmp}/o --precision half", "--precision"),

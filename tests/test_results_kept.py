@@ -188,3 +188,41 @@ def test_public_geometry_simulate_and_explore_refuse_malformed_arguments():
     for call, needle in cases:
         with pytest.raises(BadInput, match=needle):
             call()
+
+
+def test_experiment_refuses_a_folder_holding_another_commands_results(tmp_path, capsys):
+    """Issue 24, ninth review: ``experiment --out`` wrote its results.csv beside a fit's summary.json and
+    posterior.nc (every other command refused such a folder). Refused in one line, exit 2, nothing touched;
+    ``--overwrite`` sets the other results aside (kept, not deleted) before anything runs."""
+    from bayestouch.cli.explore import _check_foreign_results
+    from bayestouch.cli.main import main
+
+    out = tmp_path / "fit"
+    out.mkdir()
+    (out / "summary.json").write_text('{"fit": true}')
+    (out / "posterior.nc").write_bytes(b"posterior")
+    argv = ["experiment", "--out", str(out), "--trials", "1", "--budget", "1", "--planners", "random"]
+    assert main([*argv, "--objects", "egg"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "results of another command (posterior.nc, summary.json)" in err
+    assert sorted(p.name for p in out.iterdir()) == ["posterior.nc", "summary.json"]
+    _check_foreign_results(out, overwrite=True)
+    assert _aside(out, "summary.json") and not (out / "summary.json").exists()
+    _check_foreign_results(tmp_path / "new", overwrite=False)  # the control: a new folder passes
+
+
+def test_a_recording_of_presses_in_place_is_refused_before_the_run_folder(tmp_path):
+    """Issue 24, ninth review: strokes whose waypoints are one point (a press in place, which ``device run``
+    accepts) or a contact_point of zeros made the fit's bounds collapse: exit 1, "internal error", run.json left
+    behind. Refused in one line naming the span, the folder untouched. Control: the recording as shipped passes
+    the same check."""
+    from bayestouch.inference.raw import run_raw_fit
+    from bayestouch.inference.raw.data import check_contact_motion
+    from bayestouch.io.recording import read_recording
+
+    ds = read_recording(SPHERE_REC)
+    check_contact_motion(ds, "sphere.nc")
+    pressed = ds.assign(contact_point=ds.contact_point * 0 + ds.contact_point.isel(frame=0))
+    with pytest.raises(BadInput, match=r"span 0 m \(the strokes press in place\)"):
+        run_raw_fit(pressed, tmp_path / "fit", texture="off", progress=False)
+    assert not (tmp_path / "fit").exists()

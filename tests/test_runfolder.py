@@ -138,3 +138,17 @@ def test_a_folder_in_use_by_another_process_is_refused(tmp_path):
     release_run_folder(out)
     free = subprocess.run([sys.executable, "-c", other], capture_output=True, text=True)
     assert free.returncode == 0, free.stdout + free.stderr
+
+
+@pytest.mark.parametrize("content", [b"", b"PK\x03\x04 cut off"])
+def test_a_damaged_tempering_stage_is_refused_in_one_line(tmp_path, content):
+    """Issue 24, ninth review: ``--resume`` over an empty or truncated smc.npz (a kill mid-write) ended in EOFError or
+    BadZipFile, exit 1. Refused as bad input naming the file and --overwrite. Control: a whole file is read back."""
+    from bayestouch.inference.run import smc_stage
+
+    path = tmp_path / "smc.npz"
+    np.savez(path, particles=np.zeros((2, 3)), log_evidence=np.float64(-1.5))
+    assert smc_stage(None, None, None, path=path)["log_evidence"] == -1.5
+    path.write_bytes(content)
+    with pytest.raises(BadInput, match=r"smc\.npz cannot be read as a finished tempering stage.*--overwrite"):
+        smc_stage(None, None, None, path=path)

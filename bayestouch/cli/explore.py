@@ -358,6 +358,31 @@ def _plot_explore(res, obj, path: Path) -> None:
     fig.savefig(path, dpi=100)
 
 
+def _check_foreign_results(out: Path, overwrite: bool) -> None:
+    """Refuse an experiment's ``--out`` that holds another command's finished results (a fit's summary.json, an
+    exploration's explore.json, …) unless ``overwrite``, which sets them aside with what goes with them; the
+    experiment's own results.csv and experiment.json are its own check's (every other command refused such a folder,
+    the experiment wrote beside them)."""
+    from bayestouch.cli.args import COMMAND_OUTPUTS, COMMAND_RESULTS, RESULT_FILES
+    from bayestouch.io.files import set_aside
+
+    if not Path(out).is_dir():
+        return
+    own = {"results.csv", "experiment.json", "error_vs_strokes.png"}
+    found = sorted({p for pat in (*RESULT_FILES, *COMMAND_RESULTS) for p in Path(out).glob(pat) if p.is_file()})
+    found = [p for p in found if p.name not in own]
+    if not found:
+        return
+    if not overwrite:
+        names = sorted({p.name for p in found})
+        raise BadInput(
+            f"--out {out} already holds the results of another command ({', '.join(names[:4])}"
+            f"{' …' if len(names) > 4 else ''}); pass --overwrite to set them aside, or choose another folder"
+        )
+    extra = [Path(out) / n for n in COMMAND_OUTPUTS if (Path(out) / n).exists() and n not in own]
+    set_aside(sorted(set(found + extra)), "experiment")
+
+
 def run_experiment(args) -> int:
     """``bayestouch experiment``: writes ``results.csv`` and ``error_vs_strokes.png`` into ``--out``."""
     from bayestouch.planning.experiment import gap_closed
@@ -375,6 +400,7 @@ def run_experiment(args) -> int:
             raise BadInput(f"{flag}: {', '.join(twice)} named twice; each trial runs once per entry")
     if args.trials < 1:
         raise BadInput(f"--trials must be an integer ≥ 1, got {args.trials}")
+    _check_foreign_results(args.out, args.overwrite)
     res = run(
         args.out,
         planners=planners,

@@ -394,9 +394,13 @@ def _run_fit(args) -> int:
                 "--texture, --stride and --calibration apply to a recording (.nc), not to contact points (.csv)"
             )
 
+        from bayestouch.inference.run import NU_RANGE
+
         cp = _contacts(args)
-        if args.nu is not None and (args.noise != "student" or not args.nu > 0):
-            raise BadInput(f"--nu must be > 0 and goes with --noise student, got --nu {args.nu} --noise {args.noise}")
+        if args.nu is not None and args.noise != "student":
+            raise BadInput(f"--nu goes with --noise student, got --nu {args.nu} --noise {args.noise}")
+        if args.nu is not None and not NU_RANGE[0] <= args.nu <= NU_RANGE[1]:
+            raise BadInput(f"--nu must be in [{NU_RANGE[0]:g}, {NU_RANGE[1]:g}] (or --noise gaussian), got {args.nu}")
         noise, nu = ("student", float("inf")) if args.noise == "gaussian" else (args.noise, args.nu)
         _set_aside_other_results(args)
         s = fit(

@@ -9,6 +9,7 @@ and writes the run folder (:func:`bayestouch.inference.posterior.write_posterior
 from __future__ import annotations
 
 import time
+import zipfile
 from functools import partial
 from pathlib import Path
 
@@ -312,8 +313,14 @@ def smc_stage(
         ``complete`` (reached β = 1), ``evaluations``, ``seconds``.
     """
     if path is not None and Path(path).exists():
-        with np.load(path) as z:
-            return {k: (z[k] if z[k].ndim else z[k].item()) for k in z.files}
+        try:
+            with open(path, "rb") as fh, np.load(fh) as z:  # the file closed whatever np.load makes of it
+                return {k: (z[k] if z[k].ndim else z[k].item()) for k in z.files}
+        except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as e:  # cut off by a kill mid-write
+            raise BadInput(
+                f"--resume: {path} cannot be read as a finished tempering stage ({type(e).__name__}); pass "
+                "--overwrite to start the run again (its files are set aside), or choose another folder"
+            ) from None
 
     if prior is None:
 
@@ -729,6 +736,11 @@ def ffd_contact_model(points, dims, tau: float) -> PosteriorModel:
     )
 
 
+#: the Student-t degrees of freedom a contact fit takes: ν < 0.5 is heavier-tailed than any read-out or contact error
+#: (Cauchy is 1), ν > 1000 is Gaussian to within 1e-3 in the log-density of a 3-sd residual (``noise gaussian``)
+NU_RANGE = (0.5, 1000.0)
+
+
 def run_contact_fit(
     points,
     out: Path,
@@ -834,6 +846,12 @@ def run_contact_fit(
     if noise not in ("auto", "gaussian", *cm.NOISE_MODELS):
         raise BadInput(
             f"noise: unknown noise model {noise!r}; expected one of auto, gaussian, {', '.join(cm.NOISE_MODELS)}"
+        )
+    if nu is not None and not (isinstance(nu, int | float) and (NU_RANGE[0] <= nu <= NU_RANGE[1] or nu == np.inf)):
+        # ν = 1e300 or 1e-300 overflowed to "every particle has zero likelihood", exit 1, after JAX warnings
+        raise BadInput(
+            f"nu: Student-t degrees of freedom must be in [{NU_RANGE[0]:g}, {NU_RANGE[1]:g}] (or inf: Gaussian), "
+            f"got {nu!r}"
         )
     if noise == "gaussian":  # the command line's name for Student-t with ν = ∞
         if nu is not None and not np.isinf(nu):

@@ -803,7 +803,7 @@ def sample(
         except (OSError, KeyError) as e:  # a file that is not an emcee chain, or one damaged mid-write
             raise BadInput(
                 f"--resume: {chain_path} cannot be read as an emcee chain ({type(e).__name__}); "
-                "remove it to start afresh"
+                "pass --overwrite to start the run again (its files are set aside), or choose another folder"
             ) from None
     if resume and chain_path.exists() and done > 0:
         if tuple(backend.shape) != (walkers, ndim):

@@ -33,6 +33,8 @@ __all__ = [
     "unloaded_current",
     "load_raw_data",
     "commanded_points",
+    "check_contact_motion",
+    "MIN_CONTACT_SPAN_M",
     "MIN_FRAMES",
     "LAYOUT_TOLERANCE_M",
     "FRAME_RATE_RANGE_HZ",
@@ -568,6 +570,25 @@ def load_raw_data(
             response_sd=float(device.response_sd),
         )
     return data, finger
+
+
+#: least span (m) of a recording's contact points for a shape fit: strokes that press in place (every waypoint one
+#: point) or a contact_point of zeros say nothing of a shape (the fit's bounds then collapsed: exit 1)
+MIN_CONTACT_SPAN_M = 1e-3
+
+
+def check_contact_motion(ds, where: str) -> None:
+    """Refuse (:class:`BadInput`) a recording whose contact points (frames with contact) span less than
+    :data:`MIN_CONTACT_SPAN_M`: its strokes press in place, so no shape can be fitted to them."""
+    contact = need_variable(ds, "contact_point", 2, where)
+    depth = need_variable(ds, "pressing_depth", 1, where)
+    touched = contact[depth > 0] if contact.shape[:1] == depth.shape else contact
+    span = float(np.max(np.ptp(touched, axis=0))) if len(touched) else 0.0
+    if span < MIN_CONTACT_SPAN_M:
+        raise BadInput(
+            f"{where}: the contact points of the frames with contact span {span:.3g} m (the strokes press in place); "
+            f"a shape fit needs strokes that move over the object (at least {MIN_CONTACT_SPAN_M:g} m)"
+        )
 
 
 def commanded_points(ds, frames) -> np.ndarray:

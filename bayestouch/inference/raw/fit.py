@@ -24,6 +24,7 @@ from bayestouch.inference.posterior import PosteriorModel, judged_quantities, wr
 from bayestouch.inference.raw.adjustment import OUTSIDE_PRIOR_WARN, Adjustment, curvature_adjustment
 from bayestouch.inference.raw.data import (
     RawData,
+    check_contact_motion,
     check_full_scale,
     check_taxel_layout,
     commanded_points,
@@ -412,6 +413,7 @@ def run_raw_fit(
     # before the run folder is made (or a finished run in it set aside): a refused fit leaves nothing behind
     check_taxel_layout(ds, finger, where)
     check_full_scale(need_variable(ds, "taxel_current", 2, where), float(finger.noise.adc_full_scale), where)
+    check_contact_motion(ds, where)
     options = {
         "walkers": int(walkers),
         "seed": int(seed),
