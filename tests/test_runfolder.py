@@ -152,3 +152,19 @@ def test_a_damaged_tempering_stage_is_refused_in_one_line(tmp_path, content):
     path.write_bytes(content)
     with pytest.raises(BadInput, match=r"smc\.npz cannot be read as a finished tempering stage.*--overwrite"):
         smc_stage(None, None, None, path=path)
+
+
+def test_resume_refusal_names_only_what_changed(tmp_path):
+    """Issue 24, ninth review: a changed --size-prior printed the whole 17-entry priors table twice (~900
+    characters), and a parts fit over a single fit listed every option. Now a table names its changed entries,
+    and a run of another kind says only that."""
+    from bayestouch.io.runfolder import differences
+
+    priors = {f"p{i}": float(i) for i in range(17)}
+    old = _fp(np.zeros((4, 3)), priors=priors)
+    new = _fp(np.zeros((4, 3)), priors={**priors, "p3": 30.0})
+    (diff,) = differences(old, new)
+    assert diff == "priors: p3 3.0 (now 30.0)"
+    other = fingerprint("parts", {"points": np.zeros((4, 3))}, {"walkers": 32})
+    assert differences(old, other) == ["a contact-level run, not parts"]
+    assert differences(old, old) == []

@@ -127,12 +127,23 @@ def fingerprint(level: str, data: Mapping[str, Any], options: Mapping[str, Any])
     }
 
 
+def _changed(name: str, was, now) -> str:
+    """One phrase for an option that differs; a table of settings (the priors) names only its entries that
+    differ (the whole table, 17 entries twice, buried the one changed)."""
+    if isinstance(was, dict) and isinstance(now, dict):
+        keys = sorted(k for k in was.keys() | now.keys() if was.get(k) != now.get(k))
+        parts = [f"{k} {was.get(k)!r} (now {now.get(k)!r})" for k in keys[:3]]
+        return f"{name}: " + ", ".join(parts) + (" …" if len(keys) > 3 else "")
+    return f"{name} {was!r} (now {now!r})"
+
+
 def differences(old: dict, new: dict) -> list[str]:
     """What differs between a recorded fingerprint ``old`` (as read back from JSON) and ``new``
-    (:func:`fingerprint`), one phrase each: ``"other points"``, ``"seed 0 (now 7)"`` …; empty when they agree."""
-    out = []
+    (:func:`fingerprint`), one phrase each: ``"other points"``, ``"seed 0 (now 7)"`` …; empty when they agree.
+    Runs of another kind (level) differ in that alone: their options are not comparable."""
     if old.get("level") != new["level"]:
-        out.append(f"a {old.get('level')}-level run, not {new['level']}")
+        return [f"a {old.get('level')}-level run, not {new['level']}"]
+    out = []
     old_data = old.get("data_sha256", {})
     for k, v in new["data_sha256"].items():
         if k not in old_data:
@@ -144,11 +155,11 @@ def differences(old: dict, new: dict) -> list[str]:
     old_opt = old.get("options", {})
     for k, v in new["options"].items():
         if k in old_opt and old_opt[k] != v:
-            out.append(f"{k} {old_opt[k]!r} (now {v!r})")
+            out.append(_changed(k, old_opt[k], v))
         elif k not in old_opt:
-            out.append(f"no {k} option (now {v!r})")
+            out.append(f"{k} not set (now {v!r})")
     for k in old_opt.keys() - new["options"].keys():  # an option the run had that this one does not
-        out.append(f"{k} {old_opt[k]!r} (now none)")
+        out.append(f"{k} {old_opt[k]!r} (now not set)")
     return out
 
 

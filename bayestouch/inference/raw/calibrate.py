@@ -134,6 +134,16 @@ def response_factor(residual, delta, noise_sd, blocks, gain_sd: float) -> tuple[
     return float(b), float(max(sd_ls, sd_jack))
 
 
+#: response factors a calibration accepts: the nominal S_p is uncertain by a factor ~1.2 (models/taxels.toml); a
+#: factor outside this range (or negative) means the readings were not made on the object where the recording
+#: places it
+RESPONSE_PLAUSIBLE = (0.1, 10.0)
+#: largest noise multiplier k (robust residual sd / modelled read-out sd) a calibration accepts: 1 for the finger of
+#: models/, ~1–2 for fingers whose 1/f level and drift differ within their stated uncertainty
+#: (benchmarks/bench_mismatch.py); beyond it the readings were not made on the object as placed
+MISFIT_NOISE_SCALE = 5.0
+
+
 def calibrate_device(recording, obj, *, models=MODELS, object_name: str | None = None) -> DeviceCalibration:
     """Estimate the finger's per-taxel log-gains from a recording of strokes over the known ``obj``.
 
@@ -190,6 +200,14 @@ def calibrate_device(recording, obj, *, models=MODELS, object_name: str | None =
     delta = np.asarray(pred) - np.asarray(data.baseline)  # Δ ln I of the known surface
     b, b_sd = response_factor(r, delta, np.asarray(data.noise_sd), blocks, nominal_log_gain_sd(finger))
     identified = b_sd < IDENTIFIED_SHARE * RESPONSE_SCALE_SD
+    if identified and not RESPONSE_PLAUSIBLE[0] <= 1.0 + b <= RESPONSE_PLAUSIBLE[1]:
+        # negated normals or an object placed elsewhere gave "[response] scale must be in [0.001, 1000]": a field of
+        # a file the user never wrote
+        raise BadInput(
+            f"{where}: the readings do not fit the object where the recording puts it: the taxels' response to its "
+            f"pressure comes out at {1.0 + b:.3g} times the nominal (expected {RESPONSE_PLAUSIBLE[0]:g}–"
+            f"{RESPONSE_PLAUSIBLE[1]:g}); check the object (--object), its position and the contact normals"
+        )
     if identified:
         r = r - b * delta
     g, s = _block_estimates(r, blocks)
@@ -197,6 +215,12 @@ def calibrate_device(recording, obj, *, models=MODELS, object_name: str | None =
         s = np.hypot(s, b_sd * delta.mean(axis=0))
     log_gain[data.taxels], log_gain_sd[data.taxels] = g, s
     k = float(np.median(np.abs(r - g) / np.asarray(data.noise_sd)) / 0.6745)
+    if k > MISFIT_NOISE_SCALE:  # negated normals: the response unidentified, k 26, and the file written
+        raise BadInput(
+            f"{where}: the readings do not fit the object where the recording puts it: after the gains, the "
+            f"residuals are {k:.3g} times the modelled read-out noise (expected about 1, at most "
+            f"{MISFIT_NOISE_SCALE:g}); check the object (--object), its position and the contact normals"
+        )
     info = {
         "object": object_name or obj.name,
         "recording": dataset_digest(ds).hex(),
