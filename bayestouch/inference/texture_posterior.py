@@ -31,6 +31,7 @@ __all__ = [
     "Nuisances",
     "stroke_nuisances",
     "nuisance_projection",
+    "response_projection",
     "texture_means",
     "stroke_evidence",
     "texture_evidence",
@@ -289,15 +290,40 @@ def nuisance_projection(z, nuis: Nuisances):
     return r - delta[None] * u, log_factor - 0.5 * jnp.sum(nuis.gain_prec * delta * delta)
 
 
-def _ll_grid(surfs: Surface, x, arrays, y, nuis: Nuisances, shifts, tangent, finger, mode, nu):
+def response_projection(z, g, nuis: Nuisances, precision):
+    """:func:`nuisance_projection` joined by the taxels' common response factor a = a₀ + α, α ~ N(0, 1/``precision``),
+    which adds α g to the whitened residuals ``z`` (F, M), g (F, M) the whitened, standardised Δ ln I of the
+    hypothesis (its prediction less the unloaded baseline).
+
+    With P the marginal precision of the other nuisances (P z is :func:`nuisance_projection`'s residual), for
+    Gaussian readings α̂ = gᵀPz / (gᵀPg + precision), and the marginal likelihood is that of the projection of
+    z − α̂ g times exp(−½ precision α̂²) / √((gᵀPg + precision)/precision), up to factors of the data alone: the
+    determinant depends on the hypothesis through g and is kept. Returns (residual (F, M), log factor)."""
+    pz, _ = nuisance_projection(z, nuis)
+    pg, _ = nuisance_projection(g, nuis)
+    h = jnp.sum(pg * g)
+    alpha = jnp.sum(pg * z) / (h + precision)
+    r, log_factor = nuisance_projection(z - alpha * g, nuis)
+    return r, log_factor - 0.5 * precision * alpha * alpha - 0.5 * jnp.log1p(h / precision)
+
+
+def _ll_grid(surfs: Surface, x, arrays, y, nuis: Nuisances, response, shifts, tangent, finger, mode, nu):
+    """(K, G) log-likelihood; ``response`` = (a₀, its prior precision or None, the unloaded baseline (F, M))."""
+    a0, resp_prec, baseline = response
+
     def one_texture(args):
         tex, shifts_k = args
         surf = surfs._replace(texture=tex)
 
         def one_shift(o):
-            pred = _predict(surf, x + o * tangent, arrays, finger, mode)
-            z = nuis.whiten @ jnp.where(jnp.isfinite(pred), (y - pred) * nuis.inv_sd, 1e6)
-            z, prior = nuisance_projection(z, nuis)
+            raw = _predict(surf, x + o * tangent, arrays, finger, mode)
+            ok = jnp.isfinite(raw)
+            delta = jnp.where(ok, raw - baseline, 0.0)
+            z = nuis.whiten @ jnp.where(ok, (y - baseline - a0 * delta) * nuis.inv_sd, 1e6)
+            if resp_prec is None:
+                z, prior = nuisance_projection(z, nuis)
+            else:
+                z, prior = response_projection(z, nuis.whiten @ (delta * nuis.inv_sd), nuis, resp_prec)
             return jnp.sum(student_t_logpdf(z, 1.0, nu)) + prior
 
         return jax.vmap(one_shift)(shifts_k)
@@ -376,6 +402,11 @@ def texture_log_likelihood(
         _arrays(data),
         jnp.asarray(data.log_current),
         jax.tree.map(jnp.asarray, nuis),
+        (
+            jnp.asarray(float(data.response_scale)),
+            None if data.response_sd is None else jnp.asarray(1.0 / float(data.response_sd) ** 2),
+            jnp.asarray(data.baseline),
+        ),
         jnp.asarray(shifts),
         jnp.asarray(tangent, dtype=float),
         finger,
