@@ -11,7 +11,7 @@ import stat
 
 import numpy as np
 
-__all__ = ["BadInput", "check_bool", "file_problem"]
+__all__ = ["BadInput", "check_bool", "check_path", "file_problem"]
 
 
 class BadInput(ValueError):
@@ -24,6 +24,14 @@ def check_bool(value, name: str) -> None:
     if not isinstance(value, bool | np.bool_):
         shown = " ".join(repr(value).split())[:80]
         raise BadInput(f"{name}: expected True or False, got {shown}")
+
+
+def check_path(value, name: str) -> None:
+    """Refuse an output or input path ``name`` that is not a non-empty string or :class:`os.PathLike` (None ended
+    in a TypeError from deep inside a run)."""
+    if not (isinstance(value, os.PathLike) or (isinstance(value, str) and value.strip())):
+        shown = " ".join(repr(value).split())[:80]
+        raise BadInput(f"{name}: expected a path (a string or pathlib.Path), got {shown}")
 
 
 def file_problem(path: str | os.PathLike[str]) -> str:

@@ -73,6 +73,8 @@ TABLE = [
     ("explore --object {egg} --candidates 1000000000 --out {tmp}/o", "--candidates"),
     ("explore --object {egg} --strokes 100000 --out {tmp}/o", "--strokes"),
     ("explore --object {egg} --draws 1 --out {tmp}/o", "--draws"),
+    # issue 24, ninth review: a centre in millimetres or centimetres sent strokes metres away
+    ("explore --port /dev/null --centre 0,0,5 --out {tmp}/o", "--centre 0,0,5: the coordinates look like some unit"),
     ("explore --object {egg} --target-volume-sd -1 --out {tmp}/o", "--target-volume-sd"),
     ("experiment --strokes 100000 --out {tmp}/o", "--strokes"),
     ("experiment --draws 1 --out {tmp}/o", "--draws"),

@@ -793,3 +793,17 @@ def test_stroke_file_times_and_sizes_are_checked_before_anything_is_sent(tmp_pat
         load_stroke_file(_stroke_file(tmp_path / "long.json", [long]), currents)
     with pytest.raises(BadInput, match=rf"{MAX_DEVICE_STROKES + 1} strokes; at most {MAX_DEVICE_STROKES}"):
         load_stroke_file(_stroke_file(tmp_path / "many.json", [make_plan(2)] * (MAX_DEVICE_STROKES + 1)), currents)
+
+
+def test_stroke_file_with_a_key_given_twice_is_refused(tmp_path):
+    """Issue 24, ninth review: a key given twice in a stroke file silently kept the last. Control: the file
+    without the repeat loads."""
+    from bayestouch.cli.device import load_stroke_file
+
+    good = _stroke_file(tmp_path / "s.json", [make_plan(10)])
+    assert len(load_stroke_file(good, [0.1, 0.05, 0.05])) == 1
+    text = good.read_text()
+    twice = tmp_path / "twice.json"
+    twice.write_text(text.replace('"depth":', '"depth": 0.0001, "depth":', 1))
+    with pytest.raises(BadInput, match="the key 'depth' appears twice"):
+        load_stroke_file(twice, [0.1, 0.05, 0.05])

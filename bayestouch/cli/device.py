@@ -184,12 +184,28 @@ RANDOM_STROKE_DEFAULTS = {
 STROKE_KEYS = ("time", "contact", "normal", "depth", "hold_currents")
 
 
+class _DuplicateKey(Exception):
+    pass
+
+
+def _unique_keys(pairs):
+    out = {}
+    for k, v in pairs:
+        if k in out:
+            raise _DuplicateKey(repr(k))
+        out[k] = v
+    return out
+
+
 def load_stroke_file(path: Path, hold_currents) -> list:
     """Stroke plans from a JSON file (see ``device run --help``); raises BadInput naming the problem."""
     from bayestouch.hardware.safety import StrokePlan
 
     try:
-        doc = json.loads(Path(path).read_text(encoding="utf-8-sig"))  # a byte-order mark is allowed, as in a CSV
+        # a byte-order mark is allowed, as in a CSV; a key given twice is refused (JSON keeps the last, silently)
+        doc = json.loads(Path(path).read_text(encoding="utf-8-sig"), object_pairs_hook=_unique_keys)
+    except _DuplicateKey as e:
+        raise BadInput(f"--stroke-file {path}: the key {e} appears twice in one object; give each once") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as e:
         raise BadInput(
             f"--stroke-file {path}: cannot be read as JSON ({type(e).__name__}); expected "

@@ -151,6 +151,10 @@ def _centre(text):
         c = []
     if len(c) != 3 or not all(map(math.isfinite, c)):
         raise BadInput(f"--centre must be three numbers in metres like 0,0,0.03, got {text!r}")
+    from bayestouch.io.contacts import unit_problem
+
+    if hint := unit_problem([c]):  # 0,0,5 sent strokes to a point 5 m away (only the ±10 m safety limit caught more)
+        raise BadInput(f"--centre {text}: the coordinates {hint}")
     return c
 
 
@@ -304,12 +308,9 @@ def _explore_device(obj, args, port: str, out: Path, kw: dict):
             res = explore(obj, args.planner, args.budget, prober=prober, **kw)
     except DeviceError as e:
         n = len(prober.strokes) if prober is not None else 0
-        print(
-            f"bayestouch explore: error: {e}; {n} complete stroke(s) "
-            + (f"in {rec}; " if n else "")
-            + f"everything received is in {journal}",
-            file=sys.stderr,
-        )
+        got = f"everything received is in {journal}" if journal.is_file() else "nothing was received"
+        kept = f" in {rec}" if n else ""
+        print(f"bayestouch explore: error: {e}; {n} complete stroke(s){kept}; {got}", file=sys.stderr)
         return None
     print(
         f"wrote {rec}: {len(prober.strokes)} stroke(s) from {dev.info.firmware}, "

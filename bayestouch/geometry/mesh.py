@@ -130,6 +130,10 @@ def sample_mesh(vertices, faces, count: int, seed=None) -> tuple[np.ndarray, np.
     return pts, fi
 
 
+#: most points :func:`sample_surface` draws at once (10⁷ points: 240 MB; 10¹² ended in a MemoryError)
+MAX_SURFACE_POINTS = 10_000_000
+
+
 def sample_surface(s: NEllipsoid, count: int, seed=None, res: int = 48) -> np.ndarray:
     """Points uniform by surface area on the n-ellipsoid ``s`` (not uniform in its parameters).
 
@@ -154,8 +158,8 @@ def sample_surface(s: NEllipsoid, count: int, seed=None, res: int = 48) -> np.nd
             raise BadInput(
                 f"shape: expected an NEllipsoid (or a SceneObject, whose shape is used), got {type(s).__name__}"
             )
-    if isinstance(count, bool) or not isinstance(count, int | np.integer) or count < 1:
-        raise BadInput(f"count: expected a positive integer number of points, got {count!r}")
+    if isinstance(count, bool) or not isinstance(count, int | np.integer) or not 1 <= count <= MAX_SURFACE_POINTS:
+        raise BadInput(f"count: expected an integer number of points from 1 to {MAX_SURFACE_POINTS:,}, got {count!r}")
     v, f = nellipsoid_mesh(s, res)
     pts, _ = sample_mesh(v, f, count, seed)
     return np.asarray(project_to_surface(s, jnp.asarray(pts)))

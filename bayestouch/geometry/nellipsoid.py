@@ -74,6 +74,11 @@ def check_shape(s: NEllipsoid, where: str = "shape") -> None:
     """Refuse (:class:`~bayestouch.errors.BadInput` naming ``where``) an n-ellipsoid whose parameters are not
     numbers of the stated forms: centre (3,) finite metres, axes (3,) finite > 0 metres, angles (3,) finite
     radians, n finite > 0 (NaN or a negative axis gave NaN or inside-out meshes without a word)."""
+    if not all(hasattr(s, f) for f in ("centre", "axes", "angles", "n")):
+        raise BadInput(
+            f"{where}: expected an NEllipsoid (centre, axes, angles, n; e.g. load_object(NAME).shape), got "
+            f"{type(s).__name__} {s!r:.60}"
+        )
     for name, shape, positive in (("centre", (3,), False), ("axes", (3,), True), ("angles", (3,), False)):
         v = np.asarray(getattr(s, name), dtype=float)
         if v.shape != shape or not np.all(np.isfinite(v)) or (positive and not np.all(v > 0)):

@@ -281,6 +281,14 @@ class FingerDevice:
             raise BadInput(
                 f"--segment: expected 0 (whole packets) or {pr.MIN_SEGMENT}–{pr.MAX_PACKET} bytes, got {segment}"
             )
+        for name, value in (
+            ("timeout", timeout),
+            ("connect_timeout", connect_timeout),
+            ("stroke_timeout", stroke_timeout),
+        ):
+            if not (isinstance(value, int | float) and np.isfinite(value) and value > 0):
+                # -1 failed later as "no answer to Hello after 184 tries", nan as a ValueError
+                raise BadInput(f"--{name.replace('_', '-')}: expected a positive number of seconds, got {value!r}")
         self.segment = segment
         self._segment = 0  # the PART size in use (0: whole packets)
         self.url, self.timeout, self.retries = str(url), float(timeout), int(retries)

@@ -65,6 +65,21 @@ class Faults(NamedTuple):
     seed: int = 0
 
 
+def check_faults(faults: Faults) -> Faults:
+    """``faults`` when every field has its stated form, else :class:`BadInput` naming the field (probabilities in
+    [0, 1], a delay of ≥ 0 s, a count ≥ 1)."""
+    for name in ("drop", "corrupt", "delay_prob"):
+        v = getattr(faults, name)
+        if not (isinstance(v, int | float) and 0.0 <= v <= 1.0):
+            raise BadInput(f"Faults.{name}: expected a probability in [0, 1], got {v!r}")
+    if not (isinstance(faults.delay, int | float) and np.isfinite(faults.delay) and faults.delay >= 0):
+        raise BadInput(f"Faults.delay: expected a stall of ≥ 0 seconds, got {faults.delay!r}")
+    n = faults.disconnect_after
+    if n is not None and (isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 1):
+        raise BadInput(f"Faults.disconnect_after: expected a number of frames ≥ 1 or None, got {n!r}")
+    return faults
+
+
 class VirtualDevice:
     """The virtual finger on a pseudo-terminal.
 
@@ -98,7 +113,11 @@ class VirtualDevice:
         link: str | os.PathLike | None = None,
         rate: float = 50.0,
     ):
-        faults = faults or Faults()
+        faults = check_faults(faults or Faults())
+        if not (isinstance(speed, int | float) and np.isfinite(speed) and speed >= 0):
+            raise BadInput(f"speed: expected a real-time factor ≥ 0 (0: as fast as possible), got {speed!r}")
+        if not (isinstance(rate, int | float) and np.isfinite(rate) and 1 <= rate <= 2000):
+            raise BadInput(f"rate: expected a frame rate in [1, 2000] Hz, got {rate!r}")
         self.model, self.limits, self.speed, self.faults, self.rate = (
             model,
             limits or Limits(),

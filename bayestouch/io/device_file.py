@@ -284,6 +284,9 @@ def device_calibration(doc: dict, where: str) -> DeviceCalibration:
         )
     if np.any(np.abs(lg) > 20):
         raise BadInput(f"{where}: [gains] log_gain has |values| over 20 (gains beyond e^±20); expected ln of a gain")
+    n = dev.get("taxels")
+    if n is not None and n != lg.size:  # a header that disagrees with its own lists: an edited or mixed-up file
+        raise BadInput(f"{where}: [device] taxels is {n!r}, but [gains] holds {lg.size} values per list")
     resp, scale, scale_sd = doc.get("response"), 1.0, None
     if resp is not None:
         if not isinstance(resp, dict):

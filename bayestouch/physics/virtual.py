@@ -50,6 +50,9 @@ def finger_name(seed: int) -> str:
 def load_finger(models: Path = MODELS, seed: int = 0) -> VirtualFinger:
     """Read ``finger.toml``, ``skin.toml``, ``taxels.toml``, ``noise.toml`` from ``models``; ``seed`` draws the
     device's fixed pattern."""
+    models = Path(models)
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or not 0 <= seed < 2**32:
+        raise BadInput(f"seed: expected an integer in [0, 2**32) (the finger's fixed pattern), got {seed!r}")
     rod = bending.load_rod(models / "finger.toml")
     wire = sma.load_wire(models / "finger.toml")
     sk = skin.load_skin(models / "skin.toml")

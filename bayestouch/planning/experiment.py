@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
-from bayestouch.errors import BadInput, check_bool
+from bayestouch.errors import BadInput, check_bool, check_path
 from bayestouch.io.files import read_csv_rows, set_aside, write_csv_rows, write_json
 from bayestouch.io.runfolder import differences, fingerprint, locked_run_folder
 from bayestouch.planning.device_prober import VirtualFingerProber
@@ -304,6 +304,7 @@ def run_experiment(
     planners = [p.strip() for p in planners.split(",") if p.strip()] if isinstance(planners, str) else list(planners)
     if isinstance(objects, str):
         objects = [o.strip() for o in objects.split(",") if o.strip()]
+    check_path(out, "out")
     check_bool(resume, "resume")
     check_bool(overwrite, "overwrite")
     if isinstance(workers, bool) or not isinstance(workers, int | np.integer):

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from bayestouch.backend import jax
-from bayestouch.errors import BadInput
+from bayestouch.errors import BadInput, check_path
 from bayestouch.inference.raw import HostDevice, RawData, host_device
 from bayestouch.inference.texture_posterior import (
     read_stroke,
@@ -458,6 +458,7 @@ def run_experiment(
     dict
         The summary written to ``summary.json``.
     """
+    check_path(out, "out")
     if trials < 1 or max_strokes < 1:
         raise BadInput(f"--trials and --max-strokes must be ≥ 1, got {trials} and {max_strokes}")
     lib = load_library(library).subset(textures)

@@ -89,6 +89,8 @@ def random_strokes(
         raise BadInput(f"count: expected an integer number of strokes ≥ 1, got {count!r}")
     if not (duration > 0 and speed > 0 and rate > 0):
         raise BadInput("strokes: duration (s), speed (m/s) and rate (Hz) must be > 0")
+    if not hasattr(getattr(obj, "shape", None), "axes"):
+        raise BadInput(f"obj: expected a SceneObject (load_object(NAME)), got {type(obj).__name__} {obj!r:.60}")
     rng = as_rng(seed)
     amin = float(np.min(np.asarray(obj.shape.axes)))
     out = []
