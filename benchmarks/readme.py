@@ -322,6 +322,20 @@ def _texture(doc: dict) -> tuple[str, str, str]:
     )
 
 
+def _texture_mismatch(d: dict) -> tuple[str, str, str]:
+    lo, hi = d["accuracy_wilson95"]
+    wlo, whi = d["wrong_decision_wilson95"]
+    return (
+        f"Texture identification when the finger is not the one assumed ({d['textures']} textures including 20 "
+        f"close twins; {d['fingers']} fingers with S_p, lag, fixed pattern, 1/f and drift drawn within their stated "
+        "uncertainty, each calibrated on 3 sphere strokes; empirical mode; one trial per texture and finger)",
+        f"accuracy at decision {d['accuracy_at_decision']:.3f} {_ci([lo, hi], 3)} (Wilson, n={d['trials']}); "
+        f"{d['wrong_decisions']} wrong of {d['decided']} decided at 0.95 (rate 95 % CI {_ci([wlo, whi], 3)}); "
+        f"median {d['median_strokes_to_decision']:.0f} stroke(s) to decision",
+        "`bench_texture_mismatch` (`benchmarks/results/texture_mismatch.json`)",
+    )
+
+
 #: the table's rows, in order: each ``(result file, render)``; ``render`` turns the file's JSON into
 #: ``(what, figure, benchmark)``
 ROWS: tuple[tuple[str, Callable[[dict], tuple[str, str, str]]], ...] = (
@@ -338,6 +352,7 @@ ROWS: tuple[tuple[str, Callable[[dict], tuple[str, str, str]]], ...] = (
     ("bench_samplers.json", _samplers),
     ("bench_device.json", _link_loss),
     ("bench_texture.json", _texture),
+    ("texture_mismatch.json", _texture_mismatch),
 )
 
 

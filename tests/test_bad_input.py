@@ -23,6 +23,9 @@ TABLE = [
     ("fit {tmp}/missing.csv --out {tmp}/o", "missing.csv"),
     ("fit {tmp}/missing.nc --out {tmp}/o", "missing.nc"),
     ("simulate --object {tmp}/missing.toml --out {tmp}/r.nc", "missing.toml"),
+    # issue 24, ninth review: an empty name was "unknown object '.'", a folder an unknown object
+    ("simulate --object= --out {tmp}/r.nc", "object: got an empty name"),
+    ("simulate --object {tmp} --out {tmp}/r.nc", "is a folder; expected an object name"),
     ("reproduce-paper --object {tmp}/missing.toml --out {tmp}/o", "missing.toml"),
     ("explore --object {tmp}/missing.toml --out {tmp}/o", "missing.toml"),
     ("device run --port {tmp}/no_such_port --strokes 1 --out {tmp}/r.nc", "no_such_port"),

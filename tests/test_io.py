@@ -673,9 +673,12 @@ def test_a_recording_that_appears_while_another_is_written_is_kept(tmp_path):
         with xr.open_dataset(p, engine="h5netcdf") as ds:
             return float(ds.time[0])
 
-    with pytest.raises(BadInput, match=r"r\.nc already exists; pass overwrite=True"):
-        write_recording(second, path)  # the default never replaces a recording
+    with pytest.raises(BadInput, match=r"r\.nc already exists and is kept; this recording was written to .*r\.\d{8}T"):
+        write_recording(second, path)  # the default never replaces a recording, nor drops the new one
     assert first_time(path) == 0.0
+    (beside,) = tmp_path.glob("r.*T*Z.nc")
+    assert first_time(beside) == 10.0
+    beside.unlink()
     late = tmp_path / "late.nc"
     with pytest.raises(BadInput, match=r"late\.nc appeared while this run wrote it.*this run's file is .*late\.\d{8}T"):
         with atomic_path(late, replace=False) as tmp:

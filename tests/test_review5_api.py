@@ -114,7 +114,7 @@ def test_simulate_detects_a_file_written_meanwhile_and_sets_aside_only_with_over
 
     monkeypatch.setattr(virtual, "recording_dataset", concurrent)
     capsys.readouterr()
-    with pytest.raises(BadInput, match="appeared while this run wrote it") as e:
+    with pytest.raises(BadInput, match="appeared while this run wrote it|already exists and is kept") as e:
         bt.simulate("sphere", **SIM, out=race)
     _one_line(e)
     assert race.read_bytes() == b"the other run's recording"  # kept where it is, not moved aside
@@ -140,7 +140,7 @@ def test_calibrate_detects_a_file_written_meanwhile_and_sets_aside_only_with_ove
 
     monkeypatch.setattr(rc, "calibrate_device", concurrent)
     capsys.readouterr()
-    with pytest.raises(BadInput, match="appeared while this run wrote it") as e:
+    with pytest.raises(BadInput, match="appeared while this run wrote it|already exists and is kept") as e:
         bt.calibrate(SPHERE_REC, "sphere", out=dev)
     _one_line(e)
     assert dev.read_text() == "# the other run's device file\n"

@@ -20,7 +20,7 @@ import numpy as np
 import xarray as xr
 
 from bayestouch.errors import BadInput
-from bayestouch.io.files import atomic_path
+from bayestouch.io.files import atomic_path, utc_stamp
 
 __all__ = [
     "MAX_FRAMES",
@@ -142,9 +142,10 @@ def write_recording(ds, path, *, overwrite: bool = False, replace: bool | None =
     ds : xarray.Dataset
     path : path
     overwrite : bool
-        Replace a recording already at ``path`` (only once the new one is complete). Without it an existing file is
-        refused (:class:`BadInput`), and a file that appears at ``path`` while this one is written is kept, the
-        new one beside it: a recording is never replaced by accident.
+        Replace a recording already at ``path`` (only once the new one is complete). Without it a file already at
+        ``path``, or one that appears there while this one is written, is kept and this recording written beside
+        it as ``NAME.<UTC time>.nc``, with a :class:`BadInput` naming both: never replaced by accident, never
+        lost.
     replace : bool, optional
         The former name of ``overwrite`` (kept for scripts that pass it).
 
@@ -155,7 +156,14 @@ def write_recording(ds, path, *, overwrite: bool = False, replace: bool | None =
     path = Path(path)
     overwrite = bool(overwrite if replace is None else replace)
     if not overwrite and path.exists():
-        raise BadInput(f"{path} already exists; pass overwrite=True to replace it, or choose another file")
+        # neither replaced nor lost: this recording goes beside the one there (a device run's strokes are data)
+        kept = path.with_name(f"{path.stem}.{utc_stamp()}{path.suffix}")
+        with atomic_path(kept, replace=False) as tmp:
+            ds.to_netcdf(tmp, engine="h5netcdf")
+        raise BadInput(
+            f"{path} already exists and is kept; this recording was written to {kept} (pass overwrite=True to "
+            "replace it)"
+        )
     # atomic_path: a temporary file of the usual umask-derived mode (mkstemp's 0600 made recordings unreadable to
     # the group where every other output is not), fsynced before it replaces the old file
     with atomic_path(path, replace=overwrite) as tmp:

@@ -390,6 +390,8 @@ def resolve_object(name: str, models=None) -> Path:
     A name (``egg``) is ``objects/egg.toml`` of the parameter folder ``models`` when that folder has it (a user's
     folder overrides), else the shipped ``models/objects/egg.toml``.
     """
+    if not str(name).strip() or str(name).strip() == ".":
+        raise BadInput("object: got an empty name; expected an object name like egg or a path to a .toml file")
     p = Path(name)
     if p.suffix == ".toml":
         if problem := file_problem(p):
@@ -400,6 +402,8 @@ def resolve_object(name: str, models=None) -> Path:
         q = folder / f"{name}.toml"
         if q.is_file():
             return q
+    if p.is_dir():
+        raise BadInput(f"object {p}: is a folder; expected an object name like egg or a path to a .toml file")
     known = sorted({x.stem for folder in [*folders, OBJECTS_DIR] for x in folder.glob("*.toml")})
     raise BadInput(f"object: unknown object {name!r}; expected one of {', '.join(known)} or a path to a .toml file")
 
