@@ -112,6 +112,8 @@ TABLE = [
     ("experiment --trials 1000000000 --out {tmp}/o", "split it"),
     ("experiment --scheduler tcp://127.0.0.1:9 --budget 1 --trials 1 --out {tmp}/o", "no Dask scheduler"),
     ("device simulate --drop 2", "--drop"),
+    # issue 24, ninth review: the pty's status line came before the error (two lines)
+    ("device simulate --object BAD", "unknown object 'BAD'"),
     ("device run --port {tmp}/no_such_port --strokes 0 --out {tmp}/r.nc", "--strokes"),
     ("demo --seed -1 --out {tmp}/o", "--seed"),
     # seeds outside NumPy's [0, 2**32) are refused before any work, in every command that takes one

@@ -136,6 +136,11 @@ BAD_FILES = {
         "data row 3, file line 4, column y: 'abc' is not a number",
     ),
     "empty cell": (_csv(RING, at=3, bad="0.01,0.02,"), "data row 3, file line 4, column z is empty"),
+    # issue 24, ninth review: Python's float read "1_0" as 10, and the file was then said to be in cm or mm
+    "digit separator": (
+        _csv(RING, at=3, bad="0.01,1_0,0.0"),
+        "data row 3, file line 4, column y: '1_0' is not a number",
+    ),
     "nan": (_csv(RING, at=3, bad="0.01,nan,0.0"), "data row 3, file line 4, column y is nan (not finite)"),
     "inf": (_csv(RING, at=7, bad="0.01,0.0,-inf"), "data row 7, file line 8, column z is -inf (not finite)"),
     "ragged short": (_csv(RING, at=3, bad="0.01,0.0"), "file line 4 has 2 fields but the header has 3"),

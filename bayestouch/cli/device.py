@@ -356,6 +356,9 @@ def _simulate(args) -> int:
         args.seed,
     )
     limits = load_limits(args.models, max_force=args.max_force, watchdog=args.watchdog)
+    from bayestouch.scene.objects import resolve_object
+
+    resolve_object(args.object, args.models)  # a bad --object is named before the pty opens (one line, no status)
     sim = VirtualDevice(None, limits=limits, speed=args.speed, faults=faults, link=args.link)
     try:
         port = sim.open()

@@ -268,6 +268,8 @@ def _parse_header(fields: list[str], source: str) -> dict[str, int]:
 
 
 def _is_number(text: str) -> bool:
+    if "_" in text:
+        return False
     try:
         float(text)
     except ValueError:
@@ -281,6 +283,8 @@ def _parse_cell(text: str, col: str, row: int, line: int, source: str) -> float:
     if not s:
         raise file_error(source, f"{_where(row, line)}, column {col} is empty; expected a number{unit}")
     try:
+        if "_" in s:  # Python reads "1_0" as 10: a digit-group separator is no CSV number
+            raise ValueError(s)
         v = float(s)
     except ValueError:
         raise file_error(

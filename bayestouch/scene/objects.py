@@ -405,7 +405,9 @@ def resolve_object(name: str, models=None) -> Path:
     if p.is_dir():
         raise BadInput(f"object {p}: is a folder; expected an object name like egg or a path to a .toml file")
     known = sorted({x.stem for folder in [*folders, OBJECTS_DIR] for x in folder.glob("*.toml")})
-    raise BadInput(f"object: unknown object {name!r}; expected one of {', '.join(known)} or a path to a .toml file")
+    raise BadInput(
+        f"object: unknown object {str(name)!r}; expected one of {', '.join(known)} or a path to a .toml file"
+    )
 
 
 def load_object(path, models=None) -> SceneObject:
