@@ -262,9 +262,9 @@ def nuisance_projection(z, nuis: Nuisances):
     (variance ``RawData.common_var``) is one and the same in every taxel of frame f. Counted as independent noise
     per reading it is counted M times over, and a hypothesis whose prediction differs from another's by a pattern
     with a non-zero mean over the taxels of a frame gains evidence from it: measured on two textures 5.7 % apart
-    in grating amplitude, the log evidence ratio varied 1.8× more over noise draws than the model allowed
-    (var/(2·mean) 4.1 over 48 draws where a calibrated likelihood gives 1), and one trial in 120 decided for the wrong twin with
-    p(truth) = 3e-5. Here e ~ N(0, S) is marginalised with the offsets: the model is
+    in grating amplitude, the log evidence ratio varied over noise draws far more than the model allowed
+    (var/(2·mean) 4.1 over 48 draws, where a calibrated likelihood gives 1), and one trial in 120 decided for the
+    wrong twin with p(truth) = 3e-5. Here e ~ N(0, S) is marginalised with the offsets: the model is
     z_m = E_m e + δ_m u_m + noise, E_m = L⁻¹ diag(1/sd_m); with each δ_m profiled (Q_m = I − q_m u_m u_mᵀ),
     ê = A⁻¹ Σ_m E_mᵀ Q_m z_m, δ̂_m = q_m u_mᵀ (z_m − E_m ê), and for Gaussian readings the marginal likelihood is
     that of z − E ê − δ̂ u times exp(−½ (êᵀ S⁻¹ ê + Σ_m precision_m δ̂_m²)), up to a factor of the data alone.
