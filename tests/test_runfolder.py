@@ -168,3 +168,25 @@ def test_resume_refusal_names_only_what_changed(tmp_path):
     other = fingerprint("parts", {"points": np.zeros((4, 3))}, {"walkers": 32})
     assert differences(old, other) == ["a contact-level run, not parts"]
     assert differences(old, old) == []
+
+
+def test_one_overwrite_sets_an_earlier_run_aside_in_one_folder(tmp_path):
+    """Issue 24, ninth review: ``fit --overwrite`` over a texture-id folder moved results.csv and the figure into one
+    replaced-* folder and summary.json into another, which the message called "the previous run". Steps of one
+    overwrite now share the folder; a name already there (another run's file of the same name) still gets a new
+    one, so nothing is replaced."""
+    from bayestouch.io.files import move_aside
+
+    for name in ("results.csv", "accuracy_vs_strokes.png", "summary.json"):
+        (tmp_path / name).write_text(name)
+    first = move_aside(tmp_path, [tmp_path / "results.csv", tmp_path / "accuracy_vs_strokes.png"])
+    second = move_aside(tmp_path, [tmp_path / "summary.json"])
+    assert first == second and sorted(p.name for p in first.iterdir()) == [
+        "accuracy_vs_strokes.png",
+        "results.csv",
+        "summary.json",
+    ]
+    (tmp_path / "summary.json").write_text("a later run")
+    third = move_aside(tmp_path, [tmp_path / "summary.json"])
+    assert third != first and (third / "summary.json").read_text() == "a later run"
+    assert (first / "summary.json").read_text() == "summary.json"

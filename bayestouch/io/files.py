@@ -220,15 +220,30 @@ def utc_stamp() -> str:
 def move_aside(folder: str | os.PathLike[str], paths) -> Path:
     """Move the files ``paths`` into a new folder ``folder/replaced-<UTC time>`` (``.2``, ``.3`` … when that name
     is taken) and return it: an earlier run's outputs kept, never deleted, where a new run replaces them."""
+    paths = [Path(p) for p in paths]
+    # one overwrite sets aside in steps (another command's results, then the run's own): this process's folder of
+    # the last minute takes them all while no name clashes (two replaced-* folders split one earlier run)
+    key = str(Path(folder).resolve())
+    recent = _ASIDE.get(key)
+    if recent is not None and time.monotonic() - recent[1] < 60 and recent[0].is_dir():
+        if not any((recent[0] / p.name).exists() for p in paths):
+            for p in paths:
+                p.replace(recent[0] / p.name)
+            return recent[0]
     base = Path(folder) / f"replaced-{utc_stamp()}"
     aside, k = base, 1
     while aside.exists():
         k += 1
         aside = base.with_name(f"{base.name}.{k}")
     aside.mkdir(parents=True)
-    for p in map(Path, paths):
+    for p in paths:
         p.replace(aside / p.name)
+    _ASIDE[key] = (aside, time.monotonic())
     return aside
+
+
+#: the folder :func:`move_aside` made last in each run folder, by this process, and when (time.monotonic)
+_ASIDE: dict[str, tuple[Path, float]] = {}
 
 
 def set_aside(paths, who: str) -> Path | None:
