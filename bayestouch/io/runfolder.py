@@ -157,9 +157,9 @@ def differences(old: dict, new: dict) -> list[str]:
         if k in old_opt and old_opt[k] != v:
             out.append(_changed(k, old_opt[k], v))
         elif k not in old_opt:
-            out.append(f"{k} not set (now {v!r})")
+            out.append(f"{k} at its default (now {v!r})")  # an option the earlier run's key left out
     for k in old_opt.keys() - new["options"].keys():  # an option the run had that this one does not
-        out.append(f"{k} {old_opt[k]!r} (now not set)")
+        out.append(f"{k} {old_opt[k]!r} (now at its default)")
     return out
 
 
