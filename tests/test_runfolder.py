@@ -32,6 +32,10 @@ def test_a_folder_holding_a_run_is_refused_without_resume_or_overwrite(tmp_path)
     # 24, ninth review)
     with pytest.raises(BadInput, match="not its chain.h5, so it cannot be continued.*--overwrite"):
         prepare_run_folder(out, _fp(pts), resume=True)
+    (out / "smc.npz").write_bytes(b"stage")  # every finished fit keeps its tempering stage (tenth review)
+    with pytest.raises(BadInput, match="not its chain.h5, so it cannot be continued.*--overwrite"):
+        prepare_run_folder(out, _fp(pts), resume=True)
+    (out / "smc.npz").unlink()
     assert (out / "summary.json").read_text() == '{"old": true}'
     (out / "chain.h5").write_bytes(b"chain")
     prepare_run_folder(out, _fp(pts), resume=True)  # the same data and options resume

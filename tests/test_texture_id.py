@@ -374,3 +374,24 @@ def test_evidence_ratio_of_close_twins_is_calibrated():
     assert new.mean() > 10.0
     assert 0.55 < new.var(ddof=1) / (2 * new.mean()) < 1.6
     assert old.var(ddof=1) / (2 * old.mean()) > 2.5
+
+
+def test_finger_models_of_another_layout_are_refused(tmp_path):
+    """Issue 24, tenth review: ``texture-id --finger-models`` with another taxel count ended in an exit 1 while the
+    recording was assembled. Refused in one line before any trial, the output folder not made."""
+    import re
+    import shutil
+
+    from bayestouch.params import MODELS
+
+    models = tmp_path / "models"
+    shutil.copytree(MODELS, models)
+    text = (models / "taxels.toml").read_text()
+    (models / "taxels.toml").write_text(
+        re.sub(r"(?m)^rows = .*$", 'rows = { value = 20, unit = "1", source = "test" }', text)
+    )
+    with pytest.raises(
+        BadInput, match=r"--finger-models .*a finger of 20×16 taxels; the identifier's \(models/\) has 16×16"
+    ):
+        ti.run_experiment(tmp_path / "out", textures=2, trials=1, max_strokes=1, progress=False, finger_models=models)
+    assert not (tmp_path / "out").exists()

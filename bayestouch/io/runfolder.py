@@ -224,7 +224,7 @@ def prepare_run_folder(out, fp: dict, *, resume: bool, overwrite: bool = False) 
         )
     if resume and not held and not (out / "smc.npz").exists():
         print(f"bayestouch: --resume: {out} holds no run yet; starting one", file=sys.stderr)
-    if resume and held and "chain.h5" not in held and not started:
+    if resume and held and "chain.h5" not in held:  # a finished run keeps smc.npz too: it does not make one resumable
         # a finished run whose chain is gone cannot be continued: a fresh chain would replace its results
         raise BadInput(
             f"{RESUME}: {out} holds a run ({', '.join(held)}) but not its chain.h5, so it cannot be continued; "

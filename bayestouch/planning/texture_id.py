@@ -465,9 +465,15 @@ def run_experiment(
     settings = settings.check()
     check_calibration(calibration, settings.mode, seed)
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     vf = load_finger(Path(finger_models), seed=int(seed))
     device = host_device(calibration=calibration)
+    if np.shape(vf.finger.grid) != np.shape(device.finger.grid):  # an exit 1 in the recording's assembly before
+        raise BadInput(
+            f"--finger-models {finger_models}: a finger of {np.shape(vf.finger.grid)[0]}×{np.shape(vf.finger.grid)[1]}"
+            f" taxels; the identifier's (models/) has {np.shape(device.finger.grid)[0]}×"
+            f"{np.shape(device.finger.grid)[1]}, and reads only that layout"
+        )
+    out.mkdir(parents=True, exist_ok=True)
     surfs = lib.surfaces()
     t0 = time.perf_counter()
     results = ResultsFile(out / "results.csv", COLUMNS)
