@@ -747,13 +747,17 @@ def test_cli_run_writes_each_complete_stroke_and_survives_a_hangup(device, tmp_p
     monkeypatch.setattr(FingerDevice, "run_stroke", stroke)
     f = _stroke_file(tmp_path / "strokes.json", [make_plan(30), make_plan(20), make_plan(25)])
     argv = ["device", "run", "--port", str(tmp_path / "finger"), "--stroke-file", str(f), "--out", str(out)]
-    assert run_device(_parser().parse_args([*argv, "--quiet"])) == 130
+    prev = signal.signal(signal.SIGHUP, signal.SIG_DFL)  # a terminal's default (under nohup it is ignored, and kept so)
+    try:
+        assert run_device(_parser().parse_args([*argv, "--quiet"])) == 130
+        assert signal.getsignal(signal.SIGHUP) is signal.SIG_DFL  # the handler put back
+    finally:
+        signal.signal(signal.SIGHUP, prev)
     assert seen[:2] == [0, 30]  # on disk after the first stroke, before the second started
     err = capsys.readouterr().err
     assert "interrupted; 2 complete stroke(s) written" in err
     ds = read_recording(out)
     assert ds.attrs["incomplete"] == "true" and ds["taxel_current"].shape[0] == 50
-    assert signal.getsignal(signal.SIGHUP) is signal.SIG_DFL or callable(signal.getsignal(signal.SIGHUP))
 
 
 def test_the_virtual_finger_names_its_unit_in_the_handshake(tmp_path):

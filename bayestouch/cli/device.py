@@ -517,6 +517,8 @@ def _run_locked(args, plans, limits) -> int:
         if sig is None:
             continue
         try:
+            if signal.getsignal(sig) is signal.SIG_IGN:  # nohup: the user asked for hangups to be ignored
+                continue
             old_handlers[sig] = signal.signal(sig, terminated)
         except ValueError:  # not the main thread: no handler can be installed there
             pass

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import signal
 from pathlib import Path
 
 from bayestouch.cli.args import bounded_int, check_out, out_path
@@ -76,8 +77,7 @@ def run_texture_id(args) -> int:
     one line)."""
     from bayestouch.errors import BadInput
     from bayestouch.io.device_file import read_device_file
-    from bayestouch.io.runfolder import locked_run_folder
-    from bayestouch.planning.texture_id import IdSettings, check_calibration, run_experiment
+    from bayestouch.planning.texture_id import check_calibration
 
     if not Path(args.finger_models).is_dir():
         raise BadInput(
@@ -85,6 +85,28 @@ def run_texture_id(args) -> int:
         )
     calibration = None if args.calibration is None else read_device_file(args.calibration)
     check_calibration(calibration, args.mode, args.seed)  # before earlier results are set aside
+
+    def terminated(signum, frame):  # SIGTERM, SIGHUP: as Ctrl-C (one line, exit 130), not a silent death
+        raise KeyboardInterrupt
+
+    old = {}
+    for sig in (signal.SIGTERM, getattr(signal, "SIGHUP", None)):
+        if sig is not None and signal.getsignal(sig) is not signal.SIG_IGN:  # nohup's choice is kept
+            try:
+                old[sig] = signal.signal(sig, terminated)
+            except ValueError:  # not the main thread
+                pass
+    try:
+        return _run(args, calibration)
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+
+
+def _run(args, calibration) -> int:
+    from bayestouch.io.runfolder import locked_run_folder
+    from bayestouch.planning.texture_id import IdSettings, run_experiment
+
     # the folder is this run's from the check of earlier results to the last output (a second run is refused)
     with locked_run_folder(args.out):
         check_out(Path(args.out), args.overwrite, "texture-id", inputs=(args.library, args.calibration))
