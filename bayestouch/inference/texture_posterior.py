@@ -16,7 +16,7 @@ from scipy.special import logsumexp
 
 from bayestouch.backend import jax, jnp
 from bayestouch.inference.densities import student_t_logpdf
-from bayestouch.inference.raw import HostDevice, RawData, load_raw_data
+from bayestouch.inference.raw import STUDENT_NU, HostDevice, RawData, load_raw_data
 from bayestouch.io.recording import build_dataset
 from bayestouch.physics import forward as fw
 from bayestouch.physics import noise as nz
@@ -127,12 +127,9 @@ def frame_whitener(data: RawData, finger) -> np.ndarray:
     """
     F = len(data.temperature)
     t = np.arange(F) * float(data.dt)
-    flick = nz.flicker_autocovariance(finger.noise, t[:, None] - t[None, :])
-    d2 = float(finger.noise.drift_local) ** 2
-    walk = d2 * np.minimum(t[:, None], t[None, :])
+    slow = np.diag(nz.frame_covariance(finger.noise, np.zeros(F), t))  # the 1/f and walk variances
     total = np.median(np.asarray(data.noise_sd) ** 2, axis=1)
-    white = np.maximum(total - np.diag(flick) - d2 * t, 1e-3 * total)
-    cov = np.diag(white) + flick + walk
+    cov = nz.frame_covariance(finger.noise, np.maximum(total - slow, 1e-3 * total), t)
     d = np.sqrt(np.diag(cov))
     L = np.linalg.cholesky(cov / np.outer(d, d))
     return np.linalg.solve(L, np.eye(F))
@@ -299,7 +296,6 @@ def response_projection(z, g, nuis: Nuisances, precision):
     Gaussian readings α̂ = gᵀPz / (gᵀPg + precision), and the marginal likelihood is that of the projection of
     z − α̂ g times exp(−½ precision α̂²) / √((gᵀPg + precision)/precision), up to factors of the data alone: the
     determinant depends on the hypothesis through g and is kept. Returns (residual (F, M), log factor)."""
-    pz, _ = nuisance_projection(z, nuis)
     pg, _ = nuisance_projection(g, nuis)
     h = jnp.sum(pg * g)
     alpha = jnp.sum(pg * z) / (h + precision)
@@ -341,7 +337,7 @@ def texture_log_likelihood(
     shifts,
     tangent,
     *,
-    nu: float = 4.0,
+    nu: float = STUDENT_NU,
     noise_scale: float = 1.0,
     correlated: bool = True,
     common_offset_sd: float | None = COMMON_OFFSET_SD,
@@ -386,8 +382,6 @@ def texture_log_likelihood(
     (K, G) float
         Up to a constant common to all (k, g) when ``correlated``.
     """
-    K = int(np.shape(jax.tree.leaves(surfs.texture)[0])[0])
-    shifts = np.broadcast_to(np.asarray(shifts, dtype=float), (K, np.shape(shifts)[-1]))
     nuis = stroke_nuisances(
         data,
         finger,
@@ -396,6 +390,14 @@ def texture_log_likelihood(
         common_offset_sd=common_offset_sd,
         frame_common=frame_common,
     )
+    return _grid_log_likelihood(surfs, data, finger, shifts, tangent, nuis, nu)
+
+
+def _grid_log_likelihood(surfs: Surface, data: RawData, finger, shifts, tangent, nuis: Nuisances, nu) -> np.ndarray:
+    """:func:`texture_log_likelihood` with the stroke's nuisances given (one :func:`stroke_nuisances` serves every
+    grid of a stroke)."""
+    K = int(np.shape(jax.tree.leaves(surfs.texture)[0])[0])
+    shifts = np.broadcast_to(np.asarray(shifts, dtype=float), (K, np.shape(shifts)[-1]))
     out = _ll_grid_jit(
         surfs,
         jnp.asarray(data.taxel_position),
@@ -461,7 +463,9 @@ def texture_evidence(
     h = float(shifts[1] - shifts[0]) if G > 1 else 0.0
     if G < 3 or not np.allclose(np.diff(shifts), h) or h <= 0:
         return stroke_evidence(texture_log_likelihood(surfs, data, finger, shifts, tangent, **likelihood))
-    ll = texture_log_likelihood(surfs, data, finger, shifts, tangent, **likelihood)
+    nu = likelihood.pop("nu", STUDENT_NU)
+    nuis = stroke_nuisances(data, finger, **likelihood)  # once for both grids of this stroke
+    ll = _grid_log_likelihood(surfs, data, finger, shifts, tangent, nuis, nu)
     K = ll.shape[0]
     n_cells = 3 * peaks
     weight = np.full((K, G), h)
@@ -478,7 +482,7 @@ def texture_evidence(
             fine[k, j * subdivide : (j + 1) * subdivide] = shifts[c] + offsets
             fine_w[k, j * subdivide : (j + 1) * subdivide] = h / subdivide
         fine[k, len(cells) * subdivide :] = shifts[0]  # padding, weight 0
-    ll_fine = texture_log_likelihood(surfs, data, finger, fine, tangent, **likelihood)
+    ll_fine = _grid_log_likelihood(surfs, data, finger, fine, tangent, nuis, nu)
     with np.errstate(divide="ignore"):
         terms = np.concatenate([ll + np.log(weight), ll_fine + np.log(fine_w)], axis=1)
     return logsumexp(terms, axis=1) - np.log(G * h)

@@ -20,6 +20,7 @@ from bayestouch.params import MODELS, Spec, build
 from bayestouch.physics.taxel import K_B, Q_E, thermal_voltage
 
 __all__ = [
+    "frame_covariance",
     "NoiseParams",
     "NOISE_SPECS",
     "load_noise",
@@ -230,6 +231,15 @@ def flicker_autocovariance(params: NoiseParams, lag, n_components: int = N_FLICK
     fc, v = np.asarray(fc, float), float(v)
     lag = np.abs(np.asarray(lag, float))
     return v * np.sum(np.exp(-2.0 * np.pi * fc * lag[..., None]), axis=-1)
+
+
+def frame_covariance(params: NoiseParams, white, times) -> np.ndarray:
+    """Covariance (F, F) over frames of one taxel's ln I read-out noise (NumPy edge; dimensionless): its white part
+    ``white (F,)`` on the diagonal, the 1/f autocovariance (:func:`flicker_autocovariance`) at the frames' lags and
+    the per-taxel random walk drift_local² · min(t_i, t_j), ``times (F,)`` seconds from the stroke's start."""
+    t = np.asarray(times, float)
+    walk = float(params.drift_local) ** 2 * np.minimum(t[:, None], t[None, :])
+    return np.diag(np.asarray(white, float)) + flicker_autocovariance(params, t[:, None] - t[None, :]) + walk
 
 
 def flicker_psd(params: NoiseParams, f, n_components: int = N_FLICKER):

@@ -555,9 +555,8 @@ def load_raw_data(
     )
     # the error of ĉ over frames: the median of n reference taxels' noise (π/2 · σ²/n per frame, the same factor on
     # the slow parts), independent between strokes, de-meaned with the reference taxels
-    tf, sf = t[frames], si[frames]
-    ref_cov = np.diag(np.mean(white[:, ref], axis=1)) + nz.flicker_autocovariance(finger.noise, tf[:, None] - tf)
-    ref_cov = ref_cov + float(finger.noise.drift_local) ** 2 * np.minimum(t_in[:, None], t_in[None, :])
+    sf = si[frames]
+    ref_cov = nz.frame_covariance(finger.noise, np.mean(white[:, ref], axis=1), t_in)  # lags within a stroke
     common_cov = 0.5 * np.pi / ref.sum() * ref_cov * (sf[:, None] == sf[None, :])
     if demean_reference:
         centre = np.eye(len(frames)) - 1.0 / len(frames)
