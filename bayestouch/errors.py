@@ -11,11 +11,27 @@ import stat
 
 import numpy as np
 
-__all__ = ["BadInput", "check_bool", "check_path", "file_problem"]
+__all__ = ["BadInput", "check_bool", "check_path", "command_line_message", "file_problem"]
+
+#: how messages shared by the API and the command line name a switch in both spellings, and what the command line
+#: shows instead (the flag alone)
+PYTHON_GLOSSES = (
+    ("--resume (resume=True)", "--resume"),
+    ("--overwrite (overwrite=True)", "--overwrite"),
+    ("overwrite=True (--overwrite)", "--overwrite"),
+)
 
 
 class BadInput(ValueError):
     """Invalid user input (file, argument, parameter). ``str(err)`` is one line: field, problem, expected form."""
+
+
+def command_line_message(message: str) -> str:
+    """``message`` as the command line prints it: a switch named in both spellings (:data:`PYTHON_GLOSSES`) named by
+    its flag alone."""
+    for both, flag in PYTHON_GLOSSES:
+        message = message.replace(both, flag)
+    return message
 
 
 def check_bool(value, name: str) -> None:

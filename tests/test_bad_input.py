@@ -77,7 +77,10 @@ TABLE = [
     ("explore --object {egg} --strokes 100000 --out {tmp}/o", "--strokes"),
     ("explore --object {egg} --draws 1 --out {tmp}/o", "--draws"),
     # issue 24, ninth review: a centre in millimetres or centimetres sent strokes metres away
-    ("explore --port /dev/null --centre 0,0,5 --out {tmp}/o", "--centre 0,0,5: the coordinates look like some unit"),
+    (
+        "explore --port /dev/null --centre 0,0,5 --out {tmp}/o",
+        "0,0,5: the coordinates look like centimetres or millimetres (largest |value| 5.0); give",
+    ),
     ("explore --object {egg} --target-volume-sd -1 --out {tmp}/o", "--target-volume-sd"),
     ("experiment --strokes 100000 --out {tmp}/o", "--strokes"),
     ("experiment --draws 1 --out {tmp}/o", "--draws"),

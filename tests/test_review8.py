@@ -216,3 +216,25 @@ def test_a_device_that_names_its_unit_names_the_recording():
     named = build_recording([], hello("bayestouch-virtual-1; finger=virtual finger 4"))
     assert named.attrs["finger"] == "virtual finger 4"
     assert "finger" not in build_recording([], hello("bayestouch-virtual-1")).attrs
+
+
+def test_command_line_names_the_flags_alone(tmp_path, capsys):
+    """Issue 24, tenth review: the command line printed the Python spelling beside its flags ("--resume
+    (resume=True)"); it prints the flag alone, while the API's message keeps both (the test above)."""
+    from bayestouch.cli import main as cli_main
+    from bayestouch.errors import command_line_message
+
+    assert command_line_message("pass --resume (resume=True) or overwrite=True (--overwrite)") == (
+        "pass --resume or --overwrite"
+    )
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "summary.json").write_text("{}")
+    pts = tmp_path / "p.csv"
+    rng = np.random.default_rng(0)
+    u = rng.normal(size=(40, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    np.savetxt(pts, 0.03 * u, delimiter=",", header="x,y,z", comments="")
+    assert cli_main(["fit", str(pts), "--out", str(out), "--resume", "--overwrite"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "--resume and --overwrite exclude" in err and "=True" not in err

@@ -45,6 +45,9 @@ def _write(tmp_path, old, new):
         ("polarity = { value = 1,", "polarity = { value = 0.5,", "polarity: must be 1 or -1"),
         ("reference_rows = { value = 1,", "reference_rows = { value = 16,", "leaves no loaded rows"),
         ('mode = "physics"', 'mode = "magic"', "mode: must be one of"),
+        # issue 24, tenth review: a finger that feels nothing (S_p = 0) ran texture-id to confident wrong answers
+        ("sensitivity = { value = 5.0e-5,", "sensitivity = { value = 0.0,", "sensitivity"),
+        ("sensitivity = { value = 5.0e-5,", "sensitivity = { value = -5.0e-5,", "sensitivity"),
     ],
 )
 def test_bad_toml_raises_badinput(tmp_path, params, old, new, needle):

@@ -60,6 +60,9 @@ def test_library_loads(lib):
         (lambda d: d["texture"][1].update(seed=1.5), "seed"),
         (lambda d: d["object"]["shape"].update(axes_m=[45.0, 25.0, 5.0]), "axes_m"),
         (lambda d: d.update(texture=d["texture"][:1]), "[[texture]]"),
+        # issue 24, tenth review: a file without [library] (or a misspelt one) was read with 16 modes
+        (lambda d: d.pop("library"), "needs a table [library] with modes"),
+        (lambda d: d["library"].pop("modes"), "needs a table [library] with modes"),
         # issue 24, ninth review: a misspelt key took its default (rough5 became smooth's twin, exit 0) ...
         (lambda d: d["texture"][1].update(roughnes_m=d["texture"][1].pop("roughness_m")), "unknown key 'roughnes_m'"),
         (lambda d: d["library"].update(mode=16), "unknown key 'mode'"),
@@ -72,6 +75,14 @@ def test_bad_library_names_the_field(edit, field):
     doc = _doc()
     edit(doc)
     with pytest.raises(BadInput, match=field.replace("[", r"\[").replace("]", r"\]")):
+        tx.library_from_dict(doc)
+
+
+def test_one_texture_library_is_named_not_dumped():
+    """Issue 24, tenth review: a one-texture library was refused by printing its whole table."""
+    doc = _doc()
+    doc["texture"] = doc["texture"][:1]
+    with pytest.raises(BadInput, match=r"at least two \[\[texture\]\] tables, got 1 \('smooth'\)$"):
         tx.library_from_dict(doc)
 
 
@@ -395,3 +406,71 @@ def test_finger_models_of_another_layout_are_refused(tmp_path):
     ):
         ti.run_experiment(tmp_path / "out", textures=2, trials=1, max_strokes=1, progress=False, finger_models=models)
     assert not (tmp_path / "out").exists()
+
+
+def _interrupt_after(monkeypatch, n: int):
+    """Make ``run_trial`` raise KeyboardInterrupt (Ctrl-C, or SIGTERM/SIGHUP in the CLI) at its call ``n + 1``."""
+    real, calls = ti.run_trial, []
+
+    def trial(*a, **k):
+        calls.append(1)
+        if len(calls) > n:
+            raise KeyboardInterrupt
+        return real(*a, **k)
+
+    monkeypatch.setattr(ti, "run_trial", trial)
+    return calls
+
+
+def _rows(path):
+    from bayestouch.io.files import read_csv_rows
+
+    return {(r["texture"], r["trial"], r["stroke"]): (r["p_true"], r["map"]) for r in read_csv_rows(path)}
+
+
+def test_interrupted_run_resumes_to_the_uninterrupted_result(tmp_path, monkeypatch, capsys):
+    """Issue 24, tenth review: an interrupted texture-id left results.csv that the next run called "a finished
+    result", and there was no ``--resume``. Now the interruption says how many trials finished, a plain rerun names
+    the folder an interrupted run, and ``--resume`` runs only the missing trials: the rows then equal an
+    uninterrupted run's (each trial's randomness is its seed, texture and trial)."""
+    argv = ["texture-id", "--textures", "2", "--trials", "2", "--max-strokes", "1", "--quiet"]
+    assert cli_main([*argv, "--out", str(tmp_path / "whole")]) == 0
+    calls = _interrupt_after(monkeypatch, 2)
+    assert cli_main([*argv, "--out", str(tmp_path / "cut")]) == 130
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "2 finished trial(s)" in err and "--resume" in err
+    assert not (tmp_path / "cut" / "summary.json").exists()
+    assert cli_main([*argv, "--out", str(tmp_path / "cut")]) == 2
+    assert "interrupted run" in capsys.readouterr().err
+    monkeypatch.undo()
+    calls = _interrupt_after(monkeypatch, 99)
+    assert cli_main([*argv, "--out", str(tmp_path / "cut"), "--resume"]) == 0
+    assert len(calls) == 2  # only the two missing trials ran
+    assert _rows(tmp_path / "cut" / "results.csv") == _rows(tmp_path / "whole" / "results.csv")
+    summary = json.loads((tmp_path / "cut" / "summary.json").read_text())
+    assert summary["trials"] == 4 and summary["trials_kept"] == 2
+
+
+def test_resume_refuses_other_settings_and_other_commands(tmp_path, capsys):
+    """A resume keeps trials only of the same run: another seed, another library file or a folder of another
+    command is refused in one line, and nothing in the folder changes."""
+    import shutil
+
+    lib = tmp_path / "lib.toml"
+    shutil.copy(tx.LIBRARY, lib)
+    out = tmp_path / "run"
+    argv = ["texture-id", "--textures", "2", "--trials", "1", "--max-strokes", "1", "--quiet", "--out", str(out)]
+    assert cli_main([*argv, "--library", str(lib)]) == 0
+    before = (out / "results.csv").read_bytes()
+    assert cli_main([*argv, "--library", str(lib), "--resume", "--seed", "3"]) == 2
+    assert "seed 0 (now 3)" in capsys.readouterr().err
+    lib.write_text(lib.read_text().replace("seed = ", "seed = 1", 1))
+    assert cli_main([*argv, "--library", str(lib), "--resume"]) == 2
+    assert "other library" in capsys.readouterr().err
+    assert (out / "results.csv").read_bytes() == before
+    (tmp_path / "fit").mkdir()
+    (tmp_path / "fit" / "chain.h5").write_bytes(b"x")
+    assert cli_main([*argv[:-1], str(tmp_path / "fit"), "--resume"]) == 2
+    assert "results of another command (chain.h5)" in capsys.readouterr().err
+    assert cli_main([*argv, "--library", str(lib), "--resume", "--overwrite"]) == 2
+    assert "exclude each other" in capsys.readouterr().err

@@ -19,6 +19,8 @@ __all__ = [
     "size_range",
     "eps_list",
     "check_out",
+    "other_results",
+    "other_results_error",
     "check_duration_rate",
     "RESULT_FILES",
     "COMMAND_RESULTS",
@@ -230,6 +232,35 @@ def check_out(path: Path, overwrite: bool | None = None, command: str = "", inpu
         set_aside(every_earlier_file(path, inputs) if held else [], command)
     path.mkdir(parents=True, exist_ok=True)
     return path
+
+
+def other_results(out: Path, *, own=(), keep=(), patterns=(*RESULT_FILES, *COMMAND_RESULTS)) -> list[Path]:
+    """What in the folder ``out`` another command made: files matching ``patterns`` (glob patterns; default
+    :data:`RESULT_FILES` and :data:`COMMAND_RESULTS`) and, when there is one, the :data:`COMMAND_OUTPUTS` that go
+    with them; the command's ``own`` file names and the ``keep`` paths (its input files) excepted. Empty when ``out``
+    holds no other command's result or is no folder."""
+    out = Path(out)
+    if not out.is_dir():
+        return []
+    kept = {Path(k).resolve() for k in keep if k is not None}
+
+    def foreign(p: Path) -> bool:
+        return p.name not in own and p.resolve() not in kept
+
+    found = sorted({p for pat in patterns for p in out.glob(pat) if p.is_file() and foreign(p)})
+    if not found:
+        return []
+    return sorted(set(found) | {out / n for n in COMMAND_OUTPUTS if (out / n).exists() and foreign(out / n)})
+
+
+def other_results_error(out: Path, found: list[Path], patterns=(*RESULT_FILES, *COMMAND_RESULTS)) -> BadInput:
+    """The one-line refusal of an ``--out`` holding another command's results ``found`` (:func:`other_results`),
+    naming up to four of them."""
+    names = sorted({p.name for p in found if any(p.match(pat) for pat in patterns)})
+    return BadInput(
+        f"--out {out} already holds the results of another command ({', '.join(names[:4])}"
+        f"{' …' if len(names) > 4 else ''}); pass --overwrite to set them aside, or choose another folder"
+    )
 
 
 def check_duration_rate(duration: float, rate: float) -> None:

@@ -364,24 +364,13 @@ def _check_foreign_results(out: Path, overwrite: bool) -> None:
     exploration's explore.json, …) unless ``overwrite``, which sets them aside with what goes with them; the
     experiment's own results.csv and experiment.json are its own check's (every other command refused such a folder,
     the experiment wrote beside them)."""
-    from bayestouch.cli.args import COMMAND_OUTPUTS, COMMAND_RESULTS, RESULT_FILES
+    from bayestouch.cli.args import other_results, other_results_error
     from bayestouch.io.files import set_aside
 
-    if not Path(out).is_dir():
-        return
-    own = {"results.csv", "experiment.json", "error_vs_strokes.png"}
-    found = sorted({p for pat in (*RESULT_FILES, *COMMAND_RESULTS) for p in Path(out).glob(pat) if p.is_file()})
-    found = [p for p in found if p.name not in own]
-    if not found:
-        return
-    if not overwrite:
-        names = sorted({p.name for p in found})
-        raise BadInput(
-            f"--out {out} already holds the results of another command ({', '.join(names[:4])}"
-            f"{' …' if len(names) > 4 else ''}); pass --overwrite to set them aside, or choose another folder"
-        )
-    extra = [Path(out) / n for n in COMMAND_OUTPUTS if (Path(out) / n).exists() and n not in own]
-    set_aside(sorted(set(found + extra)), "experiment")
+    found = other_results(out, own={"results.csv", "experiment.json", "error_vs_strokes.png"})
+    if found and not overwrite:
+        raise other_results_error(out, found)
+    set_aside(found, "experiment")
 
 
 def run_experiment(args) -> int:

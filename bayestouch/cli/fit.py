@@ -8,7 +8,17 @@ from pathlib import Path
 
 import numpy as np
 
-from bayestouch.cli.args import COMMAND_OUTPUTS, COMMAND_RESULTS, one_size, out_path, positive_int, size_range, stat
+from bayestouch.cli.args import (
+    COMMAND_OUTPUTS,
+    COMMAND_RESULTS,
+    one_size,
+    other_results,
+    other_results_error,
+    out_path,
+    positive_int,
+    size_range,
+    stat,
+)
 from bayestouch.cli.args import seed as seed_arg
 from bayestouch.errors import BadInput, file_problem
 
@@ -187,14 +197,7 @@ def _other_results(args) -> list[Path]:
     """What in ``--out`` another command made (:data:`OTHER_RESULTS` and, when one of them is there, its companions
     :data:`OTHER_OUTPUTS`), the fit's own input file excepted; empty when the folder holds no other command's
     result."""
-    out = args.out
-    if not out.is_dir():
-        return []
-    data = args.points.resolve()  # the data being fitted stays where the user named it
-    found = sorted({p for pattern in OTHER_RESULTS for p in out.glob(pattern) if p.is_file() and p.resolve() != data})
-    if not found:
-        return []
-    return found + [out / name for name in OTHER_OUTPUTS if (out / name).exists() and (out / name).resolve() != data]
+    return other_results(args.out, keep=(args.points,), patterns=OTHER_RESULTS)
 
 
 def _check_other_results(args) -> None:
@@ -205,11 +208,7 @@ def _check_other_results(args) -> None:
     others = _other_results(args)
     if not others or args.overwrite or (args.resume and (args.out / FINGERPRINT_FILE).is_file()):
         return
-    names = sorted({p.name for p in others if any(p.match(pattern) for pattern in OTHER_RESULTS)})
-    raise BadInput(
-        f"--out {args.out} already holds the results of another command ({', '.join(names[:4])}"
-        f"{' …' if len(names) > 4 else ''}); pass --overwrite to set them aside, or choose another folder"
-    )
+    raise other_results_error(args.out, others, OTHER_RESULTS)
 
 
 def _set_aside_other_results(args) -> None:

@@ -21,7 +21,7 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 from bayestouch import __version__  # noqa: E402
 from bayestouch.cli import calibrate, demo, device, explore, fit, paper, sbc, simulate, texture_id  # noqa: E402
-from bayestouch.errors import BadInput  # noqa: E402
+from bayestouch.errors import BadInput, command_line_message  # noqa: E402
 
 __all__ = ["main", "build_parser"]
 
@@ -125,7 +125,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return args.run(args)
     except BadInput as e:
-        print(f"bayestouch {args.command}: error: {e}", file=sys.stderr)
+        print(f"bayestouch {args.command}: error: {command_line_message(str(e))}", file=sys.stderr)
         return 2
     except (PermissionError, FileNotFoundError, IsADirectoryError, NotADirectoryError) as e:
         print(f"bayestouch {args.command}: error: {e.strerror or e}: {e.filename}", file=sys.stderr)

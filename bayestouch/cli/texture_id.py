@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import signal
+import sys
 from pathlib import Path
 
 from bayestouch.cli.args import bounded_int, check_out, out_path
@@ -44,6 +45,12 @@ def add_texture_parser(sub) -> argparse.ArgumentParser:
     p.add_argument(
         "--overwrite", action="store_true", help="set aside the results already in --out (otherwise refused)"
     )
+    p.add_argument(
+        "--resume",
+        action="store_true",
+        help="keep the finished trials in --out/results.csv and run the rest (the same library, finger, device "
+        "file, seed and settings; more --textures or --trials extend the run)",
+    )
     p.add_argument("--policy", default="random", choices=("random", "eig"), help="stroke choice (default random)")
     p.add_argument("--threshold", type=float, default=0.95, help="decide when max posterior >= this")
     p.add_argument("--mode", default="empirical", choices=("empirical", "physics"), help="taxel response mode")
@@ -79,6 +86,8 @@ def run_texture_id(args) -> int:
     from bayestouch.io.device_file import read_device_file
     from bayestouch.planning.texture_id import check_calibration
 
+    if args.resume and args.overwrite:
+        raise BadInput("--resume and --overwrite exclude each other: keep the finished trials, or set them aside")
     if not Path(args.finger_models).is_dir():
         raise BadInput(
             f"--finger-models: {args.finger_models} is not a folder (expected a parameter folder like models/)"
@@ -98,9 +107,51 @@ def run_texture_id(args) -> int:
                 pass
     try:
         return _run(args, calibration)
+    except KeyboardInterrupt:
+        print(f"bayestouch texture-id: interrupted; {_finished(args.out)}", file=sys.stderr)
+        return 130
     finally:
         for sig, handler in old.items():
             signal.signal(sig, handler)
+
+
+def _finished(out: Path) -> str:
+    """What an interrupted run leaves: its finished trials in results.csv, and how to go on."""
+    from bayestouch.errors import BadInput
+    from bayestouch.planning.texture_id import read_results
+
+    path = Path(out) / "results.csv"
+    try:
+        n = len({(r["texture"], r["trial"]) for r in read_results(path)}) if path.is_file() else 0
+    except BadInput:
+        n = 0
+    if not n:
+        return "no trial finished"
+    return f"{n} finished trial(s) in {path}; rerun with --resume to do the rest"
+
+
+def _check_folder(args) -> None:
+    """``--out``: refused when it holds another run's results, unless ``--overwrite`` sets them aside or
+    ``--resume`` continues a texture-id run there (an interrupted one is named as such)."""
+    from bayestouch.cli.args import other_results, other_results_error
+    from bayestouch.errors import BadInput
+    from bayestouch.planning.texture_id import META
+
+    out = Path(args.out)
+    inputs = (args.library, args.calibration)
+    own = {"results.csv", "summary.json", META, "accuracy_vs_strokes.png"}
+    if args.resume:
+        found = other_results(out, own=own, keep=inputs)
+        if found:
+            raise other_results_error(out, found)
+        check_out(out)
+        return
+    if (out / "results.csv").is_file() and not (out / "summary.json").exists() and not args.overwrite:
+        raise BadInput(
+            f"--out {out} holds an interrupted run (results.csv without summary.json); pass --resume to finish it, "
+            "--overwrite to set it aside, or choose another folder"
+        )
+    check_out(out, args.overwrite, "texture-id", inputs=inputs)
 
 
 def _run(args, calibration) -> int:
@@ -109,7 +160,7 @@ def _run(args, calibration) -> int:
 
     # the folder is this run's from the check of earlier results to the last output (a second run is refused)
     with locked_run_folder(args.out):
-        check_out(Path(args.out), args.overwrite, "texture-id", inputs=(args.library, args.calibration))
+        _check_folder(args)
         s = run_experiment(
             args.out,
             textures=args.textures,
@@ -123,6 +174,7 @@ def _run(args, calibration) -> int:
             progress=not args.no_progress,
             calibration=calibration,
             finger_models=args.finger_models,
+            resume=args.resume,
         )
     keys = ("trials", "accuracy_at_decision", "accuracy_95ci", "median_strokes_to_decision", "decided_fraction")
     print(json.dumps({k: s[k] for k in keys}))

@@ -127,7 +127,7 @@ def _show(text: str, limit: int = 40) -> str:
     return repr(text)
 
 
-def unit_hint(max_abs: float, diagonal: float) -> str:
+def unit_hint(max_abs: float, diagonal: float | None) -> str:
     """What coordinates written in an unknown unit look like, and how to give metres, for a one-line message:
     ``"look like centimetres or millimetres (largest |value| 4.5, bounding-box diagonal 8.7); give metres (divide
     by 100 if they are centimetres, divide by 1000 if they are millimetres)"``.
@@ -135,7 +135,8 @@ def unit_hint(max_abs: float, diagonal: float) -> str:
     Parameters
     ----------
     max_abs, diagonal : float
-        Largest absolute coordinate and bounding-box diagonal as written (unknown unit).
+        Largest absolute coordinate and bounding-box diagonal as written (unknown unit); ``diagonal`` None for one
+        point (a centre), which has none: the units are then judged on ``max_abs`` alone.
 
     Returns
     -------
@@ -144,21 +145,20 @@ def unit_hint(max_abs: float, diagonal: float) -> str:
         accept as metres (within the metre limits, at least :data:`MIN_DIAGONAL_M` across), the one whose diagonal
         is nearer :data:`TYPICAL_DIAGONAL_M` (in log) first; "some unit other than metres" when none fits.
     """
+    size = max_abs if diagonal is None else diagonal
     fits = [
         (unit, factor)
         for unit, factor in _OTHER_UNITS
-        if max_abs / factor <= MM_MAX_ABS_M and MIN_DIAGONAL_M <= diagonal / factor <= MM_MAX_DIAGONAL_M
+        if max_abs / factor <= MM_MAX_ABS_M and MIN_DIAGONAL_M <= size / factor <= MM_MAX_DIAGONAL_M
     ]
-    fits.sort(key=lambda uf: abs(np.log(diagonal / uf[1] / TYPICAL_DIAGONAL_M)))
+    fits.sort(key=lambda uf: abs(np.log(size / uf[1] / TYPICAL_DIAGONAL_M)))
     if fits:
         how = ", ".join(f"divide by {f:g} if they are {u}" for u, f in fits[:2])
         names = " or ".join(u for u, _ in fits[:2])
     else:
         how, names = "e.g. divide by 1000", "some unit other than metres"
-    return (
-        f"look like {names} (largest |value| {_num(max_abs)}, bounding-box diagonal {_num(diagonal)}); "
-        f"give metres ({how})"
-    )
+    extent = "" if diagonal is None else f", bounding-box diagonal {_num(diagonal)}"
+    return f"look like {names} (largest |value| {_num(max_abs)}{extent}); give metres ({how})"
 
 
 def unit_problem(points) -> str:
@@ -170,7 +170,7 @@ def unit_problem(points) -> str:
     with np.errstate(over="ignore", invalid="ignore"):  # values near 1e308: the span overflows, and is refused
         diagonal = float(np.linalg.norm(np.ptp(p, axis=0)))
     if max_abs > MM_MAX_ABS_M or diagonal > MM_MAX_DIAGONAL_M:
-        return unit_hint(max_abs, diagonal)
+        return unit_hint(max_abs, None if len(p.reshape(-1, 3)) == 1 else diagonal)
     return ""
 
 

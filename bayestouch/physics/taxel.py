@@ -138,7 +138,9 @@ TAXEL_SPECS: dict[str, Spec] = {
     "c33": Spec("Pa", 1e9, 1e13),
     "load_fraction": Spec("1", 1e-6, 1.0),
     "polarity": Spec("1", -1.0, 1.0),
-    "sensitivity": Spec("1/Pa", -1.0, 1.0),
+    # > 0 (the sign is the polarity's): at 1e-8 1/Pa 100 kPa moves ln I by 1e-3, below the read-out noise, so a
+    # smaller value (0 was accepted) is a finger that feels nothing
+    "sensitivity": Spec("1/Pa", 1e-8, 1e-2),
     "lag": Spec("s", 1e-6, 100.0),
 }
 

@@ -13,6 +13,7 @@ Units: metres, seconds, kelvin; posteriors are (K,) over the library's textures.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import time
 from dataclasses import dataclass, replace
@@ -21,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from bayestouch.backend import jax
-from bayestouch.errors import BadInput, check_path
+from bayestouch.errors import BadInput, check_bool, check_path
 from bayestouch.inference.raw import HostDevice, RawData, host_device
 from bayestouch.inference.texture_posterior import (
     read_stroke,
@@ -30,7 +31,8 @@ from bayestouch.inference.texture_posterior import (
     update_posterior,
 )
 from bayestouch.io.device_file import DeviceCalibration, check_same_finger
-from bayestouch.io.files import write_text
+from bayestouch.io.files import read_csv_rows, write_json, write_text
+from bayestouch.io.runfolder import differences, fingerprint
 from bayestouch.params import MODELS
 from bayestouch.physics.plate_strokes import known_finger, record_plate_stroke
 from bayestouch.physics.virtual import VirtualFinger, finger_name, load_finger
@@ -46,6 +48,7 @@ __all__ = [
     "record_stroke",
     "run_trial",
     "check_calibration",
+    "read_results",
     "run_experiment",
     "summarise",
     "plot_accuracy",
@@ -53,6 +56,8 @@ __all__ = [
 
 #: columns of results.csv
 COLUMNS = ("texture", "trial", "stroke", "p_true", "map_correct", "decided", "seconds", "map", "shift_m", "policy")
+#: the run's key beside results.csv: what a ``resume`` must share with the trials it keeps
+META = "texture_id.json"
 
 
 @dataclass(frozen=True)
@@ -426,6 +431,7 @@ def run_experiment(
     progress: bool = True,
     calibration: DeviceCalibration | None = None,
     finger_models=MODELS,
+    resume: bool = False,
 ) -> dict:
     """Every one of the first ``textures`` library entries is the truth in ``trials`` trials.
 
@@ -452,6 +458,11 @@ def run_experiment(
     finger_models : path
         Parameter folder of the simulated finger (the truth; default ``models/``). The identifier always assumes
         ``models/``: a folder whose constants differ tries it on a finger that is not the one it knows.
+    resume : bool
+        Keep the trials already in ``out/results.csv`` (each is written whole when it ends) and run only the rest;
+        refused (:class:`BadInput`) when ``out/texture_id.json`` shows they were made with another library, finger,
+        device file, seed or setting. More ``textures`` or ``trials`` than before extend the run (each trial's
+        randomness depends only on seed, texture and trial).
 
     Returns
     -------
@@ -459,6 +470,7 @@ def run_experiment(
         The summary written to ``summary.json``.
     """
     check_path(out, "out")
+    check_bool(resume, "resume")
     if trials < 1 or max_strokes < 1:
         raise BadInput(f"--trials and --max-strokes must be ≥ 1, got {trials} and {max_strokes}")
     lib = load_library(library).subset(textures)
@@ -474,10 +486,23 @@ def run_experiment(
             f"{np.shape(device.finger.grid)[1]}, and reads only that layout"
         )
     out.mkdir(parents=True, exist_ok=True)
+    options = {
+        "seed": int(seed),
+        "max_strokes": int(max_strokes),
+        "policy": str(policy),
+        "stop_at_decision": bool(stop_at_decision),
+        "settings": {k: (list(v) if isinstance(v, tuple) else v) for k, v in settings.__dict__.items()},
+    }
+    meta = fingerprint("texture-id", _inputs(library, finger_models, calibration), options)
+    kept = _kept_rows(out, meta) if resume else []
+    write_json(out / META, meta)
     surfs = lib.surfaces()
     t0 = time.perf_counter()
-    results = ResultsFile(out / "results.csv", COLUMNS)
-    tasks = [(k, tr) for tr in range(trials) for k in range(len(lib))]
+    results = ResultsFile(out / "results.csv", COLUMNS, kept)
+    done = {(r["texture"], int(r["trial"])) for r in kept}
+    tasks = [(k, tr) for tr in range(trials) for k in range(len(lib)) if (lib.names[k], tr) not in done]
+    if kept and not tasks:
+        results.write()
 
     def one(task):
         k, tr = task
@@ -496,12 +521,15 @@ def run_experiment(
         )
 
     run_tasks(tasks, one, results.add, progress="texture trials" if progress else None)
-    summary = summarise(results.rows, max_strokes, settings.threshold)
+    names = set(lib.names)
+    wanted = [r for r in results.rows if r["texture"] in names and int(r["trial"]) < trials]
+    summary = summarise(wanted, max_strokes, settings.threshold)
     summary.update(
         {
             "policy": policy,
             "seed": int(seed),
             "seconds": time.perf_counter() - t0,
+            "trials_kept": len(done),
             "library": [str(n) for n in lib.names],
             # what the identifier knew of the finger (never the simulated finger's own gains)
             "device": "nominal: models/ constants, unit gains marginalised with their nominal spread"
@@ -514,3 +542,88 @@ def run_experiment(
     write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
     plot_accuracy(summary, out / "accuracy_vs_strokes.png")
     return summary
+
+
+def _inputs(library, finger_models, calibration: DeviceCalibration | None) -> dict:
+    """The inputs a resumed run must share with the trials it keeps, as bytes: the library file, the simulated
+    finger's parameter files and the identifier's device file."""
+    folder = Path(finger_models)
+    models = b"".join(f.name.encode() + b"\0" + f.read_bytes() for f in sorted(folder.glob("*.toml")))
+    cal = None
+    if calibration is not None:
+        cal = (
+            np.asarray(calibration.log_gain, float).tobytes()
+            + np.asarray(calibration.log_gain_sd, float).tobytes()
+            + repr(
+                (
+                    float(calibration.noise_scale),
+                    calibration.mode,
+                    float(calibration.response_scale),
+                    calibration.response_scale_sd,
+                )
+            ).encode()
+        )
+    return {"library": Path(library).read_bytes(), "finger models": models, "calibration": cal}
+
+
+def read_results(path) -> list[dict]:
+    """The rows of a texture-id ``results.csv``, typed as :func:`run_trial` returns them; a damaged file is refused
+    (:class:`BadInput` naming the line and column)."""
+    rows = []
+    for i, r in enumerate(read_csv_rows(path)):
+        line = i + 2  # the header is line 1
+        missing = [c for c in COLUMNS if c not in r]
+        if missing:
+            raise BadInput(f"{path}: line {line} lacks column(s) {missing}; expected {', '.join(COLUMNS)}")
+        try:
+            row = {
+                "texture": r["texture"],
+                "trial": int(r["trial"]),
+                "stroke": int(r["stroke"]),
+                "p_true": float(r["p_true"]),
+                "map_correct": int(r["map_correct"]),
+                "decided": int(r["decided"]),
+                "seconds": float(r["seconds"]),
+                "map": r["map"],
+                "shift_m": float(r["shift_m"]),
+                "policy": r["policy"],
+            }
+        except ValueError as e:
+            raise BadInput(f"{path}: line {line}: {e} (a damaged file)") from None
+        if row["trial"] < 0 or row["stroke"] < 1 or not 0 <= row["p_true"] <= 1:
+            raise BadInput(f"{path}: line {line}: trial ≥ 0, stroke ≥ 1 and p_true in [0, 1] expected (a damaged file)")
+        rows.append(row)
+    return rows
+
+
+def _kept_rows(out: Path, meta: dict) -> list[dict]:
+    """The finished trials of an earlier run in ``out`` that a resume keeps (every trial in results.csv is whole:
+    the file is rewritten when a trial ends); refused when the earlier run's key differs from ``meta``."""
+    csv_path = out / "results.csv"
+    if not csv_path.is_file():
+        return []
+    old = None
+    with contextlib.suppress(OSError, ValueError):
+        old = json.loads((out / META).read_text(encoding="utf-8"))
+    if not isinstance(old, dict) or "options" not in old:
+        raise BadInput(
+            f"--resume: cannot verify the settings of {csv_path}: {META} is missing or damaged; expected the "
+            f"{META} written with it (or pass --overwrite, or choose another --out)"
+        )
+    diff = differences(old, meta)
+    if diff:
+        raise BadInput(
+            f"--resume: {csv_path} was made with {'; '.join(diff)}; resume with the same settings or choose another "
+            "--out"
+        )
+    rows = read_results(csv_path)
+    strokes: dict[tuple, list[int]] = {}
+    for r in rows:
+        strokes.setdefault((r["texture"], r["trial"]), []).append(r["stroke"])
+    for key, ss in strokes.items():
+        if sorted(ss) != list(range(1, len(ss) + 1)):
+            raise BadInput(
+                f"--resume: {csv_path}: trial {key[1]} of {key[0]} has strokes {sorted(ss)}; expected 1, 2, … once "
+                "each (a damaged file)"
+            )
+    return rows

@@ -132,11 +132,12 @@ def library_from_dict(doc: dict, where: str = "texture library", source: Path | 
         A bad field, naming the table, the entry and the field.
     """
     _known_keys(doc, {"library", "object", "texture"}, where)
-    lib = doc.get("library", {})
-    if not isinstance(lib, dict):
-        raise BadInput(f"{where}: [library] must be a table with 'modes'")
+    lib = doc.get("library")
+    if not isinstance(lib, dict) or "modes" not in lib:
+        # a file without it was read with 16 modes: a typo'd table name ([libary]) went unnoticed
+        raise BadInput(f"{where}: needs a table [library] with modes = N (the roughness's wave count, 1–256)")
     _known_keys(lib, {"description", "modes"}, f"{where} [library]")
-    modes = lib.get("modes", 16)
+    modes = lib["modes"]
     if not isinstance(modes, int) or isinstance(modes, bool) or not 1 <= modes <= 256:
         raise BadInput(f"{where} [library]: 'modes' must be an integer in [1, 256], got {modes!r}")
     obj = doc.get("object")
@@ -146,7 +147,12 @@ def library_from_dict(doc: dict, where: str = "texture library", source: Path | 
     base = object_from_dict({"object": meta, "shape": obj["shape"]}, f"{where} [object]", source)
     entries = doc.get("texture")
     if not isinstance(entries, list) or len(entries) < 2:
-        raise BadInput(f"{where}: needs at least two [[texture]] tables, got {0 if entries is None else entries!r}")
+        got = (
+            f"{len(entries)} ({', '.join(repr(str(e.get('name', '?'))) for e in entries if isinstance(e, dict))})"
+            if isinstance(entries, list) and entries
+            else ("a table [texture], not [[texture]]" if isinstance(entries, dict) else "none")
+        )
+        raise BadInput(f"{where}: needs at least two [[texture]] tables, got {got}")
     names, specs = [], []
     cmin = float(np.min(np.asarray(base.shape.axes)))
     for i, t in enumerate(entries):
