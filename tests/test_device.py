@@ -811,3 +811,57 @@ def test_stroke_file_with_a_key_given_twice_is_refused(tmp_path):
     twice.write_text(text.replace('"depth":', '"depth": 0.0001, "depth":', 1))
     with pytest.raises(BadInput, match="the key 'depth' appears twice"):
         load_stroke_file(twice, [0.1, 0.05, 0.05])
+
+
+def test_cli_recover_rebuilds_the_recording_from_a_journal(device, tmp_path, capsys):
+    """Issue 24, ninth review: a killed `device run` (SIGKILL, a power cut) left its frames only in the journal,
+    and nothing turned a journal into a recording. `device recover` writes the recording of the journal's complete
+    strokes: on a whole journal it equals the run's own recording, variable by variable; a journal cut in the
+    second stroke gives the first, marked incomplete, naming the cut one; a journal cut in the first stroke, a file
+    that is no journal, and an existing --out are refused in one line (exit 2 from the CLI)."""
+    from bayestouch.cli.device import run_device
+    from bayestouch.hardware.device import strokes_from_journal
+    from bayestouch.io.recording import read_recording
+
+    sim, dev = device()
+    dev.close()
+    f = _stroke_file(tmp_path / "strokes.json", [make_plan(30), make_plan(20, depth=4e-4)])
+    out, journal = tmp_path / "dev.nc", tmp_path / "kept.journal"
+    argv = ["device", "run", "--port", str(tmp_path / "finger"), "--stroke-file", str(f), "--out", str(out)]
+    assert run_device(_parser().parse_args([*argv, "--journal", str(journal), "--quiet"])) == 0
+    rec = tmp_path / "rec.nc"
+    assert run_device(_parser().parse_args(["device", "recover", str(journal), "--out", str(rec)])) == 0
+    assert "2 stroke(s), 50 frames" in capsys.readouterr().out
+    a, b = read_recording(out), read_recording(rec)
+    assert set(a.variables) == set(b.variables)
+    for name in a.variables:
+        assert np.array_equal(a[name].values, b[name].values), name
+    assert "incomplete" not in b.attrs and b.attrs["recovered_from"] == str(journal)
+    # cut in the second stroke: the first stroke is recovered, the second named
+    data = journal.read_bytes()
+    frames = [m for m in read_journal(journal) if isinstance(m, pr.Frame)]
+    assert len(frames) == 50
+    cut = tmp_path / "cut.journal"
+    cut.write_bytes(data[: int(len(data) * 0.8)])
+    got = strokes_from_journal(cut)
+    assert len(got.strokes) == 1 and len(got.incomplete) == 1 and "of 20 frames" in got.incomplete[0]
+    rec2 = tmp_path / "rec2.nc"
+    assert run_device(_parser().parse_args(["device", "recover", str(cut), "--out", str(rec2)])) == 0
+    b2 = read_recording(rec2)
+    assert b2.attrs["incomplete"] == "true"
+    assert np.array_equal(b2["taxel_current"].values, a["taxel_current"].values[:30])
+    # refusals
+    (tmp_path / "first.journal").write_bytes(data[: int(len(data) * 0.3)])
+    (tmp_path / "junk.journal").write_bytes(b"not a journal at all\n" * 10)
+    for bad, needle in (
+        (["first.journal", "r3.nc"], "no complete stroke"),
+        (["junk.journal", "r4.nc"], "no packet of the finger protocol"),
+        (["kept.journal", "rec.nc"], "already exists"),
+        (["kept.journal", "rec.txt"], "ending in .nc"),
+        (["missing.journal", "r5.nc"], "no such file"),
+    ):
+        with pytest.raises(BadInput, match=needle):
+            run_device(
+                _parser().parse_args(["device", "recover", str(tmp_path / bad[0]), "--out", str(tmp_path / bad[1])])
+            )
+    assert read_recording(rec)["taxel_current"].shape[0] == 50  # the existing recording untouched

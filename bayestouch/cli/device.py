@@ -1,6 +1,6 @@
-"""``bayestouch device simulate`` (the virtual finger on a pty) and ``bayestouch device run`` (strokes on a
-device, written as a recording with the schema of ``bayestouch simulate``).
-
+"""``bayestouch device simulate`` (the virtual finger on a pty), ``bayestouch device run`` (strokes on a
+device, written as a recording with the schema of ``bayestouch simulate``) and ``bayestouch device recover`` (the
+recording of the complete strokes in a journal a killed run left).
 """
 
 from __future__ import annotations
@@ -168,6 +168,17 @@ def add_device_parser(subparsers) -> argparse.ArgumentParser:
         help="file receiving every packet as it arrives (default OUT.journal, removed on success)",
     )
     rp.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    cp = sub.add_parser(
+        "recover",
+        help="rebuild a recording (.nc) from the journal of a device run",
+        description="Write the recording of the complete strokes in a journal (OUT.journal of `device run`, kept "
+        "when a run fails or is killed): every stroke command the run sent with all of its frames, as the run "
+        "would have written them. Incomplete strokes are named and left out.",
+    )
+    cp.add_argument("journal", type=Path, help="the journal file (OUT.journal)")
+    cp.add_argument("--out", required=True, type=out_path, help="recording to write (.nc)")
+    cp.add_argument("--overwrite", action="store_true", help="replace an existing --out recording (set aside)")
     return dp
 
 
@@ -559,10 +570,49 @@ def _run_locked(args, plans, limits) -> int:
     return 0
 
 
+def _recover(args) -> int:
+    """``device recover``: the recording of a journal's complete strokes."""
+    from bayestouch import __version__
+    from bayestouch.hardware.device import build_recording, strokes_from_journal
+    from bayestouch.io.files import set_aside
+    from bayestouch.io.recording import write_recording
+    from bayestouch.io.runfolder import locked_output_file
+
+    if args.out.suffix != ".nc":
+        raise BadInput(f"--out: a recording is a netCDF file; expected a name ending in .nc, got {str(args.out)!r}")
+    if args.out.absolute() == args.journal.absolute():
+        raise BadInput(f"--out {args.out} is the journal; name another file for the recording")
+    got = strokes_from_journal(args.journal)
+    left = f"; left out {len(got.incomplete)} incomplete: {', '.join(got.incomplete[:3])}" if got.incomplete else ""
+    if not got.strokes:
+        raise BadInput(f"journal {args.journal}: no complete stroke in it{left}")
+    with locked_output_file(args.out):
+        if args.out.exists() and not args.overwrite:
+            raise BadInput(f"--out {args.out} already exists; pass --overwrite to replace it, or choose another file")
+        attrs = {
+            "software": f"bayestouch {__version__}",
+            "object": "unknown (device)",
+            "recovered_from": str(args.journal),
+            "wire_hold_currents_A": ",".join(f"{c:g}" for c in got.strokes[0].plan.hold_currents),
+        }
+        if got.incomplete:
+            attrs["incomplete"] = "true"
+        if args.overwrite:
+            set_aside([args.out], "device recover")
+        write_recording(build_recording(got.strokes, got.info, attrs), args.out, overwrite=args.overwrite)
+    n = sum(len(s.plan.time) for s in got.strokes)
+    bad = f"; {got.skipped} frame(s) or guarded stroke packet(s) skipped" if got.skipped else ""
+    print(f"wrote {args.out}: {len(got.strokes)} stroke(s), {n} frames from {args.journal}{left}{bad}")
+    return 0
+
+
 def run_device(args) -> int:
-    """Run ``device simulate`` or ``device run`` from parsed arguments; returns the exit code."""
+    """Run ``device simulate``, ``device run`` or ``device recover`` from parsed arguments; returns the exit
+    code."""
     if getattr(args, "device_command", None) == "simulate":
         return _simulate(args)
     if getattr(args, "device_command", None) == "run":
         return _run(args)
-    raise BadInput("device: expected a subcommand, simulate or run (see bayestouch device --help)")
+    if getattr(args, "device_command", None) == "recover":
+        return _recover(args)
+    raise BadInput("device: expected a subcommand, simulate, run or recover (see bayestouch device --help)")

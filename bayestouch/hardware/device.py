@@ -41,6 +41,8 @@ __all__ = [
     "finger_of",
     "StrokeData",
     "read_journal",
+    "JournalStrokes",
+    "strokes_from_journal",
     "strokes_to_frames",
     "build_recording",
     "ProbePlan",
@@ -166,6 +168,109 @@ def read_journal(path) -> list:
     """Messages of a journal file (the packets :class:`FingerDevice` wrote as they arrived), in order."""
     dec = pr.Decoder()
     return [m for _, m in dec.feed(Path(path).read_bytes())]
+
+
+class JournalStrokes(NamedTuple):
+    """What a journal holds (:func:`strokes_from_journal`).
+
+    info : HelloReply or None
+        The device's (last) handshake; None when the journal has none.
+    strokes : list of StrokeData
+        The complete plain strokes, in the order they were sent.
+    incomplete : list of str
+        One phrase per stroke sent but not complete in the journal (``"stroke id 7: 40 of 101 frames"``).
+    skipped : int
+        Guarded strokes (protocol revision 1.1) and frames with impossible contents (:func:`frame_problem`), left
+        out.
+    """
+
+    info: pr.HelloReply | None
+    strokes: list
+    incomplete: list
+    skipped: int
+
+
+def strokes_from_journal(path) -> JournalStrokes:
+    """The complete strokes of a journal file: the plain stroke commands the client sent (each is journaled before
+    it is sent) with every one of their frames, as :class:`FingerDevice` received them. A killed ``device run``
+    (SIGKILL, a power cut) leaves them there; :func:`build_recording` of the result is the recording it would have
+    written for them.
+
+    A stroke is complete when all of its T frames (T = the command's waypoints) are there with possible contents
+    (:func:`frame_problem` against the handshake); a stroke sent again under a new id after a lost one counts once.
+    Over-force aborts and strokes cut short are listed in ``incomplete``.
+
+    Parameters
+    ----------
+    path : path
+        The journal (``OUT.journal`` of ``bayestouch device run``).
+
+    Returns
+    -------
+    JournalStrokes
+
+    Raises
+    ------
+    BadInput
+        No such file, or no packet of the finger protocol in it.
+    """
+    from bayestouch.errors import check_path, file_problem
+
+    check_path(path, "journal")
+    if problem := file_problem(path):
+        raise BadInput(f"journal {path}: {problem}; expected the OUT.journal file of bayestouch device run")
+    dec = pr.Decoder()
+    messages = [m for _, m in dec.feed(Path(path).read_bytes())]
+    if not messages:
+        raise BadInput(
+            f"journal {path}: no packet of the finger protocol in it; expected the OUT.journal file of bayestouch "
+            "device run"
+        )
+    info = None
+    commands: dict[int, pr.StrokeCommand] = {}
+    frames: dict[int, dict[int, pr.Frame]] = {}
+    skipped = 0
+    for m in messages:
+        if isinstance(m, pr.HelloReply):
+            info = m
+        elif isinstance(m, pr.StrokeCommand):
+            commands[int(m.stroke_id)] = m  # a stroke id used again (a new session) is the later stroke
+            frames[int(m.stroke_id)] = {}
+        elif isinstance(m, pr.ProbeStroke | pr.ProbeFrame):
+            skipped += 1
+        elif isinstance(m, pr.Frame) and int(m.stroke_id) in frames:
+            if frame_problem(m, info) is not None:
+                skipped += 1
+                continue
+            frames[int(m.stroke_id)].setdefault(int(m.index), m)
+    if info is None and commands:
+        raise BadInput(f"journal {path}: no handshake (HELLO_REPLY) in it, so its taxel layout is unknown")
+
+    def same_plan(cmd) -> tuple:
+        arrays = (np.asarray(getattr(cmd, k), float).tobytes() for k in ("time", "contact", "normal"))
+        return (float(cmd.depth), *arrays)
+
+    complete = {sid for sid, cmd in commands.items() if all(i in frames[sid] for i in range(len(cmd.time)))}
+    later = {same_plan(commands[sid]) for sid in complete}
+    strokes, incomplete = [], []
+    for sid, cmd in commands.items():
+        T = len(cmd.time)
+        got = frames[sid]
+        if sid not in complete:
+            if same_plan(cmd) not in later:  # a lost stroke the client ran again under a new id is not missing
+                incomplete.append(f"stroke id {sid}: {sum(i in got for i in range(T))} of {T} frames")
+            continue
+        ordered = [got[i] for i in range(T)]
+        arrays, dev_t = _frames_to_arrays(ordered)
+        plan = StrokePlan(
+            np.asarray(cmd.time, float),
+            np.asarray(cmd.contact, float).reshape(T, 3),
+            np.asarray(cmd.normal, float).reshape(T, 3),
+            float(cmd.depth),
+            np.asarray(cmd.hold_currents, float),
+        )
+        strokes.append(StrokeData(plan, arrays, dev_t, sid))
+    return JournalStrokes(info, strokes, incomplete, skipped)
 
 
 def _frames_to_arrays(frames: list[pr.Frame]) -> tuple[dict, np.ndarray]:
