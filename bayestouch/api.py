@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bayestouch.errors import BadInput, check_bool, file_problem
+from bayestouch.errors import BadInput, check_bool, check_int, check_seed, file_problem
 from bayestouch.io.contacts import (
     N_ELLIPSOID_PARAMS,
     ContactPoints,
@@ -425,8 +425,7 @@ def _free(value) -> np.ndarray | None:
 
 
 def _check_seed(seed) -> None:
-    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or not 0 <= seed < 2**32:
-        raise BadInput(f"seed: expected an integer in [0, 2**32), got {seed!r}")
+    check_seed(seed)
 
 
 def fit(
@@ -485,8 +484,9 @@ def fit(
     _check_seed(seed)
     if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int | np.integer) or steps < 1):
         raise BadInput(f"steps must be a positive integer (the largest chain length) or None, got {steps!r}")
-    if isinstance(walkers, bool) or not isinstance(walkers, int | np.integer) or walkers < 24 or walkers % 2:
-        raise BadInput(f"walkers must be an even integer ≥ 24 (twice the parameters, plus a margin), got {walkers!r}")
+    from bayestouch.inference.run import check_walkers
+
+    check_walkers(walkers)
     if (
         budget_s is not None
         and budget_s != "auto"
@@ -588,7 +588,8 @@ def simulate(
         An object's name (``"egg"``: from ``models/objects`` when that folder has it, else the shipped one), a TOML
         file, or an object.
     strokes : int
-        Number of strokes (each ``duration`` s at 1 cm/s, ``rate`` frames/s).
+        Number of strokes (each ``duration`` s at 1 cm/s, ``rate`` frames/s), 1 to
+        :data:`~bayestouch.scene.paths.MAX_PATHS`.
     seed : int
         Seeds the strokes and the noise; ``device_seed`` (default ``seed``) picks the simulated finger (its
         fixed-pattern gains).
@@ -612,6 +613,7 @@ def simulate(
     from bayestouch.io.recording import MAX_FRAMES, write_recording
     from bayestouch.physics.virtual import finger_name, load_finger, recording_dataset
     from bayestouch.scene.objects import SceneObject, load_object
+    from bayestouch.scene.paths import MAX_PATHS
     from bayestouch.scene.strokes import random_strokes
 
     check_bool(progress, "progress")
@@ -643,11 +645,13 @@ def simulate(
         raise BadInput(f"force: expected a number of newtons in (0, 2], got {force!r}")
     if np.ndim(hold_currents) != 1:
         raise BadInput(f"hold_currents: expected the three wires' currents in amperes, got {hold_currents!r}")
-    depths = [float(d) for d in np.atleast_1d(np.asarray(depth, dtype=float))]
+    try:
+        depths = [float(d) for d in np.atleast_1d(np.asarray(depth, dtype=float))]
+    except (TypeError, ValueError):  # text, a ragged nesting
+        depths = []
     if not depths or not all(0 < d <= 2e-3 for d in depths):
         raise BadInput(f"depth: each pressing depth must be in (0, 2e-3] metres, got {depth!r}")
-    if isinstance(strokes, bool | np.bool_) or not isinstance(strokes, int | np.integer) or strokes < 1:
-        raise BadInput(f"strokes: expected an integer ≥ 1, got {strokes!r}")
+    check_int(strokes, "strokes", 1, MAX_PATHS)
     if force is not None and not (0 < force <= 2.0):
         raise BadInput(f"force: expected newtons in (0, 2], got {force!r}")
     try:

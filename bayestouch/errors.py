@@ -8,10 +8,21 @@ from __future__ import annotations
 
 import os
 import stat
+from typing import Any
 
 import numpy as np
 
-__all__ = ["BadInput", "check_bool", "check_path", "command_line_message", "file_problem"]
+__all__ = [
+    "BadInput",
+    "as_array",
+    "check_bool",
+    "check_int",
+    "check_path",
+    "check_seed",
+    "command_line_message",
+    "file_problem",
+    "shown",
+]
 
 #: how messages shared by the API and the command line name a switch in both spellings, and what the command line
 #: shows instead (the flag alone)
@@ -40,6 +51,51 @@ def check_bool(value, name: str) -> None:
     if not isinstance(value, bool | np.bool_):
         shown = " ".join(repr(value).split())[:80]
         raise BadInput(f"{name}: expected True or False, got {shown}")
+
+
+def shown(value, limit: int = 80) -> str:
+    """The start of ``value``'s repr on one line, for messages."""
+    return " ".join(repr(value).split())[:limit]
+
+
+def check_int(value, name: str, lo: int, hi: int | None = None, what: str = "an integer") -> int:
+    """``value`` as an int, or a one-line refusal naming ``name`` when it is not an integer (bools and floats
+    included) in ``[lo, hi]`` (``hi`` None: no upper bound); ``what`` says what it counts (e.g. "an integer number
+    of points")."""
+    if (
+        isinstance(value, bool | np.bool_)
+        or not isinstance(value, int | np.integer)
+        or value < lo
+        or (hi is not None and value > hi)
+    ):
+        limits = f"≥ {lo}" if hi is None else f"from {lo} to {hi:,}"
+        raise BadInput(f"{name}: expected {what} {limits}, got {shown(value)}")
+    return int(value)
+
+
+def check_seed(seed, name: str = "seed", note: str = "") -> None:
+    """Refuse a seed ``name`` that is not an integer in [0, 2**32) (emcee's and JAX's seeds); ``note`` (e.g. " (the
+    finger's fixed pattern)") follows the range in the message."""
+    if isinstance(seed, bool | np.bool_) or not isinstance(seed, int | np.integer) or not 0 <= seed < 2**32:
+        raise BadInput(f"{name}: expected an integer in [0, 2**32){note}, got {shown(seed)}")
+
+
+def as_array(value: Any, name: str, shape: tuple[int | None, ...], form: str) -> np.ndarray:
+    """``value`` as a float64 array of ``shape`` (None: any length along that axis) with finite values, or a
+    one-line refusal naming ``name`` and ``form`` (e.g. "an (N, 3) array (metres)"): text, a ragged nesting, the
+    wrong shape, NaN or infinity (naming the first bad row)."""
+    try:
+        a = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise BadInput(f"{name} must be {form} of numbers, got {type(value).__name__} {shown(value, 40)}") from None
+    if a.ndim != len(shape) or any(s is not None and s != t for s, t in zip(shape, a.shape, strict=False)):
+        raise BadInput(f"{name} must be {form}, got shape {a.shape}")
+    bad = np.flatnonzero(~np.isfinite(a).reshape(len(a), -1).all(axis=1)) if a.ndim and a.size else np.empty(0, int)
+    if a.ndim == 0 and not np.isfinite(a):
+        raise BadInput(f"{name} must be finite, got {a.item()}")
+    if bad.size:
+        raise BadInput(f"{name} must be finite, row {int(bad[0]) + 1} (1-based) is {a[bad[0]].tolist()}")
+    return a
 
 
 def check_path(value, name: str) -> None:

@@ -18,15 +18,17 @@ from scipy.optimize import differential_evolution, minimize
 from tqdm.auto import tqdm
 
 from bayestouch.backend import jax, jnp
+from bayestouch.errors import BadInput, as_array, check_bool, check_int, shown
 from bayestouch.geometry import nellipsoid as ne
-from bayestouch.geometry.ffd import fit_two_step
+from bayestouch.geometry.ffd import check_dims, fit_two_step
 from bayestouch.geometry.integrals import relative_errors, surface_integrals
-from bayestouch.geometry.mesh import as_rng, closest_points, nellipsoid_mesh
+from bayestouch.geometry.mesh import as_rng, check_res, closest_points, nellipsoid_mesh
 from bayestouch.geometry.texture import texture_indicator
+from bayestouch.io.contacts import contact_array
 from bayestouch.physics.forward import contact_frame, depths_for_force, elastic_force
 from bayestouch.physics.patch import fit_patch
 from bayestouch.scene.objects import SceneObject
-from bayestouch.scene.paths import random_paths
+from bayestouch.scene.paths import MAX_PATHS, random_paths
 
 __all__ = [
     "PAPER_TABLE2",
@@ -116,6 +118,7 @@ def fit_nellipsoid_de(
     Parameters
     ----------
     points : (M, 3) float, metres
+        At least 12 (the n-ellipsoid's parameters), not all in one plane.
     seed : int or np.random.Generator
     popsize, maxiter, tol : DE settings (scipy's meaning)
     n_bounds : (float, float)
@@ -132,7 +135,13 @@ def fit_nellipsoid_de(
     DEFit
     """
     t0 = time.perf_counter()
-    pts = jnp.asarray(points, dtype=jnp.float64)
+    pts = jnp.asarray(contact_array(points, "points"))
+    rng = as_rng(seed)  # a bad seed refused before any work
+    check_int(popsize, "popsize", 1, None, "an integer population multiplier")
+    check_int(maxiter, "maxiter", 1, None, "an integer number of generations")
+    lo_n, hi_n = as_array(n_bounds, "n_bounds", (2,), "a (min, max) pair of exponents")
+    if not 0 < lo_n < hi_n:
+        raise BadInput(f"n_bounds: expected exponents 0 < min < max, got {tuple(n_bounds)}")
     c = np.asarray(pts.mean(axis=0))
     ext = np.asarray(jnp.max(jnp.linalg.norm(pts - c, axis=1)))
     span = np.ptp(np.asarray(pts), axis=0)
@@ -143,8 +152,7 @@ def fit_nellipsoid_de(
         bounds = [(lo[i] - centre_pad, hi[i] + centre_pad) for i in range(3)]
     bounds += [(0.02 * ext, 1.2 * ext if axis_max is None else float(axis_max))] * 3
     # ξ ∈ [0, π]; ψ ∈ [0, π) suffices (ψ + π flips two local axes, a symmetry); ζ over the full turn
-    bounds += [(0.0, np.pi), (0.0, np.pi), (-np.pi, np.pi), tuple(n_bounds)]
-    rng = as_rng(seed)
+    bounds += [(0.0, np.pi), (0.0, np.pi), (-np.pi, np.pi), (float(lo_n), float(hi_n))]
 
     def f(x):
         x = np.asarray(x)
@@ -212,6 +220,10 @@ def refine_ffd(
     faces : (F, 3) int
     """
     v_world, faces = nellipsoid_mesh(shape, res)
+    data = as_array(data, "data", (None, 3), "an (M, 3) array (metres)")
+    if not len(data):
+        raise BadInput("data: expected at least one probed point, got an empty (0, 3) array")
+    check_dims(dims)
     v_loc = np.asarray(ne.to_local(shape, jnp.asarray(v_world)))
     d_loc = np.asarray(ne.to_local(shape, jnp.asarray(data)))
     half = np.maximum(np.abs(v_loc).max(axis=0), np.abs(d_loc).max(axis=0)) * (1.0 + margin)
@@ -223,6 +235,14 @@ def plate_data(obj: SceneObject, n_paths: int = 25, seed=0, rate: float = 20.0) 
     """Contact points of ``n_paths`` finger paths at 1 cm/s over ``obj`` (the paper's 25 paths), metres."""
     paths = random_paths(obj, n_paths, seed=seed, rate=rate, arc=np.pi)
     return np.concatenate([p.points for p in paths])
+
+
+def _size_dims(size) -> tuple[int, int, int]:
+    """An FFD size ``"LxMxK"`` (e.g. ``"6x6x3"``) as three ints, or a one-line refusal naming ``sizes``."""
+    parts = size.lower().split("x") if isinstance(size, str) else []
+    if len(parts) != 3 or not all(p.strip().isdigit() for p in parts):
+        raise BadInput(f"sizes: expected FFD sizes 'LxMxK' such as '6x6x3', got {size!r}")
+    return check_dims([int(p) for p in parts], "sizes")
 
 
 def table2_row(
@@ -250,7 +270,7 @@ def table2_row(
         Of the true surface.
     """
     t0 = time.perf_counter()
-    dims = tuple(int(x) for x in size.lower().split("x"))
+    dims = _size_dims(size)
     if de is None:
         de = fit_nellipsoid_de(data, seed, p=p, q=q)
     fit, v_fin, faces = refine_ffd(de.shape, data, dims, res=res)
@@ -317,6 +337,20 @@ def reproduce_table2(
     defects, and each row gains ``defect_free_bp_minus_x_percent``: it separates what the pipeline
     cannot follow (cracks narrower than the lattice spacing) from what it fits.
     """
+    if not isinstance(obj, SceneObject):
+        raise BadInput(f"obj: expected a SceneObject (load_object(NAME)), got {type(obj).__name__} {shown(obj, 60)}")
+    if isinstance(sizes, str):  # one size, not its characters
+        sizes = (sizes,)
+    for size in sizes:
+        _size_dims(size)
+    eps = as_array(epsilons, "epsilons", (None,), "a sequence of perturbations ε (e.g. (0.0, 1e-3))")
+    if not len(eps) or not np.all((eps >= 0) & (eps < 1)):
+        raise BadInput(f"epsilons: expected perturbations ε in [0, 1), got {epsilons!r}")
+    check_int(n_paths, "n_paths", 1, MAX_PATHS, "an integer number of paths")
+    check_res(res, "res")
+    check_res(truth_res, "truth_res")
+    check_bool(control, "control")
+    check_bool(progress, "progress")
     runs = [("", obj)]
     if control and obj.defects:
         runs.append(("defect_free_", replace(obj, defects=())))

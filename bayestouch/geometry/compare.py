@@ -15,10 +15,18 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from bayestouch.backend import jax, jnp, pad_pow2
-from bayestouch.errors import BadInput
+from bayestouch.errors import BadInput, check_int, shown
 from bayestouch.geometry import nellipsoid as ne
-from bayestouch.geometry.integrals import relative_errors, surface_integrals
-from bayestouch.geometry.mesh import as_rng, closest_points, nellipsoid_mesh, sample_mesh, sample_surface
+from bayestouch.geometry.integrals import check_mesh, relative_errors, surface_integrals
+from bayestouch.geometry.mesh import (
+    MAX_SURFACE_POINTS,
+    as_rng,
+    check_res,
+    closest_points,
+    nellipsoid_mesh,
+    sample_mesh,
+    sample_surface,
+)
 from bayestouch.geometry.nellipsoid import NEllipsoid
 from bayestouch.geometry.symmetry import param_distance
 from bayestouch.geometry.winding import mesh_inside
@@ -346,8 +354,17 @@ def compare_shapes(a, b, *, res: int = 48, count: int = 200_000, seed=0, chamfer
     for name, obj in (("a", a), ("b", b)):
         if isinstance(obj, NEllipsoid):
             ne.check_shape(obj, name)
-        elif not np.all(np.isfinite(np.asarray(obj[0], dtype=float))):
-            raise BadInput(f"{name}: the mesh's vertices hold NaN or infinite values; expected finite metres")
+        elif isinstance(obj, tuple | list) and len(obj) == 2:
+            check_mesh(*obj, names=(f"{name}: vertices", f"{name}: faces"))
+        else:
+            raise BadInput(
+                f"{name}: expected an NEllipsoid (e.g. load_object(NAME).shape) or a mesh (vertices (V, 3) metres, "
+                f"faces (F, 3)), got {type(obj).__name__} {shown(obj, 60)}"
+            )
+    check_res(res)
+    check_int(count, "count", 1, MAX_SURFACE_POINTS, "an integer number of Monte-Carlo points")
+    check_int(chamfer_count, "chamfer_count", 1, MAX_SURFACE_POINTS, "an integer number of surface points")
+    as_rng(seed)  # a bad seed refused before any work
 
     def as_mesh(obj):
         return nellipsoid_mesh(obj, res) if isinstance(obj, NEllipsoid) else obj

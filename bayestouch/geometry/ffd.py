@@ -9,14 +9,19 @@ deformation matrix and P the (NP × 3) control points. The lattice of uniformly 
 
 from __future__ import annotations
 
+import operator
 from typing import NamedTuple
 
 import numpy as np
 from scipy.special import comb
 
+from bayestouch.errors import BadInput, as_array, check_int
+from bayestouch.geometry.integrals import check_mesh
 from bayestouch.geometry.mesh import closest_points
 
 __all__ = [
+    "check_dims",
+    "MAX_DIMS_AXIS",
     "bernstein",
     "deformation_matrix",
     "identity_lattice",
@@ -34,11 +39,23 @@ def bernstein(degree: int, s) -> np.ndarray:
     return comb(degree, i) * s**i * (1.0 - s) ** (degree - i)
 
 
-def _check_dims(dims) -> tuple[int, int, int]:
-    dims = tuple(int(d) for d in dims)
-    if len(dims) != 3 or min(dims) < 2:
-        raise ValueError(f"dims must be three lattice sizes ≥ 2 (e.g. (6, 6, 3)), got {dims}")
-    return dims
+#: most control points along one axis of a lattice (the paper's largest is 7; B has ND × l·m·k entries)
+MAX_DIMS_AXIS = 32
+
+
+def check_dims(dims, name: str = "dims") -> tuple[int, int, int]:
+    """``dims`` as three ints, or a one-line refusal naming ``name``: three integer lattice sizes from 2 to
+    :data:`MAX_DIMS_AXIS`."""
+    try:
+        sizes = [operator.index(d) for d in dims]
+    except TypeError:  # not a sequence, or text / floats in it
+        sizes = None
+    if sizes is None or len(sizes) != 3 or not all(2 <= d <= MAX_DIMS_AXIS for d in sizes):
+        shown = " ".join(repr(dims).split())[:60]
+        raise BadInput(
+            f"{name} must be three integer lattice sizes from 2 to {MAX_DIMS_AXIS} (e.g. (6, 6, 3)), got {shown}"
+        )
+    return tuple(sizes)
 
 
 def deformation_matrix(points, lower, upper, dims) -> np.ndarray:
@@ -57,10 +74,10 @@ def deformation_matrix(points, lower, upper, dims) -> np.ndarray:
     (ND, l·m·k) float
         Rows sum to one (partition of unity); columns ordered as ``P.reshape(l, m, k, 3)``.
     """
-    l, m, k = _check_dims(dims)
+    l, m, k = check_dims(dims)
     lower, upper = np.asarray(lower, float), np.asarray(upper, float)
     if np.any(upper <= lower):
-        raise ValueError("upper must exceed lower on every axis")
+        raise BadInput("upper must exceed lower on every axis")
     s = (np.asarray(points, float) - lower) / (upper - lower)
     bu, bv, bw = bernstein(l - 1, s[:, 0]), bernstein(m - 1, s[:, 1]), bernstein(k - 1, s[:, 2])
     return np.einsum("ni,nj,nk->nijk", bu, bv, bw).reshape(len(s), l * m * k)
@@ -68,7 +85,7 @@ def deformation_matrix(points, lower, upper, dims) -> np.ndarray:
 
 def identity_lattice(lower, upper, dims) -> np.ndarray:
     """The paper's P₀: uniformly spaced control points of the box; ``(l·m·k, 3)`` metres."""
-    l, m, k = _check_dims(dims)
+    l, m, k = check_dims(dims)
     lower, upper = np.asarray(lower, float), np.asarray(upper, float)
     g = np.stack(
         np.meshgrid(np.linspace(0, 1, l), np.linspace(0, 1, m), np.linspace(0, 1, k), indexing="ij"), axis=-1
@@ -183,11 +200,20 @@ def fit_two_step(
     -------
     FFDFit
     """
-    X0 = np.asarray(model_points, float)
-    data = np.asarray(data, float)
-    faces = np.asarray(faces)
+    X0, faces = check_mesh(model_points, faces, names=("model_points", "faces"))
+    data = as_array(data, "data", (None, 3), "an (M, 3) array (metres)")
+    if not len(data):
+        raise BadInput("data: expected at least one probed point, got an empty (0, 3) array")
+    lower = as_array(lower, "lower", (3,), "a (3,) corner (metres)")
+    upper = as_array(upper, "upper", (3,), "a (3,) corner (metres)")
+    check_dims(dims)
+    check_int(max_iter, "max_iter", 1, None, "an integer number of iterations")
+    check_int(patience, "patience", 1, None, "an integer number of iterations")
+    for name, value in (("tol", tol), ("ridge", ridge)):
+        if isinstance(value, bool) or not isinstance(value, int | float) or not (0 <= value < np.inf):
+            raise BadInput(f"{name}: expected a finite number ≥ 0, got {value!r}")
     if anchor not in ("initial", "previous"):
-        raise ValueError(f"anchor must be 'initial' or 'previous', got {anchor!r}")
+        raise BadInput(f"anchor must be 'initial' or 'previous', got {anchor!r}")
     B_model = deformation_matrix(X0, lower, upper, dims)
     P = identity_lattice(lower, upper, dims)
     P0 = P

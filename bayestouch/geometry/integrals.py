@@ -11,7 +11,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["SurfaceIntegrals", "surface_integrals", "surface_integrals_batch", "relative_errors"]
+from bayestouch.errors import BadInput, as_array, shown
+
+__all__ = ["SurfaceIntegrals", "check_mesh", "surface_integrals", "surface_integrals_batch", "relative_errors"]
 
 # Dunavant's degree-4 rule on the reference triangle (6 points), barycentric coordinates
 _B = np.array(
@@ -35,6 +37,30 @@ class SurfaceIntegrals(NamedTuple):
     inertia: np.ndarray
 
 
+def check_mesh(vertices, faces, names: tuple[str, str] = ("vertices", "faces")) -> tuple[np.ndarray, np.ndarray]:
+    """A triangle mesh as arrays, or a one-line refusal naming the argument (``names``): vertices that are not a
+    finite (V, 3) array of metres, faces that are not an (F ≥ 1, 3) array of integer vertex indices in [0, V).
+
+    Returns
+    -------
+    vertices : (V, 3) float, metres
+    faces : (F, 3) int
+    """
+    v = as_array(vertices, names[0], (None, 3), "a (V, 3) array (metres)")
+    try:
+        f = np.asarray(faces)
+    except (TypeError, ValueError):
+        f = None
+    if f is None or f.ndim != 2 or f.shape[1] != 3 or len(f) < 1 or f.dtype.kind not in "iu":
+        form = f"shape {f.shape}, dtype {f.dtype}" if f is not None else shown(faces, 40)
+        raise BadInput(f"{names[1]}: expected an (F ≥ 1, 3) array of integer vertex indices, got {form}")
+    if f.min() < 0 or f.max() >= len(v):
+        raise BadInput(
+            f"{names[1]}: vertex indices must be in [0, {len(v)}) for {len(v)} vertices, got {f.min()} to {f.max()}"
+        )
+    return v, f
+
+
 def surface_integrals(vertices, faces) -> SurfaceIntegrals:
     """Volume, area and geometrical inertia tensor (eq. 11–13) of a closed, outward-oriented mesh.
 
@@ -47,7 +73,8 @@ def surface_integrals(vertices, faces) -> SurfaceIntegrals:
     -------
     SurfaceIntegrals
     """
-    b = surface_integrals_batch(np.asarray(vertices, dtype=float)[None], faces)
+    v, f = check_mesh(vertices, faces)
+    b = surface_integrals_batch(v[None], f)
     return SurfaceIntegrals(float(b.volume[0]), float(b.area[0]), b.inertia[0])
 
 

@@ -14,7 +14,7 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from bayestouch.backend import jnp
-from bayestouch.errors import BadInput
+from bayestouch.errors import BadInput, check_int, shown
 from bayestouch.geometry.nellipsoid import NEllipsoid, check_shape, project_to_surface, surface_point, unit_nsphere
 
 __all__ = [
@@ -26,14 +26,33 @@ __all__ = [
     "closest_points",
     "to_trimesh",
     "as_rng",
+    "check_res",
+    "MAX_MESH_RES",
 ]
+
+#: finest cube-sphere resolution of a mesh (cells per cube edge): 512 gives 1.6 million vertices and 3.1 million
+#: triangles in a few seconds; 10⁶ ended in a MemoryError
+MAX_MESH_RES = 512
 
 
 def as_rng(seed) -> np.random.Generator:
-    """A ``np.random.Generator`` from an int seed, a Generator (returned as is) or None (fresh entropy)."""
+    """A ``np.random.Generator`` from an int seed ≥ 0 (or a sequence of them, or a ``SeedSequence``), a Generator
+    (returned as is) or None (fresh entropy); anything else (text, a float, a negative number) is refused in one
+    line naming ``seed``."""
     if isinstance(seed, np.random.Generator):
         return seed
-    return np.random.default_rng(seed)
+    if not isinstance(seed, bool | np.bool_ | float | np.floating):
+        try:
+            return np.random.default_rng(seed)
+        except (TypeError, ValueError):
+            pass
+    raise BadInput(f"seed: expected an integer ≥ 0, a numpy Generator or None, got {shown(seed)}")
+
+
+def check_res(res, name: str = "res") -> int:
+    """``res`` as an int, or a one-line refusal naming ``name`` when it is not a cube-sphere resolution from 1 to
+    :data:`MAX_MESH_RES` cells per cube edge."""
+    return check_int(res, name, 1, MAX_MESH_RES, "an integer resolution (cells per cube edge)")
 
 
 @lru_cache(maxsize=32)
@@ -91,13 +110,19 @@ def cube_sphere(res: int) -> tuple[np.ndarray, np.ndarray]:
 def nellipsoid_mesh(s: NEllipsoid, res: int = 32) -> tuple[np.ndarray, np.ndarray]:
     """Watertight triangle mesh of the n-ellipsoid ``s`` (eq. 4–6), metres.
 
+    Parameters
+    ----------
+    s : NEllipsoid
+    res : int
+        Cells per cube edge, 1 to :data:`MAX_MESH_RES`.
+
     Returns
     -------
     vertices : (6·res² + 2, 3) float, metres
     faces : (12·res², 3) int, outward
     """
     check_shape(s)
-    d, faces = cube_sphere(res)
+    d, faces = cube_sphere(check_res(res))
     Y = unit_nsphere(jnp.asarray(d), s.n)
     return np.asarray(surface_point(s, Y)), faces
 
@@ -145,7 +170,10 @@ def sample_surface(s: NEllipsoid, count: int, seed=None, res: int = 48) -> np.nd
     s : NEllipsoid or SceneObject
         The shape (a scene object's ``shape`` is used).
     count : int
-        Number of points, ≥ 1.
+        Number of points, 1 to :data:`MAX_SURFACE_POINTS`.
+    seed : int, np.random.Generator or None
+    res : int
+        Resolution of the inscribed mesh (:func:`nellipsoid_mesh`).
 
     Returns
     -------
@@ -160,8 +188,9 @@ def sample_surface(s: NEllipsoid, count: int, seed=None, res: int = 48) -> np.nd
             )
     if isinstance(count, bool) or not isinstance(count, int | np.integer) or not 1 <= count <= MAX_SURFACE_POINTS:
         raise BadInput(f"count: expected an integer number of points from 1 to {MAX_SURFACE_POINTS:,}, got {count!r}")
+    rng = as_rng(seed)  # a bad seed refused before the mesh is made
     v, f = nellipsoid_mesh(s, res)
-    pts, _ = sample_mesh(v, f, count, seed)
+    pts, _ = sample_mesh(v, f, count, rng)
     return np.asarray(project_to_surface(s, jnp.asarray(pts)))
 
 

@@ -79,14 +79,21 @@ def check_shape(s: NEllipsoid, where: str = "shape") -> None:
             f"{where}: expected an NEllipsoid (centre, axes, angles, n; e.g. load_object(NAME).shape), got "
             f"{type(s).__name__} {s!r:.60}"
         )
-    for name, shape, positive in (("centre", (3,), False), ("axes", (3,), True), ("angles", (3,), False)):
-        v = np.asarray(getattr(s, name), dtype=float)
-        if v.shape != shape or not np.all(np.isfinite(v)) or (positive and not np.all(v > 0)):
-            kind = "finite numbers > 0" if positive else "finite numbers"
-            raise BadInput(f"{where}: {name} must be {shape[0]} {kind}, got {np.asarray(getattr(s, name)).tolist()}")
-    n = np.asarray(s.n, dtype=float)
-    if n.shape != () or not np.isfinite(n) or not n > 0:
-        raise BadInput(f"{where}: n must be one finite number > 0, got {np.asarray(s.n).tolist()}")
+    for name, shape, positive in (
+        ("centre", (3,), False),
+        ("axes", (3,), True),
+        ("angles", (3,), False),
+        ("n", (), True),
+    ):
+        raw = getattr(s, name)
+        try:
+            v = np.asarray(raw, dtype=float)
+        except (TypeError, ValueError):  # text, a ragged nesting: "could not convert string to float"
+            v = None
+        if v is None or v.shape != shape or not np.all(np.isfinite(v)) or (positive and not np.all(v > 0)):
+            count = f"{shape[0]} finite numbers" if shape else "one finite number"
+            shown = np.asarray(raw).tolist() if v is not None else " ".join(repr(raw).split())[:60]
+            raise BadInput(f"{where}: {name} must be {count}{' > 0' if positive else ''}, got {shown}")
 
 
 def from_vector(v) -> NEllipsoid:

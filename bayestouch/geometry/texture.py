@@ -16,6 +16,8 @@ import scipy.sparse.linalg as spla
 from scipy.spatial import cKDTree
 
 from bayestouch.backend import jnp
+from bayestouch.errors import BadInput, as_array, check_int
+from bayestouch.geometry.integrals import check_mesh
 
 __all__ = [
     "TextureIndicator",
@@ -261,7 +263,22 @@ def texture_indicator(
     Returns
     -------
     TextureIndicator
+
+    Raises
+    ------
+    BadInput
+        A mesh, data or residuals of the wrong form (text, wrong shapes, NaN, face indices out of range), ``p``,
+        ``q`` or ``tol`` not finite numbers > 0, ``k`` not an integer ≥ 1.
     """
+    vertices, faces = check_mesh(vertices, faces)
+    data = as_array(data, "data", (None, 3), "an (M, 3) array (metres)")
+    if not len(data):
+        raise BadInput("data: expected at least one probed point, got an empty (0, 3) array")
+    residuals = as_array(residuals, "residuals", (len(data),), f"a ({len(data)},) array (metres), one per point")
+    for name, value in (("p", p), ("q", q), ("tol", tol)):
+        if isinstance(value, bool) or not isinstance(value, int | float) or not (0 < value < np.inf):
+            raise BadInput(f"{name}: expected a finite number > 0, got {value!r}")
+    check_int(k, "k", 1, None, "an integer number of neighbours")
     w = misfit_weights(vertices, faces, data, residuals, k=k)
     seeds = indicator_seeds(vertices, data, residuals, tol)
     I, it = solve_indicator(vertices, faces, w, seeds, p, q)

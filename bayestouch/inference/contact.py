@@ -7,6 +7,7 @@ noise models, normals and precision: ``docs/contact_model.md``.
 
 from __future__ import annotations
 
+import os
 from typing import NamedTuple
 
 import numpy as np
@@ -21,6 +22,7 @@ from bayestouch.geometry.rotation import rotation_matrix
 from bayestouch.params import MODELS, Spec, build
 
 __all__ = [
+    "check_points",
     "PriorParams",
     "load_priors",
     "Bounds",
@@ -705,13 +707,37 @@ def log_prob(theta, points, bounds: Bounds, nu: float, *, normals=None, noise: s
     return log_prob_batch(jnp.asarray(theta)[None], points, bounds, nu, normals=normals, noise=noise, origin=origin)[0]
 
 
-def _check_points(points, normals):
-    p = np.asarray(points, dtype=float) if np.ndim(points) else np.empty((0,))
+def check_points(points, normals=None):
+    """Contact points (and normals) as arrays, or a one-line refusal naming ``points`` or ``normals``: a path (the
+    fitting functions take arrays; :func:`bayestouch.fit` reads files), text, points that are not a finite
+    (M ≥ 1, 3) array of metres, normals that are not finite, of non-zero length and one per point.
+
+    Returns
+    -------
+    points : (M, 3) float, metres
+    normals : (M, 3) float unit vectors, or None
+    """
+    if isinstance(points, str | bytes | os.PathLike):
+        raise BadInput(
+            f"points: expected an (M, 3) array in metres, not a path ({points!r:.60}); use bt.fit(PATH) or "
+            "bt.load_contact_points(PATH).points"
+        )
+    try:
+        p = np.asarray(points, dtype=float) if np.ndim(points) else np.empty((0,))
+    except (TypeError, ValueError):  # text, a ragged nesting
+        raise BadInput(
+            f"points: expected a finite (M ≥ 1, 3) array of numbers in metres, got {type(points).__name__}"
+        ) from None
     if p.ndim != 2 or p.shape[1] != 3 or len(p) < 1 or not np.all(np.isfinite(p)):
         raise BadInput(f"points: expected a finite (M ≥ 1, 3) array in metres, got shape {p.shape}")
     if normals is None:
         return p, None
-    nrm = np.asarray(normals, dtype=float)
+    try:
+        nrm = np.asarray(normals, dtype=float)
+    except (TypeError, ValueError):
+        raise BadInput(
+            f"normals: expected a finite ({len(p)}, 3) array like the points, got {type(normals).__name__}"
+        ) from None
     if nrm.shape != p.shape or not np.all(np.isfinite(nrm)):
         raise BadInput(f"normals: expected a finite ({len(p)}, 3) array like the points, got shape {nrm.shape}")
     length = np.linalg.norm(nrm, axis=1, keepdims=True)
@@ -772,7 +798,7 @@ def make_log_prob(
         )
     if nu is not None and noise != "student":
         raise BadInput(f"nu: applies to noise='student' only, got nu={nu} with noise={noise!r}")
-    p, nrm = _check_points(points, normals)
+    p, nrm = check_points(points, normals)
     priors = priors or load_priors()
     nu = float(priors.student_nu if nu is None else nu)
     if not nu > 0:

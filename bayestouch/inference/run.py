@@ -18,7 +18,7 @@ import numpy as np
 from scipy.optimize import minimize
 
 from bayestouch.backend import jax, jnp
-from bayestouch.errors import BadInput
+from bayestouch.errors import BadInput, check_bool, check_int, check_path, check_seed
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.symmetry import aliases, align_batch, canonicalize_batch
 from bayestouch.inference import contact as cm
@@ -39,6 +39,8 @@ from bayestouch.io.runfolder import fingerprint, prepare_run_folder, release_run
 __all__ = [
     "initial_theta",
     "run_contact_fit",
+    "check_walkers",
+    "MIN_WALKERS",
     "contact_model",
     "ffd_contact_model",
     "NATURAL_NAMES",
@@ -69,6 +71,9 @@ SMC_ESS = 0.8
 #: one that has not converged by then says so (``diagnostics.converged``, ``stopped_by_budget``) and can be
 #: continued with ``resume``
 DEFAULT_BUDGET_S = 60.0
+#: fewest walkers of a fit: twice the 11 parameters of the contact model, plus a margin (emcee's moves split the
+#: ensemble in halves, so the count is even)
+MIN_WALKERS = 24
 #: ``init="auto"`` starts from the optimum (no SMC) for at least this many contacts surrounding the object, at least
 #: this fraction of them beyond ±½ of each semi-axis on each side (:func:`surrounds`)
 DENSE_POINTS = 300
@@ -741,6 +746,16 @@ def ffd_contact_model(points, dims, tau: float) -> PosteriorModel:
 NU_RANGE = (0.5, 1000.0)
 
 
+def check_walkers(walkers) -> int:
+    """``walkers`` as an int, or a one-line refusal when it is not an even integer ≥ :data:`MIN_WALKERS` (the check
+    of :func:`bayestouch.fit` and :func:`run_contact_fit`)."""
+    if isinstance(walkers, bool) or not isinstance(walkers, int | np.integer) or walkers < MIN_WALKERS or walkers % 2:
+        raise BadInput(
+            f"walkers must be an even integer ≥ {MIN_WALKERS} (twice the parameters, plus a margin), got {walkers!r}"
+        )
+    return int(walkers)
+
+
 def run_contact_fit(
     points,
     out: Path,
@@ -768,6 +783,11 @@ def run_contact_fit(
 
     Parameters
     ----------
+    points : (M, 3) float, metres
+        The contacts as an array (a path is refused: :func:`bayestouch.fit` reads files, or pass
+        ``bayestouch.load_contact_points(PATH).points``).
+    out : path
+        The run folder.
     seed : int
         Seeds the initial fit, the walkers and emcee's random state (checked after setting).
     walkers, steps : int
@@ -835,6 +855,18 @@ def run_contact_fit(
         The summary written to ``summary.json``.
     """
     t0 = time.perf_counter()
+    points, _ = cm.check_points(points)  # a path, text or a wrong shape refused before any work
+    check_path(out, "out")
+    check_walkers(walkers)
+    check_seed(seed)
+    check_int(steps, "steps", 1, None, "an integer number of steps")
+    for name, value in (
+        ("resume", resume),
+        ("overwrite", overwrite),
+        ("progress", progress),
+        ("stop_when_converged", stop_when_converged),
+    ):
+        check_bool(value, name)
     out = Path(out)
     priors = cm.load_priors()
     if size_prior is not None and ffd is not None:

@@ -21,7 +21,7 @@ import xarray as xr
 from emcee.state import State
 from scipy.stats import chi2
 
-from bayestouch.errors import BadInput
+from bayestouch.errors import BadInput, as_array, check_int, check_path, check_seed, shown
 from bayestouch.inference.modes import gaussian_mixture
 
 __all__ = [
@@ -790,6 +790,16 @@ def sample(
         too (sampled coordinates that wander between aliases of one surface, such as periodic angles, would
         otherwise make τ meaningless).
     """
+    if not callable(logp):
+        raise BadInput(
+            f"logp: expected a callable (W, D) -> (W,) log-density, got {type(logp).__name__} {shown(logp, 60)}"
+        )
+    check_int(walkers, "walkers", 2, None, "an integer number of walkers")
+    check_int(ndim, "ndim", 1, None, "an integer number of parameters")
+    check_int(steps, "steps", 1, None, "an integer number of steps")
+    check_seed(seed)
+    if chain_path is not None:
+        check_path(chain_path, "chain_path")
     t0 = time.perf_counter() if t0 is None else t0
     if chain_path is None:  # in memory: short runs for which a checkpoint costs more than it saves
         backend = emcee.backends.Backend()
@@ -813,9 +823,8 @@ def sample(
             )
         start = None
     else:
-        start = np.asarray(start() if callable(start) else start, dtype=float)
-        if start.shape != (walkers, ndim):
-            raise ValueError(f"start ensemble has shape {start.shape}, expected {(walkers, ndim)}")
+        start = start() if callable(start) else start
+        start = as_array(start, "start", (walkers, ndim), f"a ({walkers}, {ndim}) ensemble (walkers × parameters)")
         backend.reset(walkers, ndim)
     flush = getattr(backend, "flush", lambda: None)
     moves = moves or (adaptive_moves() if adapt else default_moves())

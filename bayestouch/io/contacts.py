@@ -26,15 +26,16 @@ import operator
 import os
 from collections.abc import Sequence
 from pathlib import Path
-from typing import IO, Any, NamedTuple
+from typing import IO, NamedTuple
 
 import numpy as np
 
-from bayestouch.errors import BadInput, check_bool
+from bayestouch.errors import BadInput, as_array, check_bool, check_path
 from bayestouch.io.files import atomic_write, file_error, ragged_error, read_csv_records
 
 __all__ = [
     "check_contact_spread",
+    "contact_array",
     "contact_points_from_table",
     "COPLANAR_RATIO",
     "ContactPoints",
@@ -91,8 +92,20 @@ _CONTACT_VALUES = {
 _CONTACT_FORM = "0 (finger position without contact) or 1 (contact)"
 
 
-class ContactPoints(NamedTuple):
+class _ContactPointsFields(NamedTuple):
+    points: np.ndarray
+    normals: np.ndarray | None = None
+    force: np.ndarray | None = None
+    source: str = ""
+    free: np.ndarray | None = None
+
+
+class ContactPoints(_ContactPointsFields):
     """Contact points read from (or to be written to) a CSV file.
+
+    The fields are checked on construction (a one-line :class:`BadInput` naming the field): points that are not
+    a finite (N, 3) array, normals or force of another length than the points, text for any array, a source that
+    is not a string. The arrays are kept as given.
 
     Attributes
     ----------
@@ -109,11 +122,19 @@ class ContactPoints(NamedTuple):
         when the file has no ``contact`` column or no such rows.
     """
 
-    points: np.ndarray
-    normals: np.ndarray | None = None
-    force: np.ndarray | None = None
-    source: str = ""
-    free: np.ndarray | None = None
+    __slots__ = ()
+
+    def __new__(cls, points, normals=None, force=None, source: str = "", free=None):
+        n = len(as_array(points, "ContactPoints.points", (None, 3), "an (N, 3) array (metres)"))
+        if normals is not None:
+            as_array(normals, "ContactPoints.normals", (n, 3), f"an ({n}, 3) array like points, or None")
+        if force is not None:
+            as_array(force, "ContactPoints.force", (n,), f"an ({n},) array (newtons), or None")
+        if free is not None:
+            as_array(free, "ContactPoints.free", (None, 3), "a (K, 3) array (metres), or None")
+        if not isinstance(source, str):
+            raise BadInput(f"ContactPoints.source: expected a str (where the points came from), got {source!r:.60}")
+        return super().__new__(cls, points, normals, force, source, free)
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -340,6 +361,26 @@ def check_contact_spread(points, where: str, axis_max: float) -> None:
         )
 
 
+def contact_array(points, where: str = "points", min_points: int = N_ELLIPSOID_PARAMS) -> np.ndarray:
+    """Contact points given as an array, or a one-line refusal naming ``where``: not a finite (M, 3) array of
+    numbers (a path, text, NaN), fewer than ``min_points`` (default the n-ellipsoid's 12 parameters), all identical,
+    or in one plane (:func:`check_contact_spread`; no closed shape is determined by them).
+
+    Returns
+    -------
+    (M, 3) float, metres
+    """
+    a = as_array(points, where, (None, 3), f"an (M ≥ {min_points}, 3) array (metres)")
+    if len(a) < min_points:
+        raise BadInput(
+            f"{where}: expected at least {min_points} points (the parameters of the n-ellipsoid), got {len(a)}"
+        )
+    if not np.any(np.ptp(a, axis=0)):
+        raise BadInput(f"{where}: all {len(a)} points are identical; expected points spread over the object's surface")
+    check_contact_spread(a, where, np.inf)
+    return a
+
+
 def load_contact_points(path: str | os.PathLike[str], *, min_points: int = N_ELLIPSOID_PARAMS) -> ContactPoints:
     """Read contact points from a CSV file with a header line.
 
@@ -372,6 +413,8 @@ def load_contact_points(path: str | os.PathLike[str], *, min_points: int = N_ELL
         coordinates that look like millimetres (largest ``|x|, |y|, |z|`` > 2 m or bounding-box diagonal
         > 3.5 m, free positions included), all contacts identical, zero-length normals, negative force.
     """
+    if not isinstance(path, bytes):
+        check_path(path, "path")
     source = os.fspath(path)
     if isinstance(source, bytes):
         source = os.fsdecode(source)
@@ -558,19 +601,6 @@ def contact_points_from_table(table, where: str = "data", *, min_points: int = N
 # writing
 
 
-def _as_array(value: Any, name: str, shape: tuple[int | None, ...], form: str) -> np.ndarray:
-    try:
-        a = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise BadInput(f"{name} must be {form} of numbers, got {type(value).__name__}") from None
-    if a.ndim != len(shape) or any(s is not None and s != t for s, t in zip(shape, a.shape, strict=False)):
-        raise BadInput(f"{name} must be {form}, got shape {a.shape}")
-    bad = np.flatnonzero(~np.isfinite(a).reshape(len(a), -1).all(axis=1)) if a.size else np.empty(0, int)
-    if bad.size:
-        raise BadInput(f"{name} must be finite, row {int(bad[0]) + 1} (1-based) is {a[bad[0]].tolist()}")
-    return a
-
-
 def save_contact_points(
     path: str | os.PathLike[str],
     cp_or_points: ContactPoints | np.ndarray | Sequence[Sequence[float]],
@@ -634,12 +664,12 @@ def save_contact_points(
         force = cp_or_points.force if force is None else force
         free = cp_or_points.free if free is None else free
         cp_or_points = cp_or_points.points
-    pts = _as_array(cp_or_points, "points", (None, 3), "an (N, 3) array (metres)")
+    pts = as_array(cp_or_points, "points", (None, 3), "an (N, 3) array (metres)")
     n = len(pts)
     columns = list(_POS)
     parts = [pts]
     if normals is not None:
-        nrm = _as_array(normals, "normals", (n, 3), f"an ({n}, 3) array like points")
+        nrm = as_array(normals, "normals", (n, 3), f"an ({n}, 3) array like points")
         short = np.flatnonzero(~(np.linalg.norm(nrm, axis=1) >= MIN_NORMAL_LENGTH))
         if short.size:
             raise BadInput(
@@ -648,7 +678,7 @@ def save_contact_points(
         columns += _NORMAL
         parts.append(nrm)
     if force is not None:
-        f = _as_array(force, "force", (n,), f"an ({n},) array (newtons)")
+        f = as_array(force, "force", (n,), f"an ({n},) array (newtons)")
         negative = np.flatnonzero(f < 0)
         if negative.size:
             raise BadInput(
@@ -659,7 +689,7 @@ def save_contact_points(
     table = np.hstack(parts) if n else np.empty((0, len(columns)))
     free_pts = np.empty((0, 3))
     if free is not None:
-        free_pts = _as_array(free, "free", (None, 3), "a (K, 3) array (metres)")
+        free_pts = as_array(free, "free", (None, 3), "a (K, 3) array (metres)")
     blank = [""] * (len(columns) - len(_POS))  # a free row's normal and force cells
     if len(free_pts):
         columns.append(_CONTACT)

@@ -15,7 +15,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.interpolate import RegularGridInterpolator
 
-from bayestouch.errors import BadInput
+from bayestouch.errors import BadInput, check_path
 from bayestouch.io.files import atomic_path
 
 __all__ = ["OCCUPANCY_FILE", "Occupancy", "write_occupancy", "load_occupancy"]
@@ -104,6 +104,7 @@ def load_occupancy(path: str | os.PathLike[str]) -> Occupancy:
     BadInput
         The file is missing or not an occupancy grid (one line naming what is wrong).
     """
+    check_path(path, "path")
     path = Path(path)
     if path.is_dir():
         path = path / OCCUPANCY_FILE
@@ -113,7 +114,17 @@ def load_occupancy(path: str | os.PathLike[str]) -> Occupancy:
             "interrupted one writes it when continued with --resume)"
         )
     try:
-        with np.load(path) as z:
+        z = np.load(path, allow_pickle=False)
+    except (OSError, ValueError):  # numpy's reason for a file of another kind offers to unpickle it: not repeated
+        raise BadInput(
+            f"{path}: not an occupancy grid (expected a NumPy .npz archive with x, y, z, probability, draws)"
+        ) from None
+    if not isinstance(z, np.lib.npyio.NpzFile):  # a single .npy array
+        raise BadInput(
+            f"{path}: not an occupancy grid (expected a NumPy .npz archive with x, y, z, probability, draws)"
+        )
+    try:
+        with z:
             occ = Occupancy(
                 np.asarray(z["x"], float),
                 np.asarray(z["y"], float),
@@ -121,8 +132,10 @@ def load_occupancy(path: str | os.PathLike[str]) -> Occupancy:
                 np.asarray(z["probability"], float),
                 int(z["draws"]),
             )
-    except (OSError, ValueError, KeyError) as exc:
-        raise BadInput(f"{path}: not an occupancy grid (expected x, y, z, probability, draws): {exc}") from None
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        # numpy's reason for an object array advises loading it unsafely (allow_pickle): not passed on
+        reason = "it holds Python objects" if "pickle" in str(exc) else f"{type(exc).__name__}: {exc}"
+        raise BadInput(f"{path}: not an occupancy grid (expected x, y, z, probability, draws): {reason}") from None
     shape = (occ.x.size, occ.y.size, occ.z.size)
     if occ.probability.shape != shape or min(shape) < 2:
         raise BadInput(f"{path}: probability has shape {occ.probability.shape}, expected {shape} with every side ≥ 2")

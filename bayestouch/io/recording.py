@@ -182,8 +182,9 @@ def read_recording(path):
     Raises
     ------
     BadInput
-        ``path`` is missing, a folder, or not a netCDF (HDF5) file.
+        ``path`` is not a path, is missing, a folder, or not a netCDF (HDF5) file.
     """
+    check_path(path, "path")
     p = Path(path)
     if not p.exists():
         raise BadInput(f"{p}: no such recording")

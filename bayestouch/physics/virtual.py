@@ -13,7 +13,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from bayestouch.backend import jax
-from bayestouch.errors import BadInput
+from bayestouch.errors import BadInput, check_int, check_path, check_seed, shown
 from bayestouch.io.recording import build_dataset
 from bayestouch.params import MODELS
 from bayestouch.physics import bending, noise, skin, sma, taxel
@@ -50,9 +50,9 @@ def finger_name(seed: int) -> str:
 def load_finger(models: Path = MODELS, seed: int = 0) -> VirtualFinger:
     """Read ``finger.toml``, ``skin.toml``, ``taxels.toml``, ``noise.toml`` from ``models``; ``seed`` draws the
     device's fixed pattern."""
+    check_path(models, "models")
     models = Path(models)
-    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or not 0 <= seed < 2**32:
-        raise BadInput(f"seed: expected an integer in [0, 2**32) (the finger's fixed pattern), got {seed!r}")
+    check_seed(seed, note=" (the finger's fixed pattern)")
     rod = bending.load_rod(models / "finger.toml")
     wire = sma.load_wire(models / "finger.toml")
     sk = skin.load_skin(models / "skin.toml")
@@ -73,21 +73,34 @@ MAX_DEPTH_M = 2e-3
 
 def check_strokes(strokes, force_controlled: bool = False) -> None:
     """Refuse (:class:`BadInput` naming the stroke and field) strokes the forward model would turn into NaN or
-    impossible readings: none at all; contact points that are not (T ≥ 2, 3) finite metres; normals that are not
-    finite unit vectors; times that are not finite and increasing; a depth outside (0, :data:`MAX_DEPTH_M`] m
-    (unless ``force_controlled``, where the depths are solved for)."""
+    impossible readings: none at all, or not strokes; contact points that are not (T ≥ 2, 3) finite metres; normals
+    that are not finite unit vectors; tangents of another shape; times that are not finite and increasing; a depth
+    outside (0, :data:`MAX_DEPTH_M`] m (unless ``force_controlled``, where the depths are solved for)."""
+    form = "a list of strokes (bt.random_strokes), each with contact, normal, tangent, time and depth"
+    if isinstance(strokes, str | bytes) or not hasattr(strokes, "__iter__"):
+        raise BadInput(f"strokes: expected {form}, got {type(strokes).__name__} {shown(strokes, 60)}")
     strokes = list(strokes)
     if not strokes:
         raise BadInput("strokes: expected at least one stroke, got none")
     for i, st in enumerate(strokes):
-        c, n, t = (np.asarray(v, dtype=float) for v in (st.contact, st.normal, st.time))
+        if not all(hasattr(st, f) for f in ("contact", "normal", "tangent", "time", "depth")):
+            raise BadInput(f"strokes: expected {form}; stroke {i} is {type(st).__name__} {shown(st, 60)}")
+        try:
+            c, n, tg, t = (np.asarray(v, dtype=float) for v in (st.contact, st.normal, st.tangent, st.time))
+            depth = float(st.depth)
+        except (TypeError, ValueError):  # text, a ragged nesting
+            raise BadInput(f"stroke {i}: contact, normal, tangent, time and depth must be numbers (SI units)") from None
         if c.ndim != 2 or c.shape[1] != 3 or len(c) < 2 or not np.all(np.isfinite(c)):
             raise BadInput(f"stroke {i}: contact must be a (T ≥ 2, 3) array of finite metres, got shape {c.shape}")
         if n.shape != c.shape or not np.all(np.isfinite(n)) or not np.allclose(np.linalg.norm(n, axis=1), 1, atol=1e-3):
             raise BadInput(f"stroke {i}: normal must be ({len(c)}, 3) finite unit vectors")
+        if tg.shape != c.shape or not np.all(np.isfinite(tg)):
+            raise BadInput(
+                f"stroke {i}: tangent must be ({len(c)}, 3) finite directions of motion, got shape {tg.shape}"
+            )
         if t.shape != (len(c),) or not np.all(np.isfinite(t)) or not np.all(np.diff(t) > 0):
             raise BadInput(f"stroke {i}: time must be ({len(c)},) finite, strictly increasing seconds")
-        if not force_controlled and not 0 < float(st.depth) <= MAX_DEPTH_M:
+        if not force_controlled and not 0 < depth <= MAX_DEPTH_M:
             raise BadInput(f"stroke {i}: depth must be in (0, {MAX_DEPTH_M:g}] metres, got {st.depth!r}")
 
 
@@ -106,11 +119,32 @@ def record_strokes(
 
     With ``force`` (N) the strokes are force-controlled: each frame's depth is solved for that normal force
     (the strokes' own depths are ignored); otherwise they are pressed to their depth.
+
+    Parameters
+    ----------
+    obj : SceneObject
+    strokes : sequence of Stroke
+        :func:`bayestouch.scene.strokes.random_strokes` or strokes of the same form (:func:`check_strokes`).
+    vf : VirtualFinger
+        :func:`load_finger`.
+    seed : int
+        Seeds the noise, in [0, 2**63).
+
+    Returns
+    -------
+    dict of str to ndarray
+        The recording's arrays, frames of all strokes in order.
     """
+    if not isinstance(vf, VirtualFinger):
+        raise BadInput(f"vf: expected the VirtualFinger of bt.load_finger(), got {type(vf).__name__} {shown(vf, 60)}")
+    if not callable(getattr(obj, "surface", None)):
+        raise BadInput(f"obj: expected a SceneObject (load_object(NAME)), got {type(obj).__name__} {shown(obj, 60)}")
+    check_int(seed, "seed", 0, 2**63 - 1, "an integer seed of the noise")  # JAX's key takes a 64-bit integer
     mode = mode or vf.mode
     if mode not in ("physics", "empirical"):
         raise BadInput(f"--mode must be physics or empirical, got {mode!r}")
     check_strokes(strokes, force is not None)
+    strokes = list(strokes)
     surf = obj.surface()
     keys = jax.random.split(jax.random.PRNGKey(seed), len(strokes))
     cols: dict[str, list] = {

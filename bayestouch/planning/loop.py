@@ -22,7 +22,7 @@ from typing import NamedTuple
 import numpy as np
 
 from bayestouch.backend import jax, jnp
-from bayestouch.errors import BadInput
+from bayestouch.errors import BadInput, check_bool
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.compare import chamfer_surfaces
 from bayestouch.geometry.integrals import surface_integrals
@@ -66,8 +66,23 @@ CHAMFER_COUNT = 4000
 _vol = jax.jit(jax.vmap(lambda v: ne.volume(ne.from_vector(v))))
 
 
-class ExploreSettings(NamedTuple):
-    """Sizes of an exploration run.
+class _ExploreSettingsFields(NamedTuple):
+    candidates: int = 64
+    draws: int = 1000
+    walkers: int = 32
+    steps: int = 300
+    init_steps: int = 600
+    points: int = 20
+    noise_sd: float = CONTACT_NOISE
+    standoff: float = 0.025
+    init_starts: int = 2
+    scout: int = 4
+    per_second: bool = False
+
+
+class ExploreSettings(_ExploreSettingsFields):
+    """Sizes of an exploration run, checked on construction (:func:`check_settings`: a one-line
+    :class:`~bayestouch.errors.BadInput` naming the field, e.g. ``candidates=-1`` or ``draws="a"``).
 
     candidates : int
         Candidate strokes per decision.
@@ -92,17 +107,16 @@ class ExploreSettings(NamedTuple):
         ``eig``: maximise information per second of stroke.
     """
 
-    candidates: int = 64
-    draws: int = 1000
-    walkers: int = 32
-    steps: int = 300
-    init_steps: int = 600
-    points: int = 20
-    noise_sd: float = CONTACT_NOISE
-    standoff: float = 0.025
-    init_starts: int = 2
-    scout: int = 4
-    per_second: bool = False
+    __slots__ = ()
+
+    def __new__(cls, *args, **kwargs):
+        try:
+            settings = super().__new__(cls, *args, **kwargs)
+        except TypeError as e:  # an unknown field, too many values
+            why = str(e).replace("_ExploreSettingsFields.__new__()", "ExploreSettings()")
+            raise BadInput(f"ExploreSettings: {why}; expected fields {', '.join(cls._fields)}") from None
+        check_settings(settings)
+        return settings
 
 
 #: fewest posterior draws the planner can estimate a covariance from
@@ -143,6 +157,7 @@ def check_settings(s: ExploreSettings) -> None:
         v = getattr(s, name)
         if isinstance(v, bool) or not isinstance(v, int | float) or not (math.isfinite(v) and v > 0):
             raise BadInput(f"settings.{name}: expected a positive finite number of metres, got {v!r}")
+    check_bool(s.per_second, "settings.per_second")
 
 
 class StrokeRecord(NamedTuple):

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from bayestouch.backend import jax, jnp, pad_pow2
-from bayestouch.errors import BadInput, file_problem
+from bayestouch.errors import BadInput, check_path, file_problem
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.mesh import nellipsoid_mesh
 from bayestouch.params import MODELS, read_toml
@@ -113,6 +113,18 @@ class SceneObject:
     source: Path | None = None
     texture: TextureSpec | None = None
     ffd: FFDSpec | None = None
+
+    def __post_init__(self) -> None:
+        # a host-side container (never built on tracers): its fields are checked once, here
+        if not isinstance(self.name, str):
+            raise BadInput(f"SceneObject.name: expected a str, got {type(self.name).__name__} {self.name!r:.60}")
+        ne.check_shape(self.shape, "SceneObject.shape")
+        if not isinstance(self.defects, tuple) or not all(isinstance(d, Defect) for d in self.defects):
+            raise BadInput(f"SceneObject.defects: expected a tuple of Defect, got {self.defects!r:.60}")
+        for name, kind in (("texture", TextureSpec), ("ffd", FFDSpec)):
+            value = getattr(self, name)
+            if value is not None and not isinstance(value, kind):
+                raise BadInput(f"SceneObject.{name}: expected a {kind.__name__} or None, got {value!r:.60}")
 
     def surface(self) -> Surface:
         """The true surface as a JAX pytree (for :func:`bayestouch.scene.surface.signed_distance`)."""
@@ -417,5 +429,7 @@ def load_object(path, models=None) -> SceneObject:
     if not isinstance(path, str | os.PathLike) or not isinstance(os.fspath(path), str):
         shown = " ".join(repr(path).split())[:60]
         raise BadInput(f"path: expected a path or an object name (e.g. 'egg'), got {type(path).__name__} {shown}")
+    if models is not None:
+        check_path(models, "models")
     p = Path(path) if Path(path).suffix == ".toml" else resolve_object(str(path), models)
     return object_from_dict(read_toml(p, "object file", "models/objects/egg.toml"), str(p), p)

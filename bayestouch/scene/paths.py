@@ -11,11 +11,16 @@ from typing import NamedTuple
 import numpy as np
 
 from bayestouch.backend import jax, jnp, pad_pow2
+from bayestouch.errors import BadInput, shown
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.mesh import as_rng
 from bayestouch.scene.objects import SceneObject
 
-__all__ = ["Path", "ray_hits", "section_path", "random_paths"]
+__all__ = ["Path", "ray_hits", "section_path", "random_paths", "check_random_sections", "check_offset", "MAX_PATHS"]
+
+#: most paths (or strokes) one call of :func:`random_paths` or :func:`bayestouch.scene.strokes.random_strokes`
+#: makes: each walks a section round the object (~10 ms), so 10,000 take about two minutes (10⁹ ran for days)
+MAX_PATHS = 10_000
 
 
 class Path(NamedTuple):
@@ -109,6 +114,34 @@ def section_path(
     return Path(obj.displace(base), t, normals)
 
 
+def check_random_sections(obj, count, what: str, **positive) -> None:
+    """Refuse (one line naming the argument) what :func:`random_paths` and
+    :func:`~bayestouch.scene.strokes.random_strokes` cannot walk: ``obj`` that is not a scene object, ``count`` that
+    is not an integer from 1 to :data:`MAX_PATHS` (``what``: "paths" or "strokes"), and any of ``positive``
+    (name → (value, unit), e.g. ``speed=(0.01, "m/s")``) that is not a finite number > 0 (a negative rate or speed
+    gave empty paths without a word)."""
+    if not hasattr(getattr(obj, "shape", None), "axes"):
+        raise BadInput(f"obj: expected a SceneObject (load_object(NAME)), got {type(obj).__name__} {shown(obj, 60)}")
+    if isinstance(count, bool | np.bool_) or not isinstance(count, int | np.integer) or not 1 <= count <= MAX_PATHS:
+        raise BadInput(
+            f"count: expected an integer number of {what} ≥ 1 (at most {MAX_PATHS:,} in one call), got {shown(count)}"
+        )
+    for name, (value, unit) in positive.items():
+        if isinstance(value, bool | np.bool_) or not isinstance(value, int | float | np.integer | np.floating):
+            ok = False
+        else:
+            ok = bool(np.isfinite(value) and value > 0)
+        if not ok:
+            raise BadInput(f"{name}: expected a finite number > 0 ({unit}), got {shown(value)}")
+
+
+def check_offset(max_offset) -> None:
+    """Refuse a ``max_offset`` that is not a number in [0, 1) (a fraction of the smallest semi-axis: a plane at 1 or
+    beyond misses the object)."""
+    if isinstance(max_offset, bool) or not isinstance(max_offset, int | float) or not 0 <= max_offset < 1:
+        raise BadInput(f"max_offset: expected a fraction in [0, 1) of the smallest semi-axis, got {shown(max_offset)}")
+
+
 def random_paths(
     obj: SceneObject,
     count: int,
@@ -120,7 +153,28 @@ def random_paths(
     max_offset: float = 0.3,
 ) -> list[Path]:
     """``count`` section paths with random plane orientations and offsets (a fraction of the smallest
-    semi-axis), as the paper's "arbitrary paths"."""
+    semi-axis), as the paper's "arbitrary paths".
+
+    Parameters
+    ----------
+    obj : SceneObject
+    count : int
+        Number of paths, 1 to :data:`MAX_PATHS`.
+    seed : int, np.random.Generator or None
+    arc : float, radians
+        Angular extent of each walk round its section, > 0.
+    speed : float, m/s
+    rate : float, Hz
+        Samples per second.
+    max_offset : float
+        Largest distance of a cutting plane from the centre, as a fraction in [0, 1) of the smallest semi-axis.
+
+    Returns
+    -------
+    list of Path
+    """
+    check_random_sections(obj, count, "paths", arc=(arc, "radians"), speed=(speed, "m/s"), rate=(rate, "Hz"))
+    check_offset(max_offset)
     rng = as_rng(seed)
     out = []
     amin = float(np.min(np.asarray(obj.shape.axes)))

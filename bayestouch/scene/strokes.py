@@ -14,7 +14,7 @@ import numpy as np
 from bayestouch.errors import BadInput
 from bayestouch.geometry.mesh import as_rng
 from bayestouch.scene.objects import SceneObject
-from bayestouch.scene.paths import section_path
+from bayestouch.scene.paths import check_offset, check_random_sections, section_path
 
 __all__ = ["Stroke", "stroke_from_path", "random_strokes"]
 
@@ -75,6 +75,10 @@ def random_strokes(
 
     Parameters
     ----------
+    obj : SceneObject
+    count : int
+        Number of strokes, 1 to :data:`~bayestouch.scene.paths.MAX_PATHS`.
+    seed : int, np.random.Generator or None
     duration : float, seconds
         Length of each stroke in time (the path length is ``speed * duration``), at most one loop around the
         object along its section (longer is refused: it was cut to one loop without a word).
@@ -84,13 +88,19 @@ def random_strokes(
         Frame rate of the taxel array.
     depth : float, metres
         Pressing depth.
+    max_offset : float
+        Largest distance of a section's plane from the centre, a fraction in [0, 1) of the smallest semi-axis.
+
+    Returns
+    -------
+    list of Stroke
     """
-    if isinstance(count, bool | np.bool_) or not isinstance(count, int | np.integer) or count < 1:
-        raise BadInput(f"count: expected an integer number of strokes ≥ 1, got {count!r}")
-    if not (duration > 0 and speed > 0 and rate > 0):
-        raise BadInput("strokes: duration (s), speed (m/s) and rate (Hz) must be > 0")
-    if not hasattr(getattr(obj, "shape", None), "axes"):
-        raise BadInput(f"obj: expected a SceneObject (load_object(NAME)), got {type(obj).__name__} {obj!r:.60}")
+    check_random_sections(
+        obj, count, "strokes", duration=(duration, "seconds"), speed=(speed, "m/s"), rate=(rate, "Hz")
+    )
+    check_offset(max_offset)
+    if isinstance(depth, bool) or not isinstance(depth, int | float | np.integer | np.floating):
+        raise BadInput(f"depth: expected a pressing depth in (0, 5 mm), given in metres; got {depth!r:.60}")
     rng = as_rng(seed)
     amin = float(np.min(np.asarray(obj.shape.axes)))
     out = []

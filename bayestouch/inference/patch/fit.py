@@ -13,7 +13,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from bayestouch.backend import jnp
-from bayestouch.errors import BadInput
+from bayestouch.errors import BadInput, check_int, check_seed, shown
 from bayestouch.inference.patch.model import (
     A_MIN,
     DEPTH_MIN,
@@ -32,7 +32,9 @@ from bayestouch.inference.posterior import interval
 from bayestouch.inference.sampler import convergence, sample
 from bayestouch.physics import skin as sk
 from bayestouch.physics import taxel as tx
+from bayestouch.physics.forward import Finger
 from bayestouch.physics.patch import superellipse_area
+from bayestouch.physics.virtual import VirtualFinger
 
 __all__ = ["initial_patch_theta", "patch_posterior"]
 
@@ -156,7 +158,8 @@ def patch_posterior(
     ----------
     currents : (N,) or (K, N) float, A
         Measured taxel currents of a static contact (K consecutive frames are averaged).
-    finger : Finger
+    finger : VirtualFinger or Finger
+        :func:`bayestouch.load_finger` or its ``.finger`` (the forward model's finger).
     seed : int
         Seeds the walkers' start and emcee's random state (checked after setting).
     mode : {"physics", "empirical"}
@@ -180,12 +183,21 @@ def patch_posterior(
         Bad currents, mode, walkers or steps (one line).
     """
     t0 = time.perf_counter()
+    if isinstance(finger, VirtualFinger):  # what bt.load_finger returns: its forward-model finger
+        finger = finger.finger
+    if not isinstance(finger, Finger):
+        raise BadInput(
+            f"finger: expected bt.load_finger() (a VirtualFinger) or its .finger, got {type(finger).__name__} "
+            f"{shown(finger, 60)}"
+        )
     if mode not in tx.MODES:
         raise BadInput(f"mode: must be one of {', '.join(tx.MODES)}, got {mode!r}")
-    if walkers < 16 or walkers % 2:
-        raise BadInput(f"walkers: expected an even number ≥ 16, got {walkers}")
-    if steps < 100:
-        raise BadInput(f"steps: expected ≥ 100, got {steps}")
+    if isinstance(walkers, bool) or not isinstance(walkers, int | np.integer) or walkers < 16 or walkers % 2:
+        raise BadInput(f"walkers: expected an even number ≥ 16, got {walkers!r}")
+    check_int(steps, "steps", 100, None, "an integer number of steps")
+    check_seed(seed)
+    if isinstance(currents, str | bytes):
+        raise BadInput(f"currents: expected taxel currents as an (N,) or (K, N) array in amperes, got {currents!r:.60}")
     model = make_patch_model(
         currents,
         finger,

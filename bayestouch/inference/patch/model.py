@@ -225,7 +225,12 @@ def _log_window(currents, ref_mask):
 
 
 def _as_window(x, n, name):
-    x = np.asarray(x, dtype=float)
+    try:
+        x = np.asarray(x, dtype=float)
+    except (TypeError, ValueError):  # text, a ragged nesting
+        raise BadInput(
+            f"{name}: expected currents of shape (N,) or (K, N) with N = {n} taxels, got {type(x).__name__}"
+        ) from None
     if x.ndim == 1:
         x = x[None]
     if x.ndim != 2 or x.shape[1] != n or x.shape[0] < 1:

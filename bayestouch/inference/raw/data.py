@@ -6,13 +6,14 @@ and their modelled noise sd — with the finger that recorded it. The model and 
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
 
 from bayestouch.backend import jax, jnp
-from bayestouch.errors import BadInput, file_problem
+from bayestouch.errors import BadInput, file_problem, shown
 from bayestouch.inference.raw.priors import RESPONSE_SCALE_SD
 from bayestouch.io.device_file import DeviceCalibration, check_same_finger
 from bayestouch.io.recording import check_recording, read_recording
@@ -25,6 +26,7 @@ from bayestouch.physics.virtual import MAX_DEPTH_M, load_finger
 __all__ = [
     "RawData",
     "open_recording",
+    "check_stroke_selection",
     "need_variable",
     "recording_mode",
     "nominal_log_gain_sd",
@@ -125,6 +127,30 @@ class RawData(NamedTuple):
     common_cov: np.ndarray | None = None
 
 
+def check_stroke_selection(strokes, recorded=None, where: str = "recording") -> np.ndarray:
+    """The strokes a fit reads (a sequence of stroke indices, or one), or a one-line refusal naming ``strokes``: not
+    integers ≥ 0, none at all, or (given the ``recorded`` stroke indices) a stroke the recording does not hold.
+
+    Returns
+    -------
+    (S,) int
+    """
+    items = list(strokes) if isinstance(strokes, list | tuple | range | np.ndarray) else [strokes]
+    if isinstance(strokes, np.ndarray) and strokes.ndim == 0:
+        items = [strokes.item()]
+    if not items or not all(isinstance(k, int | np.integer) and not isinstance(k, bool) and k >= 0 for k in items):
+        raise BadInput(
+            f"strokes: expected stroke indices (integers ≥ 0, e.g. [0, 2]) or None (all), got {shown(strokes)}"
+        )
+    if recorded is not None:
+        missing = sorted(set(int(k) for k in items) - set(int(k) for k in recorded))
+        if missing:
+            raise BadInput(
+                f"strokes: {where} has no stroke {missing[0]} (its strokes: {', '.join(map(str, recorded[:20]))})"
+            )
+    return np.asarray(items, int)
+
+
 def open_recording(ds_or_path):
     """A recording as a dataset, and the name to give it in error messages.
 
@@ -147,7 +173,12 @@ def open_recording(ds_or_path):
         (deeper than :data:`~bayestouch.physics.virtual.MAX_DEPTH_M`, a frame rate outside
         :data:`FRAME_RATE_RANGE_HZ`, a pad faster than :data:`MAX_PAD_SPEED`).
     """
-    if not isinstance(ds_or_path, str | Path):
+    if not isinstance(ds_or_path, str | os.PathLike):
+        if type(ds_or_path).__name__ != "Dataset" or not hasattr(ds_or_path, "variables"):  # xarray, not imported
+            raise BadInput(
+                f"recording: expected the path of a .nc recording or an xarray Dataset (bt.read_recording), got "
+                f"{type(ds_or_path).__name__} {shown(ds_or_path, 60)}"
+            )
         check_recording(ds_or_path)
         _core_variables(ds_or_path, "recording")
         _recording_kinematics(ds_or_path, "recording")
@@ -472,7 +503,7 @@ def load_raw_data(
         sel = si == k
         tangent[sel] = np.gradient(contact[sel], axis=0) if sel.sum() > 1 else np.array([1.0, 0.0, 0.0])
     tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-30)
-    use_strokes = np.unique(si) if strokes is None else np.asarray(list(strokes), int)
+    use_strokes = np.unique(si) if strokes is None else check_stroke_selection(strokes, np.unique(si), where)
     frames, start = [], []
     for k in use_strokes:
         idx = np.flatnonzero((si == k) & (depth > 0))

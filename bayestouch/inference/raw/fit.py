@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from bayestouch.backend import jax, jnp
-from bayestouch.errors import BadInput
+from bayestouch.errors import BadInput, check_path
 from bayestouch.inference import contact as cm
 from bayestouch.inference import grating as gr
 from bayestouch.inference.densities import t_scale_factor
@@ -26,6 +26,7 @@ from bayestouch.inference.raw.data import (
     RawData,
     check_contact_motion,
     check_full_scale,
+    check_stroke_selection,
     check_taxel_layout,
     commanded_points,
     host_device,
@@ -395,8 +396,11 @@ def run_raw_fit(
     """
     if texture not in ("auto", "on", "off"):
         raise BadInput(f"texture must be one of auto, on, off; got {texture!r}")
-    if stride is not None and int(stride) < 1:
-        raise BadInput(f"stride must be an integer ≥ 1, got {stride}")
+    if stride is not None and (isinstance(stride, bool) or not isinstance(stride, int | np.integer) or stride < 1):
+        raise BadInput(f"stride must be an integer ≥ 1, got {stride!r}")
+    if strokes is not None:
+        check_stroke_selection(strokes)
+    check_path(out, "out")
     t0 = time.perf_counter()
     out = Path(out)
     ds, where = open_recording(recording)
