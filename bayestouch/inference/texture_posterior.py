@@ -20,6 +20,7 @@ from bayestouch.inference.raw import STUDENT_NU, HostDevice, RawData, load_raw_d
 from bayestouch.io.recording import build_dataset
 from bayestouch.physics import forward as fw
 from bayestouch.physics import noise as nz
+from bayestouch.physics import taxel as tx
 from bayestouch.scene.surface import Surface, signed_distance
 
 __all__ = [
@@ -304,23 +305,31 @@ def response_projection(z, g, nuis: Nuisances, precision):
 
 
 def _ll_grid(surfs: Surface, x, arrays, y, nuis: Nuisances, response, shifts, tangent, finger, mode, nu):
-    """(K, G) log-likelihood; ``response`` = (a₀, its prior precision or None, the unloaded baseline (F, M))."""
+    """(K, G, L) log-likelihood, L the rows of the lag weights ``arrays[3]`` (L, 3) (the currents before the lag
+    computed once for all of them); ``response`` = (a₀, its prior precision or None, the unloaded baseline
+    (F, M))."""
     a0, resp_prec, baseline = response
+    temp, start, kernel, lags = arrays
 
     def one_texture(args):
         tex, shifts_k = args
         surf = surfs._replace(texture=tex)
 
         def one_shift(o):
-            raw = _predict(surf, x + o * tangent, arrays, finger, mode)
-            ok = jnp.isfinite(raw)
-            delta = jnp.where(ok, raw - baseline, 0.0)
-            z = nuis.whiten @ jnp.where(ok, (y - baseline - a0 * delta) * nuis.inv_sd, 1e6)
-            if resp_prec is None:
-                z, prior = nuisance_projection(z, nuis)
-            else:
-                z, prior = response_projection(z, nuis.whiten @ (delta * nuis.inv_sd), nuis, resp_prec)
-            return jnp.sum(student_t_logpdf(z, 1.0, nu)) + prior
+            cur = fw.current_from_distance(finger, signed_distance(surf, x + o * tangent), kernel, temp, mode)
+
+            def one_lag(lw):
+                raw = jnp.log(tx.coarse_lag(cur, start, lw))
+                ok = jnp.isfinite(raw)
+                delta = jnp.where(ok, raw - baseline, 0.0)
+                z = nuis.whiten @ jnp.where(ok, (y - baseline - a0 * delta) * nuis.inv_sd, 1e6)
+                if resp_prec is None:
+                    z, prior = nuisance_projection(z, nuis)
+                else:
+                    z, prior = response_projection(z, nuis.whiten @ (delta * nuis.inv_sd), nuis, resp_prec)
+                return jnp.sum(student_t_logpdf(z, 1.0, nu)) + prior
+
+            return jax.vmap(one_lag)(lags)
 
         return jax.vmap(one_shift)(shifts_k)
 
@@ -390,18 +399,22 @@ def texture_log_likelihood(
         common_offset_sd=common_offset_sd,
         frame_common=frame_common,
     )
-    return _grid_log_likelihood(surfs, data, finger, shifts, tangent, nuis, nu)
+    return _grid_log_likelihood(surfs, data, finger, shifts, tangent, nuis, nu)[..., 0]
 
 
-def _grid_log_likelihood(surfs: Surface, data: RawData, finger, shifts, tangent, nuis: Nuisances, nu) -> np.ndarray:
-    """:func:`texture_log_likelihood` with the stroke's nuisances given (one :func:`stroke_nuisances` serves every
-    grid of a stroke)."""
+def _grid_log_likelihood(
+    surfs: Surface, data: RawData, finger, shifts, tangent, nuis: Nuisances, nu, lags=None
+) -> np.ndarray:
+    """:func:`texture_log_likelihood` (K, G, L) with the stroke's nuisances given (one :func:`stroke_nuisances`
+    serves every grid of a stroke), for each row of the lag weights ``lags`` (L, 3) (default the data's own)."""
     K = int(np.shape(jax.tree.leaves(surfs.texture)[0])[0])
     shifts = np.broadcast_to(np.asarray(shifts, dtype=float), (K, np.shape(shifts)[-1]))
+    lags = np.atleast_2d(np.asarray(data.lag_weights if lags is None else lags, dtype=float))
+    temp, start, kernel, _ = _arrays(data)
     out = _ll_grid_jit(
         surfs,
         jnp.asarray(data.taxel_position),
-        _arrays(data),
+        (temp, start, kernel, jnp.asarray(lags)),
         jnp.asarray(data.log_current),
         jax.tree.map(jnp.asarray, nuis),
         (
@@ -427,6 +440,7 @@ def texture_evidence(
     *,
     peaks: int = 2,
     subdivide: int = 8,
+    lags=None,
     **likelihood,
 ) -> np.ndarray:
     """log p(stroke | k) (K,): the likelihood integrated over a uniform start-phase shift, the grid refined where
@@ -450,42 +464,51 @@ def texture_evidence(
         Local maxima refined per texture.
     subdivide : int
         Fine cells per refined grid cell.
+    lags : (L, 3) float, optional
+        Lag weights (:func:`bayestouch.physics.taxel.coarse_lag_weights` at ``data.dt``) of L response lags: the
+        evidence of every texture under each (the taxels' lag is not calibrated, and a first-order lag attenuates a
+        grating's signal by 1/√(1 + (2π f τ)²): ±10 % in τ moves a 5 Hz grating's amplitude by ∓9 %, as much as
+        two textures of a library may differ). None: the data's own lag.
     **likelihood
         ``nu``, ``noise_scale``, ``correlated``, ``common_offset_sd`` of :func:`texture_log_likelihood`.
 
     Returns
     -------
-    (K,) float
-        Up to a constant common to all k.
+    (K,) or (K, L) float
+        Up to a constant common to all k (and lags); (K, L) when ``lags`` is given.
     """
     shifts = np.asarray(shifts, float)
     G = shifts.size
     h = float(shifts[1] - shifts[0]) if G > 1 else 0.0
-    if G < 3 or not np.allclose(np.diff(shifts), h) or h <= 0:
-        return stroke_evidence(texture_log_likelihood(surfs, data, finger, shifts, tangent, **likelihood))
+    lag_rows = np.atleast_2d(np.asarray(data.lag_weights if lags is None else lags, dtype=float))
     nu = likelihood.pop("nu", STUDENT_NU)
-    nuis = stroke_nuisances(data, finger, **likelihood)  # once for both grids of this stroke
-    ll = _grid_log_likelihood(surfs, data, finger, shifts, tangent, nuis, nu)
+    nuis = stroke_nuisances(data, finger, **likelihood)  # once for every grid of this stroke
+    ll = _grid_log_likelihood(surfs, data, finger, shifts, tangent, nuis, nu, lag_rows)  # (K, G, L)
+    if G < 3 or not np.allclose(np.diff(shifts), h) or h <= 0:
+        out = logsumexp(ll, axis=1) - np.log(G)
+        return out[:, 0] if lags is None else out
     K = ll.shape[0]
     n_cells = 3 * peaks
     weight = np.full((K, G), h)
     fine = np.zeros((K, n_cells * subdivide))
     fine_w = np.zeros_like(fine)
     offsets = (np.arange(subdivide) + 0.5) * h / subdivide - 0.5 * h
+    best = ll.max(axis=2)  # the peaks of the best lag at each shift: the lags' peaks lie within a cell or two
     for k in range(K):
-        row = np.concatenate([[-np.inf], ll[k], [-np.inf]])
+        row = np.concatenate([[-np.inf], best[k], [-np.inf]])
         local = np.flatnonzero((row[1:-1] >= row[:-2]) & (row[1:-1] >= row[2:]))
-        top = local[np.argsort(ll[k, local])[::-1][:peaks]]
+        top = local[np.argsort(best[k, local])[::-1][:peaks]]
         cells = sorted({c for g in top for c in (g - 1, g, g + 1) if 0 <= c < G})
         for j, c in enumerate(cells):
             weight[k, c] = 0.0
             fine[k, j * subdivide : (j + 1) * subdivide] = shifts[c] + offsets
             fine_w[k, j * subdivide : (j + 1) * subdivide] = h / subdivide
         fine[k, len(cells) * subdivide :] = shifts[0]  # padding, weight 0
-    ll_fine = _grid_log_likelihood(surfs, data, finger, fine, tangent, nuis, nu)
+    ll_fine = _grid_log_likelihood(surfs, data, finger, fine, tangent, nuis, nu, lag_rows)
     with np.errstate(divide="ignore"):
-        terms = np.concatenate([ll + np.log(weight), ll_fine + np.log(fine_w)], axis=1)
-    return logsumexp(terms, axis=1) - np.log(G * h)
+        terms = np.concatenate([ll + np.log(weight)[..., None], ll_fine + np.log(fine_w)[..., None]], axis=1)
+    out = logsumexp(terms, axis=1) - np.log(G * h)
+    return out[:, 0] if lags is None else out
 
 
 def _means(surfs: Surface, x, arrays, finger, mode):

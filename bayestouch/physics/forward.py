@@ -31,6 +31,7 @@ __all__ = [
     "depths_for_force",
     "elastic_force",
     "pressure_from_distance",
+    "current_from_distance",
     "log_current_from_distance",
     "P_MAX",
 ]
@@ -182,6 +183,13 @@ def pressure_from_distance(skin: sk.SkinParams, sdf, kernel, p_max=None):
     return delta, (p if p_max is None else jnp.minimum(p, p_max))
 
 
+def current_from_distance(finger: Finger, sdf, kernel, temperature, mode: str):
+    """Taxel currents (F, M) A before the response lag: signed distance → penetration → pressure (≤
+    :data:`P_MAX`) → current (the arguments as :func:`log_current_from_distance`'s)."""
+    _, p = pressure_from_distance(finger.skin, sdf, kernel, P_MAX)
+    return tx.taxel_current(finger.taxels, p, jnp.asarray(temperature)[:, None], mode=mode)
+
+
 def log_current_from_distance(finger: Finger, sdf, kernel, temperature, start, lag_weights, mode: str):
     """The forward chain of the likelihoods: signed distance → penetration → pressure (≤ :data:`P_MAX`) → taxel
     current → response lag on coarse frames → ln I (dimensionless, I in A).
@@ -206,8 +214,7 @@ def log_current_from_distance(finger: Finger, sdf, kernel, temperature, start, l
     -------
     (F, M) float
     """
-    _, p = pressure_from_distance(finger.skin, sdf, kernel, P_MAX)
-    cur = tx.taxel_current(finger.taxels, p, jnp.asarray(temperature)[:, None], mode=mode)
+    cur = current_from_distance(finger, sdf, kernel, temperature, mode)
     return jnp.log(tx.coarse_lag(cur, jnp.asarray(start), jnp.asarray(lag_weights)))
 
 

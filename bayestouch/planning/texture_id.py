@@ -20,10 +20,12 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
+from scipy.special import logsumexp
 
 from bayestouch.backend import jax
 from bayestouch.errors import BadInput, check_bool, check_path
 from bayestouch.inference.raw import HostDevice, RawData, host_device
+from bayestouch.inference.raw.priors import LAG_RANGE
 from bayestouch.inference.texture_posterior import (
     read_stroke,
     texture_evidence,
@@ -34,6 +36,7 @@ from bayestouch.io.device_file import DeviceCalibration, check_same_finger
 from bayestouch.io.files import read_csv_rows, write_json, write_text
 from bayestouch.io.runfolder import differences, fingerprint
 from bayestouch.params import MODELS
+from bayestouch.physics import taxel as tx
 from bayestouch.physics.plate_strokes import known_finger, record_plate_stroke
 from bayestouch.physics.virtual import VirtualFinger, finger_name, load_finger
 from bayestouch.planning.eig import eig_pairwise
@@ -93,6 +96,10 @@ class IdSettings:
         Defaults of random strokes (m/s, m).
     candidates : int
         Candidate strokes per ``eig`` decision.
+    lag_cells : int
+        The taxels' response lag is marginalised jointly with the texture over the midpoints of this many equal
+        cells of its prior range (:data:`~bayestouch.inference.raw.priors.LAG_RANGE`); 0: the identifier's own
+        lag (models/) is taken as known.
     speeds, depths : tuple of float
         Candidate sets of the ``eig`` policy (m/s, m).
     """
@@ -113,6 +120,13 @@ class IdSettings:
     candidates: int = 16
     speeds: tuple[float, ...] = (0.005, 0.01, 0.02)
     depths: tuple[float, ...] = (2e-4, 3e-4, 4e-4)
+    lag_cells: int = 3
+
+    def lags(self) -> np.ndarray:
+        """The lags (L,) s marginalised: the midpoints of ``lag_cells`` equal cells of the prior range (empty when
+        ``lag_cells`` is 0)."""
+        lo, hi = LAG_RANGE
+        return lo + (hi - lo) * (np.arange(self.lag_cells) + 0.5) / max(self.lag_cells, 1)
 
     def shifts(self) -> np.ndarray:
         """The shift grid (G,) metres, symmetric about 0 and including it."""
@@ -127,6 +141,8 @@ class IdSettings:
             raise BadInput(f"--mode must be empirical or physics, got {self.mode!r}")
         if not (self.shift_range >= 0 and self.shift_step > 0):
             raise BadInput("shift_range must be ≥ 0 and shift_step > 0 (metres)")
+        if isinstance(self.lag_cells, bool) or not isinstance(self.lag_cells, int) or not 0 <= self.lag_cells <= 16:
+            raise BadInput(f"lag_cells must be an integer from 0 to 16, got {self.lag_cells!r}")
         return self
 
 
@@ -274,7 +290,10 @@ def run_trial(
     obj = lib.object(true_k)
     device = host_device() if device is None else device
     shifts = settings.shifts()
-    log_post = np.full(len(lib), -np.log(len(lib)))
+    lags = settings.lags()
+    # the joint posterior over (texture, lag): the lag is one and the same in every stroke of the finger
+    log_joint = np.full((len(lib), max(len(lags), 1)), -np.log(len(lib) * max(len(lags), 1)))
+    log_post = logsumexp(log_joint, axis=1)
     rows, decided = [], False
     for s in range(1, max_strokes + 1):
         t0 = time.perf_counter()
@@ -292,9 +311,11 @@ def run_trial(
             nu=settings.nu,
             noise_scale=settings.noise_scale,
             correlated=settings.correlated,
+            lags=np.stack([tx.coarse_lag_weights(float(data.dt), float(t), 1) for t in lags]) if len(lags) else None,
         )
-        log_post = update_posterior(log_post, evidence)
-        post = np.exp(log_post)
+        log_joint = update_posterior(log_joint, np.reshape(evidence, log_joint.shape))
+        log_post = logsumexp(log_joint, axis=1)
+        post = np.minimum(np.exp(log_post), 1.0)  # a marginal of 1 + 3e-13 after the sum over lags
         k_map = int(np.argmax(post))
         decided = decided or bool(post[k_map] >= settings.threshold)
         rows.append(
@@ -590,7 +611,7 @@ def read_results(path) -> list[dict]:
             }
         except ValueError as e:
             raise BadInput(f"{path}: line {line}: {e} (a damaged file)") from None
-        if row["trial"] < 0 or row["stroke"] < 1 or not 0 <= row["p_true"] <= 1:
+        if row["trial"] < 0 or row["stroke"] < 1 or not 0 <= row["p_true"] <= 1 + 1e-9:
             raise BadInput(f"{path}: line {line}: trial ≥ 0, stroke ≥ 1 and p_true in [0, 1] expected (a damaged file)")
         rows.append(row)
     return rows
