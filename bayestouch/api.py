@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bayestouch.errors import BadInput, check_bool, check_int, check_seed, file_problem
+from bayestouch.errors import BadInput, check_bool, check_bools, check_int, check_seed, file_problem
 from bayestouch.io.contacts import (
     N_ELLIPSOID_PARAMS,
     ContactPoints,
@@ -474,13 +474,7 @@ def fit(
     -------
     Fit
     """
-    for name, value in (
-        ("resume", resume),
-        ("overwrite", overwrite),
-        ("progress", progress),
-        ("stop_when_converged", stop_when_converged),
-    ):
-        check_bool(value, name)
+    check_bools(resume=resume, overwrite=overwrite, progress=progress, stop_when_converged=stop_when_converged)
     _check_seed(seed)
     if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int | np.integer) or steps < 1):
         raise BadInput(f"steps must be a positive integer (the largest chain length) or None, got {steps!r}")

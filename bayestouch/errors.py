@@ -16,6 +16,7 @@ __all__ = [
     "BadInput",
     "as_array",
     "check_bool",
+    "check_bools",
     "check_int",
     "check_path",
     "check_seed",
@@ -51,6 +52,12 @@ def check_bool(value, name: str) -> None:
     if not isinstance(value, bool | np.bool_):
         shown = " ".join(repr(value).split())[:80]
         raise BadInput(f"{name}: expected True or False, got {shown}")
+
+
+def check_bools(**switches) -> None:
+    """:func:`check_bool` of every keyword (name → value)."""
+    for name, value in switches.items():
+        check_bool(value, name)
 
 
 def shown(value, limit: int = 80) -> str:

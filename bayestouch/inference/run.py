@@ -18,7 +18,7 @@ import numpy as np
 from scipy.optimize import minimize
 
 from bayestouch.backend import jax, jnp
-from bayestouch.errors import BadInput, check_bool, check_int, check_path, check_seed
+from bayestouch.errors import BadInput, check_bools, check_int, check_path, check_seed
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.symmetry import aliases, align_batch, canonicalize_batch
 from bayestouch.inference import contact as cm
@@ -860,13 +860,7 @@ def run_contact_fit(
     check_walkers(walkers)
     check_seed(seed)
     check_int(steps, "steps", 1, None, "an integer number of steps")
-    for name, value in (
-        ("resume", resume),
-        ("overwrite", overwrite),
-        ("progress", progress),
-        ("stop_when_converged", stop_when_converged),
-    ):
-        check_bool(value, name)
+    check_bools(resume=resume, overwrite=overwrite, progress=progress, stop_when_converged=stop_when_converged)
     out = Path(out)
     priors = cm.load_priors()
     if size_prior is not None and ffd is not None:
