@@ -463,10 +463,10 @@ def test_resume_refuses_other_settings_and_other_commands(tmp_path, capsys):
     assert cli_main([*argv, "--library", str(lib)]) == 0
     before = (out / "results.csv").read_bytes()
     assert cli_main([*argv, "--library", str(lib), "--resume", "--seed", "3"]) == 2
-    assert "seed 0 (now 3)" in capsys.readouterr().err
+    assert "--seed 0 (now 3)" in capsys.readouterr().err
     lib.write_text(lib.read_text().replace("seed = ", "seed = 1", 1))
     assert cli_main([*argv, "--library", str(lib), "--resume"]) == 2
-    assert "other library" in capsys.readouterr().err
+    assert "other --library file" in capsys.readouterr().err
     assert (out / "results.csv").read_bytes() == before
     (tmp_path / "fit").mkdir()
     (tmp_path / "fit" / "chain.h5").write_bytes(b"x")
@@ -540,3 +540,40 @@ def test_unknown_lag_is_marginalised_not_mistaken_for_amplitude(tmp_path):
         assert (k, lag) == (truth, 0)
         assert joint[truth].max() - joint[1 - truth].max() > 5.0
     assert nominal_wrong >= 1  # the control: the lag taken as known decides for the twin
+
+
+def test_resume_keeps_only_trials_of_the_same_candidates_and_whole(tmp_path, capsys):
+    """Issue 24, eleventh review: a resume with another --textures kept rows whose posterior was over another set of
+    candidates (the count was not in the key); a resume with fewer --trials replaced a finished summary with a
+    subset's; damaged rows (flags 5 and 7, a trial cut short) were kept and gave an accuracy of 1.5. Each is refused
+    in one line, the folder unchanged; the same resume with more --trials runs (the control)."""
+    out = tmp_path / "run"
+    argv = ["texture-id", "--max-strokes", "2", "--quiet", "--out", str(out)]
+    assert cli_main([*argv, "--textures", "3", "--trials", "2"]) == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    for extra, needle in (
+        (["--textures", "4", "--trials", "2"], "--textures 3 (now 4)"),
+        (["--textures", "3", "--trials", "1"], "holds 2 trials per texture, more than --trials 1"),
+        (["--textures", "3", "--trials", "2", "--full"], "--full False (now True)"),
+        (["--textures", "3", "--trials", "2", "--threshold", "0.9"], "--threshold 0.95 (now 0.9)"),
+    ):
+        assert cli_main([*argv, *extra, "--resume"]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and needle in err, err
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    text = (out / "results.csv").read_text().splitlines()
+    first = text[1].split(",")
+    for damage, needle in (
+        ({4: "5"}, "map_correct and decided must be 0 or 1"),
+        ({5: "0"}, "ends at stroke 1, neither at its decision"),
+        ({7: "not_the_map"}, "map_correct 1 but map is 'not_the_map'"),
+    ):
+        row = list(first)
+        for i, v in damage.items():
+            row[i] = v
+        (out / "results.csv").write_text("\n".join([text[0], ",".join(row), *text[2:]]) + "\n")
+        assert cli_main([*argv, "--textures", "3", "--trials", "2", "--resume"]) == 2
+        assert needle in capsys.readouterr().err
+    (out / "results.csv").write_text("\n".join(text) + "\n")
+    assert cli_main([*argv, "--textures", "3", "--trials", "3", "--resume"]) == 0
+    assert json.loads((out / "summary.json").read_text())["trials"] == 9

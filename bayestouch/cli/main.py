@@ -96,9 +96,15 @@ USER_FILE_ERRNOS = frozenset(
 )
 
 
+def _name(args) -> str:
+    """The command as its messages name it: ``fit``, ``device recover`` (a subcommand included)."""
+    sub = getattr(args, "device_command", None)
+    return f"{args.command} {sub}" if sub else str(args.command)
+
+
 def _report_internal(args, e: Exception) -> int:
     print(
-        f"bayestouch {args.command}: internal error: {type(e).__name__}: {e} "
+        f"bayestouch {_name(args)}: internal error: {type(e).__name__}: {e} "
         "(set BAYESTOUCH_DEBUG=1 for the traceback)",
         file=sys.stderr,
     )
@@ -125,22 +131,22 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return args.run(args)
     except BadInput as e:
-        print(f"bayestouch {args.command}: error: {command_line_message(str(e))}", file=sys.stderr)
+        print(f"bayestouch {_name(args)}: error: {command_line_message(str(e))}", file=sys.stderr)
         return 2
     except (PermissionError, FileNotFoundError, IsADirectoryError, NotADirectoryError) as e:
-        print(f"bayestouch {args.command}: error: {e.strerror or e}: {e.filename}", file=sys.stderr)
+        print(f"bayestouch {_name(args)}: error: {e.strerror or e}: {e.filename}", file=sys.stderr)
         return 2
     except OSError as e:
         if e.errno in USER_FILE_ERRNOS:  # the user's file system refused a path or a write: not a bug
             name = str(e.filename or "")
             shown = f"{name[:80]}…" if len(name) > 80 else name
-            print(f"bayestouch {args.command}: error: {e.strerror}: {shown}", file=sys.stderr)
+            print(f"bayestouch {_name(args)}: error: {e.strerror}: {shown}", file=sys.stderr)
             return 2
         if os.environ.get("BAYESTOUCH_DEBUG"):
             raise
         return _report_internal(args, e)
     except KeyboardInterrupt:
-        print(f"bayestouch {args.command}: interrupted", file=sys.stderr)
+        print(f"bayestouch {_name(args)}: interrupted", file=sys.stderr)
         return 130
     except Exception as e:  # internal error: one line unless debugging
         if os.environ.get("BAYESTOUCH_DEBUG"):

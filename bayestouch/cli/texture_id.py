@@ -49,7 +49,7 @@ def add_texture_parser(sub) -> argparse.ArgumentParser:
         "--resume",
         action="store_true",
         help="keep the finished trials in --out/results.csv and run the rest (the same library, finger, device "
-        "file, seed and settings; more --textures or --trials extend the run)",
+        "file, seed, --textures and settings; more --trials extend the run)",
     )
     p.add_argument("--policy", default="random", choices=("random", "eig"), help="stroke choice (default random)")
     p.add_argument("--threshold", type=float, default=0.95, help="decide when max posterior >= this")
@@ -140,10 +140,10 @@ def _check_folder(args) -> None:
     out = Path(args.out)
     inputs = (args.library, args.calibration)
     own = {"results.csv", "summary.json", META, "accuracy_vs_strokes.png"}
+    found = other_results(out, own=own, keep=inputs)
+    if found and not args.overwrite:
+        raise other_results_error(out, found)
     if args.resume:
-        found = other_results(out, own=own, keep=inputs)
-        if found:
-            raise other_results_error(out, found)
         check_out(out)
         return
     if (out / "results.csv").is_file() and not (out / "summary.json").exists() and not args.overwrite:

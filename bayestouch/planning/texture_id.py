@@ -482,8 +482,9 @@ def run_experiment(
     resume : bool
         Keep the trials already in ``out/results.csv`` (each is written whole when it ends) and run only the rest;
         refused (:class:`BadInput`) when ``out/texture_id.json`` shows they were made with another library, finger,
-        device file, seed or setting. More ``textures`` or ``trials`` than before extend the run (each trial's
-        randomness depends only on seed, texture and trial).
+        device file, seed, number of textures (the candidates of every trial's posterior) or setting, when it holds
+        more trials than ``trials``, or when its rows are not whole trials (a damaged file). More ``trials`` than
+        before extend the run (each trial's randomness depends only on seed, texture and trial).
 
     Returns
     -------
@@ -507,15 +508,21 @@ def run_experiment(
             f"{np.shape(device.finger.grid)[1]}, and reads only that layout"
         )
     out.mkdir(parents=True, exist_ok=True)
+    rest = {k: (list(v) if isinstance(v, tuple) else v) for k, v in settings.__dict__.items()}
+    # named as the command line names them (a refused resume names the flag that differs); only --trials may
+    # differ: each trial's rows depend on the candidate textures, the seed and the settings, not on other trials
     options = {
-        "seed": int(seed),
-        "max_strokes": int(max_strokes),
-        "policy": str(policy),
-        "stop_at_decision": bool(stop_at_decision),
-        "settings": {k: (list(v) if isinstance(v, tuple) else v) for k, v in settings.__dict__.items()},
+        "--seed": int(seed),
+        "--textures": len(lib),
+        "--max-strokes": int(max_strokes),
+        "--policy": str(policy),
+        "--full": not stop_at_decision,
+        "--threshold": rest.pop("threshold"),
+        "--mode": rest.pop("mode"),
+        "settings": rest,
     }
     meta = fingerprint("texture-id", _inputs(library, finger_models, calibration), options)
-    kept = _kept_rows(out, meta) if resume else []
+    kept = _kept_rows(out, meta, trials, int(max_strokes), stop_at_decision) if resume else []
     write_json(out / META, meta)
     surfs = lib.surfaces()
     t0 = time.perf_counter()
@@ -542,9 +549,7 @@ def run_experiment(
         )
 
     run_tasks(tasks, one, results.add, progress="texture trials" if progress else None)
-    names = set(lib.names)
-    wanted = [r for r in results.rows if r["texture"] in names and int(r["trial"]) < trials]
-    summary = summarise(wanted, max_strokes, settings.threshold)
+    summary = summarise(results.rows, max_strokes, settings.threshold)
     summary.update(
         {
             "policy": policy,
@@ -584,7 +589,7 @@ def _inputs(library, finger_models, calibration: DeviceCalibration | None) -> di
                 )
             ).encode()
         )
-    return {"library": Path(library).read_bytes(), "finger models": models, "calibration": cal}
+    return {"--library file": Path(library).read_bytes(), "--finger-models files": models, "--calibration file": cal}
 
 
 def read_results(path) -> list[dict]:
@@ -613,20 +618,31 @@ def read_results(path) -> list[dict]:
             raise BadInput(f"{path}: line {line}: {e} (a damaged file)") from None
         if row["trial"] < 0 or row["stroke"] < 1 or not 0 <= row["p_true"] <= 1 + 1e-9:
             raise BadInput(f"{path}: line {line}: trial ≥ 0, stroke ≥ 1 and p_true in [0, 1] expected (a damaged file)")
+        if row["map_correct"] not in (0, 1) or row["decided"] not in (0, 1):
+            raise BadInput(f"{path}: line {line}: map_correct and decided must be 0 or 1 (a damaged file)")
+        if row["map_correct"] != int(row["map"] == row["texture"]):
+            raise BadInput(
+                f"{path}: line {line}: map_correct {row['map_correct']} but map is {row['map']!r} for "
+                f"texture {row['texture']!r} (a damaged file)"
+            )
         rows.append(row)
     return rows
 
 
-def _kept_rows(out: Path, meta: dict) -> list[dict]:
+def _kept_rows(out: Path, meta: dict, trials: int, max_strokes: int, stop_at_decision: bool) -> list[dict]:
     """The finished trials of an earlier run in ``out`` that a resume keeps (every trial in results.csv is whole:
-    the file is rewritten when a trial ends); refused when the earlier run's key differs from ``meta``."""
+    the file is rewritten when a trial ends); refused when the earlier run's key differs from ``meta``, when it holds
+    more trials than ``trials`` (its summary would be replaced by a subset's), or when a trial is not one that the
+    run writes (a damaged file)."""
     csv_path = out / "results.csv"
+    if csv_path.exists() and not csv_path.is_file():
+        raise BadInput(f"--out {out}: {csv_path} is not a file; expected the results.csv of a texture-id run")
     if not csv_path.is_file():
         return []
     old = None
     with contextlib.suppress(OSError, ValueError):
         old = json.loads((out / META).read_text(encoding="utf-8"))
-    if not isinstance(old, dict) or "options" not in old:
+    if not isinstance(old, dict) or "options" not in old or old.get("level") != meta["level"]:
         raise BadInput(
             f"--resume: cannot verify the settings of {csv_path}: {META} is missing or damaged; expected the "
             f"{META} written with it (or pass --overwrite, or choose another --out)"
@@ -638,13 +654,27 @@ def _kept_rows(out: Path, meta: dict) -> list[dict]:
             "--out"
         )
     rows = read_results(csv_path)
-    strokes: dict[tuple, list[int]] = {}
+    by_trial: dict[tuple, list[dict]] = {}
     for r in rows:
-        strokes.setdefault((r["texture"], r["trial"]), []).append(r["stroke"])
-    for key, ss in strokes.items():
-        if sorted(ss) != list(range(1, len(ss) + 1)):
+        by_trial.setdefault((r["texture"], r["trial"]), []).append(r)
+    for (texture, trial), rs in by_trial.items():
+        rs = sorted(rs, key=lambda r: r["stroke"])
+        ss, dec = [r["stroke"] for r in rs], [r["decided"] for r in rs]
+        where = f"--resume: {csv_path}: trial {trial} of {texture}"
+        if ss != list(range(1, len(ss) + 1)):
+            raise BadInput(f"{where} has strokes {ss}; expected 1, 2, … once each (a damaged file)")
+        if any(a > b for a, b in zip(dec, dec[1:], strict=False)):
+            raise BadInput(f"{where} is decided and then undecided (a damaged file)")
+        ends = ss[-1] == max_strokes or (stop_at_decision and dec[-1] == 1 and dec.count(1) == 1)
+        if not ends or len(ss) > max_strokes:
             raise BadInput(
-                f"--resume: {csv_path}: trial {key[1]} of {key[0]} has strokes {sorted(ss)}; expected 1, 2, … once "
-                "each (a damaged file)"
+                f"{where} ends at stroke {ss[-1]}, neither at its decision nor at --max-strokes {max_strokes} (a "
+                "damaged file)"
             )
+    most = max((t for _, t in by_trial), default=-1) + 1
+    if most > trials:
+        raise BadInput(
+            f"--resume: {csv_path} holds {most} trials per texture, more than --trials {trials}; resume with "
+            f"--trials {most} or more (a resume extends a run, it does not cut it)"
+        )
     return rows
