@@ -865,3 +865,47 @@ def test_cli_recover_rebuilds_the_recording_from_a_journal(device, tmp_path, cap
                 _parser().parse_args(["device", "recover", str(tmp_path / bad[0]), "--out", str(tmp_path / bad[1])])
             )
     assert read_recording(rec)["taxel_current"].shape[0] == 50  # the existing recording untouched
+
+
+def test_recover_names_every_stroke_it_leaves_out(device, tmp_path):
+    """Issue 24, eleventh review: an incomplete stroke whose plan repeats an earlier complete one was taken for a
+    retry and dropped without a word, and a damaged stroke command dropped its frames with exit 0. Now only a
+    stroke followed at once by a command of its own plan counts as retried; a repeated stroke cut short, and the
+    frames of a damaged command, are named, and the recording is marked incomplete."""
+    from bayestouch.cli.device import run_device
+    from bayestouch.hardware.device import strokes_from_journal
+    from bayestouch.io.recording import read_recording
+
+    sim, dev = device()
+    dev.close()
+    plan = make_plan(30)
+    f = _stroke_file(tmp_path / "strokes.json", [plan, plan, plan])  # a repeatability run: one stroke three times
+    journal = tmp_path / "kept.journal"
+    argv = ["device", "run", "--port", str(tmp_path / "finger"), "--stroke-file", str(f), "--out"]
+    assert (
+        run_device(_parser().parse_args([*argv, str(tmp_path / "dev.nc"), "--journal", str(journal), "--quiet"])) == 0
+    )
+    data = journal.read_bytes()
+    assert len(strokes_from_journal(journal).strokes) == 3  # the control: the whole journal
+    cut = tmp_path / "cut.journal"
+    cut.write_bytes(data[: int(len(data) * 0.55)])  # within the second of three equal strokes
+    got = strokes_from_journal(cut)
+    assert len(got.strokes) == 1 and len(got.incomplete) == 1 and "of 30 frames" in got.incomplete[0]
+    # one damaged byte inside the second stroke's command: its frames arrive without it
+    sids = [m.stroke_id for m in read_journal(journal) if isinstance(m, pr.StrokeCommand)]
+    at = (
+        data.index(
+            pr.encode(
+                next(m for m in read_journal(journal) if isinstance(m, pr.StrokeCommand) and m.stroke_id == sids[1]), 0
+            )
+        )
+        + 40
+    )
+    damaged = tmp_path / "damaged.journal"
+    damaged.write_bytes(data[:at] + bytes([data[at] ^ 0xFF]) + data[at + 1 :])
+    got = strokes_from_journal(damaged)
+    assert len(got.strokes) == 2 and got.damaged >= 1
+    assert any("its command damaged" in x for x in got.incomplete)
+    out = tmp_path / "rec.nc"
+    assert run_device(_parser().parse_args(["device", "recover", str(damaged), "--out", str(out)])) == 0
+    assert read_recording(out).attrs["incomplete"] == "true"

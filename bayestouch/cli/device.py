@@ -580,10 +580,14 @@ def _recover(args) -> int:
 
     if args.out.suffix != ".nc":
         raise BadInput(f"--out: a recording is a netCDF file; expected a name ending in .nc, got {str(args.out)!r}")
-    if args.out.absolute() == args.journal.absolute():
+    if args.out.exists() and not args.out.is_file():
+        raise BadInput(f"--out {args.out} is a folder (or not a file); expected a .nc file name")
+    if args.out.resolve() == args.journal.resolve():
         raise BadInput(f"--out {args.out} is the journal; name another file for the recording")
     got = strokes_from_journal(args.journal)
     left = f"; left out {len(got.incomplete)} incomplete: {', '.join(got.incomplete[:3])}" if got.incomplete else ""
+    if got.damaged:
+        left += f"; {got.damaged} damaged packet(s) dropped"
     if not got.strokes:
         raise BadInput(f"journal {args.journal}: no complete stroke in it{left}")
     with locked_output_file(args.out):
@@ -594,15 +598,19 @@ def _recover(args) -> int:
             "object": "unknown (device)",
             "recovered_from": str(args.journal),
             "wire_hold_currents_A": ",".join(f"{c:g}" for c in got.strokes[0].plan.hold_currents),
+            "planned_strokes": "unknown: a journal does not record how many strokes the run planned",
         }
-        if got.incomplete:
+        if got.incomplete or got.damaged:
             attrs["incomplete"] = "true"
         if args.overwrite:
             set_aside([args.out], "device recover")
         write_recording(build_recording(got.strokes, got.info, attrs), args.out, overwrite=args.overwrite)
     n = sum(len(s.plan.time) for s in got.strokes)
     bad = f"; {got.skipped} frame(s) or guarded stroke packet(s) skipped" if got.skipped else ""
-    print(f"wrote {args.out}: {len(got.strokes)} stroke(s), {n} frames from {args.journal}{left}{bad}")
+    print(
+        f"wrote {args.out}: {len(got.strokes)} stroke(s), {n} frames from {args.journal}{left}{bad} (a journal does "
+        "not say how many strokes were planned: compare with the stroke file)"
+    )
     return 0
 
 

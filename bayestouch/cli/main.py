@@ -104,8 +104,7 @@ def _name(args) -> str:
 
 def _report_internal(args, e: Exception) -> int:
     print(
-        f"bayestouch {_name(args)}: internal error: {type(e).__name__}: {e} "
-        "(set BAYESTOUCH_DEBUG=1 for the traceback)",
+        f"bayestouch {_name(args)}: internal error: {type(e).__name__}: {e} (set BAYESTOUCH_DEBUG=1 for the traceback)",
         file=sys.stderr,
     )
     return 1

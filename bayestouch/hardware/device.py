@@ -9,6 +9,7 @@ strokes: ``docs/hardware.md``.
 
 from __future__ import annotations
 
+import os
 import re
 import time
 from pathlib import Path
@@ -18,7 +19,7 @@ import numpy as np
 import serial
 from tqdm.auto import tqdm
 
-from bayestouch.errors import BadInput
+from bayestouch.errors import BadInput, check_bool, check_int, check_number, check_path, file_problem, shown
 from bayestouch.hardware import protocol as pr
 from bayestouch.hardware.safety import (
     FORCE_FACTOR,
@@ -26,6 +27,7 @@ from bayestouch.hardware.safety import (
     PlanCheck,
     StrokePlan,
     UnsafePlan,
+    check_limits,
     check_plan,
     plan_from_stroke,
 )
@@ -178,16 +180,20 @@ class JournalStrokes(NamedTuple):
     strokes : list of StrokeData
         The complete plain strokes, in the order they were sent.
     incomplete : list of str
-        One phrase per stroke sent but not complete in the journal (``"stroke id 7: 40 of 101 frames"``).
+        One phrase per stroke sent but not complete in the journal (``"stroke id 7: 40 of 101 frames"``), and per
+        stroke whose frames are there but whose command is not (a damaged packet).
     skipped : int
         Guarded strokes (protocol revision 1.1) and frames with impossible contents (:func:`frame_problem`), left
         out.
+    damaged : int
+        Packets of the journal that failed their check (CRC, framing) and were dropped.
     """
 
     info: pr.HelloReply | None
     strokes: list
     incomplete: list
     skipped: int
+    damaged: int = 0
 
 
 def strokes_from_journal(path) -> JournalStrokes:
@@ -197,8 +203,10 @@ def strokes_from_journal(path) -> JournalStrokes:
     written for them.
 
     A stroke is complete when all of its T frames (T = the command's waypoints) are there with possible contents
-    (:func:`frame_problem` against the handshake); a stroke sent again under a new id after a lost one counts once.
-    Over-force aborts and strokes cut short are listed in ``incomplete``.
+    (:func:`frame_problem` against the handshake). An incomplete stroke followed at once by a command of the same
+    plan is one the client ran again under a new id (it counts once); any other incomplete stroke — cut short,
+    aborted, the last one of a killed run, or one whose command packet is damaged — is listed in ``incomplete``. A
+    journal does not record how many strokes were planned: one cut between two strokes looks finished.
 
     Parameters
     ----------
@@ -214,8 +222,6 @@ def strokes_from_journal(path) -> JournalStrokes:
     BadInput
         No such file, or no packet of the finger protocol in it.
     """
-    from bayestouch.errors import check_path, file_problem
-
     check_path(path, "journal")
     if problem := file_problem(path):
         raise BadInput(f"journal {path}: {problem}; expected the OUT.journal file of bayestouch device run")
@@ -229,20 +235,24 @@ def strokes_from_journal(path) -> JournalStrokes:
     info = None
     commands: dict[int, pr.StrokeCommand] = {}
     frames: dict[int, dict[int, pr.Frame]] = {}
+    orphans: dict[int, set] = {}  # frames of a stroke whose command packet is not in the journal
     skipped = 0
     for m in messages:
         if isinstance(m, pr.HelloReply):
             info = m
         elif isinstance(m, pr.StrokeCommand):
-            commands[int(m.stroke_id)] = m  # a stroke id used again (a new session) is the later stroke
+            commands.pop(int(m.stroke_id), None)  # a stroke id used again is the later stroke, in its place
+            commands[int(m.stroke_id)] = m
             frames[int(m.stroke_id)] = {}
         elif isinstance(m, pr.ProbeStroke | pr.ProbeFrame):
             skipped += 1
-        elif isinstance(m, pr.Frame) and int(m.stroke_id) in frames:
+        elif isinstance(m, pr.Frame):
             if frame_problem(m, info) is not None:
                 skipped += 1
-                continue
-            frames[int(m.stroke_id)].setdefault(int(m.index), m)
+            elif int(m.stroke_id) in frames:
+                frames[int(m.stroke_id)].setdefault(int(m.index), m)
+            else:
+                orphans.setdefault(int(m.stroke_id), set()).add(int(m.index))
     if info is None and commands:
         raise BadInput(f"journal {path}: no handshake (HELLO_REPLY) in it, so its taxel layout is unknown")
 
@@ -250,15 +260,16 @@ def strokes_from_journal(path) -> JournalStrokes:
         arrays = (np.asarray(getattr(cmd, k), float).tobytes() for k in ("time", "contact", "normal"))
         return (float(cmd.depth), *arrays)
 
-    complete = {sid for sid, cmd in commands.items() if all(i in frames[sid] for i in range(len(cmd.time)))}
-    later = {same_plan(commands[sid]) for sid in complete}
+    order = list(commands)
     strokes, incomplete = [], []
-    for sid, cmd in commands.items():
+    for i, sid in enumerate(order):
+        cmd = commands[sid]
         T = len(cmd.time)
         got = frames[sid]
-        if sid not in complete:
-            if same_plan(cmd) not in later:  # a lost stroke the client ran again under a new id is not missing
-                incomplete.append(f"stroke id {sid}: {sum(i in got for i in range(T))} of {T} frames")
+        if any(j not in got for j in range(T)):
+            redone = i + 1 < len(order) and same_plan(commands[order[i + 1]]) == same_plan(cmd)
+            if not redone:  # a lost stroke the client ran again at once under a new id is not missing
+                incomplete.append(f"stroke id {sid}: {sum(j in got for j in range(T))} of {T} frames")
             continue
         ordered = [got[i] for i in range(T)]
         arrays, dev_t = _frames_to_arrays(ordered)
@@ -270,7 +281,8 @@ def strokes_from_journal(path) -> JournalStrokes:
             np.asarray(cmd.hold_currents, float),
         )
         strokes.append(StrokeData(plan, arrays, dev_t, sid))
-    return JournalStrokes(info, strokes, incomplete, skipped)
+    incomplete += [f"stroke id {sid}: {len(idx)} frame(s), its command damaged" for sid, idx in orphans.items()]
+    return JournalStrokes(info, strokes, incomplete, skipped, int(dec.bad))
 
 
 def _frames_to_arrays(frames: list[pr.Frame]) -> tuple[dict, np.ndarray]:
@@ -380,12 +392,31 @@ class FingerDevice:
         baudrate: int = 921600,
         segment: int | None = None,
     ):
-        if not url:
+        if url is None or (isinstance(url, str) and not url):
             raise BadInput("--port: expected a serial port path or a pyserial URL like loop://, got nothing")
-        if segment is not None and (segment < 0 or 0 < segment < pr.MIN_SEGMENT or segment > pr.MAX_PACKET):
+        if not isinstance(url, str | os.PathLike):  # 5 was taken as the port "5"
+            raise BadInput(f"--port: expected a serial port path or a pyserial URL like loop://, got {shown(url)}")
+        if segment is not None and (
+            isinstance(segment, bool)
+            or not isinstance(segment, int | np.integer)
+            or segment < 0
+            or 0 < segment < pr.MIN_SEGMENT
+            or segment > pr.MAX_PACKET
+        ):
             raise BadInput(
-                f"--segment: expected 0 (whole packets) or {pr.MIN_SEGMENT}–{pr.MAX_PACKET} bytes, got {segment}"
+                f"--segment: expected 0 (whole packets) or {pr.MIN_SEGMENT}–{pr.MAX_PACKET} bytes, got {segment!r}"
             )
+        check_int(retries, "retries", 1, None, "an integer number of sends")
+        check_int(reconnects, "reconnects", 0, None, "an integer number of attempts")
+        check_int(redo, "redo", 0, None, "an integer number of reruns")
+        check_int(baudrate, "baudrate", 1, None, "an integer number of bits per second")
+        check_number(reconnect_wait, "reconnect_wait", 0, what="a number of seconds")
+        check_bool(handshake, "handshake")
+        limits = check_limits(limits)
+        if journal is not None and journal != "":  # "" (as None): no journal
+            check_path(journal, "journal")
+            if os.path.isdir(journal):  # the first packet failed there, mid-handshake
+                raise BadInput(f"journal {journal} is a folder; expected a file name for the journal")
         for name, value in (
             ("timeout", timeout),
             ("connect_timeout", connect_timeout),
@@ -401,7 +432,7 @@ class FingerDevice:
         self._hello_s = 0.0  # the longest handshake so far (s): a reconnect's handshake may take as long
         self.reconnects, self.reconnect_wait, self.redo = int(reconnects), float(reconnect_wait), int(redo)
         self.journal_path = Path(journal) if journal else None
-        self.client_limits = limits or Limits()
+        self.client_limits = limits
         self.handshake, self.baudrate = handshake, baudrate
         self.info: pr.HelloReply | None = None
         self._ser = None

@@ -13,7 +13,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from bayestouch.errors import BadInput
+from bayestouch.errors import BadInput, check_int, check_number, shown
 from bayestouch.params import MODELS
 from bayestouch.physics import bending, sma
 from bayestouch.physics import skin as sk
@@ -24,6 +24,7 @@ __all__ = [
     "PlanCheck",
     "UnsafePlan",
     "load_limits",
+    "check_limits",
     "plan_from_stroke",
     "check_plan",
     "predicted_force",
@@ -65,6 +66,21 @@ class Limits(NamedTuple):
     max_speed: float = 0.05
     max_waypoints: int = 1000
     max_depth: float = 0.005
+
+
+def check_limits(limits, name: str = "limits") -> Limits:
+    """``limits``, or the default :class:`Limits` for None; a one-line refusal naming ``name`` (or the field) when it
+    is not a :class:`Limits` of finite numbers > 0 (``max_waypoints`` an integer ≥ 1)."""
+    if limits is None:
+        return Limits()
+    if not isinstance(limits, Limits):
+        raise BadInput(f"{name}: expected a Limits (bayestouch.hardware.safety.Limits) or None, got {shown(limits)}")
+    for field, value in limits._asdict().items():
+        if field == "max_waypoints":
+            check_int(value, f"{name}.{field}", 1)
+        else:
+            check_number(value, f"{name}.{field}", 0, above=True)
+    return limits
 
 
 class StrokePlan(NamedTuple):
