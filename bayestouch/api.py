@@ -405,25 +405,6 @@ def _ffd(value) -> tuple[int, int, int]:
     return tuple(int(k) for k in size)
 
 
-def _free(value) -> np.ndarray | None:
-    """``free`` as a finite (K, 3) array of metres (None: no free-space points)."""
-    if value is None:
-        return None
-    expected = "expected free-space points as a finite (K, 3) array of numbers in metres"
-    try:
-        a = np.asarray(value)
-        if a.dtype.kind not in "iufO":  # text, complex, bools …
-            raise TypeError(a.dtype)
-        a = a.astype(float)
-    except (TypeError, ValueError):  # also a ragged nesting
-        raise BadInput(f"free: {expected}, got {type(value).__name__} {_shown(value)}") from None
-    if a.ndim != 2 or a.shape[1] != 3:
-        raise BadInput(f"free: {expected}, got shape {a.shape}")
-    if not np.isfinite(a).all():
-        raise BadInput(f"free: {expected}; it holds NaN or infinite values")
-    return a
-
-
 def _check_seed(seed) -> None:
     check_seed(seed)
 
@@ -478,15 +459,10 @@ def fit(
     _check_seed(seed)
     if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int | np.integer) or steps < 1):
         raise BadInput(f"steps must be a positive integer (the largest chain length) or None, got {steps!r}")
-    from bayestouch.inference.run import check_walkers
+    from bayestouch.inference.run import check_budget, check_walkers
 
     check_walkers(walkers)
-    if (
-        budget_s is not None
-        and budget_s != "auto"
-        and (isinstance(budget_s, bool) or not (isinstance(budget_s, int | float) and budget_s > 0))
-    ):
-        raise BadInput(f"budget_s must be > 0 seconds, 'auto' or None (no budget), got {budget_s!r}")
+    check_budget(budget_s, auto=True)
     cp = _contacts(data)
     if cp is not None:
         from bayestouch.inference.contact import load_priors
@@ -505,7 +481,9 @@ def fit(
         if options.get("ffd") is not None:
             options["ffd"] = _ffd(options["ffd"])
         if "free" in options:
-            options["free"] = _free(options["free"])
+            from bayestouch.inference.contact import check_free
+
+            options["free"] = check_free(options["free"])
     temporary = None
     if out is None:
         temporary = tempfile.TemporaryDirectory(prefix="bayestouch-fit-")

@@ -27,7 +27,7 @@ from tqdm.auto import tqdm
 
 from bayestouch import __version__
 from bayestouch.backend import jnp
-from bayestouch.errors import BadInput
+from bayestouch.errors import BadInput, check_bools, check_int, check_number, check_path, shown
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.inference.patch import patch_posterior
 from bayestouch.inference.run import run_contact_fit
@@ -188,6 +188,15 @@ def run_demo(
     t_start = time.perf_counter()
     if not isinstance(seed, int) or seed < 0:
         raise BadInput(f"--seed: expected an integer ≥ 0, got {seed!r}")
+    check_path(out, "out")
+    if not isinstance(sizes, DemoSizes):
+        raise BadInput(f"sizes: expected a DemoSizes (bayestouch.demo.FULL or QUICK), got {shown(sizes)}")
+    for name, value in sizes._asdict().items():
+        if name == "fit_budget_s":
+            check_number(value, "sizes.fit_budget_s", 0, above=True, what="a number of seconds")
+        else:
+            check_int(value, f"sizes.{name}", 1)
+    check_bools(progress=progress, check_browser=check_browser)
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise BadInput(f"--out {out} exists and is not a folder")

@@ -18,6 +18,7 @@ __all__ = [
     "check_bool",
     "check_bools",
     "check_int",
+    "check_number",
     "check_path",
     "check_seed",
     "command_line_message",
@@ -78,6 +79,15 @@ def check_int(value, name: str, lo: int, hi: int | None = None, what: str = "an 
         limits = f"≥ {lo}" if hi is None else f"from {lo} to {hi:,}"
         raise BadInput(f"{name}: expected {what} {limits}, got {shown(value)}")
     return int(value)
+
+
+def check_number(value, name: str, lo: float, *, above: bool = False, what: str = "a finite number") -> float:
+    """``value`` as a float, or a one-line refusal naming ``name`` when it is not a finite real number (bools and text
+    included) ≥ ``lo`` (> ``lo`` with ``above``); ``what`` says what it is (e.g. "a number of seconds")."""
+    ok = not isinstance(value, bool | np.bool_) and isinstance(value, int | float | np.integer | np.floating)
+    if not (ok and np.isfinite(value) and (value > lo if above else value >= lo)):
+        raise BadInput(f"{name}: expected {what} {'>' if above else '≥'} {lo:g}, got {shown(value)}")
+    return float(value)
 
 
 def check_seed(seed, name: str = "seed", note: str = "") -> None:

@@ -18,7 +18,7 @@ from scipy.optimize import differential_evolution, minimize
 from tqdm.auto import tqdm
 
 from bayestouch.backend import jax, jnp
-from bayestouch.errors import BadInput, as_array, check_bool, check_int, shown
+from bayestouch.errors import BadInput, as_array, check_bool, check_int, check_number, shown
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.ffd import check_dims, fit_two_step
 from bayestouch.geometry.integrals import relative_errors, surface_integrals
@@ -219,6 +219,8 @@ def refine_ffd(
     vertices_world : (V, 3) float, metres
     faces : (F, 3) int
     """
+    # a NaN margin was reported as "lower must be finite", naming fit_two_step's box
+    check_number(margin, "margin", 0, what="a relative margin")
     v_world, faces = nellipsoid_mesh(shape, res)
     data = as_array(data, "data", (None, 3), "an (M, 3) array (metres)")
     if not len(data):

@@ -19,13 +19,14 @@ from typing import NamedTuple
 
 import numpy as np
 
-from bayestouch.errors import BadInput
+from bayestouch.errors import BadInput, check_path, shown
 from bayestouch.hardware import protocol as pr
 from bayestouch.hardware.frame_models import FRAME_KEYS, PROBE_KEYS
 from bayestouch.hardware.safety import (
     Limits,
     StrokePlan,
     UnsafePlan,
+    check_limits,
     check_plan,
 )
 
@@ -80,6 +81,23 @@ def check_faults(faults: Faults) -> Faults:
     return faults
 
 
+#: what a frame model answers to besides being called (the handshake reports them)
+MODEL_ATTRIBUTES = ("rows", "cols", "taxel_uv", "reference")
+
+
+def check_model(model) -> None:
+    """Refuse (one line naming ``model``) a frame model that is not callable or lacks :data:`MODEL_ATTRIBUTES`
+    (:class:`VirtualDevice`'s ``model``; None: set later)."""
+    if model is None:
+        return
+    missing = [a for a in MODEL_ATTRIBUTES if not hasattr(model, a)]
+    if not callable(model) or missing:
+        raise BadInput(
+            "model: expected a frame model (bayestouch.hardware.frame_models: a callable (plan, index) -> frames "
+            f"with {', '.join(MODEL_ATTRIBUTES)}) or None, got {type(model).__name__} {shown(model, 40)}"
+        )
+
+
 class VirtualDevice:
     """The virtual finger on a pseudo-terminal.
 
@@ -113,6 +131,12 @@ class VirtualDevice:
         link: str | os.PathLike | None = None,
         rate: float = 50.0,
     ):
+        check_model(model)
+        limits = check_limits(limits)
+        if link is not None:  # the path itself (a folder, a file of the user's) is checked by open()
+            check_path(link, "link")
+        if faults is not None and not isinstance(faults, Faults):
+            raise BadInput(f"faults: expected a Faults or None, got {shown(faults)}")
         faults = check_faults(faults or Faults())
         if not (isinstance(speed, int | float) and np.isfinite(speed) and speed >= 0):
             raise BadInput(f"speed: expected a real-time factor ≥ 0 (0: as fast as possible), got {speed!r}")
@@ -120,7 +144,7 @@ class VirtualDevice:
             raise BadInput(f"rate: expected a frame rate in [1, 2000] Hz, got {rate!r}")
         self.model, self.limits, self.speed, self.faults, self.rate = (
             model,
-            limits or Limits(),
+            limits,
             float(speed),
             faults,
             rate,
@@ -268,6 +292,7 @@ class VirtualDevice:
         thread would read the pty after the first one's close)."""
         if self.model is None:
             raise ValueError("VirtualDevice.start: no frame model set")
+        check_model(self.model)  # one set after construction
         if self._thread is not None and self._thread.is_alive():
             return self
         if self._master is None:

@@ -16,13 +16,15 @@ from scipy.special import gammaln
 from scipy.stats import truncnorm
 
 from bayestouch.backend import jax, jnp
-from bayestouch.errors import BadInput
+from bayestouch.errors import BadInput, shown
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.rotation import rotation_matrix
 from bayestouch.params import MODELS, Spec, build
 
 __all__ = [
     "check_points",
+    "check_free",
+    "check_priors",
     "PriorParams",
     "load_priors",
     "Bounds",
@@ -705,6 +707,42 @@ def log_prob(theta, points, bounds: Bounds, nu: float, *, normals=None, noise: s
     The one-walker case of :func:`log_prob_batch` (same arguments).
     """
     return log_prob_batch(jnp.asarray(theta)[None], points, bounds, nu, normals=normals, noise=noise, origin=origin)[0]
+
+
+def check_free(value) -> np.ndarray | None:
+    """Free-space points (finger positions that touched nothing) as a finite (K, 3) array of metres (an empty one
+    of any shape: (0, 3)), None staying None, or a one-line refusal naming ``free`` (text, a number, a ragged
+    nesting, another shape: the check of :func:`bayestouch.fit` and the fitting functions)."""
+    if value is None:
+        return None
+    expected = "expected free-space points as a finite (K, 3) array of numbers in metres"
+    try:
+        a = np.asarray(value)
+        if a.dtype.kind not in "iufO":  # text, complex, bools …
+            raise TypeError(a.dtype)
+        a = a.astype(float)
+    except (TypeError, ValueError):  # also a ragged nesting
+        raise BadInput(f"free: {expected}, got {type(value).__name__} {shown(value)}") from None
+    if a.size == 0:
+        return np.empty((0, 3))
+    if a.ndim != 2 or a.shape[1] != 3:
+        got = f"{type(value).__name__} {shown(value)}" if a.ndim == 0 else f"shape {a.shape}"
+        raise BadInput(f"free: {expected}, got {got}")
+    if not np.isfinite(a).all():
+        raise BadInput(f"free: {expected}; it holds NaN or infinite values")
+    return a
+
+
+def check_priors(priors) -> PriorParams:
+    """``priors``, or the defaults of ``models/priors.toml`` for None; a one-line refusal naming ``priors`` when it
+    is not a :class:`PriorParams` (:func:`load_priors`)."""
+    if priors is None:
+        return load_priors()
+    if not isinstance(priors, PriorParams):
+        raise BadInput(
+            f"priors: expected a PriorParams (bayestouch.inference.contact.load_priors()) or None, got {shown(priors)}"
+        )
+    return priors
 
 
 def check_points(points, normals=None):

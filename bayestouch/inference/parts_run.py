@@ -28,13 +28,20 @@ import xarray as xr
 from scipy.stats import qmc
 
 from bayestouch.backend import jnp
-from bayestouch.errors import BadInput
+from bayestouch.errors import BadInput, check_bools, check_int, check_path, check_seed
 from bayestouch.geometry.mesh import to_trimesh
 from bayestouch.geometry.symmetry import align_batch
 from bayestouch.inference import contact as cm
 from bayestouch.inference import parts as pm
 from bayestouch.inference.posterior import interval, rhat_and_ess
-from bayestouch.inference.run import MIN_CHAIN_STEPS, sampling_budget, smc_moves, smc_stage
+from bayestouch.inference.run import (
+    MIN_CHAIN_STEPS,
+    check_budget,
+    check_walkers,
+    sampling_budget,
+    smc_moves,
+    smc_stage,
+)
 from bayestouch.inference.sampler import convergence, sample
 from bayestouch.io.files import atomic_path, write_json
 from bayestouch.io.meshes import write_spread_mesh
@@ -343,12 +350,21 @@ def run_parts_fit(
         The summary written to ``summary.json``.
     """
     t0 = time.perf_counter()
+    # every argument checked before the folder is touched: steps=-1, budget_s=-1 or walkers=-2 had started the
+    # tempering, which ran on
+    points, _ = cm.check_points(points)
+    check_path(out, "out")
+    check_seed(seed)
+    if walkers is not None:
+        check_walkers(walkers)
+    check_int(steps, "steps", 1, None, "an integer number of steps")
+    check_budget(budget_s)
+    check_bools(progress=progress, resume=resume, overwrite=overwrite)
+    free = cm.check_free(free)
+    priors = cm.check_priors(priors)
     out = Path(out)
-    priors = priors or cm.load_priors()
     if parts == "auto":
-        max_parts = int(max_parts)
-        if not 1 <= max_parts <= pm.MAX_PARTS:
-            raise BadInput(f"max_parts: expected 1 to {pm.MAX_PARTS}, got {max_parts}")
+        max_parts = check_int(max_parts, "max_parts", 1, pm.MAX_PARTS, "a number of parts")
         candidates = list(range(1, max_parts + 1))
     else:
         try:
@@ -358,7 +374,7 @@ def run_parts_fit(
         if not 1 <= k <= pm.MAX_PARTS or str(k) != str(parts).strip():
             raise BadInput(f"parts: expected 'auto' or a number of parts 1 to {pm.MAX_PARTS}, got {parts!r}")
         candidates = [k]
-    free = None if free is None or len(np.asarray(free).reshape(-1, 3)) == 0 else np.asarray(free, float)
+    free = None if free is None or len(free) == 0 else free
     options = {
         "parts": str(parts),
         "candidates": candidates,

@@ -18,7 +18,7 @@ import numpy as np
 from scipy.optimize import minimize
 
 from bayestouch.backend import jax, jnp
-from bayestouch.errors import BadInput, check_bools, check_int, check_path, check_seed
+from bayestouch.errors import BadInput, check_bools, check_int, check_path, check_seed, shown
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.symmetry import aliases, align_batch, canonicalize_batch
 from bayestouch.inference import contact as cm
@@ -40,6 +40,7 @@ __all__ = [
     "initial_theta",
     "run_contact_fit",
     "check_walkers",
+    "check_budget",
     "MIN_WALKERS",
     "contact_model",
     "ffd_contact_model",
@@ -756,6 +757,21 @@ def check_walkers(walkers) -> int:
     return int(walkers)
 
 
+def check_budget(budget_s, auto: bool = False) -> None:
+    """Refuse (one line) a wall-clock budget ``budget_s`` that is not a number of seconds > 0 or None (no budget),
+    or with ``auto`` also ``"auto"`` (:func:`bayestouch.fit`): -1 or 0 had started a fit that ran on past it (the
+    check of :func:`bayestouch.fit`, :func:`run_contact_fit` and
+    :func:`~bayestouch.inference.parts_run.run_parts_fit`)."""
+    if budget_s is None or (auto and isinstance(budget_s, str) and budget_s == "auto"):
+        return
+    number = not isinstance(budget_s, bool | np.bool_) and isinstance(budget_s, int | float | np.integer | np.floating)
+    if not (number and budget_s > 0):
+        raise BadInput(
+            f"budget_s must be > 0 seconds{', ' + repr('auto') if auto else ''} or None (no budget), got "
+            f"{shown(budget_s)}"
+        )
+
+
 def run_contact_fit(
     points,
     out: Path,
@@ -860,7 +876,9 @@ def run_contact_fit(
     check_walkers(walkers)
     check_seed(seed)
     check_int(steps, "steps", 1, None, "an integer number of steps")
+    check_budget(budget_s)
     check_bools(resume=resume, overwrite=overwrite, progress=progress, stop_when_converged=stop_when_converged)
+    free = cm.check_free(free)
     out = Path(out)
     priors = cm.load_priors()
     if size_prior is not None and ffd is not None:
@@ -895,7 +913,6 @@ def run_contact_fit(
         # samples in seconds; else the outlier model, whose fractions w_in, w_out near 0 the SMC start handles
         noise = "student" if init == "optimize" or ffd is not None or start is not None else "outlier"
     if free is not None:
-        free = np.asarray(free, float).reshape(-1, 3)
         free = free if len(free) else None
     if normals is not None:
         check_normals_outward(points, normals)

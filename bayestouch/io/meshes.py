@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from bayestouch.errors import BadInput
+from bayestouch.errors import BadInput, check_path, file_problem
 from bayestouch.io.files import atomic_path
 
 __all__ = ["read_spread_mesh", "write_spread_mesh"]
@@ -35,9 +35,11 @@ def write_spread_mesh(path: str | os.PathLike[str], mesh: trimesh.Trimesh, sprea
 def read_spread_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     """Load a PLY mesh with its per-vertex scalar properties (``spread``, ``quality``, …) in
     ``vertex_attributes`` (float arrays, one value per vertex)."""
+    check_path(path, "path")
+    problem = file_problem(path)
+    if problem:  # a folder had been called "no such mesh file"
+        raise BadInput(f"{path}: {problem} (expected a PLY mesh written by bayestouch fit)")
     path = Path(path)
-    if not path.is_file():
-        raise BadInput(f"{path}: no such mesh file (expected a PLY written by bayestouch fit)")
     try:
         mesh = trimesh.load(path, process=False, file_type="ply")
     except Exception as e:  # trimesh raises many types on damaged files

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from bayestouch.errors import BadInput, check_path
+from bayestouch.errors import BadInput, check_bool, check_path
 from bayestouch.io.files import atomic_path, utc_stamp
 
 __all__ = [
@@ -159,6 +159,9 @@ def write_recording(ds, path, *, overwrite: bool = False, replace: bool | None =
         raise BadInput(f"{path} is a folder; expected a recording file name ending in .nc")
     if not hasattr(ds, "to_netcdf"):
         raise BadInput(f"ds: expected an xarray.Dataset (a recording), got {type(ds).__name__}")
+    check_bool(overwrite, "overwrite")  # "no" is truthy: taken as True it replaced the recording there
+    if replace is not None:
+        check_bool(replace, "replace")
     overwrite = bool(overwrite if replace is None else replace)
     if not overwrite and path.exists():
         # neither replaced nor lost: this recording goes beside the one there (a device run's strokes are data)

@@ -24,6 +24,7 @@ import json
 import logging
 import math
 import multiprocessing as mp
+import os
 import socket
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -33,7 +34,7 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
-from bayestouch.errors import BadInput, check_bool, check_path
+from bayestouch.errors import BadInput, check_bools, check_path, shown
 from bayestouch.io.files import read_csv_rows, set_aside, write_csv_rows, write_json
 from bayestouch.io.runfolder import differences, fingerprint, locked_run_folder
 from bayestouch.planning.device_prober import VirtualFingerProber
@@ -277,8 +278,8 @@ def run_experiment(
         Output folder (created).
     planners : sequence of str
         Policies (:data:`bayestouch.planning.policies.POLICIES`).
-    objects : sequence of str
-        Object names or TOML paths.
+    objects : sequence of str or str
+        Object names or TOML paths (at least one; a string is split at commas, as ``--objects``).
     trials, budget, seed : int
         Seeded trials per (object, planner); planned strokes per trial (after the scout); the base seed.
     workers : int
@@ -294,6 +295,10 @@ def run_experiment(
         Fields of :class:`~bayestouch.planning.loop.ExploreSettings`.
     prober : {"rays", "finger"}
         How strokes are measured (:data:`PROBERS`); part of the experiment's key (a resume with another is refused).
+    plot : bool
+        Write ``error_vs_strokes.png``.
+    log : callable, optional
+        Called with each progress message (str); default ``logging.getLogger("bayestouch.planning.experiment").info``.
 
     Returns
     -------
@@ -301,12 +306,29 @@ def run_experiment(
         ``{"ran": trials run now, "skipped": trials kept from before, "rows": all rows, "path": results.csv}``.
     """
     # a comma-separated string is the command line's form: iterated, it read as one-letter planners ("'r'")
-    planners = [p.strip() for p in planners.split(",") if p.strip()] if isinstance(planners, str) else list(planners)
+    if isinstance(planners, str):
+        planners = [p.strip() for p in planners.split(",") if p.strip()]
+    elif isinstance(planners, list | tuple):
+        planners = list(planners)
+    else:
+        raise BadInput(
+            f"planners: expected a list of planners or a comma-separated string like eig,random, got {shown(planners)}"
+        )
     if isinstance(objects, str):
         objects = [o.strip() for o in objects.split(",") if o.strip()]
+    elif isinstance(objects, list | tuple) and all(isinstance(o, str | os.PathLike) for o in objects):
+        objects = list(objects)
+    else:  # 5 gave "'int' object is not iterable"
+        raise BadInput(
+            f"objects: expected object names or TOML paths (a list, or a comma-separated string like "
+            f"sphere,egg), got {shown(objects)}"
+        )
+    if not objects:  # () ran nothing and wrote an empty results.csv
+        raise BadInput("objects: expected at least one object name or TOML path, like sphere,egg; got none")
     check_path(out, "out")
-    check_bool(resume, "resume")
-    check_bool(overwrite, "overwrite")
+    check_bools(resume=resume, overwrite=overwrite, plot=plot)
+    if log is not None and not callable(log):
+        raise BadInput(f"log: expected a function of one message (str) or None, got {shown(log)}")
     if isinstance(workers, bool) or not isinstance(workers, int | np.integer):
         raise BadInput(f"workers: expected an integer ≥ 1, got {workers!r}")
     if not planners:

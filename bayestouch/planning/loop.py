@@ -22,7 +22,8 @@ from typing import NamedTuple
 import numpy as np
 
 from bayestouch.backend import jax, jnp
-from bayestouch.errors import BadInput, check_bool
+from bayestouch.errors import BadInput, as_array, check_bool
+from bayestouch.errors import shown as shown_value
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.compare import chamfer_surfaces
 from bayestouch.geometry.integrals import surface_integrals
@@ -379,6 +380,17 @@ def explore(
     check_settings(s)
     if target_volume_sd is not None and not (isinstance(target_volume_sd, int | float) and target_volume_sd > 0):
         raise BadInput(f"target_volume_sd: expected a positive volume in m^3 or None, got {target_volume_sd!r}")
+    if on_stroke is not None and not callable(on_stroke):
+        raise BadInput(f"on_stroke: expected a function of one StrokeRecord or None, got {shown_value(on_stroke)}")
+    if prober is not None and not callable(getattr(prober, "probe", None)):
+        raise BadInput(
+            f"prober: expected an object with a probe(stroke, rng) method (e.g. RayProber, DeviceProber) or None, "
+            f"got {type(prober).__name__} {shown_value(prober, 40)}"
+        )
+    if truth is not None and not isinstance(truth, Truth):
+        raise BadInput(
+            f"truth: expected a Truth (truth_of(obj)) or None, got {type(truth).__name__} {shown_value(truth, 40)}"
+        )
     if obj is None and prober is None:
         raise BadInput("object: expected a scene object or a prober (a finger) to explore, got neither")
     if obj is None and policy == "oracle":
@@ -387,9 +399,7 @@ def explore(
         if obj is None:
             raise BadInput("centre: expected the nominal centre (x, y, z) m of the object when no object is given")
         centre = obj.shape.centre
-    centre = np.asarray(centre, float)
-    if centre.shape != (3,) or not np.all(np.isfinite(centre)):
-        raise BadInput(f"centre: expected three finite coordinates in metres, got {centre.tolist()}")
+    centre = as_array(centre, "centre", (3,), "a (3,) array (x, y, z in metres)")
     if truth is None and obj is not None:
         truth = truth_of(obj)
     if prober is None:

@@ -19,7 +19,7 @@ import tempfile
 from pathlib import Path
 from typing import NamedTuple
 
-from bayestouch.errors import BadInput, check_bool
+from bayestouch.errors import BadInput, check_bool, check_path
 from bayestouch.io.files import write_text
 
 __all__ = ["Table", "Figure", "write_report", "check_in_browser", "BrowserCheck", "find_browser"]
@@ -107,6 +107,7 @@ def write_report(
     BadInput
         ``out/report.html`` exists and ``overwrite`` is false.
     """
+    check_path(out, "out")
     check_bool(overwrite, "overwrite")
     _check_page(title, intro, sections, files)
     out = Path(out)
