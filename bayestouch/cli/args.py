@@ -4,8 +4,11 @@ the output-folder check."""
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
+import signal
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 
 from bayestouch.errors import BadInput
@@ -22,6 +25,7 @@ __all__ = [
     "other_results",
     "other_results_error",
     "check_duration_rate",
+    "terminations_as_interrupts",
     "RESULT_FILES",
     "COMMAND_RESULTS",
     "COMMAND_OUTPUTS",
@@ -261,6 +265,31 @@ def other_results_error(out: Path, found: list[Path], patterns=(*RESULT_FILES, *
         f"--out {out} already holds the results of another command ({', '.join(names[:4])}"
         f"{' …' if len(names) > 4 else ''}); pass --overwrite to set them aside, or choose another folder"
     )
+
+
+@contextlib.contextmanager
+def terminations_as_interrupts() -> Iterator[None]:
+    """While the block runs, SIGTERM (a scheduler, ``kill``) and SIGHUP (a closed terminal) raise
+    :class:`KeyboardInterrupt` as Ctrl-C does, so a command handles all three alike (one line, exit 130, what was
+    finished kept) instead of dying silently; a signal that ``nohup`` set to be ignored stays ignored, and outside
+    the main thread nothing is installed. The earlier handlers are restored afterwards."""
+
+    def terminated(signum, frame):
+        raise KeyboardInterrupt
+
+    old = {}
+    for sig in (signal.SIGTERM, getattr(signal, "SIGHUP", None)):
+        if sig is None or signal.getsignal(sig) is signal.SIG_IGN:  # nohup: the user asked for hangups ignored
+            continue
+        try:
+            old[sig] = signal.signal(sig, terminated)
+        except ValueError:  # not the main thread: no handler can be installed there
+            pass
+    try:
+        yield
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
 
 
 def check_duration_rate(duration: float, rate: float) -> None:

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bayestouch.cli.args import bounded_int, check_duration_rate, out_path
+from bayestouch.cli.args import bounded_int, check_duration_rate, out_path, terminations_as_interrupts
 from bayestouch.cli.args import seed as seed_arg
 from bayestouch.cli.args import segment as segment_arg
 from bayestouch.errors import BadInput
@@ -520,43 +520,28 @@ def _run_locked(args, plans, limits) -> int:
         got = f"everything received is in {journal}" if journal.exists() else "nothing was received"
         print(f"bayestouch device run: {note}; {len(done)} complete stroke(s){kept}; {got}", file=sys.stderr)
 
-    def terminated(signum, frame):  # SIGTERM (a scheduler, kill), SIGHUP (a closed terminal): handled as Ctrl-C
-        raise KeyboardInterrupt
-
-    old_handlers = {}
-    for sig in (signal.SIGTERM, getattr(signal, "SIGHUP", None)):
-        if sig is None:
-            continue
+    with terminations_as_interrupts():  # SIGTERM, SIGHUP: handled as Ctrl-C, until what was kept is said
         try:
-            if signal.getsignal(sig) is signal.SIG_IGN:  # nohup: the user asked for hangups to be ignored
-                continue
-            old_handlers[sig] = signal.signal(sig, terminated)
-        except ValueError:  # not the main thread: no handler can be installed there
-            pass
-    try:
-        with dev:
-            from tqdm.auto import tqdm
+            with dev:
+                from tqdm.auto import tqdm
 
-            for p in tqdm(plans, desc="strokes", unit="stroke", disable=args.quiet):
-                done.append(dev.run_stroke(p))
-                # the complete strokes so far, on disk as a recording marked incomplete (a SIGKILL or a power cut
-                # leaves them readable, not only in the journal); at most every few seconds for long runs
-                if len(done) < len(plans) and time.perf_counter() - written["at"] > max(2.0, 5 * written["cost"]):
-                    save({"incomplete": "true"})
-            info = dev.info
-    except (DeviceError, BadInput) as e:
-        # a fault, or a stroke refused by the device's own limits after good ones: the good strokes are kept
-        at = len(done) + 1  # the user's stroke number (1-based) in the plan or stroke file
-        if isinstance(e, HeaterFault) and e.data is not None:
-            done.append(e.data)  # complete: the heaters stayed on after it, so no further stroke was sent
-        keep(f"error: stroke {at} of {len(plans)}: {e}")
-        return 2  # the device failed or refused: one line, everything received kept (exit 1 is an internal error)
-    except KeyboardInterrupt:
-        keep("interrupted")
-        return 130  # said once, with what was kept (not again by the command line's own Ctrl-C line)
-    finally:
-        for sig, handler in old_handlers.items():
-            signal.signal(sig, handler)
+                for p in tqdm(plans, desc="strokes", unit="stroke", disable=args.quiet):
+                    done.append(dev.run_stroke(p))
+                    # the complete strokes so far, on disk as a recording marked incomplete (a SIGKILL or a power cut
+                    # leaves them readable, not only in the journal); at most every few seconds for long runs
+                    if len(done) < len(plans) and time.perf_counter() - written["at"] > max(2.0, 5 * written["cost"]):
+                        save({"incomplete": "true"})
+                info = dev.info
+        except (DeviceError, BadInput) as e:
+            # a fault, or a stroke refused by the device's own limits after good ones: the good strokes are kept
+            at = len(done) + 1  # the user's stroke number (1-based) in the plan or stroke file
+            if isinstance(e, HeaterFault) and e.data is not None:
+                done.append(e.data)  # complete: the heaters stayed on after it, so no further stroke was sent
+            keep(f"error: stroke {at} of {len(plans)}: {e}")
+            return 2  # the device failed or refused: one line, everything received kept (exit 1 is an internal error)
+        except KeyboardInterrupt:
+            keep("interrupted")
+            return 130  # said once, with what was kept (not again by the command line's own Ctrl-C line)
     set_aside(replaced, "device run")
     write_recording(build_recording(done, info, attrs), args.out, overwrite=args.overwrite or written["strokes"] > 0)
     if args.journal is None:

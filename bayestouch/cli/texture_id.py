@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
 import sys
 from pathlib import Path
 
-from bayestouch.cli.args import bounded_int, check_out, out_path
+from bayestouch.cli.args import bounded_int, check_out, out_path, terminations_as_interrupts
 from bayestouch.cli.args import seed as seed_arg
 
 __all__ = ["add_texture_parser", "run_texture_id"]
@@ -94,25 +93,12 @@ def run_texture_id(args) -> int:
         )
     calibration = None if args.calibration is None else read_device_file(args.calibration)
     check_calibration(calibration, args.mode, args.seed)  # before earlier results are set aside
-
-    def terminated(signum, frame):  # SIGTERM, SIGHUP: as Ctrl-C (one line, exit 130), not a silent death
-        raise KeyboardInterrupt
-
-    old = {}
-    for sig in (signal.SIGTERM, getattr(signal, "SIGHUP", None)):
-        if sig is not None and signal.getsignal(sig) is not signal.SIG_IGN:  # nohup's choice is kept
-            try:
-                old[sig] = signal.signal(sig, terminated)
-            except ValueError:  # not the main thread
-                pass
-    try:
-        return _run(args, calibration)
-    except KeyboardInterrupt:
-        print(f"bayestouch texture-id: interrupted; {_finished(args.out)}", file=sys.stderr)
-        return 130
-    finally:
-        for sig, handler in old.items():
-            signal.signal(sig, handler)
+    with terminations_as_interrupts():  # SIGTERM, SIGHUP: as Ctrl-C (one line, exit 130), not a silent death
+        try:
+            return _run(args, calibration)
+        except KeyboardInterrupt:
+            print(f"bayestouch texture-id: interrupted; {_finished(args.out)}", file=sys.stderr)
+            return 130
 
 
 def _finished(out: Path) -> str:
