@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bayestouch.errors import BadInput, check_bool, check_bools, check_int, check_seed, file_problem
+from bayestouch.errors import BadInput, check_bool, check_bools, check_int, check_seed, file_problem, shown
 from bayestouch.io.contacts import (
     N_ELLIPSOID_PARAMS,
     ContactPoints,
@@ -307,7 +307,7 @@ def _folder_path(folder, name: str) -> Path:
         text = os.fspath(folder)
         if isinstance(text, str):
             return Path(text)
-    raise BadInput(f"{name}: expected a path (str or os.PathLike) of a run folder, got {_shown(folder)}")
+    raise BadInput(f"{name}: expected a path (str or os.PathLike) of a run folder, got {shown(folder)}")
 
 
 def _contacts(data) -> ContactPoints | None:
@@ -345,11 +345,6 @@ def _contacts(data) -> ContactPoints | None:
     return ContactPoints(points=a, source="array")
 
 
-def _shown(value) -> str:
-    """The start of ``value``'s repr, on one line (for messages)."""
-    return " ".join(repr(value).split())[:80]
-
-
 def _sequence(value) -> list | None:
     """``value`` as a list when it is a list, tuple or 1-d array (its items unchecked), else None."""
     if isinstance(value, list | tuple) or (isinstance(value, np.ndarray) and value.ndim == 1):
@@ -377,7 +372,7 @@ def _size_prior(value) -> tuple[float, float]:
     if pair is None or len(pair) != 2 or not all(_real(v) for v in pair):
         raise BadInput(
             f"size_prior: expected (min, max) metres with 0 < min < max, or 'MIN:MAX' (e.g. (0.01, 0.1) or "
-            f"'0.01:0.1' for objects 1-10 cm across), got {_shown(value)}"
+            f"'0.01:0.1' for objects 1-10 cm across), got {shown(value)}"
         )
     return float(pair[0]), float(pair[1])
 
@@ -399,7 +394,7 @@ def _ffd(value) -> tuple[int, int, int]:
         size = tuple(_sequence(value) or ())
         ok = len(size) == 3 and all(isinstance(k, int | np.integer) and not isinstance(k, bool) for k in size)
         if not ok:
-            raise BadInput(f"ffd: {expected} (e.g. (3, 3, 3) or '3x3x3'), got {_shown(value)}")
+            raise BadInput(f"ffd: {expected} (e.g. (3, 3, 3) or '3x3x3'), got {shown(value)}")
     if not all(2 <= k <= MAX_FFD_SIZE for k in size):
         raise BadInput(f"ffd: {expected}, got {'x'.join(map(str, size))}")
     return tuple(int(k) for k in size)

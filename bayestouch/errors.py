@@ -51,8 +51,7 @@ def check_bool(value, name: str) -> None:
     """Refuse a switch ``name`` that is not ``True`` or ``False`` (a numpy bool is accepted): ``"no"`` is truthy,
     and taken as True it had set earlier results aside."""
     if not isinstance(value, bool | np.bool_):
-        shown = " ".join(repr(value).split())[:80]
-        raise BadInput(f"{name}: expected True or False, got {shown}")
+        raise BadInput(f"{name}: expected True or False, got {shown(value)}")
 
 
 def check_bools(**switches) -> None:
@@ -81,12 +80,16 @@ def check_int(value, name: str, lo: int, hi: int | None = None, what: str = "an 
     return int(value)
 
 
-def check_number(value, name: str, lo: float, *, above: bool = False, what: str = "a finite number") -> float:
+def check_number(
+    value, name: str, lo: float, *, above: bool = False, what: str = "a finite number", unit: str = ""
+) -> float:
     """``value`` as a float, or a one-line refusal naming ``name`` when it is not a finite real number (bools and text
-    included) ≥ ``lo`` (> ``lo`` with ``above``); ``what`` says what it is (e.g. "a number of seconds")."""
+    included) ≥ ``lo`` (> ``lo`` with ``above``); ``what`` says what it is (e.g. "a number of seconds"), ``unit``
+    (e.g. "m/s") follows the bound in the message."""
     ok = not isinstance(value, bool | np.bool_) and isinstance(value, int | float | np.integer | np.floating)
     if not (ok and np.isfinite(value) and (value > lo if above else value >= lo)):
-        raise BadInput(f"{name}: expected {what} {'>' if above else '≥'} {lo:g}, got {shown(value)}")
+        unit = f" ({unit})" if unit else ""
+        raise BadInput(f"{name}: expected {what} {'>' if above else '≥'} {lo:g}{unit}, got {shown(value)}")
     return float(value)
 
 
@@ -119,8 +122,7 @@ def check_path(value, name: str) -> None:
     """Refuse an output or input path ``name`` that is not a non-empty string or :class:`os.PathLike` (None ended
     in a TypeError from deep inside a run)."""
     if not (isinstance(value, os.PathLike) or (isinstance(value, str) and value.strip())):
-        shown = " ".join(repr(value).split())[:80]
-        raise BadInput(f"{name}: expected a path (a string or pathlib.Path), got {shown}")
+        raise BadInput(f"{name}: expected a path (a string or pathlib.Path), got {shown(value)}")
 
 
 def file_problem(path: str | os.PathLike[str]) -> str:

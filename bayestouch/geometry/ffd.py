@@ -15,7 +15,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.special import comb
 
-from bayestouch.errors import BadInput, as_array, check_int
+from bayestouch.errors import BadInput, as_array, check_int, check_number, shown
 from bayestouch.geometry.integrals import check_mesh
 from bayestouch.geometry.mesh import closest_points
 
@@ -51,9 +51,9 @@ def check_dims(dims, name: str = "dims") -> tuple[int, int, int]:
     except TypeError:  # not a sequence, or text / floats in it
         sizes = None
     if sizes is None or len(sizes) != 3 or not all(2 <= d <= MAX_DIMS_AXIS for d in sizes):
-        shown = " ".join(repr(dims).split())[:60]
         raise BadInput(
-            f"{name} must be three integer lattice sizes from 2 to {MAX_DIMS_AXIS} (e.g. (6, 6, 3)), got {shown}"
+            f"{name} must be three integer lattice sizes from 2 to {MAX_DIMS_AXIS} (e.g. (6, 6, 3)), got "
+            f"{shown(dims, 60)}"
         )
     return tuple(sizes)
 
@@ -209,9 +209,8 @@ def fit_two_step(
     check_dims(dims)
     check_int(max_iter, "max_iter", 1, None, "an integer number of iterations")
     check_int(patience, "patience", 1, None, "an integer number of iterations")
-    for name, value in (("tol", tol), ("ridge", ridge)):
-        if isinstance(value, bool) or not isinstance(value, int | float) or not (0 <= value < np.inf):
-            raise BadInput(f"{name}: expected a finite number ≥ 0, got {value!r}")
+    check_number(tol, "tol", 0)
+    check_number(ridge, "ridge", 0)
     if anchor not in ("initial", "previous"):
         raise BadInput(f"anchor must be 'initial' or 'previous', got {anchor!r}")
     B_model = deformation_matrix(X0, lower, upper, dims)

@@ -14,7 +14,7 @@ import numpy as np
 from jax.scipy.special import gammaln
 
 from bayestouch.backend import jax, jnp, pad_pow2
-from bayestouch.errors import BadInput
+from bayestouch.errors import BadInput, shown
 from bayestouch.geometry.rotation import rotation_matrix
 
 __all__ = [
@@ -92,8 +92,8 @@ def check_shape(s: NEllipsoid, where: str = "shape") -> None:
             v = None
         if v is None or v.shape != shape or not np.all(np.isfinite(v)) or (positive and not np.all(v > 0)):
             count = f"{shape[0]} finite numbers" if shape else "one finite number"
-            shown = np.asarray(raw).tolist() if v is not None else " ".join(repr(raw).split())[:60]
-            raise BadInput(f"{where}: {name} must be {count}{' > 0' if positive else ''}, got {shown}")
+            got = np.asarray(raw).tolist() if v is not None else shown(raw, 60)
+            raise BadInput(f"{where}: {name} must be {count}{' > 0' if positive else ''}, got {got}")
 
 
 def from_vector(v) -> NEllipsoid:

@@ -16,7 +16,7 @@ import scipy.sparse.linalg as spla
 from scipy.spatial import cKDTree
 
 from bayestouch.backend import jnp
-from bayestouch.errors import BadInput, as_array, check_int
+from bayestouch.errors import BadInput, as_array, check_int, check_number
 from bayestouch.geometry.integrals import check_mesh
 
 __all__ = [
@@ -276,8 +276,7 @@ def texture_indicator(
         raise BadInput("data: expected at least one probed point, got an empty (0, 3) array")
     residuals = as_array(residuals, "residuals", (len(data),), f"a ({len(data)},) array (metres), one per point")
     for name, value in (("p", p), ("q", q), ("tol", tol)):
-        if isinstance(value, bool) or not isinstance(value, int | float) or not (0 < value < np.inf):
-            raise BadInput(f"{name}: expected a finite number > 0, got {value!r}")
+        check_number(value, name, 0, above=True)
     check_int(k, "k", 1, None, "an integer number of neighbours")
     w = misfit_weights(vertices, faces, data, residuals, k=k)
     seeds = indicator_seeds(vertices, data, residuals, tol)

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from bayestouch.backend import jax, jnp, pad_pow2
-from bayestouch.errors import BadInput, check_path, file_problem
+from bayestouch.errors import BadInput, check_path, file_problem, shown
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.mesh import nellipsoid_mesh
 from bayestouch.params import MODELS, read_toml
@@ -427,8 +427,9 @@ def load_object(path, models=None) -> SceneObject:
     that parameter folder has it, else the shipped one; :func:`resolve_object`); a bad file raises
     :class:`BadInput` naming the field."""
     if not isinstance(path, str | os.PathLike) or not isinstance(os.fspath(path), str):
-        shown = " ".join(repr(path).split())[:60]
-        raise BadInput(f"path: expected a path or an object name (e.g. 'egg'), got {type(path).__name__} {shown}")
+        raise BadInput(
+            f"path: expected a path or an object name (e.g. 'egg'), got {type(path).__name__} {shown(path, 60)}"
+        )
     if models is not None:
         check_path(models, "models")
     p = Path(path) if Path(path).suffix == ".toml" else resolve_object(str(path), models)

@@ -11,7 +11,7 @@ from typing import NamedTuple
 import numpy as np
 
 from bayestouch.backend import jax, jnp, pad_pow2
-from bayestouch.errors import BadInput, shown
+from bayestouch.errors import BadInput, check_number, shown
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.mesh import as_rng
 from bayestouch.scene.objects import SceneObject
@@ -127,12 +127,7 @@ def check_random_sections(obj, count, what: str, **positive) -> None:
             f"count: expected an integer number of {what} ≥ 1 (at most {MAX_PATHS:,} in one call), got {shown(count)}"
         )
     for name, (value, unit) in positive.items():
-        if isinstance(value, bool | np.bool_) or not isinstance(value, int | float | np.integer | np.floating):
-            ok = False
-        else:
-            ok = bool(np.isfinite(value) and value > 0)
-        if not ok:
-            raise BadInput(f"{name}: expected a finite number > 0 ({unit}), got {shown(value)}")
+        check_number(value, name, 0, above=True, unit=unit)
 
 
 def check_offset(max_offset) -> None:
