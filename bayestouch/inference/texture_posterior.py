@@ -485,7 +485,7 @@ def texture_evidence(
     nuis = stroke_nuisances(data, finger, **likelihood)  # once for every grid of this stroke
     ll = _grid_log_likelihood(surfs, data, finger, shifts, tangent, nuis, nu, lag_rows)  # (K, G, L)
     if G < 3 or not np.allclose(np.diff(shifts), h) or h <= 0:
-        out = logsumexp(ll, axis=1) - np.log(G)
+        out = stroke_evidence(ll)
         return out[:, 0] if lags is None else out
     K = ll.shape[0]
     n_cells = 3 * peaks
@@ -539,7 +539,8 @@ def texture_means(surfs: Surface, data: RawData, finger) -> np.ndarray:
 
 
 def stroke_evidence(ll) -> np.ndarray:
-    """log p(stroke | k) (K,) from the grid ``ll`` (K, G): the uniform-prior average over shifts, in log space."""
+    """log p(stroke | k) (K,) from the grid ``ll`` (K, G): the uniform-prior average over shifts, in log space;
+    (K, L) from (K, G, L), one column per lag."""
     ll = np.asarray(ll, float)
     return logsumexp(ll, axis=1) - np.log(ll.shape[1])
 

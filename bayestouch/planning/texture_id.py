@@ -508,7 +508,8 @@ def run_experiment(
             f"{np.shape(device.finger.grid)[1]}, and reads only that layout"
         )
     out.mkdir(parents=True, exist_ok=True)
-    rest = {k: (list(v) if isinstance(v, tuple) else v) for k, v in settings.__dict__.items()}
+    plain = {k: (list(v) if isinstance(v, tuple) else v) for k, v in settings.__dict__.items()}  # JSON values
+    rest = dict(plain)
     # named as the command line names them (a refused resume names the flag that differs); only --trials may
     # differ: each trial's rows depend on the candidate textures, the seed and the settings, not on other trials
     options = {
@@ -529,8 +530,6 @@ def run_experiment(
     results = ResultsFile(out / "results.csv", COLUMNS, kept)
     done = {(r["texture"], int(r["trial"])) for r in kept}
     tasks = [(k, tr) for tr in range(trials) for k in range(len(lib)) if (lib.names[k], tr) not in done]
-    if kept and not tasks:
-        results.write()
 
     def one(task):
         k, tr = task
@@ -561,7 +560,7 @@ def run_experiment(
             "device": "nominal: models/ constants, unit gains marginalised with their nominal spread"
             if calibration is None
             else f"device file: gains and their errors of a {calibration.mode}-mode calibration",
-            "settings": {k: (list(v) if isinstance(v, tuple) else v) for k, v in settings.__dict__.items()},
+            "settings": plain,
             "finger_models": str(finger_models),
         }
     )
