@@ -41,7 +41,7 @@ __all__ = ["Fit", "fit", "simulate", "calibrate"]
 #: :func:`bayestouch.inference.run.run_contact_fit`
 _CONTACT_OPTIONS = ("noise", "nu", "normals", "free", "ffd", "ffd_tau", "size_prior", "init", "precision")
 #: recording options, passed to :func:`bayestouch.inference.raw.run_raw_fit`
-_RAW_OPTIONS = ("texture", "stride", "calibration")
+_RAW_OPTIONS = ("texture", "stride", "calibration", "lag")
 
 
 class Fit:
@@ -443,8 +443,8 @@ def fit(
         ``ffd`` ((l, m, k) control points or ``"LxMxK"``), ``ffd_tau`` (m), ``size_prior`` ((min, max) m or
         ``"MIN:MAX"``), ``free`` ((K, 3) m), ``init``, ``precision``
         (:func:`bayestouch.inference.run.run_contact_fit`). Recording: ``texture``, ``stride``, ``calibration``
-        (a device file path or :class:`~bayestouch.io.device_file.DeviceCalibration`;
-        :func:`bayestouch.inference.raw.run_raw_fit`).
+        (a device file path or :class:`~bayestouch.io.device_file.DeviceCalibration`), ``lag`` ("sampled" or
+        "known"; :func:`bayestouch.inference.raw.run_raw_fit`).
 
     Returns
     -------

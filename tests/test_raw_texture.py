@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from bayestouch.backend import jnp
+from bayestouch.backend import jax, jnp
 from bayestouch.inference import contact as cm
 from bayestouch.inference import grating as gr
 from bayestouch.inference import raw
@@ -142,7 +142,8 @@ def test_textured_raw_fit_detects_and_recovers_the_grating(tmp_path, textured):
     p = s["parameters"]
     for name in gr.TEXTURE_NATURAL_NAMES:
         assert name in p and np.isfinite(p[name]["mean"]), name
-    assert s["model"]["parameters_sampled"] == list(raw.RAW_TEXTURE_PARAM_NAMES)
+    assert s["model"]["parameters_sampled"] == [*raw.RAW_TEXTURE_PARAM_NAMES, "log_lag"]
+    assert raw.LAG_RANGE[0] <= p["lag"]["q05"] < p["lag"]["q95"] <= raw.LAG_RANGE[1], p["lag"]
     assert s["model"]["texture_search"]["grating_gain_nats"] > raw.DETECT_NATS
     pr = s["model"]["pruning"]
     assert pr["exact"] and pr["slots_kept"] < pr["slots_total"], pr
@@ -168,7 +169,7 @@ def test_textured_raw_fit_detects_and_recovers_the_grating(tmp_path, textured):
     vol = s["derived"]["volume_m3"]
     z = (vol["mean"] - v_true) / vol["sd"]
     draws = emcee.backends.HDFBackend(str(tmp_path / "fit" / "chain.h5"), read_only=True).get_chain()[-100:]
-    draws = draws.reshape(-1, 16)
+    draws = draws.reshape(-1, 17)
     shapes = np.column_stack([draws[:, :3], np.exp(draws[:, 3:6]), draws[:, 6:9], np.exp(draws[:, 9])])
     v_raw = np.array([float(ne.volume(ne.from_vector(x))) for x in shapes[::8]])
     z_raw = (v_raw.mean() - v_true) / v_raw.std()
@@ -177,3 +178,55 @@ def test_textured_raw_fit_detects_and_recovers_the_grating(tmp_path, textured):
 
     idata = az.from_netcdf(str(tmp_path / "fit" / "posterior.nc"))
     assert "roughness" in idata.posterior and "amplitude" in idata.posterior
+
+
+def _lag_record(lag: float, strokes: int = 3, seed: int = 5):
+    """The textured egg recorded by the nominal finger with its taxels' response lag set to ``lag`` s."""
+    from bayestouch.physics.virtual import load_finger, recording_dataset
+    from bayestouch.scene.objects import load_object
+    from bayestouch.scene.strokes import random_strokes
+
+    obj = load_object(EGG)
+    vf = load_finger(MODELS, seed=seed)
+    vf = vf._replace(finger=vf.finger._replace(taxels=vf.finger.taxels._replace(lag=lag)))
+    st = random_strokes(obj, strokes, seed=seed, duration=2.0)
+    return recording_dataset(obj, st, vf, seed, mode="empirical"), obj
+
+
+def test_at_lag_reproduces_the_loaded_lag(textured):
+    """Round trip: θ's lag column at the finger's own lag gives back the weights and the baseline the data were
+    loaded with; another lag changes both."""
+    ds, _ = textured
+    data, finger = raw.load_raw_data(ds, stride=raw.TEXTURE_STRIDE, device=raw.host_device())
+    sampled = data._replace(lag_prior=raw.LAG_RANGE)
+    th = np.zeros(17)
+    th[-1] = np.log(float(finger.taxels.lag))
+    same = raw.at_lag(jnp.asarray(th), sampled)
+    np.testing.assert_allclose(np.asarray(same.lag_weights), data.lag_weights, rtol=1e-13)
+    np.testing.assert_allclose(np.asarray(same.baseline), data.baseline, rtol=0, atol=1e-12)
+    th[-1] = np.log(0.1)
+    other = raw.at_lag(jnp.asarray(th), sampled)
+    assert np.abs(np.asarray(other.lag_weights) - data.lag_weights).max() > 1e-3
+    assert raw.at_lag(jnp.asarray(th), data) is data  # a known lag: the data as they are
+
+
+@pytest.mark.parametrize("lag", [0.11, 0.14])
+def test_sampled_lag_is_identified_where_the_finger_has_it(lag):
+    """On a finger whose lag is not the models' 0.15 s, the raw log-likelihood at the true shape and texture,
+    profiled over the sampled lag column, peaks at the finger's lag (within 5 ms), and the true lag beats the
+    models' one by many nats: a fit that took the lag as known would explain that gap with the amplitude. The
+    peak moves with the finger's lag (the two cases are each other's control)."""
+    ds, obj = _lag_record(lag)
+    host = raw.host_device()
+    data, finger = raw.load_raw_data(ds, stride=raw.TEXTURE_STRIDE, device=host)
+    zero = gr.RawTexture(raw.texture_reference(data), np.zeros(np.shape(data.log_current)), 2e-4)
+    texture = zero._replace(rough_var=raw.roughness_variance(_truth16(obj, data), data, finger, zero, count=32))
+    sampled = data._replace(lag_prior=(0.05, 0.3))
+    base = _truth16(obj, data)
+    taus = np.linspace(0.09, 0.16, 15)
+    f = jax.jit(jax.vmap(lambda t: raw.raw_log_likelihood(t, sampled, finger, texture=texture)))
+    ll = np.asarray(f(jnp.asarray(np.column_stack([np.tile(base, (len(taus), 1)), np.log(taus)]))))
+    best = taus[np.argmax(ll)]
+    assert abs(best - lag) <= 0.005 + 1e-9, (best, ll)
+    print("lag", lag, "log-likelihood above the models' 0.15 s:", ll.max() - ll[np.argmin(np.abs(taus - 0.15))])
+    assert ll.max() - ll[np.argmin(np.abs(taus - 0.15))] > 10.0, ll

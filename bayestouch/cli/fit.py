@@ -160,6 +160,13 @@ def add_parser(sub) -> argparse.ArgumentParser:
         "orientation, phase and roughness): auto = when the grating search finds one (default)",
     )
     fp.add_argument(
+        "--lag",
+        choices=["sampled", "known"],
+        default="sampled",
+        help="recording (.nc) only: the taxels' response lag: sampled over its prior range ([raw_priors] lag_min-"
+        "lag_max of models/priors.toml, default) or known (the value in models/taxels.toml)",
+    )
+    fp.add_argument(
         "--stride",
         type=positive_int,
         default=None,
@@ -261,7 +268,10 @@ def _run_parts(args) -> int:
             ("--init", args.init != "auto"),
             ("--size-prior", args.size_prior is not None),
             ("--precision", args.precision != "auto"),
-            ("--texture/--stride/--calibration", args.texture != "auto" or args.stride or args.calibration),
+            (
+                "--texture/--stride/--calibration/--lag",
+                args.texture != "auto" or args.stride or args.calibration or args.lag != "sampled",
+            ),
         )
         if used
     ]
@@ -381,6 +391,7 @@ def _run_fit(args) -> int:
             texture=args.texture,
             stride=args.stride,
             calibration=args.calibration,
+            lag=args.lag,
             **common,
         ).results
     else:
@@ -388,9 +399,9 @@ def _run_fit(args) -> int:
             raise BadInput("--ffd-tau goes with --ffd (the FFD lattice whose displacements it scales)")
         if args.size_prior is not None and args.ffd is not None:
             raise BadInput("--size-prior: the FFD-marginalised fit keeps its own prior; use one of --size-prior, --ffd")
-        if args.texture != "auto" or args.stride is not None or args.calibration is not None:
+        if args.texture != "auto" or args.stride is not None or args.calibration is not None or args.lag != "sampled":
             raise BadInput(
-                "--texture, --stride and --calibration apply to a recording (.nc), not to contact points (.csv)"
+                "--texture, --stride, --calibration and --lag apply to a recording (.nc), not to contact points (.csv)"
             )
 
         from bayestouch.inference.run import NU_RANGE

@@ -1,7 +1,8 @@
 """Raw-current likelihood level: the forward model predicts every selected taxel's current along the recorded
 strokes, and the read-out noise model gives the likelihood of the corrected ln I readings (F frames × M taxels).
 θ is (11,): centre m, log semi-axes log m, Euler angles rad, log n, log k (noise multiplier); (16,) with the
-texture (grating u, v m, log λ log m, orientation rad, log roughness log m; :mod:`bayestouch.inference.grating`).
+texture (grating u, v m, log λ log m, orientation rad, log roughness log m; :mod:`bayestouch.inference.grating`);
+one more, log τ (s), last, when the taxels' response lag is sampled (``RawData.lag_prior``).
 
 One job per module: :mod:`~bayestouch.inference.raw.data` (the recording read into :class:`RawData`),
 :mod:`~bayestouch.inference.raw.likelihood` (prediction, likelihood, prior box, pruning),
@@ -43,6 +44,7 @@ from bayestouch.inference.raw.likelihood import (
     RAW_TEXTURE_NATURAL_NAMES,
     RAW_TEXTURE_PARAM_NAMES,
     STUDENT_NU,
+    at_lag,
     load_raw_priors,
     make_raw_log_prob,
     nuisance_estimates,
@@ -54,10 +56,13 @@ from bayestouch.inference.raw.likelihood import (
     raw_log_likelihood,
     raw_log_prob,
     raw_log_prob_batch,
+    raw_names,
     reading_log_lik,
     taxel_offsets,
+    with_lag_bounds,
     with_nuisance_fixed,
 )
+from bayestouch.inference.raw.priors import LAG_RANGE
 from bayestouch.inference.raw.texture import (
     TextureStart,
     canonical_theta,
@@ -120,4 +125,8 @@ __all__ = [
     "texture_start",
     "nuisance_estimates",
     "with_nuisance_fixed",
+    "LAG_RANGE",
+    "at_lag",
+    "raw_names",
+    "with_lag_bounds",
 ]

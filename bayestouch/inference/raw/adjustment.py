@@ -38,6 +38,9 @@ class Adjustment(NamedTuple):
         outside the box.
     lower, upper : (D,) float, optional
         The prior box (angles excepted, :data:`~bayestouch.inference.contact.ANGLE_COLUMNS`).
+    nuisance : tuple of int
+        Columns held inside the box but not counted by :meth:`outside`: a device constant that the prior's range,
+        not the strokes, bounds (the sampled lag), which says nothing of whether the strokes determine the shape.
     """
 
     mean: np.ndarray
@@ -45,6 +48,7 @@ class Adjustment(NamedTuple):
     info: dict
     lower: np.ndarray | None = None
     upper: np.ndarray | None = None
+    nuisance: tuple = ()
 
     def unbounded(self, flat: np.ndarray) -> np.ndarray:
         """The affine map alone (N, D)."""
@@ -55,7 +59,7 @@ class Adjustment(NamedTuple):
         y = self.unbounded(flat)
         if self.lower is None:
             return np.zeros(len(y), bool)
-        keep = ~np.isin(np.arange(y.shape[1]), cm.ANGLE_COLUMNS)
+        keep = ~np.isin(np.arange(y.shape[1]), (*cm.ANGLE_COLUMNS, *self.nuisance))
         return np.any((y[:, keep] < self.lower[keep]) | (y[:, keep] > self.upper[keep]), axis=1)
 
     def __call__(self, flat: np.ndarray) -> np.ndarray:
@@ -91,7 +95,8 @@ def curvature_adjustment(
 
     With the prior's ``bounds`` the adjusted draws stay inside its box (:class:`Adjustment`), and the share that
     the map put outside is reported (``info["outside_prior"]``): a large share says the strokes do not determine
-    the shape (the widened posterior reaches the prior's faces).
+    the shape (the widened posterior reaches the prior's faces). A sampled lag (``data.lag_prior``, the last
+    column) is held inside its range too but not counted: its range is the prior's by design.
 
     Returns
     -------
@@ -130,6 +135,6 @@ def curvature_adjustment(
         return Adjustment(mean, C, info)
     lo = np.asarray(bounds.lower, float)[:D]
     hi = np.asarray(bounds.upper, float)[:D]
-    adj = Adjustment(mean, C, info, lo, hi)
+    adj = Adjustment(mean, C, info, lo, hi, (D - 1,) if data.lag_prior is not None else ())
     info["outside_prior"] = float(adj.outside(flat).mean())
     return adj

@@ -105,6 +105,15 @@ class RawData(NamedTuple):
     common_cov : (F, F) float or None
         Covariance over frames of that common error (π/2 · the reference taxels' white, 1/f and random-walk
         covariance / their number, within each stroke; de-meaned like ĉ when the reference taxels are).
+    unloaded : (F, M) float or None
+        The model's current (A) of the selected taxels at zero pressure before the lag: ``baseline`` is its log
+        through the lag, recomputed for every sampled lag.
+    lag_stride : int
+        Recorded frames per selected frame (``dt`` / the recorded interval), for the lag weights of a sampled lag.
+    lag_prior : (2,) float or None
+        With a range (τ_min, τ_max) s the lag is not the finger's: θ's last column is log τ, sampled, uniform in τ
+        over that range, and ``lag_weights`` and ``baseline`` are recomputed from it
+        (:func:`~bayestouch.inference.raw.likelihood.at_lag`). None: the lag of ``lag_weights``.
     """
 
     taxel_position: np.ndarray
@@ -125,6 +134,9 @@ class RawData(NamedTuple):
     response_sd: float | None = None
     common_var: np.ndarray | None = None
     common_cov: np.ndarray | None = None
+    unloaded: np.ndarray | None = None
+    lag_stride: int = 1
+    lag_prior: tuple[float, float] | None = None
 
 
 def check_stroke_selection(strokes, recorded=None, where: str = "recording") -> np.ndarray:
@@ -561,7 +573,7 @@ def load_raw_data(
     t_in = t[frames] - np.array([t_first[k] for k in si[frames]])
     var = white[:, taxels] + flick + float(finger.noise.drift_local) ** 2 * t_in[:, None] + s_ref[:, None]
     kernel = np.asarray(finger.kernel)[np.ix_(taxels, pen)]
-    lw = tx.coarse_lag_weights(dt_fine, float(finger.taxels.lag), int(stride))
+    lw = np.asarray(tx.coarse_lag_weights(dt_fine, float(finger.taxels.lag), int(stride)))
     data = RawData(
         x,
         temp[frames],
@@ -575,15 +587,9 @@ def load_raw_data(
         dt_fine * stride,
         mode,
     )
-    baseline = fw.log_current_from_distance(
-        finger,
-        jnp.ones(x.shape[:2]),  # 1 m clear of any surface: zero pressure
-        jnp.asarray(kernel),
-        jnp.asarray(data.temperature),
-        jnp.asarray(start),
-        jnp.asarray(lw),
-        mode,
-    )
+    # 1 m clear of any surface: zero pressure
+    free_current = fw.current_from_distance(finger, jnp.ones(x.shape[:2]), jnp.asarray(kernel), data.temperature, mode)
+    baseline = jnp.log(tx.coarse_lag(free_current, jnp.asarray(start), jnp.asarray(lw)))
     # the error of ĉ over frames: the median of n reference taxels' noise (π/2 · σ²/n per frame, the same factor on
     # the slow parts), independent between strokes, de-meaned with the reference taxels
     sf = si[frames]
@@ -592,7 +598,13 @@ def load_raw_data(
     if demean_reference:
         centre = np.eye(len(frames)) - 1.0 / len(frames)
         common_cov = centre @ common_cov @ centre
-    data = data._replace(baseline=np.asarray(baseline), common_var=s_ref, common_cov=common_cov)
+    data = data._replace(
+        baseline=np.asarray(baseline),
+        common_var=s_ref,
+        common_cov=common_cov,
+        unloaded=np.asarray(free_current),
+        lag_stride=int(stride),
+    )
     if device is not None:
         data = data._replace(
             gain_sd=np.asarray(device.log_gain_sd, float).ravel()[taxels],

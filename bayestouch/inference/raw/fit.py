@@ -37,23 +37,23 @@ from bayestouch.inference.raw.data import (
 )
 from bayestouch.inference.raw.likelihood import (
     LOG_K_PRIOR_SD,
-    RAW_NATURAL_NAMES,
     RAW_OPT_SCALE,
-    RAW_PARAM_NAMES,
-    RAW_TEXTURE_NATURAL_NAMES,
-    RAW_TEXTURE_PARAM_NAMES,
     STUDENT_NU,
     make_raw_log_prob,
     nuisance_estimates,
+    opt_scale,
     predict_readings,
     prune_clear,
     prune_clearance,
     raw_bounds,
     raw_log_prob,
+    raw_names,
     raw_pointwise,
     reading_scale,
+    with_lag_bounds,
     with_nuisance_fixed,
 )
+from bayestouch.inference.raw.priors import LAG_RANGE
 from bayestouch.inference.raw.texture import initial_raw_texture
 from bayestouch.inference.run import initial_theta, natural_draws
 from bayestouch.inference.sampler import adaptive_moves, sample
@@ -86,6 +86,7 @@ RAW_UNITS = {
     **dict.fromkeys(("x_G", "y_G", "z_G", "a", "b", "c", "amplitude", "wavelength", "roughness"), "m"),
     **dict.fromkeys(("xi", "psi", "zeta", "orientation", "phase"), "rad"),
     **dict.fromkeys(("n", "noise_scale"), "1"),
+    "lag": "s",
     "log_current": "ln(A)",
 }
 
@@ -149,12 +150,20 @@ def texture_start(th0, data: RawData, finger, priors: cm.PriorParams, tp: gr.Tex
     return ts._replace(theta=th, neg_log_post=fn)
 
 
-def _natural(flat: np.ndarray) -> np.ndarray:
-    """θ draws (S, 11) or (S, 16) → canonicalised natural parameters: centre, a ≥ b ≥ c, angles, n, k (the contact
-    level's transform: the 11th column, log k here, is exponentiated like log σ there), then the texture's
-    amplitude, wavelength, orientation, phase and roughness (:func:`bayestouch.inference.grating.texture_natural`)."""
-    nat = natural_draws(flat[:, :11])
-    return nat if flat.shape[1] == 11 else np.column_stack([nat, gr.texture_natural(flat)])
+def _natural(flat: np.ndarray, textured: bool | None = None, lag: bool = False) -> np.ndarray:
+    """θ draws (S, D) → canonicalised natural parameters: centre, a ≥ b ≥ c, angles, n, k (the contact level's
+    transform: the 11th column, log k here, is exponentiated like log σ there), then with ``textured`` the texture's
+    amplitude, wavelength, orientation, phase and roughness (:func:`bayestouch.inference.grating.texture_natural`),
+    then with ``lag`` the sampled lag τ (s). ``textured`` None: told by D (11 or 16, no lag)."""
+    flat = np.asarray(flat, float)
+    if textured is None:
+        textured = flat.shape[1] == 16
+    cols = [natural_draws(flat[:, :11])]
+    if textured:
+        cols.append(gr.texture_natural(flat))
+    if lag:
+        cols.append(np.exp(flat[:, -1:]))
+    return np.column_stack(cols)
 
 
 def raw_model(
@@ -192,7 +201,8 @@ def raw_model(
         return {"log_current": np.concatenate(reps)}
 
     F, M = np.shape(data.log_current)
-    names = RAW_PARAM_NAMES if texture is None else RAW_TEXTURE_PARAM_NAMES
+    lag = data.lag_prior is not None
+    names = raw_names(texture is not None, lag)
     desc = {
         "level": "raw-current",
         "mode": data.mode,
@@ -224,13 +234,16 @@ def raw_model(
             "atan2(v, u) at the reference point; roughness RMS as a variance term"
         ),
         "parameters_sampled": list(names),
+        "lag": f"sampled: log tau, uniform in tau on [{data.lag_prior[0]:g}, {data.lag_prior[1]:g}] s"
+        if lag
+        else f"known: the finger's {float(finger.taxels.lag):.4g} s",
     }
     if texture is not None:
         desc["texture_reference_m"] = [float(v) for v in texture.ref]
     desc["adjustment"] = adjust.info if adjust is not None else "none: intervals assume independent readings"
     return PosteriorModel(
-        RAW_NATURAL_NAMES if texture is None else RAW_TEXTURE_NATURAL_NAMES,
-        lambda flat: _natural(adj(flat)),
+        raw_names(texture is not None, lag, natural=True),
+        lambda flat: _natural(adj(flat), texture is not None, lag),
         lambda nat: nat[:, :10],
         ll,
         predictive,
@@ -344,6 +357,7 @@ def run_raw_fit(
     prune: bool = True,
     overwrite: bool = False,
     calibration=None,
+    lag: str = "sampled",
 ) -> dict:
     """Sample the raw-current posterior of a recording and write the run folder ``out``.
 
@@ -355,6 +369,8 @@ def run_raw_fit(
     seed : int
         Seeds the initial fit, the roughness Monte Carlo, the walkers and emcee.
     walkers, steps : int
+        Walkers are raised to two per sampled parameter where fewer (emcee's ensemble moves need them; 34 for a
+        textured fit with the lag sampled), and the summary says so (``model.walkers``).
     resume : bool
         Continue the chain in ``out/chain.h5`` (the start, texture search included, is deterministic given the
         seed, so the same model is rebuilt); refused when ``out`` holds a run of another recording or other
@@ -385,6 +401,10 @@ def run_raw_fit(
         The finger's device file (``bayestouch calibrate``): its per-taxel gains are divided out and their standard
         errors marginalised. Without it the gains are unknown (1 ± the nominal spread of ``models/noise.toml``,
         marginalised per taxel). The recording's simulator seed is never read.
+    lag : {"sampled", "known"}
+        The taxels' response lag τ: "sampled" (log τ, uniform in τ over ``[raw_priors] lag_min``–``lag_max`` of
+        ``models/priors.toml``; no calibration measures it, and it scales a texture's signal as its amplitude does)
+        or "known" (the finger's, ``models/taxels.toml``).
     prune : bool
         Sample without the taxel slots more than :data:`~bayestouch.inference.raw.likelihood.PRUNE_MARGIN` outside
         the start's surface (:func:`prune_clear`), checked on the draws afterwards (``summary.model.pruning``).
@@ -396,6 +416,8 @@ def run_raw_fit(
     """
     if texture not in ("auto", "on", "off"):
         raise BadInput(f"texture must be one of auto, on, off; got {texture!r}")
+    if lag not in ("sampled", "known"):
+        raise BadInput(f"lag must be one of sampled, known; got {lag!r}")
     if stride is not None and (isinstance(stride, bool) or not isinstance(stride, int | np.integer) or stride < 1):
         raise BadInput(f"stride must be an integer ≥ 1, got {stride!r}")
     if strokes is not None:
@@ -413,6 +435,10 @@ def run_raw_fit(
         cal, cal_name = read_device_file(calibration), str(calibration)
     recording_mode(ds, where, cal)  # checked before the run folder is touched (--overwrite sets aside)
     host = host_device(Path(models), cal)
+    if lag == "sampled":  # one value where one is needed (the start, the texture search, the reference row): the
+        # middle of the lag's range, so that neither end is more than half the range off
+        mid = float(np.sqrt(LAG_RANGE[0] * LAG_RANGE[1]))
+        host = host._replace(finger=host.finger._replace(taxels=host.finger.taxels._replace(lag=mid)))
     finger = host.finger
     # before the run folder is made (or a finished run in it set aside): a refused fit leaves nothing behind
     check_taxel_layout(ds, finger, where)
@@ -429,6 +455,7 @@ def run_raw_fit(
         "texture": texture,
         "adjust": bool(adjust),
         "prune": bool(prune),
+        "lag": lag,
         "calibration": None
         if cal is None
         else {
@@ -488,11 +515,22 @@ def run_raw_fit(
     if tex is None:
         bounds = raw_bounds(data, priors)
         nlp = jax.jit(jax.value_and_grad(lambda t: -raw_log_prob(t, data, finger, bounds)))
+    scale = opt_scale(tex is not None, lag == "sampled")
+    if lag == "sampled":
+        # the lag joins θ as its last column, started where the start was found and polished with the rest
+        data = data._replace(lag_prior=LAG_RANGE)
+        bounds = with_lag_bounds(bounds, LAG_RANGE)
+        th_start = np.append(th_start, np.log(float(finger.taxels.lag)))
+        nlp = jax.jit(jax.value_and_grad(lambda t: -raw_log_prob(t, data, finger, bounds, STUDENT_NU, tex)))
+        th_start, _ = scaled_lbfgs(nlp, th_start, np.asarray(bounds.lower), np.asarray(bounds.upper), scale)
     logp, _, names = make_raw_log_prob(data, finger, priors, texture=tex, bounds=bounds)
+    if walkers < 2 * len(names):  # emcee's ensemble moves need two walkers per dimension
+        info["walkers"] = f"raised from {walkers} to {2 * len(names)}: two per sampled parameter"
+        walkers = 2 * len(names)
     lo, hi = np.asarray(bounds.lower), np.asarray(bounds.upper)
     # the Laplace approximation starts the walkers and is the first independence proposal (deterministic given the
     # seed, so a resumed run rebuilds it)
-    moments = laplace(nlp, th_start, lo, hi, RAW_OPT_SCALE[: len(names)])
+    moments = laplace(nlp, th_start, lo, hi, scale)
     ch = sample(
         logp,
         lambda: laplace_ball(moments, lo, hi, walkers, np.random.default_rng(seed)),
@@ -509,7 +547,10 @@ def run_raw_fit(
         adapt=True,
         proposal=moments,
         moves=adaptive_moves(RAW_PROPOSAL_NU),
-        monitor=judged_quantities(RAW_NATURAL_NAMES if tex is None else RAW_TEXTURE_NATURAL_NAMES, _natural),
+        monitor=judged_quantities(
+            raw_names(tex is not None, lag == "sampled", natural=True),
+            partial(_natural, textured=tex is not None, lag=lag == "sampled"),
+        ),
     )
     flat = ch.kept.reshape(-1, ch.kept.shape[2])
     if prune:

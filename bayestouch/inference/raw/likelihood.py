@@ -23,6 +23,7 @@ from bayestouch.inference.raw.priors import (
     load_raw_priors,
 )
 from bayestouch.physics import forward as fw
+from bayestouch.physics import taxel as tx
 
 __all__ = [
     "RAW_PRIOR_SPECS",
@@ -36,6 +37,11 @@ __all__ = [
     "LOG_K_PRIOR_SD",
     "RESPONSE_SCALE_SD",
     "RAW_OPT_SCALE",
+    "LAG_OPT_SCALE",
+    "raw_names",
+    "opt_scale",
+    "at_lag",
+    "with_lag_bounds",
     "slot_distances",
     "PRUNE_MARGIN",
     "PRUNE_CHECK",
@@ -74,6 +80,49 @@ STUDENT_NU = 4.0
 RAW_OPT_SCALE = np.concatenate(
     [np.full(3, 1e-5), np.full(3, 1e-4), np.full(3, 1e-3), [1e-4], [1e-1], [1e-6, 1e-6, 1e-4, 1e-4, 1e-1]]
 )
+
+
+#: optimiser scale of the sampled lag's column, log τ
+LAG_OPT_SCALE = 1e-2
+
+
+def raw_names(textured: bool, lag: bool, natural: bool = False) -> tuple[str, ...]:
+    """Names of θ's columns (or of the natural parameters with ``natural``): the bare shape's 11, the texture's 5
+    with ``textured``, then the sampled lag (``log_lag``; natural ``lag``, s) with ``lag``."""
+    if natural:
+        base = RAW_TEXTURE_NATURAL_NAMES if textured else RAW_NATURAL_NAMES
+        return base + (("lag",) if lag else ())
+    base = RAW_TEXTURE_PARAM_NAMES if textured else RAW_PARAM_NAMES
+    return base + (("log_lag",) if lag else ())
+
+
+def opt_scale(textured: bool, lag: bool) -> np.ndarray:
+    """Variable scales of the optimiser for θ's columns (:data:`RAW_OPT_SCALE`, :data:`LAG_OPT_SCALE`)."""
+    return np.concatenate([RAW_OPT_SCALE[: 16 if textured else 11], [LAG_OPT_SCALE] if lag else []])
+
+
+def at_lag(theta, data: RawData) -> RawData:
+    """``data`` at the lag of θ (D,) when the lag is sampled (``data.lag_prior`` set: θ's last column is log τ):
+    the coarse-frame lag weights and the zero-pressure baseline recomputed for τ; pure JAX (θ may be traced).
+    ``data`` as it is otherwise."""
+    if data.lag_prior is None:
+        return data
+    lw = tx.coarse_lag_weights(float(data.dt) / int(data.lag_stride), jnp.exp(theta[-1]), int(data.lag_stride))
+    base = data.baseline
+    if data.unloaded is not None:
+        base = jnp.log(tx.coarse_lag(jnp.asarray(data.unloaded), jnp.asarray(data.start), lw))
+    return data._replace(lag_weights=lw, baseline=base)
+
+
+def with_lag_bounds(bounds: cm.Bounds, lag_prior) -> cm.Bounds:
+    """``bounds`` with the column of the sampled lag appended: log τ in [log τ_min, log τ_max] (``lag_prior`` s)."""
+    lo, hi = (float(v) for v in lag_prior)
+    if not 0 < lo < hi:
+        raise ValueError(f"lag_prior must be 0 < tau_min < tau_max (s), got {lag_prior}")
+    return cm.Bounds(
+        jnp.concatenate([jnp.asarray(bounds.lower), jnp.asarray([np.log(lo)])]),
+        jnp.concatenate([jnp.asarray(bounds.upper), jnp.asarray([np.log(hi)])]),
+    )
 
 
 def _hom(data: RawData):
@@ -149,8 +198,9 @@ def distance_log_current(sdf, data: RawData, finger):
 
 def predict_log_current(theta, data: RawData, finger, texture: RawTexture | None = None):
     """Predicted ln I (F, M) of the selected taxels for θ (11,) (16, with the texture parameters, when ``texture``
-    is given; log k and log σ_r are ignored); pure JAX."""
-    return distance_log_current(slot_distances(jnp.asarray(theta)[None], data, texture)[0], data, finger)
+    is given; log k and log σ_r are ignored; with a sampled lag, its last column is log τ); pure JAX."""
+    theta = jnp.asarray(theta)
+    return distance_log_current(slot_distances(theta[None], data, texture)[0], at_lag(theta, data), finger)
 
 
 def reading_scale(theta, data: RawData, texture: RawTexture | None, nu: float = STUDENT_NU):
@@ -223,6 +273,7 @@ def response_scaled(pred, data: RawData):
 def nuisance_estimates(theta, data: RawData, finger, nu: float = STUDENT_NU, texture: RawTexture | None = None):
     """Posterior means at θ of the marginalised device terms: the response factor a (float) and each selected
     taxel's log-gain offset (M,) (zeros where they are not marginalised)."""
+    data = at_lag(jnp.asarray(theta), data)
     pred = response_scaled(predict_log_current(theta, data, finger, texture), data)
     _, _, b, d = _marginalised(theta, pred, data, nu, texture)
     M = np.shape(data.log_current)[1]
@@ -264,6 +315,7 @@ def predict_readings(theta, data: RawData, finger, nu: float = STUDENT_NU, textu
     """What the corrected readings ``data.log_current`` are compared with at θ (F, M): :func:`predict_log_current`
     with, where they are marginalised, the posterior means of the response factor and the taxel offsets added
     (:func:`_marginalised`); pure JAX."""
+    data = at_lag(jnp.asarray(theta), data)
     pred = response_scaled(predict_log_current(theta, data, finger, texture), data)
     if data.gain_sd is None and data.response_sd is None:
         return pred
@@ -273,7 +325,7 @@ def predict_readings(theta, data: RawData, finger, nu: float = STUDENT_NU, textu
 def raw_pointwise(theta, data: RawData, finger, nu: float = STUDENT_NU, texture: RawTexture | None = None):
     """Log-likelihood (F, M) of every selected reading (Student-t of scale k·s, or √(k²s² + σ_r² v) with the
     texture)."""
-    return reading_log_lik(theta, predict_log_current(theta, data, finger, texture), data, nu, texture)
+    return reading_log_lik(theta, predict_log_current(theta, data, finger, texture), at_lag(theta, data), nu, texture)
 
 
 def raw_log_likelihood(theta, data: RawData, finger, nu: float = STUDENT_NU, texture: RawTexture | None = None):
@@ -299,10 +351,16 @@ def raw_log_prob_batch(
     lp = cm.log_prior(thetas, bounds) - 0.5 * (thetas[:, 10] / LOG_K_PRIOR_SD) ** 2
     if texture is not None:
         lp = lp + gr.texture_log_prior(thetas, texture.amplitude_scale)
+    if data.lag_prior is not None:
+        lp = lp + thetas[:, -1]  # uniform in τ: the density of log τ is ∝ τ
     th = cm.clip_to_box(thetas, bounds)
     sdf = slot_distances(th, data, texture)
-    pred = jax.vmap(lambda s: distance_log_current(s, data, finger))(sdf)
-    ll = jax.vmap(lambda t, p: jnp.sum(reading_log_lik(t, p, data, nu, texture)))(th, pred)
+
+    def one(t, s):
+        d = at_lag(t, data)
+        return jnp.sum(reading_log_lik(t, distance_log_current(s, d, finger), d, nu, texture))
+
+    ll = jax.vmap(one)(th, sdf)
     out = jnp.where(jnp.isfinite(lp), lp + ll, -jnp.inf)
     return jnp.where(jnp.isnan(out), -jnp.inf, out)
 
@@ -310,7 +368,8 @@ def raw_log_prob_batch(
 def raw_log_prob(
     theta, data: RawData, finger, bounds: cm.Bounds, nu: float = STUDENT_NU, texture: RawTexture | None = None
 ):
-    """Log-posterior (unnormalised) of one θ (11,) or (16,) with ``texture``; see :func:`raw_log_prob_batch`."""
+    """Log-posterior (unnormalised) of one θ (11,) or (16,) with ``texture`` (one more, log τ, with a sampled lag);
+    see :func:`raw_log_prob_batch`."""
     return raw_log_prob_batch(jnp.asarray(theta)[None], data, finger, bounds, nu, texture)[0]
 
 
@@ -332,10 +391,13 @@ def make_raw_log_prob(
         ``bounds`` if given, else :func:`raw_bounds` (which has no texture part: a textured model needs the
         box of :func:`~bayestouch.inference.raw.texture.textured_bounds`).
     names : tuple of str
-        :data:`RAW_PARAM_NAMES`, or :data:`RAW_TEXTURE_PARAM_NAMES` with ``texture``.
+        :func:`raw_names` (the bare shape's, the texture's with ``texture``, the lag's when ``data`` samples it).
     """
     priors = priors or cm.load_priors()
-    bounds = raw_bounds(data, priors) if bounds is None else bounds
+    if bounds is None:
+        bounds = raw_bounds(data, priors)
+        if data.lag_prior is not None:
+            bounds = with_lag_bounds(bounds, data.lag_prior)
     batched = jax.jit(lambda t: raw_log_prob_batch(t, data, finger, bounds, nu, texture))
 
     def f(thetas):
@@ -343,4 +405,4 @@ def make_raw_log_prob(
         out = np.asarray(batched(jnp.asarray(np.nan_to_num(th, nan=np.inf))))
         return np.where(np.isfinite(th).all(axis=1) & ~np.isnan(out), out, -np.inf)
 
-    return f, bounds, RAW_PARAM_NAMES if texture is None else RAW_TEXTURE_PARAM_NAMES
+    return f, bounds, raw_names(texture is not None, data.lag_prior is not None)
