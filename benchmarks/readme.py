@@ -53,16 +53,23 @@ def _raw(doc: dict) -> tuple[str, str, str]:
     )
 
 
+def _of(q: dict) -> str:
+    """'k/n [lo, hi]' of a coverage entry of ``mismatch.json``."""
+    return f"{q['covered']}/{q['of']} {_ci(q['coverage_wilson95'])}"
+
+
 def _mismatch(d: dict) -> tuple[str, str, str]:
     n, v = d["scenarios"], d["volume"]
     return (
         f"Raw-current posteriors when the finger is not the simulator ({n} fingers with S_p, lag, fixed-pattern "
         "spread, 1/f and drift drawn within their stated uncertainty; calibrated from 6 strokes over the sphere at "
-        "3 depths; the textured egg from 10 strokes)",
+        "3 depths; the textured egg from 10 strokes; the response lag sampled by the fit)",
         f"90 % volume intervals hold the truth in {v['covered']}/{n} {_ci(v['coverage_wilson95'])} (median \\|z\\| "
-        f"{v['median_abs_z']:.1f}); wavelength {d['wavelength']['covered']}/{n}, amplitude "
-        f"{d['amplitude']['covered']}/{n}, orientation {d['orientation']['covered']}/{n}; {d['converged']}/{n} "
-        f"converged; fit {d['fit_seconds_median']:.0f} s median, calibration {d['calibration_seconds_median']:.1f} s",
+        f"{v['median_abs_z']:.1f}); wavelength {_of(d['wavelength'])}, amplitude {_of(d['amplitude'])}, "
+        f"orientation {_of(d['orientation'])}"
+        + (f", the finger's lag {_of(d['lag'])}" if "lag" in d else "")
+        + f"; {d['converged']}/{n} converged; fit {d['fit_seconds_median']:.0f} s median (two fits at a time), "
+        f"calibration {d['calibration_seconds_median']:.1f} s",
         "`bench_mismatch` (`benchmarks/results/mismatch.json`)",
     )
 

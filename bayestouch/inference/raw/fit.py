@@ -357,7 +357,7 @@ def run_raw_fit(
     prune: bool = True,
     overwrite: bool = False,
     calibration=None,
-    lag: str = "sampled",
+    lag: str = "known",
 ) -> dict:
     """Sample the raw-current posterior of a recording and write the run folder ``out``.
 
@@ -401,10 +401,12 @@ def run_raw_fit(
         The finger's device file (``bayestouch calibrate``): its per-taxel gains are divided out and their standard
         errors marginalised. Without it the gains are unknown (1 ± the nominal spread of ``models/noise.toml``,
         marginalised per taxel). The recording's simulator seed is never read.
-    lag : {"sampled", "known"}
-        The taxels' response lag τ: "sampled" (log τ, uniform in τ over ``[raw_priors] lag_min``–``lag_max`` of
-        ``models/priors.toml``; no calibration measures it, and it scales a texture's signal as its amplitude does)
-        or "known" (the finger's, ``models/taxels.toml``).
+    lag : {"known", "sampled"}
+        The taxels' response lag τ: "known" (the finger's, ``models/taxels.toml``; the default) or "sampled" (log τ,
+        uniform in τ over ``[raw_priors] lag_min``–``lag_max`` of ``models/priors.toml``; no calibration measures
+        it, and it scales a texture's signal as its amplitude does: on drawn fingers it holds the amplitude's
+        coverage, but its start at the range's middle can send the texture search to a neighbouring period on a
+        finger at the range's edge, ``docs/raw_model.md``).
     prune : bool
         Sample without the taxel slots more than :data:`~bayestouch.inference.raw.likelihood.PRUNE_MARGIN` outside
         the start's surface (:func:`prune_clear`), checked on the draws afterwards (``summary.model.pruning``).
