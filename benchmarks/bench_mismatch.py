@@ -45,7 +45,7 @@ from bayestouch.physics.virtual import load_finger, recording_dataset
 from bayestouch.scene.objects import load_object
 from bayestouch.scene.strokes import random_strokes
 from benchmarks.bench_user_sets import wilson_interval
-from benchmarks.harness import RESULTS
+from benchmarks.harness import RESULTS, worker_init
 
 #: scenarios (perturbed fingers) and strokes over the egg in each
 SCENARIOS = 50
@@ -201,10 +201,6 @@ def drawn_lag(r: dict) -> str:
     return f"{r['true_lag']:.4f} -> {got}"
 
 
-def _worker_init() -> None:
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
-
-
 def bench_mismatch(scenarios: int | None = None) -> list[dict]:
     """Run ``BAYESTOUCH_MISMATCH_SCENARIOS`` scenarios (default :data:`SCENARIOS`) on
     ``BAYESTOUCH_MISMATCH_WORKERS`` processes (default 2); return the harness rows."""
@@ -212,7 +208,7 @@ def bench_mismatch(scenarios: int | None = None) -> list[dict]:
     workers = int(os.environ.get("BAYESTOUCH_MISMATCH_WORKERS", "2"))
     if workers > 1:
         ctx = mp.get_context("spawn")
-        with ctx.Pool(workers, initializer=_worker_init) as pool:
+        with ctx.Pool(workers, initializer=worker_init) as pool:
             rows = []
             for r in pool.imap(_scenario_in, range(count)):  # the rows so far kept as they come
                 rows.append(r)

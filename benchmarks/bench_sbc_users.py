@@ -49,6 +49,7 @@ from scipy.optimize import minimize
 from scipy.stats import binom, chi2, kstest
 
 from bayestouch.inference import sbc
+from benchmarks.harness import worker_init
 
 __all__ = [
     "SIZE_PRIOR_M",
@@ -512,10 +513,6 @@ def plot_ecdf(rows: list[dict], path: Path) -> None:
     plt.close(fig)
 
 
-def _worker_init() -> None:
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
-
-
 def bench_sbc_users() -> list[dict]:
     """Run (or continue) the SBC over ``BAYESTOUCH_SBC_SETS`` data sets (default 200) and return the harness rows."""
     count = int(os.environ.get("BAYESTOUCH_SBC_SETS", "200"))
@@ -527,7 +524,7 @@ def bench_sbc_users() -> list[dict]:
     todo = [s for s in range(count) if s not in done]
     t0 = time.perf_counter()
     ctx = mp.get_context("spawn")
-    with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_worker_init) as pool:
+    with ProcessPoolExecutor(workers, mp_context=ctx, initializer=worker_init) as pool:
         futures = [pool.submit(fit_sbc_set, s) for s in todo]
         for fut in as_completed(futures):
             rows.append({k: str(v) for k, v in fut.result().items()})

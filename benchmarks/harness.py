@@ -38,6 +38,11 @@ def machine() -> dict:
     }
 
 
+def worker_init() -> None:
+    """Initializer of a benchmark's worker processes: one BLAS thread each (the workers share the machine's cores)."""
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+
 def best_of(fn, repeat: int = 5, number: int = 1) -> float:
     """Best wall-clock seconds per call of ``fn`` over ``repeat`` rounds of ``number`` calls."""
     best = float("inf")

@@ -150,14 +150,12 @@ def texture_start(th0, data: RawData, finger, priors: cm.PriorParams, tp: gr.Tex
     return ts._replace(theta=th, neg_log_post=fn)
 
 
-def _natural(flat: np.ndarray, textured: bool | None = None, lag: bool = False) -> np.ndarray:
+def _natural(flat: np.ndarray, textured: bool, lag: bool = False) -> np.ndarray:
     """θ draws (S, D) → canonicalised natural parameters: centre, a ≥ b ≥ c, angles, n, k (the contact level's
     transform: the 11th column, log k here, is exponentiated like log σ there), then with ``textured`` the texture's
     amplitude, wavelength, orientation, phase and roughness (:func:`bayestouch.inference.grating.texture_natural`),
-    then with ``lag`` the sampled lag τ (s). ``textured`` None: told by D (11 or 16, no lag)."""
+    then with ``lag`` the sampled lag τ (s)."""
     flat = np.asarray(flat, float)
-    if textured is None:
-        textured = flat.shape[1] == 16
     cols = [natural_draws(flat[:, :11])]
     if textured:
         cols.append(gr.texture_natural(flat))

@@ -103,15 +103,16 @@ def opt_scale(textured: bool, lag: bool) -> np.ndarray:
 
 def at_lag(theta, data: RawData) -> RawData:
     """``data`` at the lag of θ (D,) when the lag is sampled (``data.lag_prior`` set: θ's last column is log τ):
-    the coarse-frame lag weights and the zero-pressure baseline recomputed for τ; pure JAX (θ may be traced).
-    ``data`` as it is otherwise."""
+    the coarse-frame lag weights and the zero-pressure baseline recomputed for τ, and the lag then fixed
+    (``lag_prior`` None), so that a second call on the result is free; pure JAX (θ may be traced). ``data`` as it
+    is otherwise."""
     if data.lag_prior is None:
         return data
     lw = tx.coarse_lag_weights(float(data.dt) / int(data.lag_stride), jnp.exp(theta[-1]), int(data.lag_stride))
     base = data.baseline
     if data.unloaded is not None:
         base = jnp.log(tx.coarse_lag(jnp.asarray(data.unloaded), jnp.asarray(data.start), lw))
-    return data._replace(lag_weights=lw, baseline=base)
+    return data._replace(lag_weights=lw, baseline=base, lag_prior=None)
 
 
 def with_lag_bounds(bounds: cm.Bounds, lag_prior) -> cm.Bounds:
@@ -325,7 +326,8 @@ def predict_readings(theta, data: RawData, finger, nu: float = STUDENT_NU, textu
 def raw_pointwise(theta, data: RawData, finger, nu: float = STUDENT_NU, texture: RawTexture | None = None):
     """Log-likelihood (F, M) of every selected reading (Student-t of scale k·s, or √(k²s² + σ_r² v) with the
     texture)."""
-    return reading_log_lik(theta, predict_log_current(theta, data, finger, texture), at_lag(theta, data), nu, texture)
+    data = at_lag(jnp.asarray(theta), data)
+    return reading_log_lik(theta, predict_log_current(theta, data, finger, texture), data, nu, texture)
 
 
 def raw_log_likelihood(theta, data: RawData, finger, nu: float = STUDENT_NU, texture: RawTexture | None = None):
