@@ -1,7 +1,8 @@
 """Raw-current level (issue 4, level 2): log-density throughput at a batch of 32 walkers (bare shape at strides 5
 and 1, textured at stride 2), and the end-to-end ``run_raw_fit`` of the standard scenario (the textured egg, 10
 strokes, seed 3, empirical taxel mode) with the texture sampled (``texture="auto"``, the default) and without
-(``texture="off"``): diagnostics, the volume error and the texture parameters against the truth. Target (issue 4):
+(``texture="off"``), the response lag sampled (the default): diagnostics, the volume error and the texture parameters
+and the lag against the truth. Target (issue 4):
 the posterior in under 2 minutes on 2 cores.
 """
 
@@ -121,6 +122,11 @@ def bench_raw_fit(steps: int = 3000, ds_obj=None):
             "noise_scale_mean": p["noise_scale"]["mean"],
             "texture_sampled": "amplitude" in p,
         }
+        if "lag" in p:  # the finger's lag is the models' (the standard scenario's nominal finger)
+            from bayestouch.physics.taxel import load_taxels
+
+            row["lag_s"] = [p["lag"]["mean"], p["lag"]["sd"], float(load_taxels().lag)]
+            row["lag_starts"] = len(s["model"]["lag_starts"])
         if "amplitude" in p:
             t = obj.texture
             o = p["orientation"]["mean"]

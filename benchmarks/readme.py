@@ -43,12 +43,14 @@ def _raw(doc: dict) -> tuple[str, str, str]:
         doc, "raw-current posterior, standard scenario (egg, 10 strokes, seed 3, empirical), end to end, texture=off"
     )
     z = on["volume_rel_error"] / on["volume_rel_sd"]
+    lag = on.get("lag_s")
     return (
         "Raw-current posterior, standard scenario (egg, 10 strokes), texture sampled, the finger's gains and "
-        "response unknown to the fit (marginalised)",
+        "response unknown to the fit (marginalised)" + (", the response lag sampled" if lag else ""),
         f"{on['value']:.0f} s end to end ({on['steps']} steps, R-hat {on['max_r_hat']:.3f}, min bulk ESS "
         f"{on['min_ess_bulk']:.0f}); {off['value']:.0f} s with `--texture off`. Volume "
-        f"{_pct(on['volume_rel_error'], 3)} off, posterior sd {_pct(on['volume_rel_sd'], 3)} (z {z:.1f})",
+        f"{_pct(on['volume_rel_error'], 3)} off, posterior sd {_pct(on['volume_rel_sd'], 3)} (z {z:.1f})"
+        + (f"; lag {lag[0] * 1e3:.1f} ± {lag[1] * 1e3:.1f} ms (the finger's {lag[2] * 1e3:.0f})" if lag else ""),
         "`bench_raw` (`benchmarks/results/bench_raw.json`)",
     )
 

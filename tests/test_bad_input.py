@@ -100,6 +100,10 @@ TABLE = [
     ("fit {tmp}/good.csv --out {tmp}/o --precision mixed --noise mixture", "precision"),
     ("fit {tmp}/good.csv --out {tmp}/o --texture on", "--texture"),
     ("fit {tmp}/good.csv --out {tmp}/o --stride 2", "--stride"),
+    # --lag is a recording's option whichever value is given, the default one included
+    ("fit {tmp}/good.csv --out {tmp}/o --lag known", "--lag"),
+    ("fit {tmp}/good.csv --out {tmp}/o --lag sampled", "--lag"),
+    ("fit {tmp}/good.csv --out {tmp}/o --lag maybe", "--lag"),
     ("fit {tmp}/good.csv --out {tmp}/o --texture maybe", "--texture"),
     ("fit {tmp}/good.csv --out {tmp}/o --stride 0", "--stride"),
     ("reproduce-paper --out {tmp}/o --sizes 6x6", "6x6x3"),

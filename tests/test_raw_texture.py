@@ -132,9 +132,13 @@ def test_pruned_slots_change_nothing_near_the_start_and_are_checked(textured):
 
 @pytest.mark.slow
 def test_textured_raw_fit_detects_and_recovers_the_grating(tmp_path, textured):
-    """texture="auto" on four strokes of the textured egg: the grating is detected and sampled; wavelength,
-    orientation (measured from the long axis, in the grating's principal plane), amplitude and roughness come out
-    near the truth, and the summary and posterior.nc carry them."""
+    """texture="auto" and the lag sampled (the defaults) on four strokes of the textured egg: the grating is
+    detected and sampled; wavelength, orientation (measured from the long axis, in the grating's principal plane),
+    amplitude and roughness come out near the truth, and the summary and posterior.nc carry them.
+
+    The finger's lag is the models' 0.15 s, the range's upper end. The start at the range's middle polishes to
+    ~0.143 s with a grating of 2.21 mm (a neighbouring period); the second start, made at the lag reached, finds
+    the 2 mm grating ~9,500 nats higher, and it is kept (before the second start, this fit reported 2.21 mm)."""
     ds, obj = textured
     s = raw.run_raw_fit(
         ds, tmp_path / "fit", seed=0, walkers=32, steps=300, progress=False, starts=2, stop_when_converged=False
@@ -142,8 +146,12 @@ def test_textured_raw_fit_detects_and_recovers_the_grating(tmp_path, textured):
     p = s["parameters"]
     for name in gr.TEXTURE_NATURAL_NAMES:
         assert name in p and np.isfinite(p[name]["mean"]), name
-    assert s["model"]["parameters_sampled"] == list(raw.RAW_TEXTURE_PARAM_NAMES)
+    assert s["model"]["parameters_sampled"] == list(raw.raw_names(True, True))
     assert s["model"]["texture_search"]["grating_gain_nats"] > raw.DETECT_NATS
+    starts = s["model"]["lag_starts"]
+    assert len(starts) == 2 and starts[1]["neg_log_post"] < starts[0]["neg_log_post"] - 1000, starts
+    assert abs(np.log(starts[0]["reached_s"] / starts[0]["lag_s"])) > raw.LAG_RESTART, starts
+    assert abs(p["lag"]["mean"] - 0.15) < 0.01 and raw.LAG_RANGE[0] <= p["lag"]["q05"] <= p["lag"]["q95"], p["lag"]
     pr = s["model"]["pruning"]
     assert pr["exact"] and pr["slots_kept"] < pr["slots_total"], pr
     assert pr["min_clearance_m"] > raw.likelihood.PRUNE_CHECK, pr
@@ -168,7 +176,7 @@ def test_textured_raw_fit_detects_and_recovers_the_grating(tmp_path, textured):
     vol = s["derived"]["volume_m3"]
     z = (vol["mean"] - v_true) / vol["sd"]
     draws = emcee.backends.HDFBackend(str(tmp_path / "fit" / "chain.h5"), read_only=True).get_chain()[-100:]
-    draws = draws.reshape(-1, 16)
+    draws = draws.reshape(-1, draws.shape[-1])
     shapes = np.column_stack([draws[:, :3], np.exp(draws[:, 3:6]), draws[:, 6:9], np.exp(draws[:, 9])])
     v_raw = np.array([float(ne.volume(ne.from_vector(x))) for x in shapes[::8]])
     z_raw = (v_raw.mean() - v_true) / v_raw.std()

@@ -162,10 +162,10 @@ def add_parser(sub) -> argparse.ArgumentParser:
     fp.add_argument(
         "--lag",
         choices=["known", "sampled"],
-        default="known",
-        help="recording (.nc) only: the taxels' response lag: known (the value in models/taxels.toml, default) or "
-        "sampled over its prior range ([raw_priors] lag_min-lag_max of models/priors.toml; for a finger whose lag "
-        "is not the models')",
+        default=None,
+        help="recording (.nc) only: the taxels' response lag: sampled over its prior range ([raw_priors] "
+        "lag_min-lag_max of models/priors.toml; default: no calibration measures it) or known (the value in "
+        "models/taxels.toml)",
     )
     fp.add_argument(
         "--stride",
@@ -271,7 +271,7 @@ def _run_parts(args) -> int:
             ("--precision", args.precision != "auto"),
             (
                 "--texture/--stride/--calibration/--lag",
-                args.texture != "auto" or args.stride or args.calibration or args.lag != "known",
+                args.texture != "auto" or args.stride or args.calibration or args.lag is not None,
             ),
         )
         if used
@@ -392,7 +392,7 @@ def _run_fit(args) -> int:
             texture=args.texture,
             stride=args.stride,
             calibration=args.calibration,
-            lag=args.lag,
+            lag=args.lag or "sampled",
             **common,
         ).results
     else:
@@ -400,7 +400,7 @@ def _run_fit(args) -> int:
             raise BadInput("--ffd-tau goes with --ffd (the FFD lattice whose displacements it scales)")
         if args.size_prior is not None and args.ffd is not None:
             raise BadInput("--size-prior: the FFD-marginalised fit keeps its own prior; use one of --size-prior, --ffd")
-        if args.texture != "auto" or args.stride is not None or args.calibration is not None or args.lag != "known":
+        if args.texture != "auto" or args.stride is not None or args.calibration is not None or args.lag is not None:
             raise BadInput(
                 "--texture, --stride, --calibration and --lag apply to a recording (.nc), not to contact points (.csv)"
             )

@@ -27,6 +27,7 @@ from bayestouch.inference.raw.data import (
 from bayestouch.inference.raw.fit import (
     BARE_STRIDE,
     DETECT_NATS,
+    LAG_RESTART,
     MISFIT_K,
     RAW_PREDICTIVE_DRAWS,
     RAW_PROPOSAL_NU,
@@ -34,6 +35,7 @@ from bayestouch.inference.raw.fit import (
     initial_raw_theta,
     misfit_warnings,
     raw_model,
+    raw_polisher,
     run_raw_fit,
     texture_start,
 )
@@ -98,6 +100,7 @@ __all__ = [
     "raw_log_prob_batch",
     "search_texture",
     "initial_raw_texture",
+    "raw_polisher",
     "TextureStart",
     "roughness_variance",
     "textured_bounds",
@@ -108,6 +111,7 @@ __all__ = [
     "curvature_adjustment",
     "Adjustment",
     "DETECT_NATS",
+    "LAG_RESTART",
     "TEXTURE_STRIDE",
     "BARE_STRIDE",
     "ADJUST_BLOCK_S",

@@ -10,6 +10,7 @@ import os
 import time
 from functools import partial
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -63,6 +64,7 @@ from bayestouch.params import MODELS
 
 __all__ = [
     "initial_raw_theta",
+    "raw_polisher",
     "texture_start",
     "NUISANCE_ROUNDS",
     "raw_model",
@@ -73,6 +75,7 @@ __all__ = [
     "TEXTURE_STRIDE",
     "BARE_STRIDE",
     "RAW_PROPOSAL_NU",
+    "LAG_RESTART",
     "run_raw_fit",
 ]
 
@@ -110,28 +113,40 @@ def initial_raw_theta(
     (:func:`~bayestouch.inference.optimize.scaled_lbfgs`). With few strokes the surface patches leave the global
     shape multimodal, so ``starts`` DE fits (seeds 1000·seed + k) are polished and the best log-posterior wins.
     """
+    polish = raw_polisher(data, finger, bounds, nu)
+    best_th, best_f = None, np.inf
+    for k in range(starts):
+        th = initial_theta(contact_points, int(seed) * 1000 + k, priors, starts=1)
+        th[10] = np.log(30.0)
+        th, val = polish(th)
+        if val < best_f:
+            best_th, best_f = th, val
+    return best_th
+
+
+def raw_polisher(data: RawData, finger, bounds: cm.Bounds, nu: float = STUDENT_NU):
+    """The bare shape's polish on the raw log-posterior of ``data``: a function θ (11,) → (θ polished, its negative
+    log-posterior), L-BFGS-B in scaled variables (:func:`~bayestouch.inference.optimize.scaled_lbfgs`).
+
+    With the device terms marginalised the log-posterior is rugged (the readings' levels no longer pin the size):
+    θ is polished first with them fixed at their posterior means at θ, a known device's smooth landscape, and
+    re-estimated there (:data:`NUISANCE_ROUNDS` rounds), then on the marginal log-posterior itself."""
     lo, hi = np.asarray(bounds.lower), np.asarray(bounds.upper)
     fn = jax.jit(jax.value_and_grad(lambda t: -raw_log_prob(t, data, finger, bounds, nu)))
     marginal = data.gain_sd is not None or data.response_sd is not None
     fn_fixed = jax.jit(
         jax.value_and_grad(lambda t, a, d: -raw_log_prob(t, with_nuisance_fixed(data, a, d), finger, bounds, nu))
     )
-    best_th, best_f = None, np.inf
-    for k in range(starts):
-        th = initial_theta(contact_points, int(seed) * 1000 + k, priors, starts=1)
-        th[10] = np.log(30.0)
-        th = np.clip(th, lo + 1e-6 * (hi - lo), hi - 1e-6 * (hi - lo))
+
+    def polish(th):
+        th = np.clip(np.asarray(th, float), lo + 1e-6 * (hi - lo), hi - 1e-6 * (hi - lo))
         for _ in range(NUISANCE_ROUNDS if marginal else 0):
-            # with the device terms marginalised the log-posterior is rugged (the readings' levels no longer pin
-            # the size): polish first with them fixed at their posterior means at θ, a known device's smooth
-            # landscape, and re-estimate them there
             a, d = nuisance_estimates(th, data, finger, nu)
             th, _ = scaled_lbfgs(partial(fn_fixed, a=a, d=d), th, lo, hi, RAW_OPT_SCALE[:11])
         th, _ = scaled_lbfgs(fn, th, lo, hi, RAW_OPT_SCALE[:11])
-        val = float(fn(jnp.asarray(th))[0])
-        if val < best_f:
-            best_th, best_f = th, val
-    return best_th
+        return th, float(fn(jnp.asarray(th))[0])
+
+    return polish
 
 
 def texture_start(th0, data: RawData, finger, priors: cm.PriorParams, tp: gr.TexturePriors, seed: int = 0):
@@ -334,6 +349,101 @@ BARE_STRIDE = 5
 RAW_PROPOSAL_NU = 30.0
 
 
+#: with the lag sampled, the start is made again at the lag its polish reached when that lies more than this far
+#: from the lag the start assumed (in log τ: 5 %, a third of the lag range's half-width)
+LAG_RESTART = 0.05
+
+
+class _StartSetup(NamedTuple):
+    """What every start of :func:`run_raw_fit` reads: the recording and the run's options."""
+
+    ds: object
+    models: Path
+    stride: int | None
+    radius: float
+    strokes: object
+    cal: DeviceCalibration | None
+    texture: str
+    seed: int
+    starts: int
+    prune: bool
+    sampled: bool
+
+
+class _Start(NamedTuple):
+    """One start of :func:`run_raw_fit`: the data to sample (pruned), the finger, the bare shape θ₀ (11,), the
+    texture (None: bare), the start θ with its prior box and jitted negative log-posterior (value, gradient), the
+    texture search's record, and with a sampled lag the negative log-posterior at θ (``objective``, nats)."""
+
+    data: RawData
+    finger: object
+    th0: np.ndarray
+    texture: RawTexture | None
+    theta: np.ndarray
+    bounds: cm.Bounds
+    nlp: object
+    search: dict | None
+    objective: float | None
+
+
+def _raw_start(setup: _StartSetup, host, priors: cm.PriorParams, th0=None) -> _Start:
+    """The start on the finger ``host`` (its lag the one assumed where the lag is sampled): the bare shape (``th0``
+    polished on this finger, or :func:`initial_raw_theta`'s DE starts), the texture search (:func:`texture_start`),
+    the data pruned at the start, and with a sampled lag log τ appended and polished with the rest."""
+    s = setup
+    finger = host.finger
+    # the bare shape at the coarse stride (coarse for speed, never coarser than a stride the user gave: a short
+    # recording may need every frame)
+    bare_stride = (
+        BARE_STRIDE if s.stride is None else int(s.stride) if s.texture == "off" else min(BARE_STRIDE, int(s.stride))
+    )
+    dev = {"device": host, "calibration": s.cal}
+    bare_data, _ = load_raw_data(s.ds, models=s.models, stride=bare_stride, radius=s.radius, strokes=s.strokes, **dev)
+    bare_bounds = raw_bounds(bare_data, priors)
+    if th0 is None:
+        points = commanded_points(s.ds, bare_data.frames)
+        th0 = initial_raw_theta(bare_data, finger, points, s.seed, priors, bare_bounds, starts=s.starts)
+    else:
+        th0, _ = raw_polisher(bare_data, finger, bare_bounds)(th0)
+    data, tex, search = bare_data, None, None
+    if s.texture != "off":
+        data, _ = load_raw_data(
+            s.ds, models=s.models, stride=s.stride or TEXTURE_STRIDE, radius=s.radius, strokes=s.strokes, **dev
+        )
+        ts = texture_start(th0, data, finger, priors, gr.load_texture_priors(), s.seed)
+        planes = ("x-y", "x-z", "y-z")
+        search = {
+            "candidates": [
+                {"plane": planes[p], "wavelength_m": lam, "orientation_rad": o, "statistic": st}
+                for p, lam, o, st in ts.candidates
+            ],
+            "grating_gain_nats": ts.gain,
+            "detect_nats": DETECT_NATS,
+            "requested": s.texture,
+        }
+        if s.texture == "on" or ts.gain > DETECT_NATS:
+            tex, theta, bounds, nlp = ts.texture, ts.theta, ts.bounds, ts.neg_log_post
+        elif s.stride is None:
+            data = bare_data
+    if tex is None:
+        theta = th0
+    if s.prune:
+        data = prune_clear(data, theta, tex)
+    if tex is None:
+        bounds = raw_bounds(data, priors)
+        nlp = jax.jit(jax.value_and_grad(lambda t: -raw_log_prob(t, data, finger, bounds)))
+    objective = None
+    if s.sampled:
+        # the lag joins θ as its last column, started at the lag assumed and polished with the rest
+        data = data._replace(lag_prior=LAG_RANGE)
+        bounds = with_lag_bounds(bounds, LAG_RANGE)
+        theta = np.append(theta, np.log(float(finger.taxels.lag)))
+        nlp = jax.jit(jax.value_and_grad(lambda t: -raw_log_prob(t, data, finger, bounds, STUDENT_NU, tex)))
+        lo, hi = np.asarray(bounds.lower), np.asarray(bounds.upper)
+        theta, objective = scaled_lbfgs(nlp, theta, lo, hi, opt_scale(tex is not None, True))
+    return _Start(data, finger, th0, tex, theta, bounds, nlp, search, objective)
+
+
 def run_raw_fit(
     recording,
     out,
@@ -355,7 +465,7 @@ def run_raw_fit(
     prune: bool = True,
     overwrite: bool = False,
     calibration=None,
-    lag: str = "known",
+    lag: str = "sampled",
 ) -> dict:
     """Sample the raw-current posterior of a recording and write the run folder ``out``.
 
@@ -399,12 +509,13 @@ def run_raw_fit(
         The finger's device file (``bayestouch calibrate``): its per-taxel gains are divided out and their standard
         errors marginalised. Without it the gains are unknown (1 ± the nominal spread of ``models/noise.toml``,
         marginalised per taxel). The recording's simulator seed is never read.
-    lag : {"known", "sampled"}
-        The taxels' response lag τ: "known" (the finger's, ``models/taxels.toml``; the default) or "sampled" (log τ,
-        uniform in τ over ``[raw_priors] lag_min``–``lag_max`` of ``models/priors.toml``; no calibration measures
-        it, and it scales a texture's signal as its amplitude does: on drawn fingers it holds the amplitude's
-        coverage, but its start at the range's middle can send the texture search to a neighbouring period on a
-        finger at the range's edge, ``docs/raw_model.md``).
+    lag : {"sampled", "known"}
+        The taxels' response lag τ: "sampled" (the default: log τ, uniform in τ over ``[raw_priors]``
+        ``lag_min``–``lag_max`` of ``models/priors.toml``; no calibration measures it, and it scales a texture's
+        signal as its amplitude does) or "known" (the finger's, ``models/taxels.toml``). A sampled lag's start
+        assumes the range's middle; where its polish moves the lag more than :data:`LAG_RESTART` away, the bare
+        shape and the texture search are done again at the lag reached and the better start is kept
+        (``summary.model.lag_starts``, ``docs/raw_model.md``).
     prune : bool
         Sample without the taxel slots more than :data:`~bayestouch.inference.raw.likelihood.PRUNE_MARGIN` outside
         the start's surface (:func:`prune_clear`), checked on the draws afterwards (``summary.model.pruning``).
@@ -468,61 +579,32 @@ def run_raw_fit(
         out, fingerprint("raw", {"recording": dataset_digest(ds)}, options), resume=resume, overwrite=overwrite
     )
     priors = cm.load_priors()
-    # the bare shape: DE on the commanded contact points, then L-BFGS-B on the raw posterior at the coarse stride
-    # (coarse for speed, never coarser than a stride the user gave: a short recording may need every frame)
-    bare_stride = BARE_STRIDE if stride is None else int(stride) if texture == "off" else min(BARE_STRIDE, int(stride))
-    dev = {"device": host, "calibration": cal}
-    bare_data, _ = load_raw_data(ds, models=models, stride=bare_stride, radius=radius, strokes=strokes, **dev)
-    th0 = initial_raw_theta(
-        bare_data,
-        finger,
-        commanded_points(ds, bare_data.frames),
-        seed,
-        priors,
-        raw_bounds(bare_data, priors),
-        starts=starts,
-    )
-    data, tex = bare_data, None
     info = {
         "calibration": "no calibration: unit gains, the nominal spread of models/noise.toml"
         if cal is None
         else f"device file {cal_name or '(given)'}, {cal.info.get('object', 'unknown object')}, mode {cal.mode}"
     }
-    if texture != "off":
-        data, _ = load_raw_data(
-            ds, models=models, stride=stride or TEXTURE_STRIDE, radius=radius, strokes=strokes, **dev
-        )
-        tp = gr.load_texture_priors()
-        ts = texture_start(th0, data, finger, priors, tp, seed)
-        planes = ("x-y", "x-z", "y-z")
-        info["texture_search"] = {
-            "candidates": [
-                {"plane": planes[p], "wavelength_m": lam, "orientation_rad": o, "statistic": st}
-                for p, lam, o, st in ts.candidates
-            ],
-            "grating_gain_nats": ts.gain,
-            "detect_nats": DETECT_NATS,
-            "requested": texture,
-        }
-        if texture == "on" or ts.gain > DETECT_NATS:
-            tex, th_start, bounds, nlp = ts.texture, ts.theta, ts.bounds, ts.neg_log_post
-        elif stride is None:
-            data = bare_data
-    if tex is None:
-        th_start = th0
-    if prune:
-        data = prune_clear(data, th_start, tex)
-    if tex is None:
-        bounds = raw_bounds(data, priors)
-        nlp = jax.jit(jax.value_and_grad(lambda t: -raw_log_prob(t, data, finger, bounds)))
-    scale = opt_scale(tex is not None, lag == "sampled")
+    setup = _StartSetup(ds, models, stride, radius, strokes, cal, texture, seed, starts, prune, lag == "sampled")
+    st = _raw_start(setup, host, priors)
     if lag == "sampled":
-        # the lag joins θ as its last column, started where the start was found and polished with the rest
-        data = data._replace(lag_prior=LAG_RANGE)
-        bounds = with_lag_bounds(bounds, LAG_RANGE)
-        th_start = np.append(th_start, np.log(float(finger.taxels.lag)))
-        nlp = jax.jit(jax.value_and_grad(lambda t: -raw_log_prob(t, data, finger, bounds, STUDENT_NU, tex)))
-        th_start, _ = scaled_lbfgs(nlp, th_start, np.asarray(bounds.lower), np.asarray(bounds.upper), scale)
+        # the bare shape and the texture search assume one lag; where the polish moved it well away from the
+        # range's middle, both are done again at the lag it reached and the better start is kept (from the
+        # middle, a finger at the range's end can send the search to a neighbouring period)
+        reached = float(np.exp(st.theta[-1]))
+        tried = [{"lag_s": float(host.finger.taxels.lag), "reached_s": reached, "neg_log_post": st.objective}]
+        if abs(np.log(reached / float(host.finger.taxels.lag))) > LAG_RESTART:
+            again_host = host._replace(finger=host.finger._replace(taxels=host.finger.taxels._replace(lag=reached)))
+            again = _raw_start(setup, again_host, priors, th0=st.th0)
+            tried.append(
+                {"lag_s": reached, "reached_s": float(np.exp(again.theta[-1])), "neg_log_post": again.objective}
+            )
+            if again.objective < st.objective:
+                st = again
+        info["lag_starts"] = tried
+    data, finger, tex, th_start, bounds, nlp = st.data, st.finger, st.texture, st.theta, st.bounds, st.nlp
+    if st.search is not None:
+        info["texture_search"] = st.search
+    scale = opt_scale(tex is not None, lag == "sampled")
     logp, _, names = make_raw_log_prob(data, finger, priors, texture=tex, bounds=bounds)
     if walkers < 2 * len(names):  # emcee's ensemble moves need two walkers per dimension
         info["walkers"] = f"raised from {walkers} to {2 * len(names)}: two per sampled parameter"
