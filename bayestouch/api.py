@@ -443,8 +443,8 @@ def fit(
         ``ffd`` ((l, m, k) control points or ``"LxMxK"``), ``ffd_tau`` (m), ``size_prior`` ((min, max) m or
         ``"MIN:MAX"``), ``free`` ((K, 3) m), ``init``, ``precision``
         (:func:`bayestouch.inference.run.run_contact_fit`). Recording: ``texture``, ``stride``, ``calibration``
-        (a device file path or :class:`~bayestouch.io.device_file.DeviceCalibration`), ``lag`` ("sampled" or
-        "known"; :func:`bayestouch.inference.raw.run_raw_fit`).
+        (a device file path or :class:`~bayestouch.io.device_file.DeviceCalibration`), ``lag`` ("sampled", the
+        default, or "known"; :func:`bayestouch.inference.raw.run_raw_fit`).
 
     Returns
     -------
