@@ -350,7 +350,7 @@ RAW_PROPOSAL_NU = 30.0
 
 
 #: with the lag sampled, the start is made again at the lag its polish reached when that lies more than this far
-#: from the lag the start assumed (in log τ: 5 %, a third of the lag range's half-width)
+#: from the lag the start assumed (in log τ: 5 %, a quarter of the lag range's half-width)
 LAG_RESTART = 0.05
 
 
