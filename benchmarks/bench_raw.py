@@ -91,6 +91,7 @@ def bench_raw_log_prob(ds_obj=None):
 def bench_raw_fit(steps: int = 3000, ds_obj=None):
     from bayestouch.geometry import nellipsoid as ne
     from bayestouch.inference import raw
+    from bayestouch.physics.taxel import load_taxels
 
     ds, obj = ds_obj or _recording()
     out = []
@@ -123,8 +124,6 @@ def bench_raw_fit(steps: int = 3000, ds_obj=None):
             "texture_sampled": "amplitude" in p,
         }
         if "lag" in p:  # the finger's lag is the models' (the standard scenario's nominal finger)
-            from bayestouch.physics.taxel import load_taxels
-
             row["lag_s"] = [p["lag"]["mean"], p["lag"]["sd"], float(load_taxels().lag)]
             row["lag_starts"] = len(s["model"]["lag_starts"])
         if "amplitude" in p:

@@ -357,6 +357,10 @@ class HostDevice(NamedTuple):
     response_scale: float
     response_sd: float
 
+    def with_lag(self, lag: float) -> HostDevice:
+        """The same host assuming the taxels' response lag ``lag`` (s)."""
+        return self._replace(finger=self.finger._replace(taxels=self.finger.taxels._replace(lag=float(lag))))
+
 
 def recording_mode(ds, where: str, calibration: DeviceCalibration | None = None) -> str:
     """The taxel mode a recording was made in (its ``mode`` attribute, default ``physics``); :class:`BadInput`

@@ -548,8 +548,7 @@ def run_raw_fit(
     host = host_device(Path(models), cal)
     if lag == "sampled":  # one value where one is needed (the start, the texture search, the reference row): the
         # middle of the lag's range, so that neither end is more than half the range off
-        mid = float(np.sqrt(LAG_RANGE[0] * LAG_RANGE[1]))
-        host = host._replace(finger=host.finger._replace(taxels=host.finger.taxels._replace(lag=mid)))
+        host = host.with_lag(np.sqrt(LAG_RANGE[0] * LAG_RANGE[1]))
     finger = host.finger
     # before the run folder is made (or a finished run in it set aside): a refused fit leaves nothing behind
     check_taxel_layout(ds, finger, where)
@@ -593,8 +592,7 @@ def run_raw_fit(
         reached = float(np.exp(st.theta[-1]))
         tried = [{"lag_s": float(host.finger.taxels.lag), "reached_s": reached, "neg_log_post": st.objective}]
         if abs(np.log(reached / float(host.finger.taxels.lag))) > LAG_RESTART:
-            again_host = host._replace(finger=host.finger._replace(taxels=host.finger.taxels._replace(lag=reached)))
-            again = _raw_start(setup, again_host, priors, th0=st.th0)
+            again = _raw_start(setup, host.with_lag(reached), priors, th0=st.th0)
             tried.append(
                 {"lag_s": reached, "reached_s": float(np.exp(again.theta[-1])), "neg_log_post": again.objective}
             )
