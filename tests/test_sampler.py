@@ -373,7 +373,7 @@ def test_adaptive_run_recovers_the_known_posterior_with_a_short_autocorrelation_
         adapt=True,
         **KNOWN,
     )
-    assert ch.tau_steps == KNOWN["steps"] - 100 and ch.burn >= 100
+    assert ch.burn >= 100 and ch.tau_steps == KNOWN["steps"] - ch.burn  # τ of the kept draws
     assert _agrees(ch, mean, cov)
     assert ch.tau_max < de_chain.tau_max / 3, (ch.tau_max, de_chain.tau_max)
 
@@ -449,7 +449,7 @@ def test_a_given_proposal_starts_at_step_0_keeps_the_target_and_a_better_fit_rep
         moves=adaptive_moves(30.0),
         **KNOWN,
     )
-    assert exact.tau_steps is None and exact.burn == KNOWN["steps"] // 4  # no adaptation stretch skipped
+    assert exact.burn == KNOWN["steps"] // 4 and exact.tau_steps == KNOWN["steps"] - exact.burn  # none skipped
     assert _agrees(exact, mean, cov)
     assert exact.tau_max < 2.0, exact.tau_max
     poor = (mean + 1.5 * np.sqrt(np.diag(cov)), 0.25 * cov)
@@ -542,8 +542,11 @@ def test_convergence_checks_map_each_step_through_the_monitor_once(tmp_path):
     ch = sample(f, _start(), tmp_path / "a.h5", adapt=True, monitor=counting, **kw)
     assert ch.steps < 2000 and sum(rows) == ch.steps * 32
     assert len(rows) > 3  # several checks, each mapping its own new steps
-    full = _full_chain(tmp_path / "a.h5")
-    tau, burn, _ = _tau_and_burn(full[:, :, :2] ** 2, True)
+    import emcee
+
+    back = emcee.backends.HDFBackend(str(tmp_path / "a.h5"), read_only=True)
+    full, lp = back.get_chain(), back.get_log_prob()
+    tau, burn, _ = _tau_and_burn(full[:, :, :2] ** 2, True, log_prob=lp)
     assert ch.tau_max == float(np.max(tau)) and ch.burn == burn
 
 
@@ -641,3 +644,60 @@ def test_proposals_of_a_degenerate_ensemble_are_finite():
     assert np.all(np.isfinite(y))
     ok = np.random.default_rng(2).normal(size=(50, 3))
     assert np.array_equal(finite_proposals(ok), ok)
+
+
+def _ar1(n, walkers, dims, phi, rng):
+    """Stationary AR(1) series (n, walkers, dims) of unit variance: integrated time (1 + φ)/(1 − φ)."""
+    x = np.empty((n, walkers, dims))
+    x[0] = rng.standard_normal((walkers, dims))
+    e = rng.standard_normal((n, walkers, dims)) * np.sqrt(1 - phi**2)
+    for t in range(1, n):
+        x[t] = phi * x[t - 1] + e[t]
+    return x
+
+
+def test_tau_is_that_of_the_kept_draws_not_of_the_climb_before_them():
+    """A chain that climbs for its first fifth (a drift of 30 sd, as walkers started 40 nats below the posterior
+    do) and then mixes with τ = 19 steps: τ is estimated on the draws kept, and the length rule and convergence
+    follow it. Negative control: the same climb spread over the whole chain is never stationary, and its τ stays
+    that of the drift (hundreds of steps)."""
+    from bayestouch.inference.sampler import _tau_and_burn
+
+    rng = np.random.default_rng(7)
+    n, w, d, phi = 4000, 32, 3, 0.9  # τ = 1.9 / 0.1 = 19
+    x = _ar1(n, w, d, phi, rng)
+    climb = np.clip(1 - np.arange(n) / (0.2 * n), 0, None)[:, None, None] * 30.0
+    tau, burn, length = _tau_and_burn(x - climb, adapt=False)
+    assert burn >= 0.2 * n and length == n - burn  # the climb's apparent τ (> 2 τ) sets a burn-in past it
+    assert np.all(np.abs(tau - 19) < 4), tau  # emcee's estimator on 2000 × 32 draws: a few % error
+    assert length > 50 * tau.max()
+    # before: τ over the whole chain, climb included
+    from bayestouch.inference.sampler import integrated_time
+
+    assert integrated_time(x - climb).max() > 150
+    drift = np.linspace(30, 0, n)[:, None, None]
+    tau_d, _, length_d = _tau_and_burn(x - drift, adapt=False)
+    assert tau_d.max() > 100 and length_d < 50 * tau_d.max(), tau_d
+
+
+def test_burn_in_lasts_until_the_last_walker_reaches_the_typical_set():
+    """A walker that climbs for 1,500 of 4,000 steps while the rest start in the typical set: the burn-in runs past
+    its climb (the other walkers alone would have allowed 1,000 steps); an ensemble started in the typical set
+    arrives within a few steps; a walker that never arrives keeps only the second half."""
+    from bayestouch.inference.sampler import _tau_and_burn, arrival_step
+
+    rng = np.random.default_rng(8)
+    n, w = 4000, 32
+    lp = rng.standard_normal((n, w)) * 2.5  # a 13-parameter posterior's log-density: sd √(13/2)
+    assert arrival_step(lp) < 20
+    late = lp.copy()
+    late[:, 5] -= np.clip(1 - np.arange(n) / 1500, 0, None) * 40
+    assert 1300 < arrival_step(late) <= 1500
+    x = _ar1(n, w, 2, 0.5, rng)
+    _, burn, _ = _tau_and_burn(x, adapt=False, log_prob=lp)
+    _, burn_late, _ = _tau_and_burn(x, adapt=False, log_prob=late)
+    assert burn == n // 4 and 1300 < burn_late <= 1500
+    stuck = lp.copy()
+    stuck[:, 5] -= 40
+    assert arrival_step(stuck) == n
+    assert _tau_and_burn(x, adapt=False, log_prob=stuck)[1] == n // 2

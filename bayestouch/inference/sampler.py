@@ -87,8 +87,7 @@ class Chain(NamedTuple):
     seconds : float
         Wall-clock time of this call.
     tau_steps : int or None
-        Length (steps) of the stretch of chain τ was estimated on, when not the whole chain: an adaptive run
-        estimates τ after its first adaptation, where the kernel of the kept draws begins.
+        Length (steps) of the stretch of chain τ was estimated on: the kept draws (:func:`_tau_and_burn`).
     """
 
     kept: np.ndarray
@@ -604,21 +603,48 @@ def fewest_kept_steps(steps: int, adapt: bool, first: int = ADAPT_FIRST) -> int:
     return seg - _burn_in(seg, float("nan"))
 
 
+def arrival_step(log_prob) -> int:
+    """The first step by which every walker has reached the posterior's typical set: the largest over walkers of
+    the first step whose log-density (``log_prob (n, W)``) is at least the median of the second half's (all
+    walkers pooled). An ensemble started in the typical set arrives within a few steps (each step above the
+    median with probability about ½ once there); one climbing towards it, when its last walker gets there; a
+    walker that never does gives n."""
+    lp = np.asarray(log_prob, float)
+    n = lp.shape[0]
+    tail = lp[n // 2 :]
+    if n < 2 or not np.isfinite(tail).any():
+        return 0
+    above = lp >= np.median(tail[np.isfinite(tail)])
+    first = np.where(above.any(axis=0), np.argmax(above, axis=0), n)
+    return int(first.max())
+
+
 def _tau_and_burn(
-    chain: np.ndarray, adapt: bool, first: int = ADAPT_FIRST, thin: bool = False
+    chain: np.ndarray, adapt: bool, first: int = ADAPT_FIRST, thin: bool = False, log_prob=None
 ) -> tuple[np.ndarray, int, int]:
-    """Integrated autocorrelation times (D,) of ``chain (n, W, D)``, the burn-in and the length of the stretch τ
-    was estimated on. An adaptive chain is judged after its first adaptation (step ``first``), where the
-    kernel of its kept draws begins; burn-in there is :func:`_burn_in` of that stretch. ``thin``: τ of a long
-    chain from a thinned copy (:func:`_thinned_time`; the convergence checks), whose largest τ only is exact."""
+    """Integrated autocorrelation times (D,) of the kept draws of ``chain (n, W, D)``, the burn-in and the length of
+    the kept stretch τ was estimated on.
+
+    An adaptive chain is judged after its first adaptation (step ``first``), where the kernel of its kept draws
+    begins. The burn-in is :func:`_burn_in` of that stretch with τ of the whole stretch, and at least the step at
+    which the walkers arrived in the typical set (:func:`arrival_step` of ``log_prob (n, W)``, when given), at most
+    half the stretch; τ itself is then estimated on the draws kept. A τ estimated over a climb measures the climb,
+    not the chain's mixing: an SBC fit whose walkers climbed 45 nats in their first 5,000 steps and then mixed with
+    τ ≈ 40 steps reported τ = 2,000 and "not converged" after 20,000 steps (``docs/sbc.md``). ``thin``: τ of a
+    long chain from a thinned copy (:func:`_thinned_time`; the convergence checks), whose largest τ only is
+    exact."""
     skip = _skipped(chain.shape[0], adapt, first)
     seg = chain[skip:]
+    time_of = _thinned_time if thin else integrated_time
     if len(seg) <= 1:
-        tau = np.full(chain.shape[2], np.nan)
-    else:
-        tau = _thinned_time(seg) if thin else integrated_time(seg)
-    tau_max = float(np.nanmax(tau)) if np.isfinite(tau).any() else float("nan")
-    return tau, skip + _burn_in(len(seg), tau_max), len(seg)
+        return np.full(chain.shape[2], np.nan), skip + _burn_in(len(seg), float("nan")), len(seg)
+    whole = time_of(seg)
+    burn = _burn_in(len(seg), float(np.nanmax(whole)) if np.isfinite(whole).any() else float("nan"))
+    if log_prob is not None:
+        burn = min(len(seg) // 2, max(burn, arrival_step(np.asarray(log_prob, float)[skip:])))
+    kept = seg[burn:]
+    tau = time_of(kept) if len(kept) > 1 else np.full(chain.shape[2], np.nan)
+    return tau, skip + burn, len(kept)
 
 
 def _next_check(length: int, check_every: int) -> int:
@@ -919,7 +945,8 @@ def sample(
                         next_check = _next_check(first + i, check_every)
                         flush()
                         chain = seen.extend(backend.get_chain())
-                        tau, burn, length = _tau_and_burn(chain, adapt, skip_to, thin=True)
+                        lp_now = backend.get_log_prob()
+                        tau, burn, length = _tau_and_burn(chain, adapt, skip_to, thin=True, log_prob=lp_now)
                         if old_tau is not None and _looks_converged(chain, tau, old_tau, burn, length):
                             break
                         old_tau = tau
@@ -932,7 +959,7 @@ def sample(
     chain = backend.get_chain()
     lp = backend.get_log_prob()
     n_done = chain.shape[0]
-    tau, burn, length = _tau_and_burn(seen.extend(chain), adapt, skip_to)
+    tau, burn, length = _tau_and_burn(seen.extend(chain), adapt, skip_to, log_prob=lp)
     tau_max = float(np.nanmax(tau)) if np.isfinite(tau).any() else float("nan")
     acc = float(np.mean(sampler.acceptance_fraction)) if todo > 0 and sampler.iteration > 0 else None
     return Chain(
@@ -949,8 +976,8 @@ def sample(
 
 
 def convergence(r_hat, ess_bulk, chain: Chain) -> dict:
-    """Diagnostics of a run: converged only when every R-hat < 1.01, every bulk ESS > 400 and the chain is longer
-    than 50 autocorrelation times (never claimed otherwise)."""
+    """Diagnostics of a run: converged only when every R-hat < 1.01, every bulk ESS > 400 and the stretch τ was
+    estimated on (the kept draws) is longer than 50 autocorrelation times (never claimed otherwise)."""
     max_rhat = float(np.max(r_hat))
     min_ess = float(np.min(ess_bulk))
     length = chain.steps if chain.tau_steps is None else chain.tau_steps
