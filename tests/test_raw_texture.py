@@ -136,9 +136,12 @@ def test_textured_raw_fit_detects_and_recovers_the_grating(tmp_path, textured):
     detected and sampled; wavelength, orientation (measured from the long axis, in the grating's principal plane),
     amplitude and roughness come out near the truth, and the summary and posterior.nc carry them.
 
-    The finger's lag is the models' 0.15 s, the range's upper end. The start at the range's middle polishes to
-    ~0.143 s with a grating of 2.21 mm (a neighbouring period); the second start, made at the lag reached, finds
-    the 2 mm grating ~9,500 nats higher, and it is kept (before the second start, this fit reported 2.21 mm)."""
+    The finger's lag is the models' 0.15 s, the range's upper end, and the start at the range's middle polishes to
+    ~0.146 s, so the second start, made at the lag reached, runs too. Both find the 2 mm grating now (their
+    log-posteriors within 100 nats); before the search's strongest candidates were polished
+    (:data:`~bayestouch.inference.raw.texture.BY_STATISTIC`) the first start settled on 2.21 mm (a neighbouring
+    period) and only the second start, ~9,500 nats higher, found 2 mm; before the second start, this fit reported
+    2.21 mm."""
     ds, obj = textured
     s = raw.run_raw_fit(
         ds, tmp_path / "fit", seed=0, walkers=32, steps=300, progress=False, starts=2, stop_when_converged=False
@@ -149,7 +152,7 @@ def test_textured_raw_fit_detects_and_recovers_the_grating(tmp_path, textured):
     assert s["model"]["parameters_sampled"] == list(raw.raw_names(True, True))
     assert s["model"]["texture_search"]["grating_gain_nats"] > raw.DETECT_NATS
     starts = s["model"]["lag_starts"]
-    assert len(starts) == 2 and starts[1]["neg_log_post"] < starts[0]["neg_log_post"] - 1000, starts
+    assert len(starts) == 2 and abs(starts[1]["neg_log_post"] - starts[0]["neg_log_post"]) < 100, starts
     assert abs(np.log(starts[0]["reached_s"] / starts[0]["lag_s"])) > raw.LAG_RESTART, starts
     assert abs(p["lag"]["mean"] - 0.15) < 0.01 and raw.LAG_RANGE[0] <= p["lag"]["q05"] <= p["lag"]["q95"], p["lag"]
     pr = s["model"]["pruning"]
@@ -237,3 +240,43 @@ def test_sampled_lag_is_identified_where_the_finger_has_it(lag):
     assert abs(best - lag) <= 0.005 + 1e-9, (best, ll)
     print("lag", lag, "log-likelihood above the models' 0.15 s:", ll.max() - ll[np.argmin(np.abs(taus - 0.15))])
     assert ll.max() - ll[np.argmin(np.abs(taus - 0.15))] > 10.0, ll
+
+
+def test_polish_order_keeps_the_strongest_search_candidates_beside_the_linearised_best():
+    """The candidates polished: the ``polish`` best by the linearised fit and the strongest by the search statistic,
+    each once, in ranked order; with ``by_statistic=0`` (the rule before) the strongest candidate ranked 11th of 15
+    by the linearised fit (bench_mismatch scenario 10's real grating) is left out."""
+    from bayestouch.inference.raw.texture import BY_STATISTIC, polish_order
+
+    values = list(range(15, 0, -1))  # sorted best first
+    stats = [600.0] * 15
+    stats[10], stats[8] = 2655.0, 1180.0
+    assert BY_STATISTIC >= 1 and 10 in polish_order(values, stats, 6)  # the default keeps it
+    assert polish_order(values, stats, 6, by_statistic=2) == [0, 1, 2, 3, 4, 5, 8, 10]
+    assert 10 in polish_order(values, stats, 6, by_statistic=1)
+    assert polish_order(values, stats, 6, by_statistic=0) == [0, 1, 2, 3, 4, 5]
+    assert polish_order(values, [2655.0] + stats[1:], 6, by_statistic=1) == [0, 1, 2, 3, 4, 5]  # no duplicates
+    assert polish_order(values[:3], stats[:3], 6) == [0, 1, 2]
+
+
+@pytest.mark.slow
+def test_texture_start_finds_the_grating_the_linearised_ranking_puts_eleventh(tmp_path):
+    """bench_mismatch scenario 10 (a drawn finger with a response lag of 0.107 s, calibrated on the sphere; the
+    textured egg from 10 strokes): the search's strongest candidate is the 1.99 mm grating, but its linearised fit
+    ranked it 11th of 15, below near-zero patterns, and the start settled on a 2.73 mm pattern of 6 µm (volume
+    12 sd off, amplitude −49 sd). Polished for its statistic, it gains ~20,000 nats over them and is kept."""
+    from benchmarks.bench_mismatch import CAL_DEPTHS, CAL_STROKES, STROKES, _record, perturbed_models
+
+    rng = np.random.default_rng([10, 0x3A7])
+    models = tmp_path / "models"
+    perturbed_models(rng, models)
+    device_seed = int(rng.integers(1, 2**31))
+    cal_ds, sphere = _record("sphere", models, CAL_STROKES, 1010, device_seed, CAL_DEPTHS)
+    cal = raw.calibrate_device(cal_ds, sphere)
+    ds, egg = _record("egg", models, STROKES, 2010, device_seed)
+    s = raw.run_raw_fit(
+        ds, tmp_path / "fit", seed=10, calibration=cal, progress=False, steps=60, stop_when_converged=False
+    )
+    p = s["parameters"]
+    assert s["model"]["texture_search"]["grating_gain_nats"] > 10_000
+    assert abs(p["wavelength"]["mean"] / egg.texture.wavelength - 1) < 0.01, p["wavelength"]
