@@ -43,6 +43,7 @@ __all__ = [
     "ADAPT_FIRST",
     "fewest_kept_steps",
     "finite_proposals",
+    "arrival_step",
 ]
 
 #: convergence thresholds (Vehtari et al. 2021 for R-hat and bulk ESS; emcee's docs for N > 50 τ)
@@ -630,7 +631,7 @@ def _tau_and_burn(
     which the walkers arrived in the typical set (:func:`arrival_step` of ``log_prob (n, W)``, when given), at most
     half the stretch; τ itself is then estimated on the draws kept. A τ estimated over a climb measures the climb,
     not the chain's mixing: an SBC fit whose walkers climbed 45 nats in their first 5,000 steps and then mixed with
-    τ ≈ 40 steps reported τ = 2,000 and "not converged" after 20,000 steps (``docs/sbc.md``). ``thin``: τ of a
+    τ ≈ 40 steps reported τ = 2,000 and "not converged" after 20,000 steps (``docs/contact_model.md``). ``thin``: τ of a
     long chain from a thinned copy (:func:`_thinned_time`; the convergence checks), whose largest τ only is
     exact."""
     skip = _skipped(chain.shape[0], adapt, first)
@@ -786,9 +787,9 @@ def sample(
         ``time.perf_counter()`` at the start of the whole run (default: now).
     stop_when_converged : bool
         At checks spaced by ``max(check_every, 0.1 × length)`` steps (:data:`CHECK_GROWTH`; a check reads the whole
-        chain, so a fixed spacing makes long runs quadratic in their length), stop once the chain is longer than 50
-        integrated autocorrelation times, the
-        estimate of the largest τ moved less than 5 % since the last check and R-hat and the bulk ESS of the sampled
+        chain, so a fixed spacing makes long runs quadratic in their length), stop once the draws kept after burn-in
+        span more than 50 integrated autocorrelation times (:func:`_tau_and_burn`), the estimate
+        of the largest τ moved less than 5 % since the last check and R-hat and the bulk ESS of the sampled
         parameters (or of ``monitor``'s quantities) pass (:func:`_looks_converged`).
     check_every : int, optional
         Fewest steps between convergence checks (default 50 for an adaptive run, 250 otherwise).
