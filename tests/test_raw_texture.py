@@ -248,15 +248,14 @@ def test_polish_order_keeps_the_strongest_search_candidates_beside_the_linearise
     by the linearised fit (bench_mismatch scenario 10's real grating) is left out."""
     from bayestouch.inference.raw.texture import BY_STATISTIC, polish_order
 
-    values = list(range(15, 0, -1))  # sorted best first
-    stats = [600.0] * 15
+    stats = [600.0] * 15  # in the linearised ranking's order, best first
     stats[10], stats[8] = 2655.0, 1180.0
-    assert BY_STATISTIC >= 1 and 10 in polish_order(values, stats, 6)  # the default keeps it
-    assert polish_order(values, stats, 6, by_statistic=2) == [0, 1, 2, 3, 4, 5, 8, 10]
-    assert 10 in polish_order(values, stats, 6, by_statistic=1)
-    assert polish_order(values, stats, 6, by_statistic=0) == [0, 1, 2, 3, 4, 5]
-    assert polish_order(values, [2655.0] + stats[1:], 6, by_statistic=1) == [0, 1, 2, 3, 4, 5]  # no duplicates
-    assert polish_order(values[:3], stats[:3], 6) == [0, 1, 2]
+    assert BY_STATISTIC >= 1 and 10 in polish_order(stats, 6)  # the default keeps it
+    assert polish_order(stats, 6, by_statistic=2) == [0, 1, 2, 3, 4, 5, 8, 10]
+    assert 10 in polish_order(stats, 6, by_statistic=1)
+    assert polish_order(stats, 6, by_statistic=0) == [0, 1, 2, 3, 4, 5]
+    assert polish_order([2655.0] + stats[1:], 6, by_statistic=1) == [0, 1, 2, 3, 4, 5]  # no duplicates
+    assert polish_order(stats[:3], 6) == [0, 1, 2]
 
 
 @pytest.mark.slow

@@ -238,11 +238,11 @@ def plane_theta(theta, plane: int) -> np.ndarray:
     return _reduce_psi(th)
 
 
-def polish_order(values, statistics, polish: int, by_statistic: int = BY_STATISTIC) -> list[int]:
-    """Indices of the texture candidates :func:`initial_raw_texture` polishes: the ``polish`` first of ``values``
-    (the linearised log-posteriors, sorted best first) and the ``by_statistic`` with the largest search statistic
-    (``statistics``, same order), each once, in ranked order."""
-    top = set(range(min(polish, len(values))))
+def polish_order(statistics, polish: int, by_statistic: int = BY_STATISTIC) -> list[int]:
+    """Indices of the texture candidates :func:`initial_raw_texture` polishes, given their search ``statistics``
+    in the order of their linearised log-posteriors (best first): the ``polish`` first and the ``by_statistic``
+    with the largest statistic, each once, in ranked order."""
+    top = set(range(min(polish, len(statistics))))
     strongest = sorted(range(len(statistics)), key=lambda i: -statistics[i])[:by_statistic]
     return sorted(top | set(strongest))
 
@@ -340,7 +340,7 @@ def initial_raw_texture(
 
     sc = None
     best = None
-    for i in polish_order([r[0] for r in ranked], [r[3] for r in ranked], polish):
+    for i in polish_order([r[3] for r in ranked], polish):
         _, th, b, _ = ranked[i]
         lo, hi = floored(b)
         sc = diag_scale(partial(fn0, b=b), th, lo, hi, RAW_OPT_SCALE) if sc is None else sc
