@@ -12,12 +12,14 @@ compares the tip with three host predictions from the same commanded currents:
 * **true constants, no hysteresis**: the drawn finger's own temperatures, heating branch only: the error the
   hysteresis alone makes when every constant is known.
 
-The drawn finger (assumptions; the sources in ``models/finger.toml`` give the nominal values): bending stiffness
-EI × exp(N(0, 0.2²)) (physics.md §2 puts EI_eff anywhere in 3e-4–1.5e-3 N m²); pre-strain U[3.5, 4.5] %
-(Flexinol's 3–5 % stroke); the four transformation temperatures shifted together by N(0, (3 K)²) (alloy batches);
-convection × U[0.8, 1.25] (still air against a draught); ambient + U[−3, 3] K. Programs: each wire holds a level
-drawn every :data:`HOLD_S` seconds, zero with probability ½, else U[0, I_max] with I_max the nominal wire's largest
-steady current, for :data:`PROGRAM_S` seconds at :data:`DT` s frames, starting cold.
+The drawn finger (:func:`bayestouch.physics.pose.draw_finger` with the default
+:class:`~bayestouch.physics.pose.FingerSpread`; assumptions, the sources in ``models/finger.toml`` give the nominal
+values): bending stiffness EI × exp(N(0, 0.2²)) (physics.md §2 puts EI_eff anywhere in 3e-4–1.5e-3 N m²);
+pre-strain U[3.5, 4.5] % (Flexinol's 3–5 % stroke); the four transformation temperatures shifted together by
+N(0, (3 K)²) (alloy batches); convection × U[0.8, 1.25] (still air against a draught); ambient + U[−3, 3] K.
+Programs: each wire holds a level drawn every :data:`HOLD_S` seconds, zero with probability ½, else U[0, I_max] with
+I_max the nominal wire's largest steady current, for :data:`PROGRAM_S` seconds at :data:`DT` s frames, starting
+cold.
 
 Per scenario: the median and the 95th percentile over frames of the tip-position error |p_true − p_host|; summary:
 medians over scenarios with percentile-bootstrap 95 % intervals. Outputs ``benchmarks/results/pose.csv`` (a row per
@@ -45,22 +47,6 @@ DT = 0.05
 HOSTS = ("nominal", "nominal_no_hysteresis", "true_no_hysteresis")
 
 
-def drawn_finger(rng: np.random.Generator, wire: sma.WireParams, rod: bd.RodParams):
-    """A finger's wire and rod constants drawn about the nominal ones as the module docstring says."""
-    shift = float(rng.normal(0.0, 3.0))
-    w = wire._replace(
-        prestrain=float(rng.uniform(0.035, 0.045)),
-        M_f=wire.M_f + shift,
-        M_s=wire.M_s + shift,
-        A_s=wire.A_s + shift,
-        A_f=wire.A_f + shift,
-        convection=wire.convection * float(rng.uniform(0.8, 1.25)),
-        ambient=wire.ambient + float(rng.uniform(-3.0, 3.0)),
-    )
-    r = rod._replace(EI=rod.EI * float(np.exp(rng.normal(0.0, 0.2))))
-    return w, r
-
-
 def program(rng: np.random.Generator, i_max: float) -> np.ndarray:
     """A (T, 3) current program in amperes: piecewise-constant levels as the module docstring says."""
     holds = int(round(PROGRAM_S / HOLD_S))
@@ -78,7 +64,7 @@ def _heating_branch(rod, wire, temperatures):
 
 def scenario(k: int, wire: sma.WireParams, rod: bd.RodParams) -> dict:
     rng = np.random.default_rng([0x905E, k])
-    w, r = drawn_finger(rng, wire, rod)
+    w, r = pose.draw_finger(rng, wire, rod)
     cur = program(rng, float(sma.max_steady_current(wire)))
     truth = pose.tip_path(w, r, cur, DT)
     host = pose.tip_path(wire, rod, cur, DT)

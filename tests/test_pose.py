@@ -175,3 +175,55 @@ def test_a_bend_beyond_reach_is_refused(wire, rod):
         pose.currents_for_bend(wire, rod, 30.0 * np.array([np.cos(np.pi / 4), np.sin(np.pi / 4)]))
     with pytest.raises(BadInput, match="curvature: expected two finite values"):
         pose.currents_for_bend(wire, rod, [np.nan, 1.0])
+
+
+def test_spread_widened_scales_every_sd_and_half_width():
+    sp = pose.FingerSpread()
+    assert sp.widened(1.0).prestrain == pytest.approx(sp.prestrain)
+    w = sp.widened(2.0)
+    assert (w.EI_log_sd, w.shift_sd, w.ambient) == pytest.approx((0.4, 6.0, 6.0))
+    assert w.prestrain == pytest.approx((0.03, 0.05))
+    assert np.log(w.convection[1] / w.convection[0]) == pytest.approx(2 * np.log(1.25 / 0.8))
+    with pytest.raises(BadInput, match="factor"):
+        sp.widened(0.0)
+
+
+def test_drawn_fingers_follow_their_spread(wire, rod):
+    """2,000 drawn fingers: log EI has sd 0.2 and the transformation shift sd 3 K (each within 5 Monte Carlo sds,
+    about 0.016 relative); a spread twice as wide doubles both (the control)."""
+    g = np.random.default_rng(3)
+    for factor in (1.0, 2.0):
+        sp = pose.FingerSpread().widened(factor)
+        f = [pose.draw_finger(g, wire, rod, sp) for _ in range(2000)]
+        log_ei = np.log([r.EI / rod.EI for _, r in f])
+        shift = np.array([w.A_s - wire.A_s for w, _ in f])
+        assert np.std(log_ei) == pytest.approx(0.2 * factor, rel=0.08)
+        assert np.std(shift) == pytest.approx(3.0 * factor, rel=0.08)
+        assert all(w.M_f - wire.M_f == pytest.approx(w.A_s - wire.A_s) for w, _ in f[:20])
+
+
+def test_pose_error_ensemble_is_each_drawn_finger_minus_the_nominal(wire, rod):
+    """Every member is a drawn finger's tip minus the nominal tip, at the recorded frames, in world axes; the same
+    seed draws the same fingers."""
+    cur = np.zeros((60, 3))
+    cur[10:, 0] = 0.15
+    cur[30:, 1] = 0.12
+    frames = np.array([20, 40, 59])
+    R = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    ens = pose.pose_error_ensemble(
+        wire, rod, [cur, cur[:50]], 0.05, [frames, frames[:2]], draws=2, seed=5, rotations=np.stack([np.eye(3), R])
+    )
+    assert ens.shape == (2, 5, 3)
+    g = np.random.default_rng(5)
+    nominal = pose.tip_path(wire, rod, cur, 0.05).tip_position
+    for k in range(2):
+        w, r = pose.draw_finger(g, wire, rod)
+        tip = pose.tip_path(w, r, cur, 0.05).tip_position
+        np.testing.assert_allclose(ens[k, :3], (tip - nominal)[frames], atol=1e-12)
+        tip50 = pose.tip_path(w, r, cur[:50], 0.05).tip_position - pose.tip_path(wire, rod, cur[:50], 0.05).tip_position
+        np.testing.assert_allclose(ens[k, 3:], tip50[frames[:2]] @ R.T, atol=1e-12)
+    assert np.max(np.abs(ens)) > 1e-4  # the drawn fingers do miss the nominal tip
+    with pytest.raises(BadInput, match="frames: expected integer frame indices"):
+        pose.pose_error_ensemble(wire, rod, [cur], 0.05, [np.array([60])], draws=2)
+    with pytest.raises(BadInput, match="draws"):
+        pose.pose_error_ensemble(wire, rod, [cur], 0.05, [frames], draws=1)

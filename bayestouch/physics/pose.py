@@ -32,6 +32,9 @@ __all__ = [
     "BEND_TEMPERATURE_MARGIN",
     "HysteresisLoop",
     "hysteresis_loop",
+    "FingerSpread",
+    "draw_finger",
+    "pose_error_ensemble",
 ]
 
 
@@ -135,6 +138,134 @@ def tip_path(
 
 
 _poses = jax.jit(jax.vmap(bd.tip_pose, in_axes=(None, 0)))
+
+
+class FingerSpread(NamedTuple):
+    """How far a finger's bending constants may lie from the nominal ones (``models/finger.toml``) when nothing has
+    calibrated them. Assumptions, not measurements (``docs/physics_notes.md`` § "Pose error"):
+
+    Attributes
+    ----------
+    EI_log_sd : float, 1
+        Bending stiffness EI × exp(N(0, EI_log_sd²)) (physics.md §2 puts EI_eff anywhere in 3e-4–1.5e-3 N m²).
+    prestrain : (float, float), 1
+        Pre-strain uniform on this range (Flexinol's 3–5 % stroke).
+    shift_sd : float, kelvin
+        The four transformation temperatures shifted together by N(0, shift_sd²) (alloy batches).
+    convection : (float, float), 1
+        Film coefficient × uniform on this range (still air against a draught).
+    ambient : float, kelvin
+        Ambient temperature + uniform on [−ambient, ambient].
+    """
+
+    EI_log_sd: float = 0.2
+    prestrain: tuple = (0.035, 0.045)
+    shift_sd: float = 3.0
+    convection: tuple = (0.8, 1.25)
+    ambient: float = 3.0
+
+    def widened(self, factor: float) -> FingerSpread:
+        """The spread with every sd and half-width × ``factor`` (ranges about their centres; the convection range
+        in log space)."""
+        if not (np.isfinite(factor) and factor > 0):
+            raise BadInput(f"factor: expected a positive number, got {factor!r}")
+        mid, half = 0.5 * (self.prestrain[0] + self.prestrain[1]), 0.5 * (self.prestrain[1] - self.prestrain[0])
+        lc = np.log(self.convection)
+        cmid, chalf = 0.5 * (lc[0] + lc[1]), 0.5 * (lc[1] - lc[0])
+        return FingerSpread(
+            self.EI_log_sd * factor,
+            (mid - factor * half, mid + factor * half),
+            self.shift_sd * factor,
+            (float(np.exp(cmid - factor * chalf)), float(np.exp(cmid + factor * chalf))),
+            self.ambient * factor,
+        )
+
+
+def draw_finger(
+    rng: np.random.Generator, wire: sma.WireParams, rod: bd.RodParams, spread: FingerSpread | None = None
+) -> tuple[sma.WireParams, bd.RodParams]:
+    """A finger's wire and rod constants drawn about the nominal ``wire`` and ``rod`` as ``spread`` says (default
+    :class:`FingerSpread`); only the five constants of the spread change."""
+    sp = FingerSpread() if spread is None else spread
+    shift = float(rng.normal(0.0, sp.shift_sd))
+    w = wire._replace(
+        prestrain=float(rng.uniform(*sp.prestrain)),
+        M_f=wire.M_f + shift,
+        M_s=wire.M_s + shift,
+        A_s=wire.A_s + shift,
+        A_f=wire.A_f + shift,
+        convection=wire.convection * float(rng.uniform(*sp.convection)),
+        ambient=wire.ambient + float(rng.uniform(-sp.ambient, sp.ambient)),
+    )
+    r = rod._replace(EI=rod.EI * float(np.exp(rng.normal(0.0, sp.EI_log_sd))))
+    return w, r
+
+
+def pose_error_ensemble(
+    wire: sma.WireParams,
+    rod: bd.RodParams,
+    programs,
+    dt: float,
+    frames,
+    *,
+    spread: FingerSpread | None = None,
+    draws: int = 64,
+    seed: int = 0,
+    rotations=None,
+    substeps: int = 10,
+) -> np.ndarray:
+    """What a host that knows only the nominal constants and their spread can say about its pad-pose error: the
+    errors p_finger − p_nominal of ``draws`` fingers drawn about the nominal one (:func:`draw_finger`), each run
+    through the commanded programs, at the frames where contacts were recorded.
+
+    Parameters
+    ----------
+    wire, rod : WireParams, RodParams
+        The host's nominal constants.
+    programs : sequence of S (T_s, 3) float arrays, amperes
+        Each stroke's wire-current program (every stroke starts cold, as :func:`tip_path` does by default).
+    dt : float, seconds
+        Frame interval.
+    frames : sequence of S (F_s,) int arrays
+        The frames of each stroke at which contacts were recorded.
+    spread : FingerSpread, optional
+        How far the finger may be from nominal (default :class:`FingerSpread`).
+    draws : int
+        Number of fingers K (≥ 2).
+    seed : int
+        Seed of the drawn fingers (the same fingers run every stroke).
+    rotations : (S, 3, 3) float, optional
+        World-from-base rotation of each stroke (default identity): errors are returned in world axes.
+    substeps : int
+        Thermal integration steps per frame (:func:`tip_path`).
+
+    Returns
+    -------
+    (K, Σ F_s, 3) float, metres
+        Pose errors of every drawn finger at every recorded contact, strokes concatenated in order.
+    """
+    if int(draws) < 2:
+        raise BadInput(f"draws: expected at least 2 drawn fingers, got {draws!r}")
+    if not (np.isfinite(dt) and dt > 0):
+        raise BadInput(f"dt: expected a positive frame interval in seconds, got {dt}")
+    progs = [_check_currents(wire, c) for c in programs]
+    frs = [np.asarray(f) for f in frames]
+    if len(frs) != len(progs):
+        raise BadInput(f"frames: expected one array of frame indices per program ({len(progs)}), got {len(frs)}")
+    for c, f in zip(progs, frs, strict=True):
+        if f.ndim != 1 or f.dtype.kind not in "iu" or np.any(f < 0) or np.any(f >= len(c)):
+            raise BadInput(f"frames: expected integer frame indices within [0, {len(c)}) for each program")
+    rots = np.broadcast_to(np.eye(3), (len(progs), 3, 3)) if rotations is None else np.asarray(rotations, float)
+    if rots.shape != (len(progs), 3, 3) or np.max(np.abs(rots @ np.swapaxes(rots, -1, -2) - np.eye(3))) > 1e-6:
+        raise BadInput(f"rotations: expected ({len(progs)}, 3, 3) rotation matrices, got shape {rots.shape}")
+    rng = np.random.default_rng(seed)
+    fingers = [draw_finger(rng, wire, rod, spread) for _ in range(int(draws))]
+    out = []
+    for c, f, R in zip(progs, frs, rots, strict=True):
+        nominal = tip_path(wire, rod, c, dt, substeps=substeps).tip_position[f]
+        tips = np.stack([tip_path(w, r, c, dt, substeps=substeps).tip_position[f] for w, r in fingers])
+        out.append((tips - nominal) @ R.T)
+    return np.concatenate(out, axis=1)
 
 
 class PadPath(NamedTuple):
