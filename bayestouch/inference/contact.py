@@ -316,15 +316,16 @@ class PrincipalFrame(NamedTuple):
 
 
 def principal_frame(th, hom) -> PrincipalFrame:
-    """The batched n-ellipsoid kernel: first-order distances of the homogeneous points ``hom (4, M)`` to the
-    surfaces of walkers ``th (W, ≥ 10)`` and the intermediate values other terms reuse (:class:`PrincipalFrame`)."""
+    """The batched n-ellipsoid kernel: first-order distances of the homogeneous points ``hom (4, M)`` (or one set
+    per walker, ``(W, 4, M)``) to the surfaces of walkers ``th (W, ≥ 10)`` and the intermediate values other terms
+    reuse (:class:`PrincipalFrame`)."""
     a = jnp.exp(th[:, 3:6])
     n = jnp.exp(th[:, 9])[:, None]
     R = jax.vmap(rotation_matrix)(th[:, 6:9])  # (W, 3, 3), columns = principal directions
     Ra = R / a[:, None, :]
     # q = (x − c) R / a for all points at once: one (W, 3, 4) @ (4, M) product
     B = jnp.concatenate([jnp.swapaxes(Ra, 1, 2), -jnp.einsum("wk,wkj->wj", th[:, 0:3], Ra)[:, :, None]], axis=2)
-    q = jnp.einsum("wjk,km->wjm", B, hom)
+    q = jnp.einsum("wjk,km->wjm", B, hom) if hom.ndim == 2 else jnp.einsum("wjk,wkm->wjm", B, hom)
     aq = jnp.abs(q) + _TINY
     t = jnp.exp(n[:, :, None] * jnp.log(aq))  # |q_j|^n
     S = jnp.sum(t, axis=1) + _TINY

@@ -14,9 +14,20 @@ with b_s = N_sᵀ r_s and A_s = (σ²/τ²) I₃ + N_sᵀ N_s. θ is the contact
 semi-axes, Euler angles, log n, log σ) and log τ, whose prior is normal about the host's stated pose sd
 (``tau_m``) with sd :data:`TAU_LOG_SD` (truncated to the box ``[TAU_MIN, TAU_MAX]``). Gaussian contact noise only:
 no outlier component (a displaced contact is not a pose error).
+
+A host that knows the commanded current programs can say more than one offset per stroke:
+:func:`bayestouch.physics.pose.pose_error_ensemble` runs fingers drawn about the nominal constants through the same
+programs and gives K draws e_k (M, 3) of the pose error at every contact, correlated along each stroke and across
+strokes (the same finger runs them all). :func:`make_ensemble_pose_log_prob` uses their mean μ and spread
+L = (e_k − μ)/√(K − 1): the contacts moved by μ, the residuals Gaussian with covariance σ² I + s² B Bᵀ,
+B_ik = n_i·L_ik, marginalised by Woodbury in K dimensions; s is a sampled scale (prior log-normal about 1) for a
+finger further from nominal than the host's spread says.
 """
 
 from __future__ import annotations
+
+from functools import partial
+from typing import NamedTuple
 
 import numpy as np
 
@@ -31,6 +42,17 @@ __all__ = [
     "TAU_LOG_SD",
     "pose_log_likelihood",
     "make_pose_log_prob",
+    "ENSEMBLE_PARAM_NAMES",
+    "SCALE_LOG_SD",
+    "SCALE_MIN",
+    "SCALE_MAX",
+    "RANK",
+    "RELINEARISE",
+    "EnsembleModel",
+    "ensemble_model",
+    "correlation_time",
+    "ensemble_log_likelihood",
+    "make_ensemble_pose_log_prob",
 ]
 
 POSE_PARAM_NAMES = cm.PARAM_NAMES + ("log_tau",)
@@ -43,6 +65,18 @@ TAU_MAX = 0.02
 #: with R-hat 1.22, against 0.75 mm and R-hat 1.02 at 0.3
 TAU_LOG_SD = 0.3
 _LOG_2PI = float(np.log(2 * np.pi))
+ENSEMBLE_PARAM_NAMES = cm.PARAM_NAMES + ("log_pose_scale",)
+#: prior sd of log s, the ensemble's scale: the drawn fingers' spread is an assumption (FingerSpread), so a finger
+#: e^0.5 ≈ 1.6 times further from nominal is one sd away
+SCALE_LOG_SD = 0.5
+#: box of the ensemble's scale s
+SCALE_MIN = 0.05
+SCALE_MAX = 20.0
+#: leading components of the ensemble's pose covariance kept as shared (low-rank) pose errors; what they leave out
+#: is a remainder correlated along each stroke's time
+RANK = 8
+#: times the linearised law is linearised again about the pose error's posterior mean
+RELINEARISE = 1
 
 
 def _labels(strokes, m: int) -> np.ndarray:
@@ -147,5 +181,260 @@ def make_pose_log_prob(
         if th.shape[1] != len(POSE_PARAM_NAMES):
             raise BadInput(f"thetas: expected (W, {len(POSE_PARAM_NAMES)}) parameter vectors, got shape {th.shape}")
         return np.asarray(_log_prob(jnp.asarray(th), hom, onehot, bounds, mu, float(tau_log_sd)))
+
+    return f, bounds
+
+
+class EnsembleModel(NamedTuple):
+    """The pose-error law a host derives from an ensemble of drawn fingers (:func:`ensemble_model`).
+
+    Attributes
+    ----------
+    moved : (M, 3) float, metres
+        The contacts moved by the ensemble's mean error.
+    lead : (3, M, r) float, metres
+        Leading components L of the pose covariance (errors e = μ + L z, z ~ N(0, I_r), shared by all contacts).
+    resid : (3, 3, M) float, m²
+        Each contact's pose covariance that the leading components leave out.
+    blocks : (S, m) int
+        Contact indices of each stroke, padded with −1 to the longest stroke's m.
+    corr : (S, m, m) float
+        Correlation of the remainder between a stroke's contacts, exp(−|t_i − t_j| / ℓ); 0 across strokes.
+    ell : float, seconds
+        The remainder's correlation time ℓ (:func:`correlation_time`).
+    """
+
+    moved: np.ndarray
+    lead: np.ndarray
+    resid: np.ndarray
+    blocks: np.ndarray
+    corr: np.ndarray
+    ell: float
+
+
+def correlation_time(remainder, strokes, times) -> float:
+    """The correlation time ℓ (seconds) of pose-error remainders along strokes: the ℓ whose exp(−|Δt|/ℓ) best fits,
+    in least squares over every pair of contacts in the same stroke, the ensemble's correlation of the pair's
+    normalised remainders (pooled over draws and axes).
+
+    Parameters
+    ----------
+    remainder : (K, M, 3) float, metres
+        Ensemble deviations with the leading components removed.
+    strokes : (M,) int
+        Stroke label of each contact.
+    times : (M,) float, seconds
+        When each contact was recorded.
+    """
+    r = np.asarray(remainder, dtype=float)
+    lab, t = np.asarray(strokes), np.asarray(times, dtype=float)
+    z = r / (np.sqrt(np.sum(r * r, axis=0, keepdims=True)) + 1e-300)  # unit norm over draws, per contact and axis
+    same = (lab[:, None] == lab[None, :]) & ~np.eye(len(lab), dtype=bool)
+    if not np.any(same):
+        return 0.0
+    i, j = np.nonzero(np.triu(same))
+    c = np.mean(np.sum(z[:, i, :] * z[:, j, :], axis=0), axis=-1)  # (pairs,)
+    dt = np.abs(t[i] - t[j])
+    span = max(float(dt.max()), 1e-9)
+    grid = np.geomspace(1e-3 * span, 1e3 * span, 400)
+    err = [np.sum((c - np.exp(-dt / g)) ** 2) for g in grid]
+    return float(grid[int(np.argmin(err))])
+
+
+def ensemble_model(points, ensemble, strokes, times, rank: int | None = None) -> EnsembleModel:
+    """The pose-error law of :func:`make_ensemble_pose_log_prob` from K drawn fingers' errors.
+
+    Parameters
+    ----------
+    points : (M, 3) float, metres
+        Contacts where the host computed them.
+    ensemble : (K, M, 3) float, metres
+        K ≥ 2 draws of the pose error p_true − p_host at each contact
+        (:func:`bayestouch.physics.pose.pose_error_ensemble`).
+    strokes : (M,) int
+        Stroke of each contact.
+    times : (M,) float, seconds
+        When each contact was recorded (any origin per stroke).
+    rank : int, optional
+        Leading components kept (default min(:data:`RANK`, K − 1)).
+
+    Returns
+    -------
+    EnsembleModel
+    """
+    p = np.asarray(points, dtype=float)
+    if p.ndim != 2 or p.shape[1] != 3 or len(p) < 1 or not np.all(np.isfinite(p)):
+        raise BadInput(f"points: expected a finite (M ≥ 1, 3) array in metres, got shape {p.shape}")
+    e = np.asarray(ensemble, dtype=float)
+    if e.ndim != 3 or e.shape[1:] != p.shape or e.shape[0] < 2 or not np.all(np.isfinite(e)):
+        raise BadInput(
+            f"ensemble: expected finite pose errors of shape (K ≥ 2, {len(p)}, 3) in metres, got shape {e.shape}"
+        )
+    lab = _labels(strokes, len(p))
+    t = np.asarray(times, dtype=float)
+    if t.shape != (len(p),) or not np.all(np.isfinite(t)):
+        raise BadInput(f"times: expected one finite time in seconds per contact ({len(p)} values), got shape {t.shape}")
+    K, M = e.shape[:2]
+    r = min(RANK, K - 1) if rank is None else int(rank)
+    if not 1 <= r <= K - 1:
+        raise BadInput(f"rank: expected an integer in [1, {K - 1}] (the ensemble has {K} draws), got {rank!r}")
+    mu = e.mean(axis=0)
+    dev = (e - mu).reshape(K, 3 * M) / np.sqrt(K - 1)
+    _, sv, vt = np.linalg.svd(dev, full_matrices=False)
+    lead = (vt[:r].T * sv[:r]).reshape(M, 3, r)
+    rem = (dev - (dev @ vt[:r].T) @ vt[:r]).reshape(K, M, 3)
+    resid = np.einsum("kmc,kme->cem", rem, rem)
+    ell = correlation_time(rem, lab, t)
+    S = int(lab.max()) + 1
+    m = int(np.bincount(lab).max())
+    blocks = np.full((S, m), -1, dtype=np.int64)
+    corr = np.zeros((S, m, m))
+    for k in range(S):
+        idx = np.nonzero(lab == k)[0]
+        blocks[k, : len(idx)] = idx
+        dt = np.abs(t[idx][:, None] - t[idx][None, :])
+        corr[k, : len(idx), : len(idx)] = np.exp(-dt / ell) if ell > 0 else np.eye(len(idx))
+    return EnsembleModel(p + mu, np.transpose(lead, (1, 0, 2)), resid, blocks, corr, ell)
+
+
+def _linear_gaussian(th, hom, shift, lead, resid, blocks, corr):
+    """The pose-error law linearised about the contacts moved by ``shift (W, 3, M)`` (metres, beyond the ensemble's
+    mean): the log-density (W,) of the residuals r_i = d_i − n_i·shift_i, and the posterior mean (W, 3, M) of the
+    deviation from the ensemble's mean given them (s L ẑ + n η̂)."""
+    f = cm.principal_frame(th, hom[None] + jnp.concatenate([shift, jnp.zeros_like(shift[:, :1])], axis=1))
+    n = cm.frame_normals(f)  # (W, 3, M)
+    d = f.d - jnp.einsum("wcm,wcm->wm", n, shift)  # (W, M)
+    M = d.shape[1]
+    s = jnp.exp(th[:, 11])  # (W,) scale
+    a = jnp.sqrt(jnp.einsum("wcm,cem,wem->wm", n, resid, n) + 1e-30)  # (W, M)
+    B = jnp.einsum("wcm,cmk->wmk", n, lead) * s[:, None, None]  # (W, M, r)
+    valid = blocks >= 0  # (S, m)
+    idx = jnp.where(valid, blocks, 0)
+    ab = jnp.where(valid, a[:, idx], 0.0)  # (W, S, m)
+    db = jnp.where(valid, d[:, idx], 0.0)
+    Bb = jnp.where(valid[None, :, :, None], B[:, idx, :], 0.0)  # (W, S, m, r)
+    eye = jnp.eye(blocks.shape[1])
+    R = (s * s)[:, None, None, None] * ab[..., :, None] * ab[..., None, :] * corr  # remainder along the normals
+    both = valid[None, :, :, None] & valid[None, :, None, :]
+    Ds = jnp.where(both, jnp.exp(2.0 * th[:, 10])[:, None, None, None] * eye + R, eye)  # padding: unit diagonal
+    cD = jnp.linalg.cholesky(Ds)  # (W, S, m, m)
+    solve = jax.scipy.linalg.solve_triangular
+    yd = solve(cD, db[..., None], lower=True)[..., 0]  # (W, S, m) = cD⁻¹ d
+    yB = solve(cD, Bb, lower=True)  # (W, S, m, r)
+    A = jnp.eye(lead.shape[-1]) + jnp.einsum("wsmk,wsml->wkl", yB, yB)
+    cA = jnp.linalg.cholesky(A)
+    v = jnp.einsum("wsmk,wsm->wk", yB, yd)
+    y = solve(cA, v[..., None], lower=True)[..., 0]
+    quad = jnp.sum(yd * yd, axis=(1, 2)) - jnp.sum(y * y, axis=1)
+    logdet = 2.0 * jnp.sum(jnp.log(jnp.diagonal(cD, axis1=-2, axis2=-1)), axis=(1, 2))
+    logdet = logdet + 2.0 * jnp.sum(jnp.log(jnp.diagonal(cA, axis1=1, axis2=2)), axis=1)
+    ll = -0.5 * (quad + logdet + M * _LOG_2PI)
+    # posterior means given n·u + noise = −d, u = s L z + n η: with w = C⁻¹(−d) (Woodbury, C = D + B Bᵀ),
+    # ẑ = Bᵀ w / s-free form below, η̂ = R w
+    x = solve(cA, y[..., None], lower=True, trans=1)[..., 0]  # A⁻¹ v
+    w_blk = -(solve(cD, (yd - jnp.einsum("wsmk,wk->wsm", yB, x))[..., None], lower=True, trans=1)[..., 0])
+    z = jnp.einsum("wsmk,wsm->wk", Bb, w_blk)  # (W, r): Bᵀ w
+    eta = jnp.einsum("wsij,wsj->wsi", R, w_blk)  # (W, S, m)
+    eta_m = jnp.zeros_like(d).at[:, idx].add(jnp.where(valid, eta, 0.0))  # back to contact order
+    u = jnp.einsum("cmk,wk->wcm", lead, z * s[:, None]) + n * eta_m[:, None, :]
+    return ll, u
+
+
+def _ensemble_log_lik(th, hom, lead, resid, blocks, corr, relinearise=1):
+    """Log-likelihood (W,) of walkers ``th (W, 12)`` for homogeneous contacts ``hom (4, M)`` (moved by the
+    ensemble's mean) under :class:`EnsembleModel`'s law: covariance D + s² B Bᵀ, B_ik = n_i·L_ik, D block-diagonal
+    by stroke with D_s = σ² I + s² (a aᵀ ∘ corr_s), a_i² = n_iᵀ resid_i n_i. The distances are linear in the pose
+    error only near the contacts, so the law is linearised again about the posterior mean of the pose error
+    ``relinearise`` times (an iterated Laplace approximation of the integral over pose errors)."""
+    shift = jnp.zeros((th.shape[0], 3, hom.shape[1]))
+    ll, u = _linear_gaussian(th, hom, shift, lead, resid, blocks, corr)
+    for _ in range(relinearise):
+        ll, u = _linear_gaussian(th, hom, jax.lax.stop_gradient(u), lead, resid, blocks, corr)
+    return ll
+
+
+_ensemble_log_lik_jit = jax.jit(_ensemble_log_lik, static_argnames=("relinearise",))
+
+
+def _arrays(model: EnsembleModel):
+    hom = np.concatenate([model.moved.T, np.ones((1, len(model.moved)))], axis=0)
+    return (
+        jnp.asarray(hom),
+        jnp.asarray(model.lead),
+        jnp.asarray(model.resid),
+        jnp.asarray(model.blocks),
+        jnp.asarray(model.corr),
+    )
+
+
+def ensemble_log_likelihood(thetas, model: EnsembleModel, relinearise: int = RELINEARISE) -> np.ndarray:
+    """Log-likelihood (W,) of walkers ``thetas (W, 12)`` (:data:`ENSEMBLE_PARAM_NAMES`) under the pose-error law
+    ``model`` (:func:`ensemble_model`), linearised again ``relinearise`` times about the pose error's posterior
+    mean (0: linear about the ensemble's mean)."""
+    th = jnp.asarray(np.atleast_2d(np.asarray(thetas, dtype=float)))
+    if th.shape[1] != len(ENSEMBLE_PARAM_NAMES):
+        raise BadInput(f"thetas: expected (W, {len(ENSEMBLE_PARAM_NAMES)}) parameter vectors, got shape {th.shape}")
+    return np.asarray(_ensemble_log_lik_jit(th, *_arrays(model), relinearise=_check_relinearise(relinearise)))
+
+
+def _check_relinearise(k) -> int:
+    if not (isinstance(k, int | np.integer) and 0 <= k <= 10):
+        raise BadInput(f"relinearise: expected an integer in [0, 10], got {k!r}")
+    return int(k)
+
+
+@partial(jax.jit, static_argnames=("relinearise",))
+def _ensemble_log_prob(th, hom, lead, resid, blocks, corr, bounds, scale_sd, relinearise):
+    lp = cm.log_prior(th, bounds)
+    z = th[:, 11] / scale_sd
+    ll = _ensemble_log_lik(cm.clip_to_box(th, bounds), hom, lead, resid, blocks, corr, relinearise)
+    out = jnp.where(jnp.isfinite(lp), lp - 0.5 * z * z + ll, -jnp.inf)
+    return jnp.where(jnp.isnan(out), -jnp.inf, out)
+
+
+def make_ensemble_pose_log_prob(
+    model: EnsembleModel,
+    priors: cm.PriorParams | None = None,
+    scale_log_sd: float = SCALE_LOG_SD,
+    relinearise: int = RELINEARISE,
+):
+    """A walker-vectorised log-posterior ``f(thetas (W, 12)) → (W,)`` of the ensemble pose-error law, and its box.
+
+    Parameters
+    ----------
+    model : EnsembleModel
+        The contacts and their pose-error law (:func:`ensemble_model`).
+    priors : PriorParams, optional
+        The contact level's priors (default :func:`bayestouch.inference.contact.load_priors`); the centre's box
+        comes from the contacts moved by the ensemble's mean.
+    scale_log_sd : float
+        Prior sd of log s, the scale of the ensemble's spread (median 1).
+    relinearise : int
+        Times the law is linearised again about the pose error's posterior mean (0: once, about the ensemble's
+        mean).
+
+    Returns
+    -------
+    f : callable
+        NumPy in, NumPy out; −inf outside the prior, never NaN.
+    bounds : Bounds
+        The contact level's box with log s appended.
+    """
+    if not (np.isfinite(scale_log_sd) and scale_log_sd > 0):
+        raise BadInput(f"scale_log_sd: expected a positive sd of log s, got {scale_log_sd!r}")
+    priors = priors or cm.load_priors()
+    b = cm.bounds_for(model.moved, priors)
+    bounds = b._replace(
+        lower=jnp.concatenate([b.lower, jnp.asarray([np.log(SCALE_MIN)])]),
+        upper=jnp.concatenate([b.upper, jnp.asarray([np.log(SCALE_MAX)])]),
+    )
+    arrays = _arrays(model)
+    k = _check_relinearise(relinearise)
+
+    def f(thetas):
+        th = np.atleast_2d(np.asarray(thetas, dtype=np.float64))
+        if th.shape[1] != len(ENSEMBLE_PARAM_NAMES):
+            raise BadInput(f"thetas: expected (W, {len(ENSEMBLE_PARAM_NAMES)}) parameter vectors, got shape {th.shape}")
+        return np.asarray(_ensemble_log_prob(jnp.asarray(th), *arrays, bounds, float(scale_log_sd), k))
 
     return f, bounds
