@@ -18,10 +18,15 @@ no outlier component (a displaced contact is not a pose error).
 A host that knows the commanded current programs can say more than one offset per stroke:
 :func:`bayestouch.physics.pose.pose_error_ensemble` runs fingers drawn about the nominal constants through the same
 programs and gives K draws e_k (M, 3) of the pose error at every contact, correlated along each stroke and across
-strokes (the same finger runs them all). :func:`make_ensemble_pose_log_prob` uses their mean μ and spread
-L = (e_k − μ)/√(K − 1): the contacts moved by μ, the residuals Gaussian with covariance σ² I + s² B Bᵀ,
-B_ik = n_i·L_ik, marginalised by Woodbury in K dimensions; s is a sampled scale (prior log-normal about 1) for a
-finger further from nominal than the host's spread says.
+strokes (the same finger runs them all). :func:`ensemble_model` turns them into a law: the contacts moved by their
+mean μ; the :data:`RANK` leading principal components L of their covariance, shared by all contacts; what those
+leave out, each contact's remaining covariance V_i, correlated between a stroke's contacts as exp(−|Δt|/ℓ) with ℓ
+fitted to the ensemble (:func:`correlation_time`). :func:`make_ensemble_pose_log_prob` marginalises it: residuals
+Gaussian with covariance s² B Bᵀ + D, B_ik = n_i·L_ik, D block-diagonal by stroke, D_s = σ² I + s² (a aᵀ ∘ ρ_s),
+a_i² = n_iᵀ V_i n_i (Woodbury in the leading components, Cholesky per stroke), s a sampled scale (prior log-normal
+about 1) for a finger further from nominal than the host's spread says. Pose errors of millimetres on surfaces
+curved over centimetres are not linear in the distance (a 3 mm tangential shift moves a contact 0.2 mm off a
+20 mm sphere), so the law is linearised again about the pose error's posterior mean (:data:`RELINEARISE`).
 """
 
 from __future__ import annotations
