@@ -3,26 +3,35 @@ physics moves the pad", item 4: a fit that ignores the pose error is overconfide
 
 Each scenario draws an object (n-ellipsoid, semi-axes U[15, 35] mm, n U[2, 5], rotation uniform), :data:`STROKES`
 strokes of :data:`PER_STROKE` contacts (arcs of 1.2 rad of directions through the centre, anywhere on the object),
-0.3 mm contact noise, and a finger (:func:`benchmarks.bench_pose.drawn_finger`) with one wire-current program per
-stroke (:func:`benchmarks.bench_pose.program`). The pad's pose error along each stroke is the chain's
-p_true − p_host (:func:`bayestouch.physics.pose.tip_path` of the drawn finger and of the nominal one, the host's),
-sampled at the stroke's contacts and turned into the world by a random base orientation: the host records each
-contact displaced by it. Two fits on the same recorded contacts, both emcee from the optimum (32 walkers, up to
-:data:`STEPS` steps, stopped when converged):
+0.3 mm contact noise, and a finger (:func:`bayestouch.physics.pose.draw_finger`, its spread :data:`TRUTH_WIDER`
+times the host's assumed :class:`~bayestouch.physics.pose.FingerSpread`: the finger is further from nominal than
+the host believes) with one wire-current program per stroke (:func:`benchmarks.bench_pose.program`). The pad's pose
+error along each stroke is the chain's p_true − p_host (:func:`bayestouch.physics.pose.tip_path` of the drawn
+finger and of the nominal one, the host's), sampled at the stroke's contacts and turned into the world by a random
+base orientation (the carrier's, which the host knows): the host records each contact displaced by it. Three fits
+on the same recorded contacts, all emcee from the optimum (32 walkers, up to :data:`STEPS` steps, stopped when
+converged):
 
 * **ignoring the pose**: the Gaussian contact likelihood (:func:`bayestouch.inference.contact.make_log_prob`,
   ν = inf);
 * **pose marginalised**: one Gaussian offset per stroke integrated out, prior median τ :data:`TAU_HOST` (the
-  median tip error of ``bench_pose``'s nominal host) (:func:`bayestouch.inference.pose_error.make_pose_log_prob`).
+  median tip error of ``bench_pose``'s nominal host) (:func:`bayestouch.inference.pose_error.make_pose_log_prob`);
+* **from the programs**: the host runs :data:`ENSEMBLE_DRAWS` fingers drawn with its assumed spread through the
+  commanded programs (:func:`bayestouch.physics.pose.pose_error_ensemble`) and marginalises the pose error's
+  ensemble law: its leading components shared by all contacts, the remainder correlated along each stroke's time,
+  a sampled scale (:func:`bayestouch.inference.pose_error.ensemble_model`, ``make_ensemble_pose_log_prob``).
 
 Per scenario: the 90 % interval (5–95 % quantiles) of the volume and whether it holds the truth, the z-score,
 convergence. Summary: coverage with Wilson 95 % intervals, median |z| and relative interval width per fit.
-Outputs ``benchmarks/results/pose_fit.csv`` and ``pose_fit.json``.
+Outputs ``benchmarks/results/pose_fit.csv`` and ``pose_fit.json``. Scenarios run on
+``BAYESTOUCH_POSE_FIT_WORKERS`` processes (default 2).
 """
 
 from __future__ import annotations
 
 import json
+import multiprocessing as mp
+import os
 import time
 
 import arviz as az
@@ -38,9 +47,9 @@ from bayestouch.inference.sampler import sample
 from bayestouch.io.files import write_csv_rows, write_text
 from bayestouch.physics import bending as bd
 from bayestouch.physics import pose, sma
-from benchmarks.bench_pose import DT, drawn_finger, program
+from benchmarks.bench_pose import DT, program
 from benchmarks.bench_user_sets import bootstrap_median, wilson_interval
-from benchmarks.harness import RESULTS
+from benchmarks.harness import RESULTS, worker_init
 
 SCENARIOS = 50
 STROKES = 6
@@ -49,6 +58,11 @@ NOISE_M = 3e-4
 TAU_HOST = 1e-3
 STEPS = 6000
 WALKERS = 32
+#: the drawn finger's spread against the host's assumed one (FingerSpread)
+TRUTH_WIDER = 1.25
+#: fingers the host runs through the programs
+ENSEMBLE_DRAWS = 24
+FITS = ("ignoring", "marginalised", "programs")
 
 
 def _volume(theta) -> np.ndarray:
@@ -80,26 +94,32 @@ def _contacts(rng: np.random.Generator):
     return np.concatenate(pts), np.concatenate(lab), vol
 
 
-def _pose_errors(rng, wire, rod) -> np.ndarray:
-    """(STROKES, PER_STROKE, 3) pad-pose errors p_true − p_host, metres, in world axes."""
-    w, r = drawn_finger(rng, wire, rod)
+def _pose_errors(rng, wire, rod):
+    """(STROKES, PER_STROKE, 3) pad-pose errors p_true − p_host, metres, in world axes; what the host knows of each
+    stroke: its current program (T, 3) A, the frames of its contacts, its base rotation (3, 3)."""
+    w, r = pose.draw_finger(rng, wire, rod, pose.FingerSpread().widened(TRUTH_WIDER))
     i_max = float(sma.max_steady_current(wire))
-    out = []
+    out, programs, frames, rotations = [], [], [], []
     for _ in range(STROKES):
         cur = program(rng, i_max)
         err = pose.tip_path(w, r, cur, DT).tip_position - pose.tip_path(wire, rod, cur, DT).tip_position
-        frames = np.linspace(len(cur) // 4, len(cur) - 1, PER_STROKE).astype(int)  # the stroke after settling
-        out.append(err[frames] @ Rotation.random(random_state=rng).as_matrix().T)
-    return np.stack(out)
+        idx = np.linspace(len(cur) // 4, len(cur) - 1, PER_STROKE).astype(int)  # the stroke after settling
+        R = Rotation.random(random_state=rng).as_matrix()
+        out.append(err[idx] @ R.T)
+        programs.append(cur)
+        frames.append(idx)
+        rotations.append(R)
+    return np.stack(out), programs, frames, np.stack(rotations)
 
 
-def _fit(logp, bounds, theta0, ndim: int, seed: int) -> dict:
-    """emcee from a ball about the optimum (with log τ at the host's value for the pose model): the volume's
-    quantiles, mean, sd, R-hat and bulk ESS, τ's posterior median (metres) and the seconds taken."""
+def _fit(logp, bounds, theta0, ndim: int, seed: int, extra: float = 0.0) -> dict:
+    """emcee from a ball about the optimum (with the 12th coordinate, if any, about ``extra``): the volume's
+    quantiles, mean, sd, R-hat and bulk ESS, the 12th coordinate's exponentiated posterior median and the seconds
+    taken."""
     rng = np.random.default_rng(seed)
     start = start_ball(theta0, cm.Bounds(bounds.lower[:11], bounds.upper[:11]), WALKERS, rng)
     if ndim > 11:
-        start = np.column_stack([start, np.log(TAU_HOST) + 0.05 * rng.normal(size=WALKERS)])
+        start = np.column_stack([start, extra + 0.05 * rng.normal(size=WALKERS)])
     t = time.perf_counter()
     ch = sample(
         logp,
@@ -131,7 +151,8 @@ def _fit(logp, bounds, theta0, ndim: int, seed: int) -> dict:
 def scenario(k: int, wire, rod) -> dict:
     rng = np.random.default_rng([0x90F, k])
     surf, lab, vol = _contacts(rng)
-    err = _pose_errors(rng, wire, rod).reshape(-1, 3)
+    err, programs, frames, rotations = _pose_errors(rng, wire, rod)
+    err = err.reshape(-1, 3)
     pts = surf + rng.normal(0.0, NOISE_M, surf.shape) - err
     priors = cm.load_priors()
     theta0 = initial_theta(pts, k, priors)
@@ -140,10 +161,22 @@ def scenario(k: int, wire, rod) -> dict:
         "true_volume_m3": vol,
         "pose_error_median_mm": 1e3 * float(np.median(np.linalg.norm(err, axis=1))),
     }
+    t = time.perf_counter()
+    ens = pose.pose_error_ensemble(wire, rod, programs, DT, frames, draws=ENSEMBLE_DRAWS, seed=k, rotations=rotations)
+    model = pe.ensemble_model(pts, ens, lab, DT * np.concatenate(frames))
+    row["ensemble_seconds"] = time.perf_counter() - t
+    row["ensemble_ell_s"] = model.ell
+    row["ensemble_error_median_mm"] = 1e3 * float(np.median(np.linalg.norm(ens, axis=2)))
     plain, b_plain = cm.make_log_prob(pts, priors, np.inf, noise="student")
     marg, b_marg = pe.make_pose_log_prob(pts, lab, TAU_HOST, priors)  # prior sd of log τ: pe.TAU_LOG_SD
-    for name, (f, b, d) in {"ignoring": (plain, b_plain, 11), "marginalised": (marg, b_marg, 12)}.items():
-        r = _fit(f, b, theta0, d, k)
+    prog, b_prog = pe.make_ensemble_pose_log_prob(model, priors)
+    fits = {
+        "ignoring": (plain, b_plain, 11, 0.0),
+        "marginalised": (marg, b_marg, 12, np.log(TAU_HOST)),
+        "programs": (prog, b_prog, 12, 0.0),
+    }
+    for name, (f, b, d, extra) in fits.items():
+        r = _fit(f, b, theta0, d, k, extra)
         z = (r["mean"] - vol) / r["sd"]
         row.update(
             {
@@ -157,25 +190,36 @@ def scenario(k: int, wire, rod) -> dict:
         )
         if name == "marginalised":
             row["tau_posterior_median_mm"] = 1e3 * r["tau_m"]
+        if name == "programs":
+            row["scale_posterior_median"] = r["tau_m"]
     return row
 
 
+def _scenario_in(k: int) -> dict:
+    r = scenario(k, sma.load_wire(), bd.load_rod())
+    print(
+        f"[pose_fit] {k}: pose error {r['pose_error_median_mm']:.2f} mm; "
+        + "; ".join(f"{n} z {r[f'{n}_z']:+.1f} covered {r[f'{n}_covered']}" for n in FITS)
+        + f" (tau {r['tau_posterior_median_mm']:.2f} mm, scale {r['scale_posterior_median']:.2f})",
+        flush=True,
+    )
+    return r
+
+
 def bench_pose_fit(scenarios: int = SCENARIOS) -> list[dict]:
-    wire, rod = sma.load_wire(), bd.load_rod()
-    rows = []
-    for k in range(scenarios):
-        rows.append(scenario(k, wire, rod))
-        r = rows[-1]
-        print(
-            f"[pose_fit] {k}: pose error {r['pose_error_median_mm']:.2f} mm; ignoring z {r['ignoring_z']:+.1f} "
-            f"covered {r['ignoring_covered']}; marginalised z {r['marginalised_z']:+.1f} covered "
-            f"{r['marginalised_covered']} (tau {r['tau_posterior_median_mm']:.2f} mm)",
-            flush=True,
-        )
+    workers = int(os.environ.get("BAYESTOUCH_POSE_FIT_WORKERS", "2"))
+    if workers > 1:
+        with mp.get_context("spawn").Pool(workers, initializer=worker_init) as pool:
+            rows = []
+            for r in pool.imap(_scenario_in, range(scenarios)):
+                rows.append(r)
+                write_csv_rows(RESULTS / "pose_fit.csv", rows, list(rows[0]))
+    else:
+        rows = [_scenario_in(k) for k in range(scenarios)]
     write_csv_rows(RESULTS / "pose_fit.csv", rows, list(rows[0]))
-    summary = {"scenarios": len(rows)}
+    summary = {"scenarios": len(rows), "truth_spread_factor": TRUTH_WIDER, "ensemble_draws": ENSEMBLE_DRAWS}
     res = []
-    for name in ("ignoring", "marginalised"):
+    for name in FITS:
         k = sum(r[f"{name}_covered"] for r in rows)
         lo, hi = wilson_interval(k, len(rows))
         med_z = bootstrap_median([abs(r[f"{name}_z"]) for r in rows])
@@ -205,5 +249,7 @@ def bench_pose_fit(scenarios: int = SCENARIOS) -> list[dict]:
             }
         )
     summary["pose_error_median_mm"] = bootstrap_median([r["pose_error_median_mm"] for r in rows])[0]
+    summary["ensemble_seconds_median"] = float(np.median([r["ensemble_seconds"] for r in rows]))
+    summary["scale_posterior_median"] = float(np.median([r["scale_posterior_median"] for r in rows]))
     write_text(RESULTS / "pose_fit.json", json.dumps(summary, indent=2) + "\n")
     return res
