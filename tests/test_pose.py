@@ -211,7 +211,15 @@ def test_pose_error_ensemble_is_each_drawn_finger_minus_the_nominal(wire, rod):
     frames = np.array([20, 40, 59])
     R = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
     ens = pose.pose_error_ensemble(
-        wire, rod, [cur, cur[:50]], 0.05, [frames, frames[:2]], draws=2, seed=5, rotations=np.stack([np.eye(3), R])
+        wire,
+        rod,
+        [cur, cur[:50]],
+        0.05,
+        [frames, frames[:2]],
+        draws=2,
+        seed=5,
+        rotations=np.stack([np.eye(3), R]),
+        progress=True,
     )
     assert ens.shape == (2, 5, 3)
     g = np.random.default_rng(5)

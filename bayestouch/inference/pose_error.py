@@ -335,7 +335,7 @@ def _linear_gaussian(th, hom, shift, lead, resid, blocks, corr):
     logdet = logdet + 2.0 * jnp.sum(jnp.log(jnp.diagonal(cA, axis1=1, axis2=2)), axis=1)
     ll = -0.5 * (quad + logdet + M * _LOG_2PI)
     # posterior means given n·u + noise = −d, u = s L z + n η: with w = C⁻¹(−d) (Woodbury, C = D + B Bᵀ),
-    # ẑ = Bᵀ w / s-free form below, η̂ = R w
+    # ẑ = Bᵀ w and η̂ = R w, so the pose error's posterior mean is s L ẑ + n η̂
     x = solve(cA, y[..., None], lower=True, trans=1)[..., 0]  # A⁻¹ v
     w_blk = -(solve(cD, (yd - jnp.einsum("wsmk,wk->wsm", yB, x))[..., None], lower=True, trans=1)[..., 0])
     z = jnp.einsum("wsmk,wsm->wk", Bb, w_blk)  # (W, r): Bᵀ w

@@ -14,6 +14,7 @@ from typing import NamedTuple
 
 import numpy as np
 from scipy.optimize import minimize
+from tqdm.auto import tqdm
 
 from bayestouch.backend import jax, jnp
 from bayestouch.errors import BadInput
@@ -213,6 +214,7 @@ def pose_error_ensemble(
     seed: int = 0,
     rotations=None,
     substeps: int = 10,
+    progress: bool = False,
 ) -> np.ndarray:
     """What a host that knows only the nominal constants and their spread can say about its pad-pose error: the
     errors p_finger − p_nominal of ``draws`` fingers drawn about the nominal one (:func:`draw_finger`), each run
@@ -238,6 +240,8 @@ def pose_error_ensemble(
         World-from-base rotation of each stroke (default identity): errors are returned in world axes.
     substeps : int
         Thermal integration steps per frame (:func:`tip_path`).
+    progress : bool
+        Show a progress bar over the K × S chain runs.
 
     Returns
     -------
@@ -261,10 +265,15 @@ def pose_error_ensemble(
     rng = np.random.default_rng(seed)
     fingers = [draw_finger(rng, wire, rod, spread) for _ in range(int(draws))]
     out = []
+    bar = tqdm(total=len(progs) * len(fingers), desc="drawn fingers", unit="run", disable=not progress)
     for c, f, R in zip(progs, frs, rots, strict=True):
         nominal = tip_path(wire, rod, c, dt, substeps=substeps).tip_position[f]
-        tips = np.stack([tip_path(w, r, c, dt, substeps=substeps).tip_position[f] for w, r in fingers])
-        out.append((tips - nominal) @ R.T)
+        tips = []
+        for w, r in fingers:
+            tips.append(tip_path(w, r, c, dt, substeps=substeps).tip_position[f])
+            bar.update()
+        out.append((np.stack(tips) - nominal) @ R.T)
+    bar.close()
     return np.concatenate(out, axis=1)
 
 
