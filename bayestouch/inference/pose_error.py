@@ -114,14 +114,16 @@ def _stroke_log_lik(th, hom, onehot):
 _stroke_log_lik_jit = jax.jit(_stroke_log_lik)
 
 
+def _homogeneous(p: np.ndarray):
+    """Homogeneous coordinates (4, M) of points ``p (M, 3)`` in metres, as :func:`contact.principal_frame` takes."""
+    return jnp.asarray(np.concatenate([p.T, np.ones((1, len(p)))], axis=0))
+
+
 def _prepare(points, strokes):
-    p = np.asarray(points, dtype=float)
-    if p.ndim != 2 or p.shape[1] != 3 or len(p) < 1 or not np.all(np.isfinite(p)):
-        raise BadInput(f"points: expected a finite (M ≥ 1, 3) array in metres, got shape {p.shape}")
+    p = cm.check_points(points)[0]
     lab = _labels(strokes, len(p))
     onehot = (lab[None, :] == np.arange(lab.max() + 1)[:, None]).astype(float)
-    hom = np.concatenate([p.T, np.ones((1, len(p)))], axis=0)
-    return p, jnp.asarray(hom), jnp.asarray(onehot)
+    return p, _homogeneous(p), jnp.asarray(onehot)
 
 
 def pose_log_likelihood(thetas, points, strokes) -> np.ndarray:
@@ -267,9 +269,7 @@ def ensemble_model(points, ensemble, strokes, times, rank: int | None = None) ->
     -------
     EnsembleModel
     """
-    p = np.asarray(points, dtype=float)
-    if p.ndim != 2 or p.shape[1] != 3 or len(p) < 1 or not np.all(np.isfinite(p)):
-        raise BadInput(f"points: expected a finite (M ≥ 1, 3) array in metres, got shape {p.shape}")
+    p = cm.check_points(points)[0]
     e = np.asarray(ensemble, dtype=float)
     if e.ndim != 3 or e.shape[1:] != p.shape or e.shape[0] < 2 or not np.all(np.isfinite(e)):
         raise BadInput(
@@ -362,9 +362,8 @@ _ensemble_log_lik_jit = jax.jit(_ensemble_log_lik, static_argnames=("relinearise
 
 
 def _arrays(model: EnsembleModel):
-    hom = np.concatenate([model.moved.T, np.ones((1, len(model.moved)))], axis=0)
     return (
-        jnp.asarray(hom),
+        _homogeneous(model.moved),
         jnp.asarray(model.lead),
         jnp.asarray(model.resid),
         jnp.asarray(model.blocks),
