@@ -99,8 +99,8 @@ def _ensemble_case(rng, sizes=(5, 8, 4), K=9):
 
 def test_the_ensemble_law_is_the_dense_gaussian_of_its_parts(rng):
     """Linearised once (relinearise=0), the blocked Woodbury form equals the multivariate normal with covariance
-    σ² I + s² B Bᵀ + s² (a aᵀ ∘ ρ) evaluated densely: B the leading components along the model's normals, a the
-    remainder's sd along them, ρ = exp(−|Δt|/ℓ) within a stroke and 0 across strokes."""
+    σ² I + s² B Bᵀ + s² (a aᵀ ∘ ρ) evaluated densely: B the leading components and the per-stroke offsets along
+    the model's normals, a the remainder's sd along them, ρ = exp(−|Δt|/ℓ) within a stroke and 0 across strokes."""
     pts, ens, lab, t = _ensemble_case(rng)
     th = _theta(np.log(5e-4), np.log(1.3))
     mod = pe.ensemble_model(pts, ens, lab, t, rank=3)
@@ -116,7 +116,12 @@ def test_the_ensemble_law_is_the_dense_gaussian_of_its_parts(rng):
     # the leading components and the remainder add up to the ensemble's per-contact covariance
     dev = (ens - ens.mean(0)) / np.sqrt(len(ens) - 1)
     full = np.einsum("kmc,kme->cem", dev, dev)
-    np.testing.assert_allclose(np.einsum("cmk,emk->cem", mod.lead, mod.lead) + mod.resid, full, atol=1e-15)
+    lead, off = mod.lead[..., :3], mod.lead[..., 3:]
+    np.testing.assert_allclose(np.einsum("cmk,emk->cem", lead, lead) + mod.resid, full, atol=1e-15)
+    # and the offsets are one per stroke: covariance offset_sd² I₃ between contacts of a stroke, 0 across strokes
+    same = (lab[:, None] == lab[None, :]).astype(float)
+    want = pe.OFFSET_SD**2 * np.einsum("ij,ce->ciej", same, np.eye(3))
+    np.testing.assert_allclose(np.einsum("cik,ejk->ciej", off, off), want, atol=1e-18)
 
 
 def test_correlation_time_recovers_an_ornstein_uhlenbeck_remainder():
@@ -154,7 +159,7 @@ def test_relinearising_removes_the_curvature_bias_of_large_pose_errors():
     err = {0: [], 1: []}
     for _ in range(12):
         e = g.normal(0, 3e-3, (2, 3))[lab]
-        mod = pe.ensemble_model(x - e + g.normal(0, 1e-4, x.shape), ens, lab, t)
+        mod = pe.ensemble_model(x - e + g.normal(0, 1e-4, x.shape), ens, lab, t, offset_sd=0.0)
         for k in err:
             err[k].append(radii[np.argmax(pe.ensemble_log_likelihood(th, mod, relinearise=k))] / R - 1)
     lin, relin = np.abs(err[0]).mean(), np.abs(err[1]).mean()
@@ -165,7 +170,8 @@ def test_relinearising_removes_the_curvature_bias_of_large_pose_errors():
 def test_ensemble_log_prob_prior_and_bad_input(rng):
     pts, ens, lab, t = _ensemble_case(rng)
     mod = pe.ensemble_model(pts, ens, lab, t)
-    assert mod.lead.shape[-1] == min(pe.RANK, len(ens) - 1)
+    assert mod.lead.shape[-1] == min(pe.RANK, len(ens) - 1) + 3 * len(np.unique(lab))
+    assert pe.ensemble_model(pts, ens, lab, t, offset_sd=0).lead.shape[-1] == min(pe.RANK, len(ens) - 1)
     f, bounds = pe.make_ensemble_pose_log_prob(mod)
     assert len(bounds.lower) == len(pe.ENSEMBLE_PARAM_NAMES) == 12
     th = _theta(np.log(5e-4), 0.0)
@@ -178,7 +184,28 @@ def test_ensemble_log_prob_prior_and_bad_input(rng):
         pe.ensemble_model(pts, ens, lab, t[:-1])
     with pytest.raises(BadInput, match="rank: expected an integer in"):
         pe.ensemble_model(pts, ens, lab, t, rank=len(ens))
+    for bad in (-1e-3, np.nan, "1 mm", 0.5):
+        with pytest.raises(BadInput, match=r"offset_sd: expected a per-stroke offset sd in metres in \[0, 0.1\)"):
+            pe.ensemble_model(pts, ens, lab, t, offset_sd=bad)
     with pytest.raises(BadInput, match="relinearise"):
         pe.make_ensemble_pose_log_prob(mod, relinearise=-1)
     with pytest.raises(BadInput, match="thetas"):
         f(np.zeros((2, 11)))
+
+
+def test_the_offset_absorbs_a_stroke_shift_the_drawn_fingers_do_not_make(rng):
+    """An ensemble of fingers that barely differ (0.01 mm) and one stroke's contacts recorded 2 mm off: without
+    the per-stroke offset the law charges the shift hundreds of nats (the negative control); with the default
+    1 mm offset a few, as the single-offset pose model does for its τ."""
+    pts, lab = _data(rng)
+    t = np.tile(np.linspace(0.0, 10.0, np.sum(lab == lab[0])), len(np.unique(lab)))
+    moved = pts.copy()
+    moved[lab == lab[0]] += np.array([0.0015, -0.001, 0.001])
+    ens = rng.normal(0, 1e-5, (12, len(pts), 3))
+    th = _theta(np.log(3e-4), 0.0)[None]
+    cost = {}
+    for sd in (0.0, pe.OFFSET_SD):
+        ll = [pe.ensemble_log_likelihood(th, pe.ensemble_model(p, ens, lab, t, offset_sd=sd))[0] for p in (pts, moved)]
+        cost[sd] = ll[0] - ll[1]
+    assert cost[0.0] > 100
+    assert cost[pe.OFFSET_SD] < 10

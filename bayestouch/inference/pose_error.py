@@ -24,9 +24,12 @@ leave out, each contact's remaining covariance V_i, correlated between a stroke'
 fitted to the ensemble (:func:`correlation_time`). :func:`make_ensemble_pose_log_prob` marginalises it: residuals
 Gaussian with covariance s² B Bᵀ + D, B_ik = n_i·L_ik, D block-diagonal by stroke, D_s = σ² I + s² (a aᵀ ∘ ρ_s),
 a_i² = n_iᵀ V_i n_i (Woodbury in the leading components, Cholesky per stroke), s a sampled scale (prior log-normal
-about 1) for a finger further from nominal than the host's spread says. Pose errors of millimetres on surfaces
-curved over centimetres are not linear in the distance (a 3 mm tangential shift moves a contact 0.2 mm off a
-20 mm sphere), so the law is linearised again about the pose error's posterior mean (:data:`RELINEARISE`).
+about 1) for a finger further from nominal than the host's spread says. What the drawn fingers do not hold (the
+carrier's calibration, the pad's mount, a finger outside the assumed family) enters as one more offset per stroke,
+sd :data:`OFFSET_SD` (``offset_sd``; scaled by s as well): three more columns of L per stroke. Pose errors of
+millimetres on surfaces curved over centimetres are not linear in the distance (a 3 mm tangential shift moves a
+contact 0.2 mm off a 20 mm sphere), so the law is linearised again about the pose error's posterior mean
+(:data:`RELINEARISE`).
 """
 
 from __future__ import annotations
@@ -53,6 +56,7 @@ __all__ = [
     "SCALE_MAX",
     "RANK",
     "RELINEARISE",
+    "OFFSET_SD",
     "EnsembleModel",
     "ensemble_model",
     "correlation_time",
@@ -82,6 +86,10 @@ SCALE_MAX = 20.0
 RANK = 8
 #: times the linearised law is linearised again about the pose error's posterior mean
 RELINEARISE = 1
+#: sd (metres) of the per-stroke offset beside the ensemble's law: a discrepancy term for pose errors the drawn
+#: fingers do not produce. 1 mm is of the order of a carrier's hand-eye calibration and was chosen on
+#: benchmarks/bench_pose_fit.py's scenarios 0-19 (docs/physics_notes.md); 0 turns it off
+OFFSET_SD = 1e-3
 
 
 def _labels(strokes, m: int) -> np.ndarray:
@@ -199,8 +207,10 @@ class EnsembleModel(NamedTuple):
     ----------
     moved : (M, 3) float, metres
         The contacts moved by the ensemble's mean error.
-    lead : (3, M, r) float, metres
-        Leading components L of the pose covariance (errors e = μ + L z, z ~ N(0, I_r), shared by all contacts).
+    lead : (3, M, r + 3S) float, metres
+        Columns L of the pose error e = μ + L z, z ~ N(0, I): the ensemble's r leading components (shared by all
+        contacts), then, when ``offset_sd`` > 0, three per stroke, ``offset_sd`` along each axis on its contacts
+        and 0 elsewhere (none when ``offset_sd`` is 0).
     resid : (3, 3, M) float, m²
         Each contact's pose covariance that the leading components leave out.
     blocks : (S, m) int
@@ -209,6 +219,8 @@ class EnsembleModel(NamedTuple):
         Correlation of the remainder between a stroke's contacts, exp(−|t_i − t_j| / ℓ); 0 across strokes.
     ell : float, seconds
         The remainder's correlation time ℓ (:func:`correlation_time`).
+    offset_sd : float, metres
+        The per-stroke offset's sd (0: none).
     """
 
     moved: np.ndarray
@@ -217,6 +229,7 @@ class EnsembleModel(NamedTuple):
     blocks: np.ndarray
     corr: np.ndarray
     ell: float
+    offset_sd: float = 0.0
 
 
 def correlation_time(remainder, strokes, times) -> float:
@@ -248,7 +261,9 @@ def correlation_time(remainder, strokes, times) -> float:
     return float(grid[int(np.argmin(err))])
 
 
-def ensemble_model(points, ensemble, strokes, times, rank: int | None = None) -> EnsembleModel:
+def ensemble_model(
+    points, ensemble, strokes, times, rank: int | None = None, offset_sd: float = OFFSET_SD
+) -> EnsembleModel:
     """The pose-error law of :func:`make_ensemble_pose_log_prob` from K drawn fingers' errors.
 
     Parameters
@@ -264,6 +279,8 @@ def ensemble_model(points, ensemble, strokes, times, rank: int | None = None) ->
         When each contact was recorded (any origin per stroke).
     rank : int, optional
         Leading components kept (default min(:data:`RANK`, K − 1)).
+    offset_sd : float, metres
+        sd of one more offset per stroke beside the ensemble's law (default :data:`OFFSET_SD`; 0: none).
 
     Returns
     -------
@@ -279,6 +296,12 @@ def ensemble_model(points, ensemble, strokes, times, rank: int | None = None) ->
     t = np.asarray(times, dtype=float)
     if t.shape != (len(p),) or not np.all(np.isfinite(t)):
         raise BadInput(f"times: expected one finite time in seconds per contact ({len(p)} values), got shape {t.shape}")
+    if not (
+        isinstance(offset_sd, int | float | np.integer | np.floating)
+        and np.isfinite(offset_sd)
+        and 0 <= offset_sd < 0.1
+    ):
+        raise BadInput(f"offset_sd: expected a per-stroke offset sd in metres in [0, 0.1), got {offset_sd!r}")
     K, M = e.shape[:2]
     r = min(RANK, K - 1) if rank is None else int(rank)
     if not 1 <= r <= K - 1:
@@ -299,7 +322,12 @@ def ensemble_model(points, ensemble, strokes, times, rank: int | None = None) ->
         blocks[k, : len(idx)] = idx
         dt = np.abs(t[idx][:, None] - t[idx][None, :])
         corr[k, : len(idx), : len(idx)] = np.exp(-dt / ell) if ell > 0 else np.eye(len(idx))
-    return EnsembleModel(p + mu, np.transpose(lead, (1, 0, 2)), resid, blocks, corr, ell)
+    if offset_sd > 0:
+        off = np.zeros((M, 3, 3 * S))
+        for c in range(3):
+            off[np.arange(M), c, 3 * lab + c] = offset_sd
+        lead = np.concatenate([lead, off], axis=2)
+    return EnsembleModel(p + mu, np.transpose(lead, (1, 0, 2)), resid, blocks, corr, ell, float(offset_sd))
 
 
 def _linear_gaussian(th, hom, shift, lead, resid, blocks, corr):
