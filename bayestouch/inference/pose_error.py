@@ -87,8 +87,8 @@ RANK = 8
 #: times the linearised law is linearised again about the pose error's posterior mean
 RELINEARISE = 1
 #: sd (metres) of the per-stroke offset beside the ensemble's law: a discrepancy term for pose errors the drawn
-#: fingers do not produce. 1 mm is of the order of a carrier's hand-eye calibration and was chosen on
-#: benchmarks/bench_pose_fit.py's scenarios 0-19 (docs/physics_notes.md); 0 turns it off
+#: fingers do not produce. 1 mm was tried on benchmarks/bench_pose_fit.py's scenarios 0-19 before the benchmark
+#: ran (docs/physics_notes.md); 0 turns it off
 OFFSET_SD = 1e-3
 
 
