@@ -199,7 +199,7 @@ def _pose_fit(d: dict) -> tuple[str, str, str]:
     def arm(m):
         c = m["volume_coverage_90"]
         return (
-            f"90 % volume intervals hold the truth in {c['k']}/{c['n']} {_ci(c['wilson95'])}, median |z| "
+            f"90 % volume intervals hold the truth in {c['k']}/{c['n']} {_ci(c['wilson95'])}, median \\|z\\| "
             f"{m['abs_z_median']['median']:.2f}, median width {_pct(m['width_rel_median']['median'], 0)} of the "
             f"volume, converged {m['converged']}/{c['n']}"
             + (
