@@ -89,6 +89,11 @@ def run(names: list[str] | None = None) -> dict[str, list[dict]]:
     return {}
 
 
+def _cell(text) -> str:
+    """A Markdown table cell: its pipes escaped, so that a metric such as "median |z|" stays in one column."""
+    return str(text).replace("|", "\\|")
+
+
 def _markdown(info: dict) -> str:
     lines = [
         "# Benchmark results",
@@ -105,5 +110,6 @@ def _markdown(info: dict) -> str:
             extra = {k: v for k, v in r.items() if k not in ("benchmark", "metric", "value", "unit")}
             notes = ", ".join(f"{k}={v}" for k, v in extra.items())
             v = r["value"]
-            lines.append(f"| {path.stem} | {r['benchmark']} | {r['metric']} | {v:.4g} | {r['unit']} | {notes} |")
+            cells = [path.stem, r["benchmark"], r["metric"], f"{v:.4g}", r["unit"], notes]
+            lines.append("| " + " | ".join(_cell(c) for c in cells) + " |")
     return "\n".join(lines) + "\n"

@@ -60,3 +60,23 @@ def test_readme_pictures_and_links_exist():
     for t in targets:
         if "://" not in t:
             assert (ROOT / t).exists(), t
+
+
+def _cells(line: str) -> int:
+    """Columns of a Markdown table row: its pipes less the escaped ones, less one."""
+    return len(re.findall(r"(?<!\\)\|", line)) - 1
+
+
+@pytest.mark.parametrize("path", ["README.md", "benchmarks/results/README.md"])
+def test_every_table_row_has_its_header_s_columns(path):
+    """A metric such as "median |z|" written unescaped splits its row into more columns than the header has, and
+    the renderer shifts every cell after it; each table's rows have as many columns as its header."""
+    lines = (ROOT / path).read_text(encoding="utf-8").splitlines()
+    header = None
+    for line in lines:
+        if not line.startswith("|"):
+            header = None
+        elif header is None:
+            header = _cells(line)
+        else:
+            assert _cells(line) == header, line[:120]
