@@ -8,7 +8,7 @@ times the host's assumed :class:`~bayestouch.physics.pose.FingerSpread`: the fin
 the host believes) with one wire-current program per stroke (:func:`benchmarks.bench_pose.program`). The pad's pose
 error along each stroke is the chain's p_true − p_host (:func:`bayestouch.physics.pose.tip_path` of the drawn
 finger and of the nominal one, the host's), sampled at the stroke's contacts and turned into the world by a random
-base orientation (the carrier's, which the host knows): the host records each contact displaced by it. Four fits
+base orientation (the carrier's, which the host knows): the host records each contact displaced by it. Five fits
 on the same recorded contacts, all emcee from the optimum (32 walkers, up to :data:`STEPS` steps, stopped when
 converged):
 

@@ -174,7 +174,7 @@ def _pose(d: dict) -> tuple[str, str, str]:
         f" (95th percentile {mm('nominal_p95_mm')}); without the hysteresis {mm('nominal_no_hysteresis_median_mm')}"
         f"; every constant exact, no hysteresis {mm('true_no_hysteresis_median_mm')}; tip deflections up to "
         f"{d['max_deflection_mm']['median']:.1f} mm. The law of such errors, from fingers run through the "
-        "commanded programs, enters `bench_pose_fit`'s third and fourth fits; the simulator does not use the chain yet",
+        "commanded programs, enters `bench_pose_fit`'s last two fits; the simulator does not use the chain yet",
         "`bench_pose` (`benchmarks/results/pose.json`)",
     )
 
@@ -193,6 +193,15 @@ def _pose_fit_verdict(d: dict) -> str:
         if key in d and 0.85 <= d[key]["volume_coverage_90"]["k"] / d[key]["volume_coverage_90"]["n"] <= 0.95
     ]
     return f"Within the target 85–95 %: {', '.join(ok)}" if ok else "None is calibrated yet (target 85–95 %)"
+
+
+def _offset_arm(m: dict, arm) -> str:
+    """bench_pose_fit's law with the per-stroke offset, and its coverage on the scenarios held out of the choice."""
+    late = m["volume_coverage_90_held_out"]
+    return (
+        f"; the same law and one more offset per stroke (sd 1 mm, chosen on scenarios 0–{late['from_scenario'] - 1}"
+        f"): {arm(m)} (scenarios {late['from_scenario']} on: {late['k']}/{late['n']})"
+    )
 
 
 def _pose_fit(d: dict) -> tuple[str, str, str]:
@@ -218,13 +227,7 @@ def _pose_fit(d: dict) -> tuple[str, str, str]:
         f"1 mm): {arm(d['marginalised'])}; the pose error's law from {d['ensemble_draws']} fingers run through the "
         f"commanded programs (the true finger {d['truth_spread_factor']:g}× further from nominal than the host "
         f"assumes): {arm(d['programs'])}"
-        + (
-            f"; the same law and one more offset per stroke (sd 1 mm, chosen on scenarios 0–19): {arm(d['offset'])}"
-            f" (scenarios {d['offset']['volume_coverage_90_held_out']['from_scenario']} on: "
-            f"{d['offset']['volume_coverage_90_held_out']['k']}/{d['offset']['volume_coverage_90_held_out']['n']})"
-            if "offset" in d
-            else ""
-        )
+        + (_offset_arm(d["offset"], arm) if "offset" in d else "")
         + f". {_pose_fit_verdict(d)}",
         "`bench_pose_fit` (`benchmarks/results/pose_fit.json`)",
     )
