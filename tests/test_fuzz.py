@@ -19,6 +19,7 @@ def test_hostile_commands_and_frames_are_judged_without_an_exception():
     accepted frames, would test nothing)."""
     out = fuzz(3000, seed=1)
     assert out["ack"] > 10 and out["nak"] > 1000
+    assert 10 < out["carrier_ack"] < out["carriers"] - 1000
     assert 100 < out["bad_frames"] < out["frames"]
 
 

@@ -90,6 +90,9 @@ def _messages(n_taxels: int = 256, T: int = 7) -> list:
         ),
         pr.Segment(48),
         pr.Part(0xDEADBEEF, 300, 48, np.arange(48, dtype=np.uint8)),
+        pr.CarrierStroke(
+            44, 0.9, np.arange(T) * 0.02, g.normal(size=(T, 3)), np.diag([1.0, -1.0, -1.0]), g.random((T, 3))
+        ),
     ]
 
 
@@ -332,3 +335,12 @@ def test_decoder_holds_a_bounded_number_of_incomplete_packets():
     assert dec._held <= dec.max_partial_bytes and len(dec._partial) == dec.max_partial_bytes // pr.MAX_PACKET
     with pytest.raises(ValueError, match="segment size"):
         pr.split(pr.encode(_messages()[10], 1), 8)
+
+
+def test_every_name_the_hardware_package_exports_resolves():
+    """``bayestouch.hardware.__all__`` maps each name onto the module that defines it (the frame models were once
+    mapped onto the simulator module, which only imports two constants from theirs: AttributeError)."""
+    import bayestouch.hardware as hw
+
+    for name in hw.__all__:
+        assert getattr(hw, name) is not None, name

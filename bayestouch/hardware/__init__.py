@@ -7,6 +7,7 @@ imports the client with pyserial and the physics it needs on first use):
 - :mod:`~bayestouch.hardware.safety` — limits and stroke-plan checks;
 - :mod:`~bayestouch.hardware.device` — :class:`FingerDevice`, the client;
 - :mod:`~bayestouch.hardware.simulator` — :class:`VirtualDevice`, the virtual finger;
+- :mod:`~bayestouch.hardware.frame_models` — what the virtual finger streams (:class:`ForwardModel` and others);
 - :mod:`~bayestouch.cli.device` — ``bayestouch device simulate`` and ``bayestouch device run``.
 """
 
@@ -26,10 +27,12 @@ __all__ = [
     "GuardedModel",
     "ProbePlan",
     "ProbeData",
+    "CarrierData",
     "Limits",
     "StrokePlan",
     "UnsafePlan",
     "check_plan",
+    "check_carrier",
     "plan_from_stroke",
     "read_journal",
     "build_recording",
@@ -44,15 +47,17 @@ _WHERE = {
     "build_recording": "device",
     "VirtualDevice": "simulator",
     "Faults": "simulator",
-    "SyntheticModel": "simulator",
-    "ForwardModel": "simulator",
-    "GuardedModel": "simulator",
+    "SyntheticModel": "frame_models",
+    "ForwardModel": "frame_models",
+    "GuardedModel": "frame_models",
     "ProbePlan": "device",
     "ProbeData": "device",
+    "CarrierData": "device",
     "Limits": "safety",
     "StrokePlan": "safety",
     "UnsafePlan": "safety",
     "check_plan": "safety",
+    "check_carrier": "safety",
     "plan_from_stroke": "safety",
 }
 

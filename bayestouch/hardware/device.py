@@ -27,6 +27,7 @@ from bayestouch.hardware.safety import (
     PlanCheck,
     StrokePlan,
     UnsafePlan,
+    check_carrier,
     check_limits,
     check_plan,
     plan_from_stroke,
@@ -35,6 +36,7 @@ from bayestouch.io.recording import CURRENT_FLOOR_A, PHYSICAL_RANGES, build_data
 from bayestouch.params import MODELS
 from bayestouch.physics import bending
 from bayestouch.physics import skin as sk
+from bayestouch.physics.pose import program_dt
 
 __all__ = [
     "FingerDevice",
@@ -49,6 +51,7 @@ __all__ = [
     "build_recording",
     "ProbePlan",
     "ProbeData",
+    "CarrierData",
     "winkler_depth",
     "depth_for_force",
     "frame_problem",
@@ -143,6 +146,29 @@ class ProbeData(NamedTuple):
     position: np.ndarray
 
 
+class CarrierData(NamedTuple):
+    """One completed carrier stroke (protocol revision 1.3).
+
+    plan : CarrierProgram
+        What was commanded (:class:`~bayestouch.physics.pose.CarrierProgram`).
+    frames : dict of (T, ...) arrays, keys of :data:`bayestouch.hardware.frame_models.FRAME_KEYS`
+    device_time : (T,) float, seconds (device clock)
+    stroke_id : int
+    """
+
+    plan: object
+    frames: dict
+    device_time: np.ndarray
+    stroke_id: int
+
+    def pad_centre(self) -> np.ndarray:
+        """Where the host believes the pad centre was, (T, 3) metres, world frame: the commanded base pose × the
+        tip position the finger sensed (the frames' ``finger_tip_position``, base frame). Its error is the pose
+        error of the finger's sensing, not of the host's bending constants."""
+        R = np.asarray(self.plan.base_rotation, float).reshape(3, 3)
+        return np.asarray(self.plan.base_position, float) + np.asarray(self.frames["finger_tip_position"]) @ R.T
+
+
 def _skin_and_radius(skin=None, tip_radius=None):
     skin = skin if skin is not None else sk.load_skin(MODELS / "skin.toml")
     if tip_radius is None:
@@ -183,8 +209,8 @@ class JournalStrokes(NamedTuple):
         One phrase per stroke sent but not complete in the journal (``"stroke id 7: 40 of 101 frames"``), and per
         stroke whose frames are there but whose command is not (a damaged packet).
     skipped : int
-        Guarded strokes (protocol revision 1.1) and frames with impossible contents (:func:`frame_problem`), left
-        out.
+        Guarded strokes (protocol revision 1.1) and their frames, carrier strokes (1.3) and their frames, and frames
+        with impossible contents (:func:`frame_problem`), left out.
     damaged : int
         Packets of the journal that failed their check (CRC, framing) and were dropped.
     """
@@ -236,15 +262,24 @@ def strokes_from_journal(path) -> JournalStrokes:
     commands: dict[int, pr.StrokeCommand] = {}
     frames: dict[int, dict[int, pr.Frame]] = {}
     orphans: dict[int, set] = {}  # frames of a stroke whose command packet is not in the journal
+    carriers: set[int] = set()  # carrier strokes (revision 1.3), left out with their frames
     skipped = 0
     for m in messages:
         if isinstance(m, pr.HelloReply):
             info = m
         elif isinstance(m, pr.StrokeCommand):
+            carriers.discard(int(m.stroke_id))
             commands.pop(int(m.stroke_id), None)  # a stroke id used again is the later stroke, in its place
             commands[int(m.stroke_id)] = m
             frames[int(m.stroke_id)] = {}
         elif isinstance(m, pr.ProbeStroke | pr.ProbeFrame):
+            skipped += 1
+        elif isinstance(m, pr.CarrierStroke):  # its frames are plain FRAMEs: set aside by their stroke id
+            carriers.add(int(m.stroke_id))
+            frames.pop(int(m.stroke_id), None)
+            commands.pop(int(m.stroke_id), None)
+            skipped += 1
+        elif isinstance(m, pr.Frame) and int(m.stroke_id) in carriers:
             skipped += 1
         elif isinstance(m, pr.Frame):
             if frame_problem(m, info) is not None:
@@ -817,6 +852,64 @@ class FingerDevice:
                 ) from None
             raise
         return probe_data(got, dev_t, sid)
+
+    def run_carrier(self, program) -> CarrierData:
+        """Run one carrier stroke (protocol revision 1.3): the finger base along ``program.base_position`` while the
+        wires follow ``program.currents``; the pad touches wherever the bent rod puts it
+        (:func:`bayestouch.physics.pose.carrier_program` makes a program for a desired pad path).
+
+        Parameters
+        ----------
+        program : CarrierProgram
+            ``time (T,)`` s, evenly spaced; ``base_position (T, 3)`` m; ``base_rotation (3, 3)``;
+            ``currents (T, 3)`` A.
+
+        Returns
+        -------
+        CarrierData
+
+        Raises
+        ------
+        UnsafePlan
+            Before anything is sent, if the program breaks a limit
+            (:func:`~bayestouch.hardware.safety.check_carrier`) or its frame times are not evenly spaced (or the
+            device refuses it).
+        HeaterFault
+            As :meth:`run_stroke` (the complete stroke is the exception's ``data``).
+        DeviceError
+            As :meth:`run_stroke`; also when the device does not know carrier strokes (a revision < 1.3 device
+            drops the unknown command: no answer).
+        """
+        check_carrier(program, self.limits)
+        try:
+            program_dt(program.time)
+        except BadInput as e:
+            raise UnsafePlan(f"carrier plan: {e}") from None
+
+        def command(sid):
+            return pr.CarrierStroke(
+                sid,
+                float(self.limits.max_force),
+                np.asarray(program.time, float),
+                np.asarray(program.base_position, float),
+                np.asarray(program.base_rotation, float).reshape(3, 3),
+                np.asarray(program.currents, float),
+            )
+
+        try:
+            got, dev_t, sid = self._run(command, len(program.time))
+        except HeaterFault as e:  # the stroke is complete: it goes with the fault
+            got, dev_t, sid = e.frames
+            e.data = CarrierData(program, _frames_to_arrays(got)[0], dev_t, sid)
+            raise
+        except DeviceError as e:
+            if "no answer to CarrierStroke" in str(e):
+                fw = self.info.firmware if self.info else "?"
+                raise DeviceError(
+                    f"{self.url}: the device ({fw}) does not answer carrier strokes (protocol revision 1.3)"
+                ) from None
+            raise
+        return CarrierData(program, _frames_to_arrays(got)[0], dev_t, sid)
 
     def _run(self, command, T: int):
         """Send the stroke command ``command(stroke_id)`` and collect its T frames (redone with a new id when the

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bayestouch.backend import jnp
+from bayestouch.backend import jax, jnp
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.hardware.device import winkler_depth
 from bayestouch.hardware.safety import (
@@ -22,6 +22,9 @@ from bayestouch.hardware.safety import (
     steady_wire_temperature,
 )
 from bayestouch.params import MODELS
+from bayestouch.physics import forward as fw
+from bayestouch.physics import pose
+from bayestouch.physics.finger import skin_temperature
 from bayestouch.physics.virtual import finger_name, load_finger, record_strokes
 from bayestouch.scene.raycast import CONTACT, INSIDE, MISS, true_ray_distances
 from bayestouch.scene.strokes import stroke_from_path
@@ -93,7 +96,9 @@ class ForwardModel:
         Fixed pattern of the device and, with the stroke index, the measurement noise.
 
     Guarded strokes (:meth:`probe`) find the contacts on ``obj`` (:class:`GuardedModel`; pose error ``pose_sd``,
-    0.3 mm, an attribute).
+    0.3 mm, an attribute). Carrier strokes (:meth:`carrier`) put the pad where this finger's bending chain takes it:
+    the wire and rod constants are ``vf.wire`` and ``vf.rod`` (``models``'s; replace them, ``vf._replace``, for a
+    finger whose constants are not the ones a host assumes).
     """
 
     def __init__(self, obj, models: Path | None = None, seed: int = 0, mode: str | None = None):
@@ -118,6 +123,50 @@ class ForwardModel:
                 mode=self.mode,
             )
         return {k: rec[k] for k in FRAME_KEYS}
+
+    def carrier(self, program, index: int) -> dict[str, np.ndarray]:
+        """A carrier stroke (protocol revision 1.3): the frames of the pad that this finger's bending chain
+        (:func:`bayestouch.physics.pose.carrier_pad_path`, the wires cold at the start) puts where the base and the
+        currents take it, touching the object where the pad overlaps it (:func:`~bayestouch.physics.pose
+        .chain_stroke_arrays`; no force where it is clear), the skin warmed by the wires.
+
+        Parameters
+        ----------
+        program : CarrierProgram or CarrierStroke
+            ``time (T,)`` s (evenly spaced), ``base_position (T, 3)`` m, ``base_rotation (3, 3)``,
+            ``currents (T, 3)`` A.
+        index : int
+            The stroke's index (seeds the measurement noise with ``seed``).
+
+        Returns
+        -------
+        dict of :data:`FRAME_KEYS` arrays (T, ...); ``finger_tip_position`` and ``finger_curvature`` are the
+        chain's own (what the finger senses of its bend, without sensor error).
+        """
+        vf = self.vf
+        prog = pose.CarrierProgram(
+            np.asarray(program.time, float),
+            np.asarray(program.base_position, float),
+            np.asarray(program.base_rotation, float).reshape(3, 3),
+            np.asarray(program.currents, float),
+        )
+        dt = pose.program_dt(prog.time)
+        surf = self.obj.surface()
+        with self._lock:  # one compilation at a time
+            pad = pose.carrier_pad_path(vf.wire, vf.rod, prog)
+            arrays = pose.chain_stroke_arrays(surf, pad, float(vf.finger.tip_radius))
+            skin = skin_temperature(jnp.asarray(pad.tip.wire_temperature), vf.wire.ambient, dt)
+            key = jax.random.PRNGKey(self.seed * 100003 + int(index))
+            fr = fw.simulate_jit(surf, arrays, vf.finger, key, skin_temperature=skin, dt=dt, mode=self.mode or vf.mode)
+        return {
+            "taxel_current": np.asarray(fr.taxel_current, float),
+            "wire_current": prog.currents.copy(),
+            "wire_temperature": np.asarray(pad.tip.wire_temperature, float),
+            "skin_temperature": np.asarray(skin, float),
+            "finger_tip_position": np.asarray(pad.tip.tip_position, float),
+            "finger_curvature": np.asarray(pad.tip.curvature, float),
+            "contact_force": np.asarray(fr.force, float),
+        }
 
     def probe(self, plan: StrokePlan, travel: float, threshold: float, index: int) -> dict[str, np.ndarray]:
         """A guarded stroke on this model's object (:meth:`GuardedModel.probe`, pose error ``pose_sd``)."""

@@ -1,8 +1,9 @@
 """Semantic fuzzing of the wire protocol's two ends: well-formed packets with hostile contents.
 
 A packet that passes framing and CRC can still carry NaN, infinities, huge or negative numbers, or arrays whose
-lengths disagree. :func:`hostile_command` draws such STROKE and PROBE_STROKE commands and :func:`hostile_frame`
-such frames; the virtual finger must answer every command with ACK or NAK 2 and keep answering (the decision is
+lengths disagree. :func:`hostile_command` draws such STROKE and PROBE_STROKE commands, :func:`hostile_carrier`
+CARRIER_STROKE commands (revision 1.3) and :func:`hostile_frame` such frames; the virtual finger must answer every
+command with ACK or NAK 2 and keep answering (the decision is
 :func:`~bayestouch.hardware.simulator.command_refusal`, the one the virtual finger makes), and the client must
 reject every impossible frame (:func:`~bayestouch.hardware.device.frame_problem`) without raising. The suite runs
 a few thousand cases; ``python -m bayestouch.hardware.fuzz N`` runs N (10⁵ in about 15 s) without a device in
@@ -20,7 +21,7 @@ from bayestouch.hardware.device import frame_problem
 from bayestouch.hardware.safety import Limits
 from bayestouch.hardware.simulator import command_refusal
 
-__all__ = ["hostile_command", "hostile_frame", "fuzz"]
+__all__ = ["hostile_command", "hostile_carrier", "hostile_frame", "fuzz"]
 
 _HOSTILE = (np.nan, np.inf, -np.inf, 0.0, -1.0, 1e300, -1e300, 1e-300, 3e38)
 
@@ -55,6 +56,23 @@ def hostile_command(rng: np.random.Generator, stroke_id: int):
     return pr.ProbeStroke(*args, _array(rng, nrm), _value(rng, 0.01), _value(rng, 0.05))
 
 
+def hostile_carrier(rng: np.random.Generator, stroke_id: int) -> pr.CarrierStroke:
+    """A CARRIER_STROKE whose every field may be hostile (a rotation may be scaled, mirrored or hold NaN)."""
+    t_n = int(rng.integers(2, 40))
+    t = np.arange(t_n) * 0.02
+    base = np.column_stack([0.01 * t, np.zeros(t_n), np.full(t_n, 0.1)])
+    rot = np.diag([1.0, -1.0, -1.0])
+    u = rng.random()
+    if u < 0.1:
+        rot = -rot  # a mirror: determinant −1
+    elif u < 0.2:
+        rot = 1.5 * rot
+    currents = np.tile([0.1, 0.05, 0.05], (t_n, 1))
+    return pr.CarrierStroke(
+        stroke_id, _value(rng, 1.0), _array(rng, t), _array(rng, base), _array(rng, rot), _array(rng, currents)
+    )
+
+
 def hostile_frame(rng: np.random.Generator, taxels: int = 256) -> pr.Frame:
     """A frame whose every field may be hostile."""
     return pr.Frame(
@@ -77,7 +95,7 @@ def fuzz(cases: int, seed: int = 0) -> dict:
     command or frame holds a non-finite number."""
     rng = np.random.default_rng(seed)
     lim = Limits()
-    out = {"commands": 0, "ack": 0, "nak": 0, "frames": 0, "bad_frames": 0}
+    out = {"commands": 0, "ack": 0, "nak": 0, "carriers": 0, "carrier_ack": 0, "frames": 0, "bad_frames": 0}
     for i in range(cases):
         msg = hostile_command(rng, i)
         verdict = "nak" if command_refusal(msg, lim) is not None else "ack"
@@ -91,6 +109,13 @@ def fuzz(cases: int, seed: int = 0) -> dict:
                 msg.start if isinstance(msg, pr.ProbeStroke) else msg.contact,
             ]
             assert all(np.all(np.isfinite(np.asarray(a, float))) for a in arrays) and np.isfinite(msg.max_force)
+        carrier = hostile_carrier(rng, i)
+        out["carriers"] += 1
+        if command_refusal(carrier, lim) is None:
+            out["carrier_ack"] += 1
+            arrays = [carrier.time, carrier.base_position, carrier.base_rotation, carrier.currents]
+            assert all(np.all(np.isfinite(np.asarray(a, float))) for a in arrays) and carrier.max_force > 0
+            assert np.linalg.det(np.asarray(carrier.base_rotation).reshape(3, 3)) > 0
         f = hostile_frame(rng)
         problem = frame_problem(f)
         out["frames"] += 1

@@ -1,5 +1,5 @@
 """The finger's wire protocol, version 1 (revision 1.1 adds guarded strokes, 1.2 segmented packets for lossy
-links): pure encoding and decoding (bytes ↔ messages), no I/O.
+links, 1.3 carrier strokes): pure encoding and decoding (bytes ↔ messages), no I/O.
 
 The specification is ``PROTOCOL.md`` beside this file. In short: every packet is
 
@@ -52,6 +52,7 @@ __all__ = [
     "ProbeFrame",
     "Segment",
     "Part",
+    "CarrierStroke",
     "PROBE_STATUS",
     "MESSAGE_TYPES",
     "NAK_CODES",
@@ -341,6 +342,33 @@ class ProbeStroke(NamedTuple):
     threshold: float
 
 
+class CarrierStroke(NamedTuple):
+    """Revision 1.3: a stroke as the finger executes it. The carrier moves the finger base through
+    ``base_position`` with the rotation ``base_rotation`` while the wires follow ``currents``; the pad goes where
+    the bent rod puts it, and touches wherever that meets the object. The device answers with :class:`Frame` s
+    (their ``tip_position`` and ``curvature`` are what the finger senses of its bend).
+
+    Attributes
+    ----------
+    stroke_id : int
+    max_force : float, N
+        The device aborts the stroke when the measured normal force exceeds it.
+    time : (T,) float, seconds from the stroke's start (one frame each)
+    base_position : (T, 3) float, metres (world frame)
+    base_rotation : (3, 3) float
+        World-from-base rotation, rows in order (the rod leaves the base along the base frame's +z).
+    currents : (T, 3) float, amperes
+        Each wire's current from each frame's time to the next.
+    """
+
+    stroke_id: int
+    max_force: float
+    time: np.ndarray
+    base_position: np.ndarray
+    base_rotation: np.ndarray
+    currents: np.ndarray
+
+
 class ProbeFrame(NamedTuple):
     """Revision 1.1: a :class:`Frame` of a :class:`ProbeStroke` with what the waypoint's approach found.
 
@@ -394,6 +422,7 @@ _LAYOUT: dict[type, tuple] = {
     ProbeFrame: ("I", "I", "d", _F4, _F4, _F4, "f", _F4, _F4, "f", "B", "d", _F8),
     Segment: ("H",),
     Part: ("I", "I", "I", ("u1", ())),
+    CarrierStroke: ("I", "d", _F8, ("<f8", (3,)), ("<f8", (3,)), ("<f8", (3,))),
 }
 #: wire type code of every message class
 MESSAGE_TYPES: dict[type, int] = {
@@ -413,6 +442,7 @@ MESSAGE_TYPES: dict[type, int] = {
     ProbeFrame: 0x87,
     Segment: 0x08,
     Part: 0x40,
+    CarrierStroke: 0x09,
 }
 _BY_CODE = {v: k for k, v in MESSAGE_TYPES.items()}
 _STRUCTS = {k: struct.Struct("<" + k) for k in "BHIdf?"}

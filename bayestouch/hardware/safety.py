@@ -1,9 +1,10 @@
 """Safety limits of the finger and the checks every stroke plan passes before a byte is sent.
 
-The same :func:`check_plan` runs on both sides: in the client (:class:`~bayestouch.hardware.device.FingerDevice`
-refuses an unsafe plan before writing anything) and in the device (the virtual finger answers an unsafe
-:class:`~bayestouch.hardware.protocol.StrokeCommand` with a NAK). The device also stops heating when heartbeats
-stop (``watchdog``) and aborts a stroke whose measured force exceeds the plan's limit. DESIGN.md §7.
+The same :func:`check_plan` (:func:`check_carrier` for a carrier stroke) runs on both sides: in the client
+(:class:`~bayestouch.hardware.device.FingerDevice` refuses an unsafe plan before writing anything) and in the device
+(the virtual finger answers an unsafe :class:`~bayestouch.hardware.protocol.StrokeCommand` with a NAK). The device
+also stops heating when heartbeats stop (``watchdog``) and aborts a stroke whose measured force exceeds the plan's
+limit. DESIGN.md §7.
 """
 
 from __future__ import annotations
@@ -27,6 +28,8 @@ __all__ = [
     "check_limits",
     "plan_from_stroke",
     "check_plan",
+    "CarrierCheck",
+    "check_carrier",
     "predicted_force",
     "steady_wire_temperature",
     "FORCE_FACTOR",
@@ -206,3 +209,68 @@ def check_plan(plan: StrokePlan, limits: Limits, *, wire=None, skin=None, tip_ra
             f"{limits.max_force:g} N"
         )
     return PlanCheck(temp, force, speed)
+
+
+class CarrierCheck(NamedTuple):
+    """What :func:`check_carrier` predicted for an accepted carrier stroke.
+
+    peak_temperature : float, K (steady state of the hottest wire at its largest current)
+    speed : float, m/s (fastest frame-to-frame speed of the finger base)
+    """
+
+    peak_temperature: float
+    speed: float
+
+
+def check_carrier(program, limits: Limits, *, wire=None) -> CarrierCheck:
+    """Refuse (raise :class:`UnsafePlan`) a carrier stroke that is malformed or would exceed a limit.
+
+    ``program`` has ``time (T,)`` s, ``base_position (T, 3)`` m, ``base_rotation (3, 3)`` and ``currents (T, 3)`` A
+    (a :class:`~bayestouch.physics.pose.CarrierProgram` or a :class:`~bayestouch.hardware.protocol.CarrierStroke`).
+    Checks: shapes and finiteness, T ≥ 2 and ≤ ``max_waypoints``, times from ≥ 0 s strictly increasing, base within
+    ±10 m and its speed ≤ ``max_speed``, an orthonormal right-handed rotation, every current in [0, ``max_current``]
+    and the steady-state temperature of each wire at its largest current ≤ ``max_temperature`` (an upper bound for
+    the program). Where the pad meets the object, and so its force, follows from the bend and is not known before
+    the stroke: the device's force abort bounds it.
+    """
+    try:
+        t = np.asarray(program.time, float)
+        b = np.asarray(program.base_position, float)
+        R = np.asarray(program.base_rotation, float)
+        I = np.asarray(program.currents, float)
+    except (AttributeError, TypeError, ValueError):
+        raise UnsafePlan(
+            "carrier plan: expected time (T,) s, base_position (T, 3) m, base_rotation (3, 3) and currents (T, 3) A"
+        ) from None
+    T = len(t) if t.ndim == 1 else -1
+    if T < 2 or b.shape != (T, 3) or R.size != 9 or I.shape != (T, 3):
+        raise UnsafePlan(
+            f"carrier plan: time (T ≥ 2,), base_position (T, 3) m, base_rotation (3, 3) and currents (T, 3) A "
+            f"expected, got shapes {t.shape}, {b.shape}, {R.shape}, {I.shape}"
+        )
+    R = R.reshape(3, 3)
+    if T > limits.max_waypoints:
+        raise UnsafePlan(f"carrier plan: {T} frames exceed the limit of {limits.max_waypoints}")
+    if not all(np.all(np.isfinite(a)) for a in (t, b, R, I)):
+        raise UnsafePlan("carrier plan: times, base positions, rotation and currents must be finite numbers")
+    if t[0] < 0 or np.any(np.diff(t) <= 0) or t[-1] > 1e6:
+        raise UnsafePlan("carrier plan: frame times must start at ≥ 0 s, increase strictly and stay below 1e6 s")
+    if np.any(np.abs(b) > 10.0):
+        raise UnsafePlan("carrier plan: base positions beyond ±10 m")
+    if np.max(np.abs(R)) > 2.0 or np.max(np.abs(R @ R.T - np.eye(3))) > 1e-6 or np.linalg.det(R) < 0:
+        raise UnsafePlan("carrier plan: base_rotation must be a rotation matrix (orthonormal, determinant +1)")
+    with np.errstate(over="ignore"):
+        speed = float(np.max(np.linalg.norm(np.diff(b, axis=0), axis=1) / np.diff(t)))
+    if speed > limits.max_speed:
+        raise UnsafePlan(f"carrier plan: base speed {speed:.3g} m/s exceeds the limit of {limits.max_speed:g} m/s")
+    if np.any(I < 0) or np.any(I > limits.max_current):
+        raise UnsafePlan(
+            f"carrier plan: wire currents from {I.min():.4g} to {I.max():.4g} A outside [0, {limits.max_current:g}] A"
+        )
+    temp = float(np.max(steady_wire_temperature(I.max(axis=0), wire)))
+    if temp > limits.max_temperature:
+        raise UnsafePlan(
+            f"carrier plan: wire temperature would reach {temp:.1f} K, above the limit of "
+            f"{limits.max_temperature:.1f} K (lower the currents)"
+        )
+    return CarrierCheck(temp, speed)

@@ -26,9 +26,11 @@ from bayestouch.hardware.safety import (
     Limits,
     StrokePlan,
     UnsafePlan,
+    check_carrier,
     check_limits,
     check_plan,
 )
+from bayestouch.physics.pose import program_dt
 
 __all__ = ["Faults", "VirtualDevice", "command_refusal"]
 
@@ -412,7 +414,7 @@ class VirtualDevice:
                     np.asarray(m.reference),
                 ),
             )
-        elif isinstance(msg, pr.StrokeCommand | pr.ProbeStroke):
+        elif isinstance(msg, pr.StrokeCommand | pr.ProbeStroke | pr.CarrierStroke):
             if msg.stroke_id == self.stroke_id and self._cmd is not None:
                 self._reply(packet, pr.Ack(seq))  # the stroke id makes the command idempotent: never run twice
                 return
@@ -420,22 +422,30 @@ class VirtualDevice:
                 self._reply(packet, pr.Nak(seq, 3, f"busy with stroke {self.stroke_id}"))
                 return
             probe = isinstance(msg, pr.ProbeStroke)
+            carrier = isinstance(msg, pr.CarrierStroke)
             if probe and not hasattr(self.model, "probe"):
                 self._reply(packet, pr.Nak(seq, 4, "this finger's frame model cannot run guarded strokes"))
+                return
+            if carrier and not hasattr(self.model, "carrier"):
+                self._reply(packet, pr.Nak(seq, 4, "this finger's frame model cannot run carrier strokes"))
                 return
             reason = command_refusal(msg, self.limits)
             if reason is not None:  # as a firmware must (PROTOCOL.md §6): refused before anything moves
                 self._reply(packet, pr.Nak(seq, 2, reason))
                 return
-            plan = StrokePlan(msg.time, msg.start if probe else msg.contact, msg.normal, msg.depth, msg.hold_currents)
+            if carrier:
+                plan = msg
+            else:
+                points = msg.start if probe else msg.contact
+                plan = StrokePlan(msg.time, points, msg.normal, msg.depth, msg.hold_currents)
             self._reply(packet, pr.Ack(seq))
             self.stroke_id, self._cmd, self._frames, self._n_sent, self._done = msg.stroke_id, msg, None, 0, 255
             self.state, self.heater_on, self.watchdog_tripped = 1, True, False
-            self._wire_current = np.asarray(msg.hold_currents, float)
+            self._wire_current = np.asarray(msg.currents[0] if carrier else msg.hold_currents, float)
             self._result = None
             index = self._index
             self._index += 1
-            extra = (float(msg.travel), float(msg.threshold)) if probe else None
+            extra = "carrier" if carrier else (float(msg.travel), float(msg.threshold)) if probe else None
             w = threading.Thread(target=self._compute, args=(plan, index, msg.stroke_id, extra), daemon=True)
             self._workers = [t for t in self._workers if t.is_alive()] + [w]
             w.start()
@@ -480,9 +490,11 @@ class VirtualDevice:
             self._send(pr.Nak(seq, 1, f"{type(msg).__name__} is not a command"))
 
     def _compute(self, plan, index, sid, probe=None) -> None:
+        """The frames of a stroke (``probe`` None), a carrier stroke (``"carrier"``) or a guarded stroke (its
+        ``(travel, threshold)``), or the exception that stopped the frame model."""
         try:
-            if probe is None:
-                res = self.model(plan, index)
+            if probe is None or probe == "carrier":
+                res = self.model(plan, index) if probe is None else self.model.carrier(plan, index)
                 res = {k: np.asarray(res[k], float) for k in FRAME_KEYS}
             else:
                 res = self.model.probe(plan, *probe, index)
@@ -549,6 +561,7 @@ class VirtualDevice:
                 break
             i = self._n_sent
             self._wire_temperature = self._frames["wire_temperature"][i]
+            self._wire_current = self._frames["wire_current"][i]
             self._send_frame(i)
             self._n_sent += 1
             self.stats["tx_frames"] += 1
@@ -638,10 +651,21 @@ def _layout_problem(msg, probe: bool) -> str | None:
 
 
 def command_refusal(msg, limits: Limits) -> str | None:
-    """Why a device with ``limits`` refuses a STROKE or PROBE_STROKE with NAK 2 (PROTOCOL.md §6), or None when it
-    runs it: malformed contents first, then the safety check (:func:`~bayestouch.hardware.safety.check_plan`, a
-    guarded stroke along the midpoints of its approach lines, as ``ProbePlan.stroke_plan``) under the tighter of
-    ``limits`` and the command's max_force, and a probe's threshold in (0, max_force)."""
+    """Why a device with ``limits`` refuses a STROKE, PROBE_STROKE or CARRIER_STROKE with NAK 2 (PROTOCOL.md §6,
+    §10), or None when it runs it: malformed contents first, then the safety check
+    (:func:`~bayestouch.hardware.safety.check_plan`, a guarded stroke along the midpoints of its approach lines, as
+    ``ProbePlan.stroke_plan``; :func:`~bayestouch.hardware.safety.check_carrier` for a carrier stroke, whose frame
+    times must also be evenly spaced) under the tighter of ``limits`` and the command's max_force, and a probe's
+    threshold in (0, max_force)."""
+    if isinstance(msg, pr.CarrierStroke):
+        if not (np.isfinite(float(msg.max_force)) and float(msg.max_force) > 0):
+            return f"max_force: expected > 0 N, got {msg.max_force}"
+        try:
+            check_carrier(msg, limits)
+            program_dt(msg.time)
+        except BadInput as e:  # UnsafePlan is one
+            return str(e)
+        return None
     probe = isinstance(msg, pr.ProbeStroke)
     problem = _layout_problem(msg, probe)
     if problem is not None:

@@ -30,6 +30,10 @@ __all__ = [
     "pad_contact",
     "chain_stroke_arrays",
     "currents_for_bend",
+    "CarrierProgram",
+    "program_dt",
+    "carrier_program",
+    "carrier_pad_path",
     "BEND_TEMPERATURE_MARGIN",
     "HysteresisLoop",
     "hysteresis_loop",
@@ -335,10 +339,17 @@ def pad_path(
     return PadPath(centre, tangent, tip)
 
 
+#: closest-point refinements of :func:`pad_contact` (each contracts the foot's error by about the pad centre's
+#: distance over the surface's radius of curvature: 16 take a pad 7 mm off a 2 cm radius to well under a micrometre)
+REFINE_STEPS = 16
+
+
 @jax.jit
 def _foot(surf: Surface, x):
     """Foot point on the surface, outward normal and signed distance of points ``x (T, 3)`` in metres: three
-    projections along the signed distance's gradient (the first one's value is the points' signed distance)."""
+    projections along the signed distance's gradient, then :data:`REFINE_STEPS` steps that make the foot's normal
+    pass through the point (the closest point's condition); the distance is the Euclidean one to the foot, with the
+    sign of the point's signed distance."""
 
     phi_and_grad = jax.value_and_grad(lambda q: signed_distance(surf, q))
 
@@ -348,8 +359,20 @@ def _foot(surf: Surface, x):
             return q - phi * g / jnp.linalg.norm(g), phi
 
         foot, phis = jax.lax.scan(step, p, None, length=3)
+        side = jnp.sign(phis[0])
+
+        def refine(q, _):
+            # the closest point's normal passes through p: step from p along the foot's normal by its distance,
+            # then project that point (now micrometres from the surface, where the first order is exact) again
+            _, g = phi_and_grad(q)
+            x = p - side * jnp.linalg.norm(p - q) * g / jnp.linalg.norm(g)
+            return step(x, None)[0], None
+
+        foot, _ = jax.lax.scan(refine, foot, None, length=REFINE_STEPS)
         _, g = phi_and_grad(foot)
-        return foot, g / jnp.linalg.norm(g), phis[0]
+        # the distance to the foot, signed as the point's side: the signed distance itself is first order, off by
+        # tens of micrometres at a pad centre millimetres from a curved surface
+        return foot, g / jnp.linalg.norm(g), side * jnp.linalg.norm(p - foot)
 
     return jax.vmap(one)(x)
 
@@ -546,3 +569,157 @@ def currents_for_bend(wire: sma.WireParams, rod: bd.RodParams, curvature, *, tol
     xi = sma.quasi_static_fraction(wire, eq.stress, jnp.asarray(temps))
     currents = np.asarray(sma.steady_state_current(wire, jnp.asarray(temps), xi))
     return currents, temps, reached
+
+
+class CarrierProgram(NamedTuple):
+    """A stroke as a finger executes it: the carrier (stage or arm) moves the finger base, the wires follow their
+    current programs, and the pad goes wherever the bent rod puts it.
+
+    Attributes
+    ----------
+    time : (T,) float, seconds
+        Frame times from the stroke's start, evenly spaced (each current is held for one frame interval).
+    base_position : (T, 3) float, metres
+        The finger base's position in the world at each frame.
+    base_rotation : (3, 3) float
+        World-from-base rotation, held for the stroke (the rod leaves the base along the base frame's +z).
+    currents : (T, 3) float, amperes
+        The three wires' current program.
+    """
+
+    time: np.ndarray
+    base_position: np.ndarray
+    base_rotation: np.ndarray
+    currents: np.ndarray
+
+
+def program_dt(time) -> float:
+    """The frame interval (s) of evenly spaced frame times ``time (T ≥ 2,)`` s; :class:`BadInput` naming ``time``
+    for fewer than two, non-finite, non-increasing or unevenly spaced times (a current program holds each value for
+    one interval, so the chain needs one interval)."""
+    t = np.asarray(time, dtype=float)
+    if t.ndim != 1 or len(t) < 2 or not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
+        raise BadInput(f"time: expected T ≥ 2 finite, strictly increasing frame times in seconds, got shape {t.shape}")
+    d = np.diff(t)
+    dt = float(np.median(d))
+    if np.max(np.abs(d - dt)) > 0.01 * dt:
+        raise BadInput(
+            f"time: expected evenly spaced frame times (a current program holds each value for one frame interval); "
+            f"the intervals run from {d.min():.4g} to {d.max():.4g} s"
+        )
+    return dt
+
+
+def _rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The smallest rotation taking unit vector ``a`` to unit vector ``b`` (a half turn about an axis normal to
+    both when they are opposite)."""
+    v, c = np.cross(a, b), float(np.dot(a, b))
+    if c < -1.0 + 1e-12:
+        axis = np.cross(a, [1.0, 0.0, 0.0])
+        axis = axis if np.linalg.norm(axis) > 1e-6 else np.cross(a, [0.0, 1.0, 0.0])
+        axis /= np.linalg.norm(axis)
+        return 2.0 * np.outer(axis, axis) - np.eye(3)
+    K = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+    return np.eye(3) + K + K @ K / (1.0 + c)
+
+
+def carrier_program(
+    wire: sma.WireParams,
+    rod: bd.RodParams,
+    contact,
+    normal,
+    time,
+    depth: float,
+    tip_radius: float,
+    *,
+    curvature=(0.0, 0.0),
+    currents=None,
+    base_rotation=None,
+    substeps: int = 10,
+) -> CarrierProgram:
+    """The base motion and wire currents that put the pad of a finger with the constants ``wire``, ``rod`` on a
+    desired path: the pad centre at ``contact + (tip_radius − depth) normal`` at each frame, pressed ``depth`` into
+    a surface through ``contact`` with outward ``normal`` (the inverse of :func:`pad_path`).
+
+    The currents are ``currents`` as given, or the steady currents of the bend ``curvature``
+    (:func:`currents_for_bend`) held from the first frame; the rod starts cold (as :func:`tip_path`), so it bends
+    during the stroke, and the base follows the pad path less the tip's position on these constants frame by
+    frame, its bend transient included. A finger whose constants are not these (every real one) puts its pad
+    elsewhere by its pose error (:func:`pose_error_ensemble`); what the finger senses (the frames' tip position) is
+    what a host can correct with.
+
+    Parameters
+    ----------
+    wire, rod : WireParams, RodParams
+        The constants the host assumes (nominal: ``models/finger.toml``).
+    contact : (T, 3) float, metres
+        Desired contact points of the pad on the surface.
+    normal : (T, 3) float
+        Outward unit surface normals there.
+    time : (T,) float, seconds
+        Evenly spaced frame times (:func:`program_dt`).
+    depth : float, metres
+        Designed overlap of the pad with the surface, in (0, 5 mm].
+    tip_radius : float, metres
+        Radius of the pad's outer (skin) surface.
+    curvature : (2,) float, 1/metres
+        Bend to hold when ``currents`` is None (default straight: no current).
+    currents : (T, 3) float, amperes, optional
+        An explicit current program.
+    base_rotation : (3, 3) float, optional
+        World-from-base rotation; default the smallest rotation that turns the rod's tangent at the tip, at the
+        program's last frame, against the path's mean normal (the pad faces the surface).
+    substeps : int
+        Thermal integration steps per frame (:func:`tip_path`).
+
+    Returns
+    -------
+    CarrierProgram
+    """
+    t = np.asarray(time, dtype=float)
+    dt = program_dt(t)
+    T = len(t)
+    c = np.asarray(contact, dtype=float)
+    n = np.asarray(normal, dtype=float)
+    if c.shape != (T, 3) or n.shape != (T, 3) or not (np.all(np.isfinite(c)) and np.all(np.isfinite(n))):
+        raise BadInput(
+            f"contact, normal: expected finite ({T}, 3) arrays (metres; unit normals), got {c.shape}, {n.shape}"
+        )
+    if np.any(np.abs(np.linalg.norm(n, axis=1) - 1.0) > 1e-3):
+        raise BadInput("normal: expected outward unit normals")
+    if not (np.isfinite(depth) and 0.0 < depth <= 5e-3):
+        raise BadInput(f"depth: expected a designed overlap in (0, 0.005] m, got {depth!r}")
+    if not (np.isfinite(tip_radius) and tip_radius > depth):
+        raise BadInput(f"tip_radius: expected the pad's radius in metres (> depth), got {tip_radius!r}")
+    if currents is None:
+        u = np.asarray(curvature, dtype=float).reshape(-1)
+        if u.shape != (2,) or not np.all(np.isfinite(u)):
+            raise BadInput(f"curvature: expected two finite values in 1/m, got {np.asarray(curvature).tolist()}")
+        held = np.zeros(3) if not np.any(u) else currents_for_bend(wire, rod, u)[0]
+        cur = np.tile(held, (T, 1))
+    else:
+        cur = _check_currents(wire, currents)
+        if cur.shape != (T, 3):
+            raise BadInput(f"currents: expected a ({T}, 3) program in amperes, one row per frame, got {cur.shape}")
+    tip = tip_path(wire, rod, cur, dt, substeps=substeps)
+    if base_rotation is None:
+        face = -np.mean(n, axis=0)
+        if np.linalg.norm(face) < 1e-6:
+            raise BadInput("normal: the path's normals cancel out; pass base_rotation to choose how the base faces")
+        R = _rotation_between(tip.tip_rotation[-1][:, 2], face / np.linalg.norm(face))
+    else:
+        R = np.asarray(base_rotation, dtype=float)
+        if R.shape != (3, 3) or not np.all(np.isfinite(R)) or np.max(np.abs(R @ R.T - np.eye(3))) > 1e-6:
+            raise BadInput("base_rotation: expected an orthonormal 3 × 3 rotation matrix")
+    centre = c + (float(tip_radius) - float(depth)) * n
+    base = centre - tip.tip_position @ R.T
+    return CarrierProgram(t, base, R, cur)
+
+
+def carrier_pad_path(wire: sma.WireParams, rod: bd.RodParams, program: CarrierProgram, **kw) -> PadPath:
+    """Where a finger with the constants ``wire``, ``rod`` puts its pad under ``program``: :func:`pad_path` of the
+    program's currents, frame interval, base positions and rotation (``**kw`` to :func:`tip_path`: T0, xi0,
+    substeps)."""
+    return pad_path(
+        wire, rod, program.currents, program_dt(program.time), program.base_position, program.base_rotation, **kw
+    )
