@@ -191,6 +191,13 @@ class GuardedModel:
     actually followed: the true contact points with the true object's normals (the radial projection of the
     start for status 2, the end of the travel with no force for status 1), pressed to the plan's depth.
 
+    With ``finger`` (the bending constants of this finger, which are not the ones its pose estimate assumes,
+    ``assumed``) the pad's own pose error joins in: the rod points along the approach (its base frame's +z turned
+    onto u_j by the smallest rotation R_j), holds the plan's currents as :func:`~bayestouch.physics.pose
+    .held_pose_error` says, and so the pad runs along ``start_j + R_j e_j + t u_j`` while the device believes it on
+    the commanded line. The crossing is found on the true line and reported on the believed one: millimetres of
+    error, correlated along the stroke, where the bend is strong (``docs/physics_notes.md``).
+
     Parameters
     ----------
     obj : SceneObject
@@ -198,14 +205,22 @@ class GuardedModel:
     frames : frame model, optional
         :class:`SyntheticModel` (default) or :class:`ForwardModel` (of the same object).
     pose_sd : float, metres
-        Pose-estimate error of the pad centre, per coordinate.
+        Pose-estimate error of the pad centre, per coordinate (the stage's encoders and the sensing).
     seed : int
+    finger : (WireParams, RodParams), optional
+        This finger's bending constants (default: no bending error).
+    assumed : (WireParams, RodParams), optional
+        The constants the device's pose estimate uses (default ``models/finger.toml``'s).
     """
 
-    def __init__(self, obj, frames=None, *, pose_sd: float = 3e-4, seed: int = 0):
+    def __init__(self, obj, frames=None, *, pose_sd: float = 3e-4, seed: int = 0, finger=None, assumed=None):
         self.obj, self.frames, self.pose_sd, self.seed = obj, frames or SyntheticModel(seed=seed), float(pose_sd), seed
         self.rows, self.cols = self.frames.rows, self.frames.cols
         self.taxel_uv, self.reference = self.frames.taxel_uv, self.frames.reference
+        if finger is not None and assumed is None:
+            nominal = load_finger(MODELS)
+            assumed = (nominal.wire, nominal.rod)
+        self.finger, self.assumed = finger, assumed
 
     def __call__(self, plan: StrokePlan, index: int) -> dict[str, np.ndarray]:
         """An ordinary stroke: the wrapped model's frames."""
@@ -214,14 +229,20 @@ class GuardedModel:
     def probe(self, plan: StrokePlan, travel: float, threshold: float, index: int) -> dict[str, np.ndarray]:
         """A guarded stroke (``plan.contact`` holds the approach starts): :data:`FRAME_KEYS` arrays plus
         ``probe (T,)``, ``travel (T,)`` m and ``position (T, 3)`` m (see the class docstring)."""
-        start = np.asarray(plan.contact, float)
+        believed = np.asarray(plan.contact, float)
         u = -np.asarray(plan.normal, float)
+        start = believed
+        if self.finger is not None:  # the pad runs on the line the bent rod puts it on
+            err = pose.held_pose_error(self.finger, self.assumed, plan.hold_currents, plan.time)
+            rot = np.stack([pose.rotation_between([0.0, 0.0, 1.0], uj) for uj in u])
+            start = believed + np.einsum("tij,tj->ti", rot, err)
         t, status = true_ray_distances(self.obj, start, u, float(travel))
         hit, miss, inside = status == CONTACT, status == MISS, status == INSIDE
         d_th = float(winkler_depth(threshold))
         g = np.random.default_rng([self.seed, index, 7])
-        pad = np.where(hit[:, None], start + (t + d_th)[:, None] * u, start)
-        pad = np.where(miss[:, None], start + float(travel) * u, pad)
+        # where the device believes the pad was: on the commanded line, at the travel it measured
+        pad = np.where(hit[:, None], believed + (t + d_th)[:, None] * u, believed)
+        pad = np.where(miss[:, None], believed + float(travel) * u, pad)
         position = pad + self.pose_sd * g.standard_normal(pad.shape)
         # the path the pad followed, for the frames: true surface points and normals
         shape = self.obj.shape

@@ -34,6 +34,8 @@ __all__ = [
     "program_dt",
     "carrier_program",
     "carrier_pad_path",
+    "rotation_between",
+    "held_pose_error",
     "BEND_TEMPERATURE_MARGIN",
     "HysteresisLoop",
     "hysteresis_loop",
@@ -610,9 +612,10 @@ def program_dt(time) -> float:
     return dt
 
 
-def _rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The smallest rotation taking unit vector ``a`` to unit vector ``b`` (a half turn about an axis normal to
-    both when they are opposite)."""
+def rotation_between(a, b) -> np.ndarray:
+    """The smallest rotation (3, 3) taking unit vector ``a (3,)`` to unit vector ``b (3,)`` (a half turn about an
+    axis normal to both when they are opposite)."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
     v, c = np.cross(a, b), float(np.dot(a, b))
     if c < -1.0 + 1e-12:
         axis = np.cross(a, [1.0, 0.0, 0.0])
@@ -706,7 +709,7 @@ def carrier_program(
         face = -np.mean(n, axis=0)
         if np.linalg.norm(face) < 1e-6:
             raise BadInput("normal: the path's normals cancel out; pass base_rotation to choose how the base faces")
-        R = _rotation_between(tip.tip_rotation[-1][:, 2], face / np.linalg.norm(face))
+        R = rotation_between(tip.tip_rotation[-1][:, 2], face / np.linalg.norm(face))
     else:
         R = np.asarray(base_rotation, dtype=float)
         if R.shape != (3, 3) or not np.all(np.isfinite(R)) or np.max(np.abs(R @ R.T - np.eye(3))) > 1e-6:
@@ -723,3 +726,39 @@ def carrier_pad_path(wire: sma.WireParams, rod: bd.RodParams, program: CarrierPr
     return pad_path(
         wire, rod, program.currents, program_dt(program.time), program.base_position, program.base_rotation, **kw
     )
+
+
+def held_pose_error(
+    finger: tuple[sma.WireParams, bd.RodParams],
+    assumed: tuple[sma.WireParams, bd.RodParams],
+    hold_currents,
+    time,
+    *,
+    warmup: float = 5.0,
+) -> np.ndarray:
+    """The tip's error (T, 3) metres, finger-base frame, of a finger holding ``hold_currents`` through a stroke, as
+    a host that assumes other constants sees it: tip(finger) − tip(assumed), both wires switched on ``warmup``
+    seconds before the stroke's first frame from cold (as :func:`bayestouch.physics.finger.drive`).
+
+    Parameters
+    ----------
+    finger, assumed : (WireParams, RodParams)
+        The finger's true constants and the ones the host computes its pose with.
+    hold_currents : (3,) float, amperes
+    time : (T,) float, seconds
+        Frame times (their median interval is the chain's step).
+    warmup : float, seconds
+
+    Returns
+    -------
+    (T, 3) float, metres
+    """
+    t = np.asarray(time, dtype=float)
+    if t.ndim != 1 or len(t) < 2 or not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
+        raise BadInput(f"time: expected T ≥ 2 finite, strictly increasing frame times in seconds, got shape {t.shape}")
+    dt = float(np.median(np.diff(t)))
+    n_warm = int(round(warmup / dt))
+    cur = np.tile(np.asarray(hold_currents, dtype=float).reshape(1, 3), (n_warm + len(t), 1))
+    true = tip_path(finger[0], finger[1], cur, dt).tip_position[n_warm:]
+    host = tip_path(assumed[0], assumed[1], cur, dt).tip_position[n_warm:]
+    return true - host

@@ -178,17 +178,22 @@ class VirtualFingerProber:
     seed : int
         Seeds the pose errors.
     pose_sd : float, metres
+    finger : (WireParams, RodParams), optional
+        The virtual finger's bending constants when they are not ``models/``'s: its pads then run where its bent rod
+        puts them and are reported where the nominal constants say (``GuardedModel``'s ``finger``; for example
+        :func:`bayestouch.physics.pose.draw_finger`).
     """
 
-    def __init__(self, obj, *, seed: int = 0, pose_sd: float = POSE_SD):
-        self.obj, self.seed, self.pose_sd = obj, int(seed), float(pose_sd)
+    def __init__(self, obj, *, seed: int = 0, pose_sd: float = POSE_SD, finger=None):
+        self.obj, self.seed, self.pose_sd, self.finger = obj, int(seed), float(pose_sd), finger
         self._sim = self._dev = None
 
     def __enter__(self) -> DeviceProber:
         from bayestouch.hardware.frame_models import GuardedModel
         from bayestouch.hardware.simulator import VirtualDevice
 
-        self._sim = VirtualDevice(GuardedModel(self.obj, pose_sd=self.pose_sd, seed=self.seed), speed=0.0).start()
+        model = GuardedModel(self.obj, pose_sd=self.pose_sd, seed=self.seed, finger=self.finger)
+        self._sim = VirtualDevice(model, speed=0.0).start()
         try:
             self._dev = FingerDevice(self._sim.port, timeout=0.5).open()
         except BaseException:
