@@ -10,14 +10,16 @@ import pytest
 from bayestouch.errors import BadInput
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.hardware import protocol as pr
-from bayestouch.hardware.device import DeviceError, FingerDevice, strokes_from_journal
+from bayestouch.hardware.device import DeviceError, FingerDevice, strokes_from_journal, winkler_depth
 from bayestouch.hardware.frame_models import ForwardModel, SyntheticModel
 from bayestouch.hardware.safety import Limits, StrokePlan, UnsafePlan, check_carrier
 from bayestouch.hardware.simulator import VirtualDevice, command_refusal
 from bayestouch.physics import pose
 from bayestouch.physics.virtual import load_finger
+from bayestouch.planning.device_prober import PROBE_THRESHOLD, carrier_points
 from bayestouch.scene.objects import SceneObject
 from bayestouch.scene.strokes import random_strokes
+from bayestouch.scene.surface import signed_distance
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
 
@@ -235,7 +237,9 @@ def test_the_virtual_finger_touches_where_its_own_chain_puts_the_pad(vf, egg, pa
     (base × sensed tip) is the true one, millimetres from where the program meant it; the taxels feel the pad where
     the true chain put it (force only where the true overlap is). A finger that bends further presses millimetres
     deeper than planned, and the device's force abort stops it. The nominal finger on the same program presses as
-    the plain stroke over the same path does."""
+    the plain stroke over the same path does. The host's contact points from the sensed pad centre and the force
+    (``carrier_points``) are where the pad touched; from the program's intent alone it would have put contacts at
+    frames where its pad was millimetres away and clear of the object."""
     prog = _program(vf, path, curvature=(8.0, 0.0))
     spread = pose.FingerSpread().widened(1.5)
     w, r = pose.draw_finger(np.random.default_rng(2), vf.wire, vf.rod, spread)
@@ -260,6 +264,19 @@ def test_the_virtual_finger_touches_where_its_own_chain_puts_the_pad(vf, egg, pa
     force = data.frames["contact_force"]
     assert np.any(depth > 1e-4) and np.any(depth < -2e-4)
     assert np.all(force[depth < -2e-4] < 1e-6) and np.all(force[depth > 1e-4] > 0.01)
+
+    # the host's contacts from what it senses (pad centre, force) and believes (the planned normals): where the true
+    # chain touched, to 0.15 mm
+    true_contact = np.asarray(pose.chain_stroke_arrays(egg.surface(), true_pad, R_pad)[0])
+    points, free = carrier_points(data, path.normal, R_pad)
+    touched = force > PROBE_THRESHOLD
+    assert len(points) == touched.sum() > 10 and len(free.starts) == (~touched).sum() > 10
+    assert np.max(np.linalg.norm(points - true_contact[touched], axis=1)) < 1.5e-4
+    # without the sensing the host would have put a contact on its path at every frame: at the clear ones its pad
+    # was millimetres from there
+    assert np.median(np.linalg.norm(data.pad_centre()[~touched] - meant[~touched], axis=1)) > 1e-3
+    ends = free.starts + free.t_max * free.dirs  # the clear pad's front: outside, up to the threshold's indentation
+    assert np.all(np.asarray(signed_distance(egg.surface(), ends)) > -float(winkler_depth(PROBE_THRESHOLD)) - 1e-6)
 
     fm = ForwardModel(egg, seed=0, mode="empirical")
     nominal = fm.carrier(prog, 0)

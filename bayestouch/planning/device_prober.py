@@ -13,7 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
+from bayestouch.errors import BadInput
 from bayestouch.hardware.device import (
+    CarrierData,
     FingerDevice,
     HeaterFault,
     ProbeData,
@@ -28,7 +30,7 @@ from bayestouch.inference.freespace import Free
 from bayestouch.io.recording import write_recording
 from bayestouch.planning.candidates import Strokes
 
-__all__ = ["DeviceProber", "VirtualFingerProber", "PROBE_THRESHOLD", "POSE_SD", "probe_points"]
+__all__ = ["DeviceProber", "VirtualFingerProber", "PROBE_THRESHOLD", "POSE_SD", "probe_points", "carrier_points"]
 
 #: contact force that counts as the touch, newtons (a fifth of the smallest planned force, 0.1 N)
 PROBE_THRESHOLD = 0.02
@@ -52,6 +54,46 @@ def probe_points(data: ProbeData, threshold_depth: float) -> tuple[np.ndarray, F
     hit, miss, inside = data.probe == 0, data.probe == 1, data.probe == 2
     pts = data.position[hit] - threshold_depth * u[hit]
     return pts, Free(start[miss], u[miss], float(data.plan.travel), start[inside])
+
+
+def carrier_points(
+    data: CarrierData, normal, tip_radius: float, *, threshold: float = PROBE_THRESHOLD
+) -> tuple[np.ndarray, Free]:
+    """Contact points (K, 3) m and :class:`~bayestouch.inference.freespace.Free` observations of one carrier stroke
+    (protocol revision 1.3), from what the host knows: the pad centre it senses (``data.pad_centre()``: the
+    commanded base pose × the sensed tip), the measured force, and the normal it believes.
+
+    A frame whose force exceeds ``threshold`` touched: the contact is the sensed pad centre less the pad's radius
+    minus its indentation at that force (:func:`~bayestouch.hardware.device.winkler_depth`) along the believed
+    normal. A frame below it touched nothing: the pad's sphere was clear of the object, so the segment from its centre
+    along −normal over ``tip_radius`` is free space (a ray that met nothing).
+
+    Parameters
+    ----------
+    data : CarrierData
+    normal : (T, 3) float
+        Believed outward unit normals at the frames (those the stroke's path was planned on).
+    tip_radius : float, metres
+        Radius of the pad's outer (skin) surface.
+    threshold : float, N
+
+    Returns
+    -------
+    points : (K, 3) float, metres
+    free : Free
+        Rays of length ``tip_radius`` from the clear frames' pad centres; no starts inside.
+    """
+    centre = data.pad_centre()
+    n = np.asarray(normal, float)
+    if n.shape != centre.shape or not np.all(np.isfinite(n)):
+        raise BadInput(f"normal: expected finite {centre.shape} unit normals, one per frame, got shape {n.shape}")
+    n = n / np.linalg.norm(n, axis=1, keepdims=True)
+    force = np.asarray(data.frames["contact_force"], float)
+    touched = force > float(threshold)
+    delta = np.asarray(winkler_depth(force[touched], tip_radius=float(tip_radius)))
+    points = centre[touched] - (float(tip_radius) - delta)[:, None] * n[touched]
+    free = Free(centre[~touched], -n[~touched], float(tip_radius), np.zeros((0, 3)))
+    return points, free
 
 
 class DeviceProber:
