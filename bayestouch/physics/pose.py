@@ -41,6 +41,8 @@ __all__ = [
     "hysteresis_loop",
     "FingerSpread",
     "draw_finger",
+    "BENDING_CONSTANTS",
+    "with_constants",
     "pose_error_ensemble",
 ]
 
@@ -195,17 +197,38 @@ def draw_finger(
     :class:`FingerSpread`); only the five constants of the spread change."""
     sp = FingerSpread() if spread is None else spread
     shift = float(rng.normal(0.0, sp.shift_sd))
+    prestrain = float(rng.uniform(*sp.prestrain))
+    convection = float(rng.uniform(*sp.convection))
+    ambient = float(rng.uniform(-sp.ambient, sp.ambient))
+    EI = float(np.exp(rng.normal(0.0, sp.EI_log_sd)))
+    return with_constants(wire, rod, (EI, prestrain, shift, convection, ambient))
+
+
+#: the five bending constants a finger's spread covers (:class:`FingerSpread`), as :func:`with_constants` takes them
+BENDING_CONSTANTS = ("EI_factor", "prestrain", "transformation_shift_K", "convection_factor", "ambient_shift_K")
+
+
+def with_constants(wire: sma.WireParams, rod: bd.RodParams, values) -> tuple[sma.WireParams, bd.RodParams]:
+    """``wire`` and ``rod`` with the five constants of :data:`BENDING_CONSTANTS` set from ``values``: EI × factor,
+    the pre-strain (1), the four transformation temperatures + shift (K), the film coefficient × factor, the ambient
+    temperature + shift (K)."""
+    v = np.asarray(values, dtype=float).reshape(-1)
+    if v.shape != (5,) or not np.all(np.isfinite(v)) or v[0] <= 0 or v[3] <= 0 or not 0 < v[1] < 0.2:
+        raise BadInput(
+            f"values: expected the five {', '.join(BENDING_CONSTANTS)} (factors > 0, a pre-strain in (0, 0.2)), "
+            f"got {v.tolist()}"
+        )
+    EI, prestrain, shift, convection, ambient = (float(x) for x in v)
     w = wire._replace(
-        prestrain=float(rng.uniform(*sp.prestrain)),
+        prestrain=prestrain,
         M_f=wire.M_f + shift,
         M_s=wire.M_s + shift,
         A_s=wire.A_s + shift,
         A_f=wire.A_f + shift,
-        convection=wire.convection * float(rng.uniform(*sp.convection)),
-        ambient=wire.ambient + float(rng.uniform(-sp.ambient, sp.ambient)),
+        convection=wire.convection * convection,
+        ambient=wire.ambient + ambient,
     )
-    r = rod._replace(EI=rod.EI * float(np.exp(rng.normal(0.0, sp.EI_log_sd))))
-    return w, r
+    return w, rod._replace(EI=rod.EI * EI)
 
 
 def pose_error_ensemble(
