@@ -235,3 +235,23 @@ def test_pose_error_ensemble_is_each_drawn_finger_minus_the_nominal(wire, rod):
         pose.pose_error_ensemble(wire, rod, [cur], 0.05, [np.array([60])], draws=2)
     with pytest.raises(BadInput, match="draws"):
         pose.pose_error_ensemble(wire, rod, [cur], 0.05, [frames], draws=1)
+
+
+def test_with_constants_sets_the_five_and_refuses_impossible_ones(wire, rod):
+    """The identity values give the nominal constants back; each value lands on its constant; a factor ≤ 0, a
+    pre-strain outside (0, 0.2), a NaN or a wrong count are refused in one line."""
+    w, r = pose.with_constants(wire, rod, (1.0, wire.prestrain, 0.0, 1.0, 0.0))
+    assert w == wire and r == rod
+    w, r = pose.with_constants(wire, rod, (2.0, 0.041, -1.5, 0.5, 2.0))
+    assert (
+        r.EI == pytest.approx(2 * rod.EI)
+        and w.prestrain == 0.041
+        and w.convection == pytest.approx(0.5 * wire.convection)
+    )
+    assert (w.M_f, w.M_s, w.A_s, w.A_f) == pytest.approx(
+        (wire.M_f - 1.5, wire.M_s - 1.5, wire.A_s - 1.5, wire.A_f - 1.5)
+    )
+    assert w.ambient == pytest.approx(wire.ambient + 2.0)
+    for bad in ((0.0, 0.04, 0, 1, 0), (1.0, 0.3, 0, 1, 0), (1.0, 0.04, np.nan, 1, 0), (1.0, 0.04, 0, 1)):
+        with pytest.raises(BadInput, match="values: expected the five"):
+            pose.with_constants(wire, rod, bad)
