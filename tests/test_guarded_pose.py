@@ -68,3 +68,28 @@ def test_a_finger_that_bends_otherwise_touches_off_the_believed_line(setting):
     e_noise = noisy["position"] - d_th * u - R_BALL * plan.normal
     noise_step = np.median(np.linalg.norm(np.diff(e_noise, axis=0), axis=1))
     assert noise_step > 0.5 * np.median(np.linalg.norm(e_noise, axis=1))
+
+
+def test_the_forward_models_guarded_strokes_carry_its_own_bending_error(setting):
+    """``ForwardModel`` with its ``vf`` constants replaced (what ``device simulate --bend-spread`` does) reports
+    guarded strokes off by the chain's pose error; with the models' constants it reports what the plain guarded model
+    does (the same crossings, the same encoder noise)."""
+    from bayestouch.hardware.frame_models import ForwardModel
+
+    ball, plan, vf = setting
+    model = ForwardModel(ball, seed=3)
+    plain = GuardedModel(ball, seed=3).probe(plan, TRAVEL, THRESHOLD, 0)
+    same = model.probe(plan, TRAVEL, THRESHOLD, 0)
+    np.testing.assert_array_equal(same["position"], plain["position"])
+    finger = pose.draw_finger(np.random.default_rng(4), vf.wire, vf.rod, pose.FingerSpread())
+    model.vf = model.vf._replace(wire=finger[0], rod=finger[1])
+    bent = model.probe(plan, TRAVEL, THRESHOLD, 0)
+    assert np.median(np.linalg.norm(bent["position"] - plain["position"], axis=1)) > 1e-3
+
+
+def test_device_simulate_refuses_a_bend_spread_out_of_range(capsys):
+    from bayestouch.cli.main import main
+
+    assert main(["device", "simulate", "--bend-spread", "4", "--for", "1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--bend-spread must be in [0, 3]" in err[0]

@@ -110,6 +110,16 @@ def add_device_parser(subparsers) -> argparse.ArgumentParser:
     )
     sp.add_argument("--stuck-heater", action="store_true", help="fault: the wires stay powered after a stroke")
     sp.add_argument(
+        "--bend-spread",
+        type=float,
+        default=0.0,
+        metavar="FACTOR",
+        help="give the finger bending constants of its own, drawn (with --seed) at FACTOR times their stated spread "
+        "(physics.pose.FingerSpread; 1 = as uncertain as the models say), while its pose estimate keeps the models' "
+        "constants: guarded strokes then touch millimetres off the commanded lines and carrier strokes where its "
+        "own bend puts the pad (default 0: the models' constants, no bending pose error; at most 3)",
+    )
+    sp.add_argument(
         "--for",
         dest="run_for",
         type=float,
@@ -351,6 +361,8 @@ def _simulate(args) -> int:
         raise BadInput(f"--disconnect-after must be ≥ 1 frames, got {args.disconnect_after}")
     if not (0 <= args.delay <= MAX_DELAY_S):
         raise BadInput(f"--delay must be in [0, {MAX_DELAY_S:g}] seconds, got {args.delay}")
+    if not (0 <= args.bend_spread <= 3):
+        raise BadInput(f"--bend-spread must be in [0, 3] (times the constants' stated spread), got {args.bend_spread}")
     if args.run_for is not None and not (0 < args.run_for <= MAX_RUN_FOR_S):
         raise BadInput(
             f"--for must be in (0, {MAX_RUN_FOR_S:g}] seconds (a week; leave it out to run until interrupted), got "
@@ -387,12 +399,15 @@ def _simulate(args) -> int:
     try:
         from bayestouch.scene.objects import load_object
 
+        finger = _drawn_finger(args) if args.bend_spread > 0 else None
         if args.model == "synthetic":
             # guarded strokes (bayestouch explore --port) find the object; the frames come from the fast model
             obj = load_object(args.object, args.models)
-            sim.model = GuardedModel(obj, SyntheticModel(seed=args.seed), seed=args.seed)
+            sim.model = GuardedModel(obj, SyntheticModel(seed=args.seed), seed=args.seed, finger=finger)
         else:
             sim.model = ForwardModel(load_object(args.object, args.models), args.models, seed=args.seed)
+            if finger is not None:
+                sim.model.vf = sim.model.vf._replace(wire=finger[0], rod=finger[1])
             threading.Thread(target=_warm_up, args=(sim.model, args), daemon=True).start()
         sim.start()
         print(f"serving {args.model} model, speed {args.speed:g}× (Ctrl-C to stop)", file=sys.stderr, flush=True)
@@ -407,6 +422,25 @@ def _simulate(args) -> int:
         sim.close(timeout=2.0)
     print(f"virtual finger stopped: {sim.stats}", file=sys.stderr)
     return 0
+
+
+def _drawn_finger(args):
+    """The bending constants (wire, rod) of ``--bend-spread``: drawn with ``--seed`` about the models' (said on
+    stderr)."""
+    import numpy as np
+
+    from bayestouch.physics import bending, pose, sma
+
+    wire, rod = sma.load_wire(args.models / "finger.toml"), bending.load_rod(args.models / "finger.toml")
+    w, r = pose.draw_finger(np.random.default_rng(args.seed), wire, rod, pose.FingerSpread().widened(args.bend_spread))
+    print(
+        f"bending constants drawn at {args.bend_spread:g}x their spread: EI x{r.EI / rod.EI:.3f}, pre-strain "
+        f"{w.prestrain:.4f}, transformation temperatures {w.A_s - wire.A_s:+.2f} K, film coefficient "
+        f"x{w.convection / wire.convection:.3f}, ambient {w.ambient - wire.ambient:+.2f} K",
+        file=sys.stderr,
+        flush=True,
+    )
+    return w, r
 
 
 def _warm_up(model, args) -> None:

@@ -98,12 +98,14 @@ class ForwardModel:
     Guarded strokes (:meth:`probe`) find the contacts on ``obj`` (:class:`GuardedModel`; pose error ``pose_sd``,
     0.3 mm, an attribute). Carrier strokes (:meth:`carrier`) put the pad where this finger's bending chain takes it:
     the wire and rod constants are ``vf.wire`` and ``vf.rod`` (``models``'s; replace them, ``vf._replace``, for a
-    finger whose constants are not the ones a host assumes).
+    finger whose constants are not the ones its pose estimate assumes, ``assumed``: its guarded strokes then carry
+    that bending pose error too).
     """
 
     def __init__(self, obj, models: Path | None = None, seed: int = 0, mode: str | None = None):
         self.obj, self.seed, self.mode, self.pose_sd = obj, int(seed), mode, 3e-4
         self.vf = load_finger(Path(models or MODELS), seed=seed)
+        self.assumed = (self.vf.wire, self.vf.rod)  # the constants its pose estimate uses
         self.finger = finger_name(seed)  # its identity, as simulated recordings of this finger name it
         grid = np.asarray(self.vf.finger.grid)
         self.rows, self.cols = grid.shape[:2]
@@ -169,8 +171,13 @@ class ForwardModel:
         }
 
     def probe(self, plan: StrokePlan, travel: float, threshold: float, index: int) -> dict[str, np.ndarray]:
-        """A guarded stroke on this model's object (:meth:`GuardedModel.probe`, pose error ``pose_sd``)."""
-        return GuardedModel(self.obj, self, pose_sd=self.pose_sd, seed=self.seed).probe(plan, travel, threshold, index)
+        """A guarded stroke on this model's object (:meth:`GuardedModel.probe`, pose error ``pose_sd``; with the
+        bending pose error of ``vf``'s constants where they are not ``assumed``)."""
+        own = (self.vf.wire, self.vf.rod)
+        same = own[0] is self.assumed[0] and own[1] is self.assumed[1]
+        kw = {"finger": None if same else own, "assumed": self.assumed}
+        guarded = GuardedModel(self.obj, self, pose_sd=self.pose_sd, seed=self.seed, **kw)
+        return guarded.probe(plan, travel, threshold, index)
 
 
 class GuardedModel:
