@@ -283,3 +283,30 @@ def test_the_virtual_finger_touches_where_its_own_chain_puts_the_pad(vf, egg, pa
     plain = fm(StrokePlan(path.time, path.contact, path.normal, path.depth, prog.currents[0]), 0)
     assert np.median(plain["contact_force"]) > 0.05
     np.testing.assert_allclose(nominal["contact_force"], plain["contact_force"], rtol=0.05)
+
+
+class OldDevice(VirtualDevice):
+    """A device of revision 1.0: it drops the later commands as unknown types and never answers them."""
+
+    def _handle(self, seq, msg, packet):
+        if isinstance(msg, pr.CarrierStroke | pr.ProbeStroke):
+            return
+        super()._handle(seq, msg, packet)
+
+
+def test_a_device_that_never_answers_the_newer_strokes_is_named(tmp_path):
+    from bayestouch.hardware.device import ProbePlan
+
+    sim = OldDevice(SyntheticCarrier(), speed=0.0, link=tmp_path / "finger").start()
+    dev = FingerDevice(str(tmp_path / "finger"), timeout=0.1, retries=2).open()
+    try:
+        with pytest.raises(DeviceError, match=r"does not answer carrier strokes \(protocol revision 1.3\)"):
+            dev.run_carrier(_simple_program())
+        T = 10
+        start = np.column_stack([np.linspace(0, 0.002, T), np.zeros(T), np.full(T, 0.05)])
+        plan = ProbePlan(np.arange(T) * 0.02, start, np.tile([0.0, 0.0, 1.0], (T, 1)), 3e-4, np.zeros(3), 0.02, 0.02)
+        with pytest.raises(DeviceError, match=r"does not answer guarded strokes \(protocol revision 1.1\)"):
+            dev.run_probe(plan)
+    finally:
+        dev.close()
+        sim.close()

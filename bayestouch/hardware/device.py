@@ -783,13 +783,10 @@ class FingerDevice:
                 np.asarray(plan.normal, float),
             )
 
-        try:
-            got, dev_t, sid = self._run(command, len(plan.time))
-        except HeaterFault as e:  # the stroke is complete: it goes with the fault
-            got, dev_t, sid = e.frames
-            e.data = StrokeData(plan, _frames_to_arrays(got)[0], dev_t, sid)
-            raise
-        return StrokeData(plan, _frames_to_arrays(got)[0], dev_t, sid)
+        def result(got, dev_t, sid):
+            return StrokeData(plan, _frames_to_arrays(got)[0], dev_t, sid)
+
+        return self._run_to(command, len(plan.time), result)
 
     def run_probe(self, plan: ProbePlan) -> ProbeData:
         """Run one guarded stroke (protocol revision 1.1) and return its frames and what each approach found.
@@ -839,19 +836,7 @@ class FingerDevice:
                 np.stack([np.asarray(f.position, float).reshape(3) for f in got]),
             )
 
-        try:
-            got, dev_t, sid = self._run(command, len(plan.time))
-        except HeaterFault as e:  # the guarded stroke is complete: it goes with the fault
-            e.data = probe_data(*e.frames)
-            raise
-        except DeviceError as e:
-            if "no answer to ProbeStroke" in str(e):
-                fw = self.info.firmware if self.info else "?"
-                raise DeviceError(
-                    f"{self.url}: the device ({fw}) does not answer guarded strokes (protocol revision 1.1)"
-                ) from None
-            raise
-        return probe_data(got, dev_t, sid)
+        return self._run_to(command, len(plan.time), probe_data, unknown="guarded strokes (protocol revision 1.1)")
 
     def run_carrier(self, program) -> CarrierData:
         """Run one carrier stroke (protocol revision 1.3): the finger base along ``program.base_position`` while the
@@ -896,20 +881,26 @@ class FingerDevice:
                 np.asarray(program.currents, float),
             )
 
+        def result(got, dev_t, sid):
+            return CarrierData(program, _frames_to_arrays(got)[0], dev_t, sid)
+
+        return self._run_to(command, len(program.time), result, unknown="carrier strokes (protocol revision 1.3)")
+
+    def _run_to(self, command, T: int, result, unknown: str | None = None):
+        """:meth:`_run`, its frames made into ``result(frames, device_time, stroke_id)``. A stroke complete but for
+        heaters left on goes with the :class:`HeaterFault` as its ``data``; a command the device never answers is
+        named as ``unknown`` (a device of an earlier revision drops the unknown type)."""
         try:
-            got, dev_t, sid = self._run(command, len(program.time))
+            got, dev_t, sid = self._run(command, T)
         except HeaterFault as e:  # the stroke is complete: it goes with the fault
-            got, dev_t, sid = e.frames
-            e.data = CarrierData(program, _frames_to_arrays(got)[0], dev_t, sid)
+            e.data = result(*e.frames)
             raise
         except DeviceError as e:
-            if "no answer to CarrierStroke" in str(e):
+            if unknown is not None and f"no answer to {type(command(0)).__name__}" in str(e):
                 fw = self.info.firmware if self.info else "?"
-                raise DeviceError(
-                    f"{self.url}: the device ({fw}) does not answer carrier strokes (protocol revision 1.3)"
-                ) from None
+                raise DeviceError(f"{self.url}: the device ({fw}) does not answer {unknown}") from None
             raise
-        return CarrierData(program, _frames_to_arrays(got)[0], dev_t, sid)
+        return result(got, dev_t, sid)
 
     def _run(self, command, T: int):
         """Send the stroke command ``command(stroke_id)`` and collect its T frames (redone with a new id when the
