@@ -458,6 +458,30 @@ def test_experiment_through_the_virtual_finger_with_the_gpis_planner(tmp_path):
         run_experiment(tmp_path, resume=True, **kw)
     with pytest.raises(BadInput, match="prober: expected one of rays, finger"):
         run_experiment(tmp_path / "x", prober="laser", **kw)
+    with pytest.raises(BadInput, match="bend_spread"):  # another finger is another experiment
+        run_experiment(tmp_path, resume=True, prober="finger", bend_spread=1.0, **kw)
+
+
+def test_experiment_bend_spread_draws_one_finger_per_trial_and_refuses_misuse(tmp_path):
+    """A trial's finger is drawn from its seed (the same for every planner of the trial: paired), another trial
+    gets another, a wider spread moves it further from the models' constants, 0 is the models' finger; a spread out
+    of range or with the ray world is refused before the folder is touched."""
+    from bayestouch.physics.virtual import load_finger
+    from bayestouch.planning.experiment import trial_finger
+
+    assert trial_finger(5, 0.0) is None
+    a, b, c = trial_finger(5, 1.0), trial_finger(5, 1.0), trial_finger(6, 1.0)
+    assert a == b and a != c
+    wide = trial_finger(5, 2.0)
+    nominal = load_finger()
+    assert abs(np.log(wide[1].EI / nominal.rod.EI)) == pytest.approx(2 * abs(np.log(a[1].EI / nominal.rod.EI)))
+    for kw, needle in (
+        ({"prober": "finger", "bend_spread": 4.0}, r"bend_spread: expected a factor in \[0, 3\]"),
+        ({"prober": "rays", "bend_spread": 1.0}, "use it with prober 'finger'"),
+    ):
+        with pytest.raises(BadInput, match=needle):
+            run_experiment(tmp_path / "x", planners=("random",), objects=("sphere",), trials=1, budget=1, **kw)
+    assert not (tmp_path / "x").exists()
 
 
 def test_scheduler_probe_tells_a_dask_scheduler_from_other_servers():

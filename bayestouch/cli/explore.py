@@ -104,6 +104,15 @@ def add_planning_parsers(subparsers) -> tuple[argparse.ArgumentParser, argparse.
         help="how strokes are measured: rays on the simulated object (default), or guarded strokes on a virtual "
         "finger over the serial protocol (force threshold, pad pose error)",
     )
+    xp.add_argument(
+        "--bend-spread",
+        type=float,
+        default=0.0,
+        metavar="FACTOR",
+        help="with --prober finger: each trial's finger gets bending constants of its own, drawn at FACTOR times "
+        "their stated spread, while its pose estimate keeps the models' (guarded strokes then touch millimetres off "
+        "their lines; default 0; at most 3)",
+    )
     xp.add_argument("--objects", default="egg,sphere,box,cylinder", help="comma-separated names or TOML files")
     xp.add_argument("--trials", type=int, default=3, help="seeded trials per object and planner (default 3)")
     xp.add_argument("--workers", type=int, default=2, help="processes (default 2; 1 runs in this process)")
@@ -400,6 +409,7 @@ def run_experiment(args) -> int:
         seed=args.seed,
         workers=args.workers,
         prober=args.prober,
+        bend_spread=args.bend_spread,
         scheduler=args.scheduler,
         resume=args.resume,
         overwrite=args.overwrite,

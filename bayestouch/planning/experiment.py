@@ -37,6 +37,8 @@ from tqdm.auto import tqdm
 from bayestouch.errors import BadInput, check_bools, check_path, shown
 from bayestouch.io.files import read_csv_rows, set_aside, write_csv_rows, write_json
 from bayestouch.io.runfolder import differences, fingerprint, locked_run_folder
+from bayestouch.params import MODELS
+from bayestouch.physics import bending, pose, sma
 from bayestouch.planning.device_prober import VirtualFingerProber
 from bayestouch.planning.loop import ExploreSettings, check_settings, explore, settings_from
 from bayestouch.planning.policies import check_policy
@@ -87,13 +89,29 @@ SCHEDULER_TIMEOUT_S = 10.0
 OBJECTS = ("egg", "sphere", "box", "cylinder")
 
 
+#: largest ``bend_spread`` (times the bending constants' stated spread) an experiment takes
+MAX_BEND_SPREAD = 3.0
+
+
+def trial_finger(seed: int, bend_spread: float):
+    """The bending constants (wire, rod) of a trial's virtual finger: drawn with the trial's ``seed`` at
+    ``bend_spread`` times :class:`~bayestouch.physics.pose.FingerSpread` about ``models/finger.toml``'s (the same
+    finger for every planner of the trial: paired), or None for 0 (the models' constants)."""
+    if not bend_spread:
+        return None
+    wire, rod = sma.load_wire(MODELS / "finger.toml"), bending.load_rod(MODELS / "finger.toml")
+    rng = np.random.default_rng([int(seed), 0xBE4D])
+    return pose.draw_finger(rng, wire, rod, pose.FingerSpread().widened(float(bend_spread)))
+
+
 def run_trial(task: dict) -> list[dict]:
     """Run one (object, planner, trial) and return its rows (a top-level function: picklable for pools). The task
     carries the :class:`~bayestouch.scene.objects.SceneObject` itself (``scene_object``), not a file path."""
     obj = task["scene_object"]
     settings = ExploreSettings(**task.get("settings", {}))
     if task.get("prober", "rays") == "finger":
-        with VirtualFingerProber(obj, seed=task["seed"]) as prober:
+        finger = trial_finger(task["seed"], task.get("bend_spread", 0.0))
+        with VirtualFingerProber(obj, seed=task["seed"], finger=finger) as prober:
             res = explore(obj, task["planner"], task["budget"], seed=task["seed"], settings=settings, prober=prober)
     else:
         res = explore(obj, task["planner"], task["budget"], seed=task["seed"], settings=settings)
@@ -267,6 +285,7 @@ def run_experiment(
     overwrite: bool = False,
     settings: dict | None = None,
     prober: str = "rays",
+    bend_spread: float = 0.0,
     plot: bool = True,
     log=None,
 ) -> dict:
@@ -295,6 +314,10 @@ def run_experiment(
         Fields of :class:`~bayestouch.planning.loop.ExploreSettings`.
     prober : {"rays", "finger"}
         How strokes are measured (:data:`PROBERS`); part of the experiment's key (a resume with another is refused).
+    bend_spread : float
+        With ``prober="finger"``: each trial's finger gets bending constants of its own, drawn at this many times
+        their stated spread (:func:`trial_finger`), while its pose estimate keeps the models' (0: the models'
+        constants; at most :data:`MAX_BEND_SPREAD`); part of the key when not 0.
     plot : bool
         Write ``error_vs_strokes.png``.
     log : callable, optional
@@ -367,6 +390,13 @@ def run_experiment(
     out = Path(out)
     if prober not in PROBERS:
         raise BadInput(f"prober: expected one of {', '.join(PROBERS)}, got {prober!r}")
+    if not (isinstance(bend_spread, int | float) and 0 <= bend_spread <= MAX_BEND_SPREAD):
+        raise BadInput(
+            f"bend_spread: expected a factor in [0, {MAX_BEND_SPREAD:g}] times the bending constants' spread, got "
+            f"{bend_spread!r}"
+        )
+    if bend_spread and prober != "finger":
+        raise BadInput("bend_spread: the bending pose error is the virtual finger's; use it with prober 'finger'")
     # the folder is this run's from the check of an earlier results.csv to the plot: a second experiment into it at
     # the same time is refused in one line, not left to replace the first's rows (the lock goes with a killed run)
     with locked_run_folder(out):
@@ -375,6 +405,8 @@ def run_experiment(
         options = {"seed": int(seed), "budget": int(budget), "settings": dict(settings or {})}
         if prober != "rays":  # the key of earlier experiments (all in the ray world) stays as it was
             options["prober"] = prober
+        if bend_spread:
+            options["bend_spread"] = float(bend_spread)
         # the objects' contents are part of the key: an object file edited between runs is another experiment
         contents = {f"object {names[o]}": p.read_bytes() for o, p in paths.items()}
         meta = fingerprint("experiment", contents, options)
@@ -436,6 +468,7 @@ def run_experiment(
                 "seed": _trial_seed(seed, t),
                 "settings": dict(settings or {}),
                 "prober": prober,
+                "bend_spread": float(bend_spread),
             }
             for t in range(trials)
             for o in paths
