@@ -10,6 +10,7 @@ cannot be checked.
 from __future__ import annotations
 
 import json
+import statistics
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -174,7 +175,8 @@ def _pose(d: dict) -> tuple[str, str, str]:
         f" (95th percentile {mm('nominal_p95_mm')}); without the hysteresis {mm('nominal_no_hysteresis_median_mm')}"
         f"; every constant exact, no hysteresis {mm('true_no_hysteresis_median_mm')}; tip deflections up to "
         f"{d['max_deflection_mm']['median']:.1f} mm. The law of such errors, from fingers run through the "
-        "commanded programs, enters `bench_pose_fit`'s last two fits; the simulator does not use the chain yet",
+        "commanded programs, enters `bench_pose_fit`'s last two fits; the virtual finger runs the chain for carrier "
+        "strokes and with `--bend-spread`, `simulate` does not yet",
         "`bench_pose` (`benchmarks/results/pose.json`)",
     )
 
@@ -230,6 +232,29 @@ def _pose_fit(d: dict) -> tuple[str, str, str]:
         + (_offset_arm(d["offset"], arm) if "offset" in d else "")
         + f". {_pose_fit_verdict(d)}",
         "`bench_pose_fit` (`benchmarks/results/pose_fit.json`)",
+    )
+
+
+def _explore_bend(d: dict) -> tuple[str, str, str]:
+    def cond(c: dict) -> str:
+        z = [abs(t["volume_z"]) for t in c["per_trial"]]
+        return (
+            f"Chamfer {c['chamfer']['median']:.4f} [{c['chamfer']['lo']:.4f}, {c['chamfer']['hi']:.4f}], volume "
+            f"error {_pct(c['volume_error']['median'], 2)} [{_pct(c['volume_error']['lo'], 2)}, "
+            f"{_pct(c['volume_error']['hi'], 2)}], the truth within the 90 % volume interval in {c['covered']}/"
+            f"{c['of']} {_ci(c['coverage_wilson95'])} (median \\|z\\| {statistics.median(z):.1f})"
+        )
+
+    conds = d["conditions"]
+    drawn = [k for k in conds if k != "0"]
+    return (
+        f"Exploration through a finger whose bending constants are not the models' ({d['trials']} paired trials, "
+        f"{d['object']}, {d['planner']}, {d['budget']} strokes after the scout; guarded strokes over the protocol; "
+        "the loop's posterior assumes the encoder's 0.3 mm only)",
+        f"the models' constants: {cond(conds['0'])}"
+        + "".join(f"; constants drawn at {k}× their spread: {cond(conds[k])}" for k in drawn)
+        + ". The loop does not model the bending pose error yet",
+        "`bench_explore_bend` (`benchmarks/results/explore_bend.json`)",
     )
 
 
@@ -392,6 +417,7 @@ ROWS: tuple[tuple[str, Callable[[dict], tuple[str, str, str]]], ...] = (
     ("objects.json", _objects),
     ("pose.json", _pose),
     ("pose_fit.json", _pose_fit),
+    ("explore_bend.json", _explore_bend),
     ("bench_sparse.json", _sparse),
     ("bench_planners.json", _planners),
     ("bench_samplers.json", _samplers),
