@@ -71,8 +71,9 @@ def _mismatch(d: dict) -> tuple[str, str, str]:
         f"{v['median_abs_z']:.1f}); wavelength {_of(d['wavelength'])}, amplitude {_of(d['amplitude'])}, "
         f"orientation {_of(d['orientation'])}"
         + (f", the finger's lag {_of(d['lag'])}" if "lag" in d else "")
-        + f"; {d['converged']}/{n} converged; fit {d['fit_seconds_median']:.0f} s median (two fits at a time), "
-        f"calibration {d['calibration_seconds_median']:.1f} s",
+        + f"; {d['converged']}/{n} converged; fit {d['fit_seconds_median']:.0f} s median (two fits at a time"
+        + (f"; {d['timing_note']}" if d.get("timing_note") else "")
+        + f"), calibration {d['calibration_seconds_median']:.1f} s",
         "`bench_mismatch` (`benchmarks/results/mismatch.json`)",
     )
 
