@@ -81,6 +81,21 @@ def _check_currents(wire: sma.WireParams, currents) -> np.ndarray:
     return cur
 
 
+def _check_times(time) -> np.ndarray:
+    """``time`` as a (T ≥ 2,) float array of finite, strictly increasing seconds; :class:`BadInput` naming ``time``
+    otherwise."""
+    t = np.asarray(time, dtype=float)
+    if t.ndim != 1 or len(t) < 2 or not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
+        raise BadInput(f"time: expected T ≥ 2 finite, strictly increasing frame times in seconds, got shape {t.shape}")
+    return t
+
+
+def _orthonormal(R) -> bool:
+    """Whether every 3 × 3 matrix of ``R (..., 3, 3)`` is finite and orthonormal (to 1e-6)."""
+    R = np.asarray(R, dtype=float)
+    return bool(np.all(np.isfinite(R)) and np.max(np.abs(R @ np.swapaxes(R, -1, -2) - np.eye(3))) <= 1e-6)
+
+
 @partial(jax.jit, static_argnames=("substeps",))
 def _chain(wire, rod, currents, dt, T0, xi0, substeps):
     """The causal scan of :func:`tip_path`: (temperatures, martensite, stresses (T, 3), curvatures (T, 2))."""
@@ -289,7 +304,7 @@ def pose_error_ensemble(
         if f.ndim != 1 or f.dtype.kind not in "iu" or np.any(f < 0) or np.any(f >= len(c)):
             raise BadInput(f"frames: expected integer frame indices within [0, {len(c)}) for each program")
     rots = np.broadcast_to(np.eye(3), (len(progs), 3, 3)) if rotations is None else np.asarray(rotations, float)
-    if rots.shape != (len(progs), 3, 3) or np.max(np.abs(rots @ np.swapaxes(rots, -1, -2) - np.eye(3))) > 1e-6:
+    if rots.shape != (len(progs), 3, 3) or not _orthonormal(rots):
         raise BadInput(f"rotations: expected ({len(progs)}, 3, 3) rotation matrices, got shape {rots.shape}")
     rng = np.random.default_rng(seed)
     fingers = [draw_finger(rng, wire, rod, spread) for _ in range(int(draws))]
@@ -357,7 +372,7 @@ def pad_path(
     rot = np.broadcast_to(rot, (T, 3, 3))
     if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(rot))):
         raise BadInput("base_position, base_rotation: expected finite metres and rotation matrices")
-    if np.max(np.abs(rot @ np.swapaxes(rot, -1, -2) - np.eye(3))) > 1e-6:
+    if not _orthonormal(rot):
         raise BadInput("base_rotation: expected orthonormal 3 × 3 rotation matrices")
     centre = pos + np.einsum("tij,tj->ti", rot, tip.tip_position)
     tangent = np.einsum("tij,tj->ti", rot, tip.tip_rotation[:, :, 2])
@@ -622,10 +637,7 @@ def program_dt(time) -> float:
     """The frame interval (s) of evenly spaced frame times ``time (T ≥ 2,)`` s; :class:`BadInput` naming ``time``
     for fewer than two, non-finite, non-increasing or unevenly spaced times (a current program holds each value for
     one interval, so the chain needs one interval)."""
-    t = np.asarray(time, dtype=float)
-    if t.ndim != 1 or len(t) < 2 or not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
-        raise BadInput(f"time: expected T ≥ 2 finite, strictly increasing frame times in seconds, got shape {t.shape}")
-    d = np.diff(t)
+    d = np.diff(_check_times(time))
     dt = float(np.median(d))
     if np.max(np.abs(d - dt)) > 0.01 * dt:
         raise BadInput(
@@ -735,7 +747,7 @@ def carrier_program(
         R = rotation_between(tip.tip_rotation[-1][:, 2], face / np.linalg.norm(face))
     else:
         R = np.asarray(base_rotation, dtype=float)
-        if R.shape != (3, 3) or not np.all(np.isfinite(R)) or np.max(np.abs(R @ R.T - np.eye(3))) > 1e-6:
+        if R.shape != (3, 3) or not _orthonormal(R):
             raise BadInput("base_rotation: expected an orthonormal 3 × 3 rotation matrix")
     centre = c + (float(tip_radius) - float(depth)) * n
     base = centre - tip.tip_position @ R.T
@@ -776,9 +788,7 @@ def held_pose_error(
     -------
     (T, 3) float, metres
     """
-    t = np.asarray(time, dtype=float)
-    if t.ndim != 1 or len(t) < 2 or not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
-        raise BadInput(f"time: expected T ≥ 2 finite, strictly increasing frame times in seconds, got shape {t.shape}")
+    t = _check_times(time)
     dt = float(np.median(np.diff(t)))
     n_warm = int(round(warmup / dt))
     cur = np.tile(np.asarray(hold_currents, dtype=float).reshape(1, 3), (n_warm + len(t), 1))
