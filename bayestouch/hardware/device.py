@@ -36,7 +36,6 @@ from bayestouch.io.recording import CURRENT_FLOOR_A, PHYSICAL_RANGES, build_data
 from bayestouch.params import MODELS
 from bayestouch.physics import bending
 from bayestouch.physics import skin as sk
-from bayestouch.physics.pose import program_dt
 
 __all__ = [
     "FingerDevice",
@@ -836,7 +835,8 @@ class FingerDevice:
                 np.stack([np.asarray(f.position, float).reshape(3) for f in got]),
             )
 
-        return self._run_to(command, len(plan.time), probe_data, unknown="guarded strokes (protocol revision 1.1)")
+        unknown = (pr.ProbeStroke, "guarded strokes (protocol revision 1.1)")
+        return self._run_to(command, len(plan.time), probe_data, unknown=unknown)
 
     def run_carrier(self, program) -> CarrierData:
         """Run one carrier stroke (protocol revision 1.3): the finger base along ``program.base_position`` while the
@@ -856,9 +856,8 @@ class FingerDevice:
         Raises
         ------
         UnsafePlan
-            Before anything is sent, if the program breaks a limit
-            (:func:`~bayestouch.hardware.safety.check_carrier`) or its frame times are not evenly spaced (or the
-            device refuses it).
+            Before anything is sent, if the program breaks a limit or its frame times are not evenly spaced
+            (:func:`~bayestouch.hardware.safety.check_carrier`), or the device refuses it.
         HeaterFault
             As :meth:`run_stroke` (the complete stroke is the exception's ``data``).
         DeviceError
@@ -866,10 +865,6 @@ class FingerDevice:
             drops the unknown command: no answer).
         """
         check_carrier(program, self.limits)
-        try:
-            program_dt(program.time)
-        except BadInput as e:
-            raise UnsafePlan(f"carrier plan: {e}") from None
 
         def command(sid):
             return pr.CarrierStroke(
@@ -884,21 +879,22 @@ class FingerDevice:
         def result(got, dev_t, sid):
             return CarrierData(program, _frames_to_arrays(got)[0], dev_t, sid)
 
-        return self._run_to(command, len(program.time), result, unknown="carrier strokes (protocol revision 1.3)")
+        unknown = (pr.CarrierStroke, "carrier strokes (protocol revision 1.3)")
+        return self._run_to(command, len(program.time), result, unknown=unknown)
 
-    def _run_to(self, command, T: int, result, unknown: str | None = None):
+    def _run_to(self, command, T: int, result, unknown: tuple[type, str] | None = None):
         """:meth:`_run`, its frames made into ``result(frames, device_time, stroke_id)``. A stroke complete but for
-        heaters left on goes with the :class:`HeaterFault` as its ``data``; a command the device never answers is
-        named as ``unknown`` (a device of an earlier revision drops the unknown type)."""
+        heaters left on goes with the :class:`HeaterFault` as its ``data``; ``unknown`` (the command's message type,
+        what to call it) names a command the device never answers (a device of an earlier revision drops the type)."""
         try:
             got, dev_t, sid = self._run(command, T)
         except HeaterFault as e:  # the stroke is complete: it goes with the fault
             e.data = result(*e.frames)
             raise
         except DeviceError as e:
-            if unknown is not None and f"no answer to {type(command(0)).__name__}" in str(e):
+            if unknown is not None and f"no answer to {unknown[0].__name__}" in str(e):
                 fw = self.info.firmware if self.info else "?"
-                raise DeviceError(f"{self.url}: the device ({fw}) does not answer {unknown}") from None
+                raise DeviceError(f"{self.url}: the device ({fw}) does not answer {unknown[1]}") from None
             raise
         return result(got, dev_t, sid)
 

@@ -22,8 +22,8 @@ from bayestouch.hardware.safety import (
     steady_wire_temperature,
 )
 from bayestouch.params import MODELS
+from bayestouch.physics import bending, pose, sma
 from bayestouch.physics import forward as fw
-from bayestouch.physics import pose
 from bayestouch.physics.finger import skin_temperature
 from bayestouch.physics.virtual import finger_name, load_finger, record_strokes
 from bayestouch.scene.raycast import CONTACT, INSIDE, MISS, true_ray_distances
@@ -225,8 +225,7 @@ class GuardedModel:
         self.rows, self.cols = self.frames.rows, self.frames.cols
         self.taxel_uv, self.reference = self.frames.taxel_uv, self.frames.reference
         if finger is not None and assumed is None:
-            nominal = load_finger(MODELS)
-            assumed = (nominal.wire, nominal.rod)
+            assumed = (sma.load_wire(), bending.load_rod())
         self.finger, self.assumed = finger, assumed
 
     def __call__(self, plan: StrokePlan, index: int) -> dict[str, np.ndarray]:

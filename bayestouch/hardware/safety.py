@@ -18,6 +18,7 @@ from bayestouch.errors import BadInput, check_int, check_number, shown
 from bayestouch.params import MODELS
 from bayestouch.physics import bending, sma
 from bayestouch.physics import skin as sk
+from bayestouch.physics.pose import program_dt
 
 __all__ = [
     "Limits",
@@ -227,7 +228,8 @@ def check_carrier(program, limits: Limits, *, wire=None) -> CarrierCheck:
 
     ``program`` has ``time (T,)`` s, ``base_position (T, 3)`` m, ``base_rotation (3, 3)`` and ``currents (T, 3)`` A
     (a :class:`~bayestouch.physics.pose.CarrierProgram` or a :class:`~bayestouch.hardware.protocol.CarrierStroke`).
-    Checks: shapes and finiteness, T ≥ 2 and ≤ ``max_waypoints``, times from ≥ 0 s strictly increasing, base within
+    Checks: shapes and finiteness, T ≥ 2 and ≤ ``max_waypoints``, times from ≥ 0 s strictly increasing and evenly
+    spaced (:func:`~bayestouch.physics.pose.program_dt`), base within
     ±10 m and its speed ≤ ``max_speed``, an orthonormal right-handed rotation, every current in [0, ``max_current``]
     and the steady-state temperature of each wire at its largest current ≤ ``max_temperature`` (an upper bound for
     the program). Where the pad meets the object, and so its force, follows from the bend and is not known before
@@ -255,6 +257,10 @@ def check_carrier(program, limits: Limits, *, wire=None) -> CarrierCheck:
         raise UnsafePlan("carrier plan: times, base positions, rotation and currents must be finite numbers")
     if t[0] < 0 or np.any(np.diff(t) <= 0) or t[-1] > 1e6:
         raise UnsafePlan("carrier plan: frame times must start at ≥ 0 s, increase strictly and stay below 1e6 s")
+    try:
+        program_dt(t)  # each current is held one frame interval: the frames must be evenly spaced
+    except BadInput as e:
+        raise UnsafePlan(f"carrier plan: {e}") from None
     if np.any(np.abs(b) > 10.0):
         raise UnsafePlan("carrier plan: base positions beyond ±10 m")
     if np.max(np.abs(R)) > 2.0 or np.max(np.abs(R @ R.T - np.eye(3))) > 1e-6 or np.linalg.det(R) < 0:

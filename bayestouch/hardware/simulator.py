@@ -30,7 +30,6 @@ from bayestouch.hardware.safety import (
     check_limits,
     check_plan,
 )
-from bayestouch.physics.pose import program_dt
 
 __all__ = ["Faults", "VirtualDevice", "command_refusal"]
 
@@ -654,15 +653,14 @@ def command_refusal(msg, limits: Limits) -> str | None:
     """Why a device with ``limits`` refuses a STROKE, PROBE_STROKE or CARRIER_STROKE with NAK 2 (PROTOCOL.md §6,
     §10), or None when it runs it: malformed contents first, then the safety check
     (:func:`~bayestouch.hardware.safety.check_plan`, a guarded stroke along the midpoints of its approach lines, as
-    ``ProbePlan.stroke_plan``; :func:`~bayestouch.hardware.safety.check_carrier` for a carrier stroke, whose frame
-    times must also be evenly spaced) under the tighter of ``limits`` and the command's max_force, and a probe's
+    ``ProbePlan.stroke_plan``; :func:`~bayestouch.hardware.safety.check_carrier` for a carrier stroke) under the
+    tighter of ``limits`` and the command's max_force, and a probe's
     threshold in (0, max_force)."""
     if isinstance(msg, pr.CarrierStroke):
         if not (np.isfinite(float(msg.max_force)) and float(msg.max_force) > 0):
             return f"max_force: expected > 0 N, got {msg.max_force}"
         try:
             check_carrier(msg, limits)
-            program_dt(msg.time)
         except BadInput as e:  # UnsafePlan is one
             return str(e)
         return None

@@ -37,7 +37,6 @@ from tqdm.auto import tqdm
 from bayestouch.errors import BadInput, check_bools, check_path, shown
 from bayestouch.io.files import read_csv_rows, set_aside, write_csv_rows, write_json
 from bayestouch.io.runfolder import differences, fingerprint, locked_run_folder
-from bayestouch.params import MODELS
 from bayestouch.physics import bending, pose, sma
 from bayestouch.planning.device_prober import VirtualFingerProber
 from bayestouch.planning.loop import ExploreSettings, check_settings, explore, settings_from
@@ -99,8 +98,8 @@ def trial_finger(seed: int, bend_spread: float):
     finger for every planner of the trial: paired), or None for 0 (the models' constants)."""
     if not bend_spread:
         return None
-    wire, rod = sma.load_wire(MODELS / "finger.toml"), bending.load_rod(MODELS / "finger.toml")
     rng = np.random.default_rng([int(seed), 0xBE4D])
+    wire, rod = sma.load_wire(), bending.load_rod()
     return pose.draw_finger(rng, wire, rod, pose.FingerSpread().widened(float(bend_spread)))
 
 
