@@ -35,6 +35,22 @@ def _common(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="eig planner: maximise information per second of stroke (cost-aware) instead of per stroke",
     )
+    p.add_argument(
+        "--pose-draws",
+        type=int,
+        default=0,
+        metavar="K",
+        help="on a finger (--port, --prober finger): marginalise the pad's pose error with the law of K fingers "
+        "drawn about its bending constants (K >= 2; default 0: the contacts are where the finger says)",
+    )
+    p.add_argument(
+        "--pose-offset-sd",
+        type=float,
+        default=0.0,
+        metavar="METRES",
+        help="with --pose-draws: sd of one more offset per stroke, for pose errors the drawn fingers do not make "
+        "(a carrier's calibration, the pad's mount; default 0)",
+    )
     p.add_argument("--out", required=True, type=out_path, help="output folder")
 
 
@@ -129,7 +145,7 @@ def add_planning_parsers(subparsers) -> tuple[argparse.ArgumentParser, argparse.
 
 #: largest values of the planner's sizes (memory grows with candidates × draws × rays, time with each): beyond
 #: them a run would end in a MemoryError or an hours-long silence
-SETTING_LIMITS = {"candidates": 4096, "draws": 100_000, "steps": 1_000_000, "budget": 1000}
+SETTING_LIMITS = {"candidates": 4096, "draws": 100_000, "steps": 1_000_000, "budget": 1000, "pose_draws": 1000}
 
 
 def _settings(args) -> dict:
@@ -148,6 +164,16 @@ def _settings(args) -> dict:
     out = {"candidates": args.candidates, "draws": args.draws, "steps": args.steps}
     if getattr(args, "per_second", False):
         out["per_second"] = True
+    k, sd = getattr(args, "pose_draws", 0), getattr(args, "pose_offset_sd", 0.0)
+    if not (k == 0 or 2 <= k <= SETTING_LIMITS["pose_draws"]):
+        raise BadInput(f"--pose-draws must be 0 or an integer from 2 to {SETTING_LIMITS['pose_draws']}, got {k}")
+    if not (math.isfinite(sd) and 0 <= sd < 0.1):
+        raise BadInput(f"--pose-offset-sd must be a per-stroke offset sd in metres in [0, 0.1), got {sd}")
+    if sd and not k:
+        raise BadInput("--pose-offset-sd applies with --pose-draws (the pose-error law it widens)")
+    if k:
+        out["pose_draws"] = k
+        out["pose_offset_sd"] = sd
     return out
 
 
@@ -201,6 +227,8 @@ def run_explore(args) -> int:
     timeout = getattr(args, "timeout", None)
     if timeout is not None and port is None:
         raise BadInput("--timeout applies to a finger on --port; without --port the strokes are simulated")
+    if settings.pose_draws and port is None:
+        raise BadInput("--pose-draws applies to a finger on --port; simulated rays have no pad-pose error")
     segment = getattr(args, "segment", False)
     if segment is not False and port is None:
         raise BadInput("--segment applies to a finger on --port; without --port the strokes are simulated")

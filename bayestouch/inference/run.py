@@ -262,6 +262,7 @@ _EXTRA_NATURAL = {
     "w_outlier": ("w_outlier", None),
     "w_in": ("w_in", None),
     "w_out": ("w_out", None),
+    "log_pose_scale": ("pose_scale", np.exp),
 }
 
 
@@ -276,9 +277,24 @@ def natural_draws(flat: np.ndarray, sampled: tuple = cm.PARAM_NAMES) -> np.ndarr
     return np.column_stack([canonicalize_batch(v), *extra])
 
 
-#: starting values of the optional parameters: κ = 100 (normals good to ~6°), ε = 10⁻³ (the paper's), w = 5 %
-_EXTRA_START = {"log_kappa": np.log(100.0), "log_eps": np.log(1e-3), "w_outlier": 0.05, "w_in": 0.025, "w_out": 0.025}
-_EXTRA_SCALE = {"log_kappa": 1e-2, "log_eps": 1e-2, "w_outlier": 1e-3, "w_in": 1e-3, "w_out": 1e-3}
+#: starting values of the optional parameters: κ = 100 (normals good to ~6°), ε = 10⁻³ (the paper's), w = 5 %, the
+#: pose-error law's scale s = 1 (:mod:`bayestouch.inference.pose_error`)
+_EXTRA_START = {
+    "log_kappa": np.log(100.0),
+    "log_eps": np.log(1e-3),
+    "w_outlier": 0.05,
+    "w_in": 0.025,
+    "w_out": 0.025,
+    "log_pose_scale": 0.0,
+}
+_EXTRA_SCALE = {
+    "log_kappa": 1e-2,
+    "log_eps": 1e-2,
+    "w_outlier": 1e-3,
+    "w_in": 1e-3,
+    "w_out": 1e-3,
+    "log_pose_scale": 0.05,
+}
 
 
 _prior_jit = jax.jit(cm.log_prior)

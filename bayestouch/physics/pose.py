@@ -44,6 +44,9 @@ __all__ = [
     "BENDING_CONSTANTS",
     "with_constants",
     "pose_error_ensemble",
+    "held_error_ensemble",
+    "HELD_DT",
+    "HELD_BUCKET",
 ]
 
 
@@ -763,6 +766,40 @@ def carrier_pad_path(wire: sma.WireParams, rod: bd.RodParams, program: CarrierPr
     )
 
 
+#: the chain's step (seconds) and the length granularity (frames) of :func:`held_pose_error` and
+#: :func:`held_error_ensemble`: one compilation serves every stroke whose warm-up and duration fit the same multiple
+HELD_DT = 0.05
+HELD_BUCKET = 32
+
+
+@partial(jax.jit, static_argnums=(4,))
+def _held_tips(wires, rods, currents, dt, substeps):
+    """Tip positions (K, N, 3) of K fingers (stacked pytrees, each started cold at its own ambient temperature)
+    through one current program (N, 3)."""
+
+    def one(w, r):
+        u = _chain(w, r, currents, dt, jnp.full(3, w.ambient), jnp.ones(3), substeps)[3]
+        return jax.vmap(lambda c: bd.tip_pose(r, c)[0])(u)
+
+    return jax.vmap(one)(wires, rods)
+
+
+def _held_tips_at(fingers, hold_currents, time, warmup: float, dt: float) -> np.ndarray:
+    """Tip positions (K, T, 3) metres of K fingers ((wire, rod) pairs) holding ``hold_currents`` from cold,
+    switched on ``warmup`` seconds before ``time[0]``, on a chain of step ``dt`` whose length is rounded up to a
+    multiple of :data:`HELD_BUCKET`, interpolated linearly at ``time``."""
+    t = np.asarray(time, dtype=float)
+    cur = _check_currents(fingers[0][0], np.asarray(hold_currents, dtype=float).reshape(1, 3))
+    wires = jax.tree.map(lambda *xs: jnp.asarray(xs, dtype=float), *[f[0] for f in fingers])
+    rods = jax.tree.map(lambda *xs: jnp.asarray(xs, dtype=float), *[f[1] for f in fingers])
+    span = warmup + float(t[-1] - t[0])
+    n = -(-(int(np.ceil(span / dt)) + 2) // HELD_BUCKET) * HELD_BUCKET
+    tips = np.asarray(_held_tips(wires, rods, jnp.asarray(np.tile(cur, (n, 1))), float(dt), 10))
+    grid = -warmup + dt * np.arange(1, n + 1)  # the chain's frame k holds the state after k + 1 steps
+    at = t - t[0]
+    return np.stack([np.stack([np.interp(at, grid, tk[:, c]) for c in range(3)], axis=-1) for tk in tips])
+
+
 def held_pose_error(
     finger: tuple[sma.WireParams, bd.RodParams],
     assumed: tuple[sma.WireParams, bd.RodParams],
@@ -775,23 +812,79 @@ def held_pose_error(
     a host that assumes other constants sees it: tip(finger) − tip(assumed), both wires switched on ``warmup``
     seconds before the stroke's first frame from cold (as :func:`bayestouch.physics.finger.drive`).
 
+    The chain runs at its own step :data:`HELD_DT`, whatever the frames' interval (the bend of a real finger does
+    not depend on how often it reports; the chain's frame-lagged stress made it depend on the step by up to 10 % at
+    steps of 0.1 s), and the tip is interpolated linearly at the frame times.
+
     Parameters
     ----------
     finger, assumed : (WireParams, RodParams)
         The finger's true constants and the ones the host computes its pose with.
     hold_currents : (3,) float, amperes
     time : (T,) float, seconds
-        Frame times (their median interval is the chain's step).
+        Frame times, evenly spaced.
     warmup : float, seconds
 
     Returns
     -------
     (T, 3) float, metres
     """
-    t = _check_times(time)
-    dt = float(np.median(np.diff(t)))
-    n_warm = int(round(warmup / dt))
-    cur = np.tile(np.asarray(hold_currents, dtype=float).reshape(1, 3), (n_warm + len(t), 1))
-    true = tip_path(finger[0], finger[1], cur, dt).tip_position[n_warm:]
-    host = tip_path(assumed[0], assumed[1], cur, dt).tip_position[n_warm:]
-    return true - host
+    _check_times(time)
+    tips = _held_tips_at([finger, assumed], hold_currents, time, warmup, HELD_DT)
+    return tips[0] - tips[1]
+
+
+def held_error_ensemble(
+    wire: sma.WireParams,
+    rod: bd.RodParams,
+    hold_currents,
+    time,
+    *,
+    spread: FingerSpread | None = None,
+    draws: int = 24,
+    seed: int = 0,
+    warmup: float = 5.0,
+    dt: float = HELD_DT,
+) -> np.ndarray:
+    """What a host that knows only the nominal constants and their spread can say about the pad's error while the
+    finger holds ``hold_currents`` through a stroke (the guarded strokes of
+    :class:`~bayestouch.hardware.frame_models.GuardedModel`): :func:`held_pose_error` of ``draws`` fingers drawn
+    about the nominal one (:func:`draw_finger`) against the nominal one.
+
+    All fingers run at once on a chain of step ``dt`` from ``warmup`` seconds before the first frame (the wires
+    switched on from cold), its length rounded up to a multiple of :data:`HELD_BUCKET` frames so that strokes of
+    different durations share a compilation; the tip is interpolated linearly at the frame times. The same ``seed``
+    draws the same fingers for every stroke (one finger runs them all).
+
+    Parameters
+    ----------
+    wire, rod : WireParams, RodParams
+        The host's nominal constants.
+    hold_currents : (3,) float, amperes
+    time : (T,) float, seconds
+        Frame times of the stroke (evenly spaced or not; the first is the stroke's start).
+    spread : FingerSpread, optional
+        How far the finger may be from nominal (default :class:`FingerSpread`).
+    draws : int
+        Drawn fingers K (≥ 2).
+    seed : int
+    warmup : float, seconds
+    dt : float, seconds
+        The chain's step (keep it ≲ 0.1 s: the wires' thermal time constant is about a second).
+
+    Returns
+    -------
+    (K, T, 3) float, metres
+        Tip errors in the finger-base frame.
+    """
+    t = np.asarray(time, dtype=float)
+    if t.ndim != 1 or len(t) < 1 or not np.all(np.isfinite(t)) or np.any(np.diff(t) < 0):
+        raise BadInput(f"time: expected non-decreasing finite frame times in seconds, shape (T,), got shape {t.shape}")
+    if int(draws) < 2:
+        raise BadInput(f"draws: expected at least 2 drawn fingers, got {draws!r}")
+    if not (np.isfinite(dt) and 0 < dt <= 0.1) or not (np.isfinite(warmup) and warmup >= 0):
+        raise BadInput(f"dt, warmup: expected a chain step in (0, 0.1] s and a warm-up ≥ 0 s, got {dt!r}, {warmup!r}")
+    rng = np.random.default_rng(seed)
+    fingers = [(wire, rod)] + [draw_finger(rng, wire, rod, spread) for _ in range(int(draws))]
+    tips = _held_tips_at(fingers, hold_currents, t, warmup, dt)
+    return tips[1:] - tips[0]

@@ -28,6 +28,7 @@ from bayestouch.hardware.device import (
 from bayestouch.hardware.safety import StrokePlan, UnsafePlan
 from bayestouch.inference.freespace import Free
 from bayestouch.io.recording import write_recording
+from bayestouch.physics import bending, pose, sma
 from bayestouch.planning.candidates import Strokes
 
 __all__ = ["DeviceProber", "VirtualFingerProber", "PROBE_THRESHOLD", "POSE_SD", "probe_points", "carrier_points"]
@@ -110,6 +111,9 @@ class DeviceProber:
         A ``.nc`` file rewritten (atomically) after every stroke with all strokes so far.
     attrs : dict, optional
         Extra attributes of the recording.
+    constants : (WireParams, RodParams), optional
+        The bending constants the device's pose estimate uses, the centre of :meth:`pose_ensemble`'s law (default
+        ``models/finger.toml``'s).
 
     Attributes
     ----------
@@ -129,8 +133,11 @@ class DeviceProber:
         hold_currents=HOLD_CURRENTS,
         recording=None,
         attrs: dict | None = None,
+        constants=None,
     ):
         self.device, self.threshold = device, float(threshold)
+        self.constants = constants
+        self._held: dict = {}
         self.hold_currents = np.asarray(hold_currents, float)
         self.recording_path = Path(recording) if recording else None
         self.attrs = dict(attrs or {})
@@ -191,6 +198,63 @@ class DeviceProber:
         if self.recording_path is not None:
             write_recording(self.dataset(), self.recording_path, overwrite=True)  # this run's, after each stroke
         return pts, free
+
+    def pose_ensemble(
+        self, draws: int = 24, *, seed: int = 0, spread: pose.FingerSpread | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The host's law of the pad's pose error at every contact so far, as ``draws`` fingers drawn about its
+        constants say (:func:`bayestouch.physics.pose.held_error_ensemble`; the input of
+        :func:`bayestouch.inference.pose_error.ensemble_model`).
+
+        A guarded stroke holds :attr:`hold_currents`; the rod points along each approach (its base frame's +z
+        turned onto −normal by the smallest rotation R_j, :func:`~bayestouch.physics.pose.rotation_between`), so a
+        finger whose constants differ from the host's runs its pad on the approach line moved by R_j e(t_j), e the
+        tip's error in the base frame at the waypoint's time. The same drawn fingers serve every stroke (one
+        finger runs them all), so the law correlates strokes as well as a stroke's waypoints.
+
+        Parameters
+        ----------
+        draws : int
+            Drawn fingers K (≥ 2).
+        seed : int
+        spread : FingerSpread, optional
+            How far the finger may be from the host's constants (default
+            :class:`~bayestouch.physics.pose.FingerSpread`).
+
+        Returns
+        -------
+        ensemble : (K, M, 3) float, metres
+            Pose errors p_true − p_host of every drawn finger at the M contacts, in the order :meth:`probe`
+            returned them.
+        strokes : (M,) int
+            Stroke of each contact (its index in :attr:`probes`).
+        times : (M,) float, seconds
+            Each contact's waypoint time in its stroke.
+        """
+        if self.constants is None:
+            self.constants = (sma.load_wire(), bending.load_rod())
+        wire, rod = self.constants
+        span = max((float(p.plan.time[-1] - p.plan.time[0]) for p in self.probes), default=0.0)
+        key = (int(draws), int(seed), spread, tuple(self.hold_currents))
+        grid, held = self._held.get(key, (np.zeros(1), None))
+        if held is None or grid[-1] < span:  # one chain run covers every stroke up to the next whole second
+            grid = np.arange(0.0, np.ceil(span) + 1.0 + 0.5 * pose.HELD_DT, pose.HELD_DT)
+            held = pose.held_error_ensemble(wire, rod, self.hold_currents, grid, spread=spread, draws=draws, seed=seed)
+            self._held[key] = (grid, held)
+        out, labels, times = [], [], []
+        for s, p in enumerate(self.probes):
+            hit = np.asarray(p.probe) == 0
+            if not hit.any():
+                continue
+            t = np.asarray(p.plan.time, float)[hit] - float(p.plan.time[0])
+            e = np.stack([np.stack([np.interp(t, grid, hk[:, c]) for c in range(3)], -1) for hk in held])  # (K, m, 3)
+            rot = np.stack([pose.rotation_between([0.0, 0.0, 1.0], -n) for n in np.asarray(p.plan.normal)[hit]])
+            out.append(np.einsum("mij,kmj->kmi", rot, e))
+            labels.append(np.full(int(hit.sum()), s))
+            times.append(t)
+        if not out:
+            return np.zeros((int(draws), 0, 3)), np.zeros(0, int), np.zeros(0)
+        return np.concatenate(out, axis=1), np.concatenate(labels), np.concatenate(times)
 
     def dataset(self):
         """All strokes so far as the ``xarray.Dataset`` of :mod:`bayestouch.io.recording` (the schema of

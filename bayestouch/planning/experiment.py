@@ -396,6 +396,8 @@ def run_experiment(
         )
     if bend_spread and prober != "finger":
         raise BadInput("bend_spread: the bending pose error is the virtual finger's; use it with prober 'finger'")
+    if (settings or {}).get("pose_draws") and prober != "finger":
+        raise BadInput("settings.pose_draws: the pose-error law is a finger's; use it with prober 'finger'")
     # the folder is this run's from the check of an earlier results.csv to the plot: a second experiment into it at
     # the same time is refused in one line, not left to replace the first's rows (the lock goes with a killed run)
     with locked_run_folder(out):

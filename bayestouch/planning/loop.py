@@ -29,6 +29,7 @@ from bayestouch.geometry.compare import chamfer_surfaces
 from bayestouch.geometry.integrals import surface_integrals
 from bayestouch.hardware.safety import UnsafePlan
 from bayestouch.inference import contact as cm
+from bayestouch.inference import pose_error as pe
 from bayestouch.inference.freespace import Free, with_free
 from bayestouch.inference.posterior import interval
 from bayestouch.inference.run import NATURAL_NAMES, initial_theta, natural_draws, start_ball
@@ -79,6 +80,8 @@ class _ExploreSettingsFields(NamedTuple):
     init_starts: int = 2
     scout: int = 4
     per_second: bool = False
+    pose_draws: int = 0
+    pose_offset_sd: float = 0.0
 
 
 class ExploreSettings(_ExploreSettingsFields):
@@ -106,6 +109,14 @@ class ExploreSettings(_ExploreSettingsFields):
         Arcs of the scout stroke 0 (2.5–3 cm each, evenly spread start directions).
     per_second : bool
         ``eig``: maximise information per second of stroke.
+    pose_draws : int
+        0: the contacts are where the prober says. K ≥ 2: the prober's pad-pose error is marginalised with the law
+        of K fingers drawn about its bending constants (a prober with ``pose_ensemble``, e.g.
+        :class:`~bayestouch.planning.device_prober.DeviceProber`;
+        :func:`bayestouch.inference.pose_error.make_ensemble_pose_log_prob`, one more parameter: the law's scale).
+    pose_offset_sd : float, metres
+        With ``pose_draws``: sd of one more offset per stroke for what the drawn fingers do not produce
+        (:func:`bayestouch.inference.pose_error.ensemble_model`'s ``offset_sd``; 0: none).
     """
 
     __slots__ = ()
@@ -159,6 +170,12 @@ def check_settings(s: ExploreSettings) -> None:
         if isinstance(v, bool) or not isinstance(v, int | float) or not (math.isfinite(v) and v > 0):
             raise BadInput(f"settings.{name}: expected a positive finite number of metres, got {v!r}")
     check_bool(s.per_second, "settings.per_second")
+    v = s.pose_draws
+    if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < 0 or v == 1:
+        raise BadInput(f"settings.pose_draws: expected 0 (no pose-error law) or an integer ≥ 2 fingers, got {v!r}")
+    v = s.pose_offset_sd
+    if isinstance(v, bool) or not isinstance(v, int | float) or not (math.isfinite(v) and 0 <= v < 0.1):
+        raise BadInput(f"settings.pose_offset_sd: expected a per-stroke offset sd in metres in [0, 0.1), got {v!r}")
 
 
 class StrokeRecord(NamedTuple):
@@ -181,7 +198,8 @@ class StrokeRecord(NamedTuple):
 
 
 class ExploreResult(NamedTuple):
-    """The loop's history, all contact points (M, 3) m, the last draws (N, 10) and the last ensemble (W, 11)."""
+    """The loop's history, all contact points (M, 3) m, the last draws (N, 10) and the last ensemble (W, 11), (W, 12)
+    with a pose-error law (its last column log s, :data:`bayestouch.inference.pose_error.ENSEMBLE_PARAM_NAMES`)."""
 
     records: list
     points: np.ndarray
@@ -285,12 +303,12 @@ def _concat(batches: list[Strokes]) -> Strokes:
     return Strokes(*cat, batches[0].t_max, *rest)
 
 
-def _draws(chain_kept, count: int, rng: np.random.Generator) -> np.ndarray:
-    """Thinned, canonicalised draws (count, 11) in natural units from the last half of the kept chain."""
+def _draws(chain_kept, count: int, rng: np.random.Generator, sampled: tuple = cm.PARAM_NAMES) -> np.ndarray:
+    """Thinned, canonicalised draws (count, len(sampled)) in natural units from the last half of the kept chain."""
     kept = chain_kept[len(chain_kept) // 2 :]
     flat = kept.reshape(-1, kept.shape[-1])
     idx = np.sort(rng.choice(len(flat), size=count, replace=len(flat) < count))
-    return natural_draws(flat[idx])
+    return natural_draws(flat[idx], sampled)
 
 
 def _subseed(*key: int) -> int:
@@ -304,15 +322,34 @@ def _sample(logp, start, walkers: int, seed: int, steps: int):
     used here (the chain is short by design and reported as such), so that warning is silenced."""
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", "invalid value encountered", RuntimeWarning)
-        return sample(logp, start, None, walkers=walkers, ndim=11, seed=seed, steps=steps, progress=False)
+        return sample(logp, start, None, walkers=walkers, ndim=start.shape[1], seed=seed, steps=steps, progress=False)
+
+
+def _density(pts: np.ndarray, free: Free, priors, prober, s: ExploreSettings) -> tuple:
+    """The loop's log-posterior of the contacts and free space so far, its box and the sampled parameters' names:
+    the contact likelihood, or with ``s.pose_draws`` the prober's pose-error law marginalised
+    (:meth:`~bayestouch.planning.device_prober.DeviceProber.pose_ensemble`)."""
+    if not s.pose_draws:
+        logp, bounds = cm.make_log_prob(pts, priors)
+        return with_free(logp, bounds, free), bounds, cm.PARAM_NAMES
+    ens, labels, times = prober.pose_ensemble(s.pose_draws)
+    if ens.shape[1] != len(pts):
+        raise BadInput(
+            f"prober: its pose law covers {ens.shape[1]} contacts, the loop holds {len(pts)}; use a fresh prober per "
+            "exploration"
+        )
+    model = pe.ensemble_model(pts, ens, labels, times, offset_sd=float(s.pose_offset_sd))
+    logp, bounds = pe.make_ensemble_pose_log_prob(model, priors)
+    return with_free(logp, bounds, free), bounds, pe.ENSEMBLE_PARAM_NAMES
 
 
 def _summary(k: int, nat: np.ndarray, errors: dict, n_points: int, policy: str) -> dict:
+    names = NATURAL_NAMES + (("pose_scale",) if nat.shape[1] > len(NATURAL_NAMES) else ())
     return {
         "stroke": k,
         "planner": policy,
         "n_points": n_points,
-        "parameters": {name: interval(nat[:, i]) for i, name in enumerate(NATURAL_NAMES)},
+        "parameters": {name: interval(nat[:, i]) for i, name in enumerate(names)},
         "derived": {"volume_m3": {"mean": errors["volume_mean"], "sd": errors["volume_sd"]}},
         "errors": {"chamfer_over_mean_axis": errors["chamfer"], "volume_error": errors["volume_error"]},
         "point_estimate": dict(zip(ne.PARAM_NAMES, map(float, errors["estimate"]), strict=True)),
@@ -404,6 +441,11 @@ def explore(
         truth = truth_of(obj)
     if prober is None:
         prober = RayProber(obj, s.noise_sd)
+    if s.pose_draws and not callable(getattr(prober, "pose_ensemble", None)):
+        raise BadInput(
+            f"settings.pose_draws: the prober ({type(prober).__name__}) reports no pose-error law "
+            "(pose_ensemble); use 0, or a finger's DeviceProber"
+        )
     priors = cm.load_priors()
     pol_id = 1 + ("eig", "random", "coverage", "oracle", "gpis").index(policy)  # appended: earlier ids unchanged
     rng_common = np.random.default_rng([seed, 0])
@@ -448,10 +490,9 @@ def explore(
             f"object: the scout touched only {len(pts)} points; is the object near its nominal centre "
             f"{centre.tolist()} m and a few centimetres across?"
         )
-    logp, bounds = cm.make_log_prob(pts, priors)
-    logp = with_free(logp, bounds, free)
+    logp, bounds, sampled = _density(pts, free, priors, prober, s)
     theta0 = initial_theta(pts, seed, priors, starts=s.init_starts)
-    start = start_ball(theta0, bounds, s.walkers, rng_common)
+    start = start_ball(theta0, bounds, s.walkers, rng_common, sampled)
     ch = _sample(logp, start, s.walkers, _subseed(seed, 0, 0), s.init_steps)
     strokes = [scout if refused == 0 else _concat(arcs)]
 
@@ -459,7 +500,7 @@ def explore(
     decision_s, eig_value = 0.0, float("nan")
     n_new = len(pts)
     while True:
-        nat = _draws(ch.kept, s.draws, rng_common if k == 0 else rng)
+        nat = _draws(ch.kept, s.draws, rng_common if k == 0 else rng, sampled)
         vecs = nat[:, :10]
         err = shape_errors(vecs, truth) if truth is not None else point_estimate(vecs)
         rec = StrokeRecord(
@@ -521,8 +562,7 @@ def explore(
         if n_new:
             pts = np.concatenate([pts, new])
         # update, warm-started from the last ensemble
-        logp, bounds = cm.make_log_prob(pts, priors)
-        logp = with_free(logp, bounds, free)
+        logp, bounds, sampled = _density(pts, free, priors, prober, s)
         lo, hi = np.asarray(bounds.lower), np.asarray(bounds.upper)
         start = np.clip(ch.kept[-1], lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
         ch = _sample(logp, start, s.walkers, _subseed(seed, pol_id, k), s.steps)
