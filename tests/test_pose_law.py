@@ -62,11 +62,11 @@ def test_held_ensemble_is_each_drawn_fingers_held_pose_error(nominal):
     wire, rod = nominal
     spread = pose.FingerSpread()
     rng = np.random.default_rng(11)
-    fingers = [pose.draw_finger(rng, wire, rod, spread) for _ in range(4)]
+    fingers = [pose.draw_finger(rng, wire, rod, spread) for _ in range(2)]
     for duration, T in ((1.5, 24), (2.3, 31)):
         t = np.linspace(0.0, duration, T)
-        ens = pose.held_error_ensemble(wire, rod, HOLD, t, spread=spread, draws=4, seed=11)
-        assert ens.shape == (4, T, 3)
+        ens = pose.held_error_ensemble(wire, rod, HOLD, t, spread=spread, draws=2, seed=11)
+        assert ens.shape == (2, T, 3)
         for k, f in enumerate(fingers):
             ref = pose.held_pose_error(f, (wire, rod), HOLD, t)
             size = np.max(np.linalg.norm(ref, axis=1))
@@ -189,3 +189,64 @@ def test_the_loop_with_the_pose_law_covers_a_finger_that_bends_otherwise():
             assert "pose_scale" in last.summary["parameters"]
     assert abs(z[16]) < 1.645
     assert abs(z[0]) > 4
+
+
+@pytest.fixture(scope="module")
+def posterior_law(nominal):
+    """A small prior law (12 fingers, 4 components, 1 s) given a posterior of its components."""
+    from bayestouch.inference.held_law import prior_held_law
+
+    law = prior_held_law(*nominal, HOLD, 1.0, draws=12, seed=3, rank=4)
+    chol = np.array([[0.5, 0, 0, 0], [0.2, 0.3, 0, 0], [0, 0.1, 0.4, 0], [0.1, 0, 0, 0.2]])
+    return law._replace(z_mean=np.array([0.8, -0.4, 0.2, 0.0]), z_chol=chol)
+
+
+def test_calibration_approaches_are_tilted_from_the_normal_in_turning_directions():
+    """Every approach of a calibration stroke meets the known sphere at its arc point, tilted by the set angle from
+    the inward normal, and the tilt's direction turns along the stroke (not one side throughout)."""
+    from bayestouch.planning.device_prober import calibration_strokes
+
+    ball = _ball()
+    s = calibration_strokes(ball, 3, seed=2, tilt=0.5)
+    n = s.path / np.linalg.norm(s.path, axis=-1, keepdims=True)  # the ball's outward normals
+    np.testing.assert_allclose(np.sum(-s.dirs * n, axis=-1), np.cos(0.5), atol=1e-6)
+    np.testing.assert_allclose(np.linalg.norm(s.starts + 0.025 * s.dirs - s.path, axis=-1), 0.0, atol=1e-12)
+    side = s.dirs + np.cos(0.5) * n
+    turn = np.sum(side[:, 1:] * side[:, :-1], axis=-1) / np.sin(0.5) ** 2
+    assert np.max(np.abs(turn)) < 0.2  # a quarter turn between waypoints
+    with pytest.raises(BadInput, match="tilt"):
+        calibration_strokes(ball, 1, tilt=2.0)
+
+
+def test_law_members_follow_the_laws_posterior(posterior_law):
+    """Members drawn from a conditioned law have the law's mean and covariance in its leading components (to the
+    Monte Carlo error of 4000 members: means to 0.1 sd, variances to 10 %)."""
+    from bayestouch.inference.held_law import law_members
+
+    law = posterior_law
+    m = law_members(law, 4000, seed=1)
+    assert m.shape == (4000, len(law.grid), 3)
+    L = law.lead.reshape(-1, law.lead.shape[2])
+    dev = (m - law.mean).reshape(len(m), -1)
+    z = np.linalg.lstsq(L, dev.T, rcond=None)[0].T
+    cov = law.z_chol @ law.z_chol.T
+    sd = np.sqrt(np.diag(cov))
+    assert np.all(np.abs(z.mean(axis=0) - law.z_mean) < 0.1 * sd)
+    np.testing.assert_allclose(np.var(z, axis=0), np.diag(cov), rtol=0.1)
+
+
+def test_a_calibrated_law_is_refused_where_it_does_not_apply(posterior_law):
+    """A law calibrated at other hold currents, or strokes longer than its span, are refused in one line; an
+    experiment asked to calibrate without marginalising the law is refused before anything runs."""
+    from bayestouch.planning.experiment import run_experiment
+
+    law = posterior_law
+    with pytest.raises(BadInput, match="pose_law: calibrated at hold currents"):
+        DeviceProber(device=None, hold_currents=(0.1, 0.1, 0.1), pose_law=law)
+    prober = DeviceProber(device=None, pose_law=law)
+    long = _plan(0.1, 0.0, duration=law.grid[-1] + 1.0)
+    prober.probes.append(_probe(GuardedModel(_ball(), pose_sd=0.0), long, 0))
+    with pytest.raises(BadInput, match="pose_law: covers strokes of up to"):
+        prober.pose_ensemble(8)
+    with pytest.raises(BadInput, match="bend_calibration: the calibrated pose-error law needs settings pose_draws"):
+        run_experiment("unused", planners=("eig",), objects=("sphere",), prober="finger", bend_calibration=True)

@@ -179,6 +179,29 @@ def add_device_parser(subparsers) -> argparse.ArgumentParser:
     )
     rp.add_argument("--quiet", action="store_true", help="no progress bar")
 
+    bp = sub.add_parser(
+        "calibrate-bending",
+        help="a finger's pad-pose error law from guarded strokes over a known object (a pose-law .toml)",
+        description="Run guarded strokes with tilted approaches over a known object in its fixture (a sphere of a "
+        "few centimetres is best) and condition the law of the pad's pose error on where they touched: fingers "
+        "drawn about the models' bending constants, holding the strokes' currents, and the posterior of their "
+        "leading components. Writes the pose-law file that `bayestouch explore --port --pose-law` marginalises.",
+    )
+    bp.add_argument("--port", required=True, help="serial port path or pyserial URL (a pty of `device simulate`)")
+    bp.add_argument(
+        "--object",
+        required=True,
+        help="the known object: a name in models/objects (sphere, ...) or a TOML file, in the finger's world frame",
+    )
+    bp.add_argument("--out", required=True, type=out_path, help="pose-law file to write (.toml)")
+    bp.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    bp.add_argument(
+        "--strokes", type=bounded_int(1, 64), default=6, help="calibration strokes of 20 approaches (default 6)"
+    )
+    bp.add_argument("--draws", type=bounded_int(9, 1000), default=64, help="fingers drawn for the law (default 64)")
+    bp.add_argument("--seed", type=seed_arg, default=0, help="seed of the strokes and the drawn fingers (default 0)")
+    bp.add_argument("--timeout", type=float, default=0.3, help="seconds to wait for an answer before a retry")
+
     cp = sub.add_parser(
         "recover",
         help="rebuild a recording (.nc) from the journal of a device run",
@@ -642,4 +665,66 @@ def run_device(args) -> int:
         return _run(args)
     if getattr(args, "device_command", None) == "recover":
         return _recover(args)
-    raise BadInput("device: expected a subcommand, simulate, run or recover (see bayestouch device --help)")
+    if getattr(args, "device_command", None) == "calibrate-bending":
+        return _calibrate_bending(args)
+    raise BadInput(
+        "device: expected a subcommand, simulate, run, recover or calibrate-bending (see bayestouch device --help)"
+    )
+
+
+#: RMS distance (metres) of the calibrated contacts from the known object above which the calibration warns: three
+#: times the encoders' 0.3 mm (the object is not where its file says, or the finger is not one the law can hold)
+BENDING_MISFIT_M = 9e-4
+
+
+def _calibrate_bending(args) -> int:
+    """``device calibrate-bending``: the pose-law file of the finger at ``--port``."""
+    from bayestouch import __version__
+    from bayestouch.hardware.device import DeviceError, FingerDevice, finger_of
+    from bayestouch.io.pose_law_file import write_pose_law
+    from bayestouch.planning.device_prober import DeviceProber, calibrate_bending
+    from bayestouch.scene.objects import load_object, resolve_object
+
+    if args.out.suffix != ".toml":
+        raise BadInput(f"--out {args.out}: expected a .toml pose-law file")
+    if args.out.exists() and not args.overwrite:
+        raise BadInput(f"--out {args.out} exists; pass --overwrite to replace it")
+    if not (0.01 <= args.timeout <= 60):
+        raise BadInput(f"--timeout must be in [0.01, 60] seconds, got {args.timeout}")
+    check_port(args.port)
+    obj = load_object(resolve_object(args.object))
+    try:
+        with FingerDevice(args.port, timeout=args.timeout) as dev:
+            prober = DeviceProber(dev)
+            print(
+                f"bayestouch device calibrate-bending: {args.strokes} stroke(s) over {obj.name}, then {args.draws} "
+                "drawn fingers",
+                file=sys.stderr,
+            )
+            cond = calibrate_bending(prober, obj, strokes=args.strokes, seed=args.seed, draws=args.draws)
+            named = finger_of(dev.info.firmware)
+    except DeviceError as e:
+        print(f"bayestouch device calibrate-bending: error: {e}; nothing written", file=sys.stderr)
+        return 2
+    info = {
+        "object": str(args.object),
+        **({"finger": named} if named else {}),
+        "contacts": int(cond.contacts),
+        "residual_rms_m": float(cond.residual_rms),
+        "residual_rms_prior_m": float(cond.residual_rms_prior),
+        "software": f"bayestouch {__version__}",
+    }
+    write_pose_law(args.out, cond.law, info)
+    print(
+        f"wrote {args.out}: {cond.contacts} contacts, their RMS distance from {obj.name} "
+        f"{1e3 * cond.residual_rms_prior:.2f} mm with the models' constants, {1e3 * cond.residual_rms:.2f} mm with "
+        "the calibrated law"
+    )
+    if cond.residual_rms > BENDING_MISFIT_M:
+        print(
+            f"bayestouch device calibrate-bending: warning: misfit: the contacts stay {1e3 * cond.residual_rms:.2f} mm "
+            f"from {obj.name} (more than {1e3 * BENDING_MISFIT_M:.1f} mm): is the object where its file says? The law "
+            "was written but does not hold this finger",
+            file=sys.stderr,
+        )
+    return 0

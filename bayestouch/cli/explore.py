@@ -54,6 +54,10 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, type=out_path, help="output folder")
 
 
+#: drawn members of a pose-error law when ``--pose-law`` is given without ``--pose-draws``
+DEFAULT_POSE_DRAWS = 24
+
+
 def add_planning_parsers(subparsers) -> tuple[argparse.ArgumentParser, argparse.ArgumentParser]:
     """Add the ``explore`` and ``experiment`` subcommands to an argparse ``subparsers`` object; returns both."""
     ep = subparsers.add_parser(
@@ -82,6 +86,14 @@ def add_planning_parsers(subparsers) -> tuple[argparse.ArgumentParser, argparse.
     )
     ep.add_argument(
         "--timeout", type=float, default=None, help="with --port: seconds to wait for an answer (default 0.3)"
+    )
+    ep.add_argument(
+        "--pose-law",
+        type=Path,
+        default=None,
+        metavar="LAW.toml",
+        help="with --port: this finger's calibrated pad-pose error law (`device calibrate-bending`), marginalised "
+        f"with --pose-draws members (default {DEFAULT_POSE_DRAWS})",
     )
     ep.add_argument(
         "--segment",
@@ -129,6 +141,12 @@ def add_planning_parsers(subparsers) -> tuple[argparse.ArgumentParser, argparse.
         "their stated spread, while its pose estimate keeps the models' (guarded strokes then touch millimetres off "
         "their lines; default 0; at most 3)",
     )
+    xp.add_argument(
+        "--bend-calibration",
+        action="store_true",
+        help="with --prober finger and --pose-draws: calibrate each trial's finger on a 2-cm sphere first (six "
+        "guarded strokes with tilted approaches) and marginalise its calibrated pose-error law",
+    )
     xp.add_argument("--objects", default="egg,sphere,box,cylinder", help="comma-separated names or TOML files")
     xp.add_argument("--trials", type=int, default=3, help="seeded trials per object and planner (default 3)")
     xp.add_argument("--workers", type=int, default=2, help="processes (default 2; 1 runs in this process)")
@@ -165,6 +183,8 @@ def _settings(args) -> dict:
     if getattr(args, "per_second", False):
         out["per_second"] = True
     k, sd = getattr(args, "pose_draws", 0), getattr(args, "pose_offset_sd", 0.0)
+    if getattr(args, "pose_law", None) is not None and k == 0:
+        k = DEFAULT_POSE_DRAWS
     if not (k == 0 or 2 <= k <= SETTING_LIMITS["pose_draws"]):
         raise BadInput(f"--pose-draws must be 0 or an integer from 2 to {SETTING_LIMITS['pose_draws']}, got {k}")
     if not (math.isfinite(sd) and 0 <= sd < 0.1):
@@ -227,8 +247,15 @@ def run_explore(args) -> int:
     timeout = getattr(args, "timeout", None)
     if timeout is not None and port is None:
         raise BadInput("--timeout applies to a finger on --port; without --port the strokes are simulated")
+    if getattr(args, "pose_law", None) is not None and port is None:
+        raise BadInput("--pose-law applies to a finger on --port; simulated rays have no pad-pose error")
     if settings.pose_draws and port is None:
         raise BadInput("--pose-draws applies to a finger on --port; simulated rays have no pad-pose error")
+    args.law = None
+    if getattr(args, "pose_law", None) is not None:
+        from bayestouch.io.pose_law_file import read_pose_law
+
+        args.law = read_pose_law(args.pose_law)[0]
     segment = getattr(args, "segment", False)
     if segment is not False and port is None:
         raise BadInput("--segment applies to a finger on --port; without --port the strokes are simulated")
@@ -341,7 +368,7 @@ def _explore_device(obj, args, port: str, out: Path, kw: dict):
     prober = None
     try:
         with dev:
-            prober = DeviceProber(dev, recording=rec, attrs=attrs)
+            prober = DeviceProber(dev, recording=rec, attrs=attrs, pose_law=args.law)
             res = explore(obj, args.planner, args.budget, prober=prober, **kw)
     except DeviceError as e:
         n = len(prober.strokes) if prober is not None else 0
@@ -438,6 +465,7 @@ def run_experiment(args) -> int:
         workers=args.workers,
         prober=args.prober,
         bend_spread=args.bend_spread,
+        bend_calibration=args.bend_calibration,
         scheduler=args.scheduler,
         resume=args.resume,
         overwrite=args.overwrite,

@@ -27,11 +27,24 @@ from bayestouch.hardware.device import (
 )
 from bayestouch.hardware.safety import StrokePlan, UnsafePlan
 from bayestouch.inference.freespace import Free
+from bayestouch.inference.held_law import Conditioned, HeldLaw, condition_held_law, law_members, prior_held_law
 from bayestouch.io.recording import write_recording
 from bayestouch.physics import bending, pose, sma
-from bayestouch.planning.candidates import Strokes
+from bayestouch.planning.candidates import Strokes, make_candidates, select
 
-__all__ = ["DeviceProber", "VirtualFingerProber", "PROBE_THRESHOLD", "POSE_SD", "probe_points", "carrier_points"]
+__all__ = [
+    "DeviceProber",
+    "VirtualFingerProber",
+    "PROBE_THRESHOLD",
+    "POSE_SD",
+    "probe_points",
+    "carrier_points",
+    "calibrate_bending",
+    "calibration_strokes",
+    "CALIBRATION_STROKES",
+    "CALIBRATION_TILT",
+    "LAW_SPAN",
+]
 
 #: contact force that counts as the touch, newtons (a fifth of the smallest planned force, 0.1 N)
 PROBE_THRESHOLD = 0.02
@@ -39,6 +52,12 @@ PROBE_THRESHOLD = 0.02
 HOLD_CURRENTS = (0.15, 0.05, 0.05)
 #: pose-estimate error of the virtual finger's pad, metres per coordinate (:class:`VirtualFingerProber`)
 POSE_SD = 3e-4
+#: guarded strokes of a bending calibration (:func:`calibrate_bending`)
+CALIBRATION_STROKES = 6
+#: the longest stroke, seconds, a calibrated pose-error law covers (the planner's strokes take 1–3 s)
+LAW_SPAN = 4.0
+#: tilt of a calibration stroke's approaches from the surface normal, radians (:func:`calibration_strokes`)
+CALIBRATION_TILT = 0.5
 
 
 def probe_points(data: ProbeData, threshold_depth: float) -> tuple[np.ndarray, Free]:
@@ -114,6 +133,10 @@ class DeviceProber:
     constants : (WireParams, RodParams), optional
         The bending constants the device's pose estimate uses, the centre of :meth:`pose_ensemble`'s law (default
         ``models/finger.toml``'s).
+    pose_law : HeldLaw, optional
+        This finger's held pose-error law, conditioned on a bending calibration
+        (:func:`bayestouch.inference.held_law.condition_held_law`): :meth:`pose_ensemble` draws from it instead of
+        drawing fingers about ``constants``.
 
     Attributes
     ----------
@@ -134,11 +157,17 @@ class DeviceProber:
         recording=None,
         attrs: dict | None = None,
         constants=None,
+        pose_law: HeldLaw | None = None,
     ):
         self.device, self.threshold = device, float(threshold)
-        self.constants = constants
         self._held: dict = {}
         self.hold_currents = np.asarray(hold_currents, float)
+        self.constants, self.pose_law = constants, pose_law
+        if pose_law is not None and not np.allclose(pose_law.hold_currents, self.hold_currents, rtol=0, atol=1e-9):
+            raise BadInput(
+                f"pose_law: calibrated at hold currents {np.asarray(pose_law.hold_currents).tolist()} A, the strokes "
+                f"hold {self.hold_currents.tolist()} A; calibrate at the currents the strokes use"
+            )
         self.recording_path = Path(recording) if recording else None
         self.attrs = dict(attrs or {})
         self.threshold_depth = float(winkler_depth(self.threshold))
@@ -199,6 +228,19 @@ class DeviceProber:
             write_recording(self.dataset(), self.recording_path, overwrite=True)  # this run's, after each stroke
         return pts, free
 
+    def contacts(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Every contact so far as :meth:`probe` returned them (M, 3) m, with its approach direction (M, 3) (the
+        pad moved along it), its stroke (M,) (index in :attr:`probes`) and its time since the stroke's start (M,) s:
+        what a bending calibration reads (:func:`bayestouch.inference.held_law.condition_held_law`)."""
+        pts, app, lab, tt = [np.zeros((0, 3))], [np.zeros((0, 3))], [np.zeros(0, int)], [np.zeros(0)]
+        for s, p in enumerate(self.probes):
+            hit = np.asarray(p.probe) == 0
+            pts.append(probe_points(p, self.threshold_depth)[0])
+            app.append(-np.asarray(p.plan.normal, float)[hit])
+            lab.append(np.full(int(hit.sum()), s))
+            tt.append(np.asarray(p.plan.time, float)[hit] - float(p.plan.time[0]))
+        return np.concatenate(pts), np.concatenate(app), np.concatenate(lab), np.concatenate(tt)
+
     def pose_ensemble(
         self, draws: int = 24, *, seed: int = 0, spread: pose.FingerSpread | None = None
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -215,11 +257,11 @@ class DeviceProber:
         Parameters
         ----------
         draws : int
-            Drawn fingers K (≥ 2).
+            Drawn fingers K (≥ 2), or members of :attr:`pose_law` when it is given.
         seed : int
         spread : FingerSpread, optional
             How far the finger may be from the host's constants (default
-            :class:`~bayestouch.physics.pose.FingerSpread`).
+            :class:`~bayestouch.physics.pose.FingerSpread`); unused with :attr:`pose_law`.
 
         Returns
         -------
@@ -231,16 +273,26 @@ class DeviceProber:
         times : (M,) float, seconds
             Each contact's waypoint time in its stroke.
         """
-        if self.constants is None:
-            self.constants = (sma.load_wire(), bending.load_rod())
-        wire, rod = self.constants
         span = max((float(p.plan.time[-1] - p.plan.time[0]) for p in self.probes), default=0.0)
-        key = (int(draws), int(seed), spread, tuple(self.hold_currents))
-        grid, held = self._held.get(key, (np.zeros(1), None))
-        if held is None or grid[-1] < span:  # one chain run covers every stroke up to the next whole second
-            grid = np.arange(0.0, np.ceil(span) + 1.0 + 0.5 * pose.HELD_DT, pose.HELD_DT)
-            held = pose.held_error_ensemble(wire, rod, self.hold_currents, grid, spread=spread, draws=draws, seed=seed)
-            self._held[key] = (grid, held)
+        if self.pose_law is not None:
+            if span > self.pose_law.grid[-1] + 1e-9:
+                raise BadInput(
+                    f"pose_law: covers strokes of up to {self.pose_law.grid[-1]:.3g} s, a stroke took {span:.3g} s; "
+                    "calibrate with a longer span"
+                )
+            grid, held = self.pose_law.grid, law_members(self.pose_law, int(draws), seed)
+        else:
+            if self.constants is None:
+                self.constants = (sma.load_wire(), bending.load_rod())
+            wire, rod = self.constants
+            key = (int(draws), int(seed), spread, tuple(self.hold_currents))
+            grid, held = self._held.get(key, (np.zeros(1), None))
+            if held is None or grid[-1] < span:  # one chain run covers every stroke up to the next whole second
+                grid = np.arange(0.0, np.ceil(span) + 1.0 + 0.5 * pose.HELD_DT, pose.HELD_DT)
+                held = pose.held_error_ensemble(
+                    wire, rod, self.hold_currents, grid, spread=spread, draws=draws, seed=seed
+                )
+                self._held[key] = (grid, held)
         out, labels, times = [], [], []
         for s, p in enumerate(self.probes):
             hit = np.asarray(p.probe) == 0
@@ -288,10 +340,13 @@ class VirtualFingerProber:
         The virtual finger's bending constants when they are not ``models/``'s: its pads then run where its bent rod
         puts them and are reported where the nominal constants say (``GuardedModel``'s ``finger``; for example
         :func:`bayestouch.physics.pose.draw_finger`).
+    pose_law : HeldLaw, optional
+        The :class:`DeviceProber`'s calibrated pose-error law (:func:`calibrate_bending`).
     """
 
-    def __init__(self, obj, *, seed: int = 0, pose_sd: float = POSE_SD, finger=None):
+    def __init__(self, obj, *, seed: int = 0, pose_sd: float = POSE_SD, finger=None, pose_law=None):
         self.obj, self.seed, self.pose_sd, self.finger = obj, int(seed), float(pose_sd), finger
+        self.pose_law = pose_law
         self._sim = self._dev = None
 
     def __enter__(self) -> DeviceProber:
@@ -305,10 +360,114 @@ class VirtualFingerProber:
         except BaseException:
             self._sim.close(timeout=5.0)
             raise
-        return DeviceProber(self._dev)
+        return DeviceProber(self._dev, pose_law=self.pose_law)
 
     def __exit__(self, *exc) -> None:
         if self._dev is not None:
             self._dev.close()
         if self._sim is not None:
             self._sim.close(timeout=5.0)
+
+
+def calibration_strokes(obj, count: int, *, seed: int = 0, tilt: float = CALIBRATION_TILT, points: int = 20) -> Strokes:
+    """Guarded strokes over a known object for a bending calibration: arcs over its true surface
+    (:func:`~bayestouch.planning.candidates.make_candidates` on its shape) whose approaches are tilted from the
+    inward normal by ``tilt`` radians, the tilt's direction turning a quarter turn from one waypoint to the next.
+
+    Approaches along the normal of a sphere all aim at its centre: a pad moved sideways by the finger's bend then
+    meets the sphere only (lateral offset)²/2R further along, the same for either side, and a lateral error of
+    centimetres passes for an axial one. Tilted approaches meet the surface obliquely, so a sideways offset moves
+    the contact along the approach at first order, in a direction that changes from waypoint to waypoint.
+
+    Parameters
+    ----------
+    obj : SceneObject
+        The known object.
+    count : int
+    seed : int
+    tilt : float, radians
+        In [0, 1.2].
+    points : int
+        Waypoints per stroke.
+
+    Returns
+    -------
+    Strokes
+        Starts 2.5 cm out along each approach from the arc's surface point, travel 5 cm.
+    """
+    if not (np.isfinite(tilt) and 0 <= tilt <= 1.2):
+        raise BadInput(f"tilt: expected an approach tilt in [0, 1.2] radians, got {tilt!r}")
+    standoff = 0.025
+    arcs = make_candidates(obj.shape, int(count), points=int(points), seed=[int(seed), 0xCA1], standoff=standoff)
+    n = -np.asarray(arcs.dirs, float)  # outward normals (C, T, 3)
+    ahead = np.gradient(np.asarray(arcs.path, float), axis=1)
+    a = ahead - np.sum(ahead * n, axis=-1, keepdims=True) * n
+    a /= np.linalg.norm(a, axis=-1, keepdims=True)
+    b = np.cross(n, a)
+    phi = 0.5 * np.pi * np.arange(arcs.path.shape[1])[None, :, None]
+    side = np.cos(phi) * a + np.sin(phi) * b
+    u = -np.cos(tilt) * n + np.sin(tilt) * side
+    return arcs._replace(starts=np.asarray(arcs.path) - standoff * u, dirs=u)
+
+
+def calibrate_bending(
+    prober: DeviceProber,
+    obj,
+    *,
+    strokes: int = CALIBRATION_STROKES,
+    seed: int = 0,
+    draws: int = 64,
+    span: float = LAW_SPAN,
+    noise_sd: float = POSE_SD,
+    spread: pose.FingerSpread | None = None,
+) -> Conditioned:
+    """A bending calibration: guarded strokes over a known object, and the held pose-error law they condition
+    (:mod:`bayestouch.inference.held_law`).
+
+    ``strokes`` arcs over the object's true surface with tilted approaches (:func:`calibration_strokes`) run as
+    guarded strokes on ``prober``'s finger; their contacts, recorded where the finger's nominal constants put the
+    pad, condition the law of ``draws`` fingers drawn about those constants. Strokes refused as unsafe are
+    skipped.
+
+    Parameters
+    ----------
+    prober : DeviceProber
+        The finger (its strokes stay in :attr:`DeviceProber.probes`; use a fresh prober to explore).
+    obj : SceneObject
+        The calibration object, in the finger's world frame (e.g. a sphere of 2 cm radius).
+    strokes : int
+    seed : int
+        Arcs and drawn fingers.
+    draws : int
+        Drawn fingers of the prior law.
+    span : float, seconds
+        Longest stroke the law covers.
+    noise_sd : float, metres
+        The contacts' own noise per coordinate (the encoders').
+    spread : FingerSpread, optional
+
+    Returns
+    -------
+    Conditioned
+        Its ``law`` for :class:`DeviceProber` ``(pose_law=...)``; residuals before and after.
+    """
+    if not (isinstance(strokes, int | np.integer) and strokes >= 1):
+        raise BadInput(f"strokes: expected an integer ≥ 1 calibration strokes, got {strokes!r}")
+    arcs = calibration_strokes(obj, int(strokes), seed=seed)
+    for i in range(int(strokes)):
+        try:
+            prober.probe(select(arcs, i))
+        except UnsafePlan:
+            continue
+    pts, app, _, times = prober.contacts()
+    if len(pts) < 12:
+        raise BadInput(
+            f"object: the calibration touched {len(pts)} points; is the object where its file says, within reach?"
+        )
+    if prober.constants is None:
+        prober.constants = (sma.load_wire(), bending.load_rod())
+    wire, rod = prober.constants
+    law = prior_held_law(
+        wire, rod, prober.hold_currents, max(float(span), float(times.max())), spread=spread, draws=draws, seed=seed
+    )
+    return condition_held_law(law, obj.surface(), pts, app, times, noise_sd)

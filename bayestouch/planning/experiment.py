@@ -34,14 +34,14 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
-from bayestouch.errors import BadInput, check_bools, check_path, shown
+from bayestouch.errors import BadInput, check_bool, check_bools, check_path, shown
 from bayestouch.io.files import read_csv_rows, set_aside, write_csv_rows, write_json
 from bayestouch.io.runfolder import differences, fingerprint, locked_run_folder
 from bayestouch.physics import bending, pose, sma
-from bayestouch.planning.device_prober import VirtualFingerProber
+from bayestouch.planning.device_prober import VirtualFingerProber, calibrate_bending
 from bayestouch.planning.loop import ExploreSettings, check_settings, explore, settings_from
 from bayestouch.planning.policies import check_policy
-from bayestouch.scene.objects import OBJECTS_DIR, load_object, resolve_object
+from bayestouch.scene.objects import OBJECTS_DIR, load_object, object_from_dict, resolve_object
 
 __all__ = [
     "COLUMNS",
@@ -92,6 +92,12 @@ OBJECTS = ("egg", "sphere", "box", "cylinder")
 MAX_BEND_SPREAD = 3.0
 
 
+#: the known object a trial's finger is calibrated on (``bend_calibration``): a sphere of 2 cm radius in its fixture
+CALIBRATION_OBJECT = object_from_dict(
+    {"object": {"name": "calibration sphere"}, "shape": {"centre_m": [0.0, 0.0, 0.0], "axes_m": [0.02] * 3, "n": 2.0}}
+)
+
+
 def trial_finger(seed: int, bend_spread: float):
     """The bending constants (wire, rod) of a trial's virtual finger: drawn with the trial's ``seed`` at
     ``bend_spread`` times :class:`~bayestouch.physics.pose.FingerSpread` about ``models/finger.toml``'s (the same
@@ -110,7 +116,11 @@ def run_trial(task: dict) -> list[dict]:
     settings = ExploreSettings(**task.get("settings", {}))
     if task.get("prober", "rays") == "finger":
         finger = trial_finger(task["seed"], task.get("bend_spread", 0.0))
-        with VirtualFingerProber(obj, seed=task["seed"], finger=finger) as prober:
+        law = None
+        if task.get("bend_calibration"):
+            with VirtualFingerProber(CALIBRATION_OBJECT, seed=task["seed"], finger=finger) as cal:
+                law = calibrate_bending(cal, CALIBRATION_OBJECT, seed=task["seed"]).law
+        with VirtualFingerProber(obj, seed=task["seed"], finger=finger, pose_law=law) as prober:
             res = explore(obj, task["planner"], task["budget"], seed=task["seed"], settings=settings, prober=prober)
     else:
         res = explore(obj, task["planner"], task["budget"], seed=task["seed"], settings=settings)
@@ -285,6 +295,7 @@ def run_experiment(
     settings: dict | None = None,
     prober: str = "rays",
     bend_spread: float = 0.0,
+    bend_calibration: bool = False,
     plot: bool = True,
     log=None,
 ) -> dict:
@@ -317,6 +328,10 @@ def run_experiment(
         With ``prober="finger"``: each trial's finger gets bending constants of its own, drawn at this many times
         their stated spread (:func:`trial_finger`), while its pose estimate keeps the models' (0: the models'
         constants; at most :data:`MAX_BEND_SPREAD`); part of the key when not 0.
+    bend_calibration : bool
+        With ``prober="finger"`` and ``settings["pose_draws"]``: each trial's finger is first calibrated on
+        :data:`CALIBRATION_OBJECT` (:func:`~bayestouch.planning.device_prober.calibrate_bending`) and the loop
+        marginalises the calibrated pose-error law; part of the key when set.
     plot : bool
         Write ``error_vs_strokes.png``.
     log : callable, optional
@@ -398,6 +413,9 @@ def run_experiment(
         raise BadInput("bend_spread: the bending pose error is the virtual finger's; use it with prober 'finger'")
     if (settings or {}).get("pose_draws") and prober != "finger":
         raise BadInput("settings.pose_draws: the pose-error law is a finger's; use it with prober 'finger'")
+    check_bool(bend_calibration, "bend_calibration")
+    if bend_calibration and not (settings or {}).get("pose_draws"):
+        raise BadInput("bend_calibration: the calibrated pose-error law needs settings pose_draws ≥ 2 to be used")
     # the folder is this run's from the check of an earlier results.csv to the plot: a second experiment into it at
     # the same time is refused in one line, not left to replace the first's rows (the lock goes with a killed run)
     with locked_run_folder(out):
@@ -408,6 +426,8 @@ def run_experiment(
             options["prober"] = prober
         if bend_spread:
             options["bend_spread"] = float(bend_spread)
+        if bend_calibration:
+            options["bend_calibration"] = True
         # the objects' contents are part of the key: an object file edited between runs is another experiment
         contents = {f"object {names[o]}": p.read_bytes() for o, p in paths.items()}
         meta = fingerprint("experiment", contents, options)
@@ -470,6 +490,7 @@ def run_experiment(
                 "settings": dict(settings or {}),
                 "prober": prober,
                 "bend_spread": float(bend_spread),
+                "bend_calibration": bool(bend_calibration),
             }
             for t in range(trials)
             for o in paths
