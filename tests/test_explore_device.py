@@ -162,6 +162,8 @@ def test_explore_port_drives_the_finger_and_writes_the_recording(finger, tmp_pat
     assert main(argv) == 0
     err = capsys.readouterr().err
     assert "errors unknown (no truth)" in err and "refused" in err
+    assert "note: the pad's pose error is not modelled" in err  # said once, and in every summary
+    assert err.count("pose error is not modelled") == 1
     hist = json.loads((out / "explore.json").read_text())
     strokes = hist["strokes"]
     assert [s["stroke"] for s in strokes] == [0, 1] and hist["object"] == "unknown (device)"
@@ -169,6 +171,7 @@ def test_explore_port_drives_the_finger_and_writes_the_recording(finger, tmp_pat
     assert sum(s["refused"] for s in strokes) >= 1  # unsafe candidates met and replaced: the loop went on
     s0 = json.loads((out / "summary_0.json").read_text())
     assert "no truth" in s0["errors_note"] and s0["object"].startswith("unknown")
+    assert s0["pose_error"].startswith("not modelled")
     # a second exploration into the folder is refused (its stroke summaries would mix with these)
     assert main(argv) == 2 and "already holds results" in capsys.readouterr().err
     assert json.loads((out / "summary_0.json").read_text()) == s0

@@ -135,8 +135,8 @@ def test_explore_refuses_a_pose_law_without_a_finger(tmp_path, capsys, small_law
 @pytest.mark.slow
 def test_explore_on_a_finger_marginalises_its_calibrated_law(bent_finger, tmp_path, monkeypatch, capsys):
     """``explore --port --pose-law`` samples the law's scale beside the shape (a pose_scale in every stroke's
-    summary) and finds the ball; a law calibrated at other hold currents is refused in one line before any
-    stroke."""
+    summary, which says how the pose error was modelled) and finds the ball; a law calibrated at other hold
+    currents is refused in one line before any stroke."""
     import json
 
     from bayestouch.planning import loop
@@ -153,6 +153,7 @@ def test_explore_on_a_finger_marginalises_its_calibrated_law(bent_finger, tmp_pa
     capsys.readouterr()
     s1 = json.loads((out / "summary_1.json").read_text())
     assert "pose_scale" in s1["parameters"]
+    assert s1["pose_error"].startswith("marginalised: 8 members of the calibrated law of")
     assert abs(s1["point_estimate"]["a"] - 0.02) < 2e-3
     other = write_pose_law(tmp_path / "other.toml", law._replace(hold_currents=np.array([0.1, 0.1, 0.1])), {})
     assert main([*argv, "--pose-law", str(other), "--out", str(tmp_path / "o2")]) == 2

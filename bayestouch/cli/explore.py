@@ -295,6 +295,14 @@ def _explore_into(out: Path, args, obj, name, port, centre, settings) -> int:
     out.mkdir(parents=True, exist_ok=True)
     truthless = obj is None
     object_name = name if name is not None else "unknown (a finger without --object)"
+    pose_model = _pose_model(port, settings, getattr(args, "pose_law", None))
+    if port is not None and not settings.pose_draws:
+        print(
+            "bayestouch explore: note: the pad's pose error is not modelled: the contacts are taken where the finger "
+            "reports them, and a finger whose bending constants differ from models/ gets intervals too narrow "
+            "(see --pose-draws and --pose-law)",
+            file=sys.stderr,
+        )
 
     def on_stroke(rec):
         write_json(
@@ -306,6 +314,7 @@ def _explore_into(out: Path, args, obj, name, port, centre, settings) -> int:
                 "eig_nats": rec.eig,
                 "decision_s": rec.decision_s,
                 "refused_candidates": rec.refused,
+                **({"pose_error": pose_model} if pose_model else {}),
                 **({"errors_note": "unknown: no truth (a finger without --object)"} if truthless else {}),
             },
         )
@@ -346,6 +355,17 @@ def _explore_into(out: Path, args, obj, name, port, centre, settings) -> int:
     )
     _plot_explore(res, obj, out / "explore.png")
     return 0
+
+
+def _pose_model(port, settings, law_path) -> str | None:
+    """What the summaries say about the pad's pose error on a finger (None in simulation)."""
+    if port is None:
+        return None
+    if not settings.pose_draws:
+        return "not modelled: contacts as the finger reports them"
+    src = f"the calibrated law of {law_path}" if law_path is not None else "fingers drawn about models/'s constants"
+    extra = f", one more offset per stroke of sd {settings.pose_offset_sd:g} m" if settings.pose_offset_sd else ""
+    return f"marginalised: {settings.pose_draws} members of {src}{extra}"
 
 
 def _explore_device(obj, args, port: str, out: Path, kw: dict):
