@@ -176,8 +176,9 @@ def _pose(d: dict) -> tuple[str, str, str]:
         f" (95th percentile {mm('nominal_p95_mm')}); without the hysteresis {mm('nominal_no_hysteresis_median_mm')}"
         f"; every constant exact, no hysteresis {mm('true_no_hysteresis_median_mm')}; tip deflections up to "
         f"{d['max_deflection_mm']['median']:.1f} mm. The law of such errors, from fingers run through the "
-        "commanded programs, enters `bench_pose_fit`'s last two fits; the virtual finger runs the chain for carrier "
-        "strokes and with `--bend-spread`, `simulate` does not yet",
+        "commanded programs, enters `bench_pose_fit`'s last two fits and, for the guarded strokes' held currents, "
+        "the exploration loop (`bench_explore_bend`); the virtual finger runs the chain for carrier strokes and with "
+        "`--bend-spread`, `simulate` does not yet",
         "`bench_pose` (`benchmarks/results/pose.json`)",
     )
 
@@ -237,24 +238,34 @@ def _pose_fit(d: dict) -> tuple[str, str, str]:
 
 
 def _explore_bend(d: dict) -> tuple[str, str, str]:
+    def label(c: dict) -> str:
+        spread = c.get("bend_spread", 0.0)
+        draws = c.get("pose_draws", 0)
+        who = "the models' constants" if not spread else f"constants drawn at {spread:g}× their spread"
+        how = "encoder noise only" if not draws else f"the pose-error law of {draws} drawn fingers"
+        return f"{who}, {how}" + (", calibrated on a sphere first" if c.get("bend_calibration") else "")
+
     def cond(c: dict) -> str:
         z = [abs(t["volume_z"]) for t in c["per_trial"]]
+        ratio = c.get("volume_sd_over_reference")
+        wide = (
+            f", volume sd {ratio['median']:.2f}× the reference's [{ratio['lo']:.2f}, {ratio['hi']:.2f}]"
+            if ratio and (c.get("bend_spread") or c.get("pose_draws"))
+            else ""
+        )
         return (
-            f"Chamfer {c['chamfer']['median']:.4f} [{c['chamfer']['lo']:.4f}, {c['chamfer']['hi']:.4f}], volume "
-            f"error {_pct(c['volume_error']['median'], 2)} [{_pct(c['volume_error']['lo'], 2)}, "
+            f"{label(c)}: Chamfer {c['chamfer']['median']:.4f} [{c['chamfer']['lo']:.4f}, {c['chamfer']['hi']:.4f}], "
+            f"volume error {_pct(c['volume_error']['median'], 2)} [{_pct(c['volume_error']['lo'], 2)}, "
             f"{_pct(c['volume_error']['hi'], 2)}], the truth within the 90 % volume interval in {c['covered']}/"
-            f"{c['of']} {_ci(c['coverage_wilson95'])} (median \\|z\\| {statistics.median(z):.1f})"
+            f"{c['of']} {_ci(c['coverage_wilson95'])} (median \\|z\\| {statistics.median(z):.1f}){wide}"
         )
 
     conds = d["conditions"]
-    drawn = [k for k in conds if k != "0"]
     return (
         f"Exploration through a finger whose bending constants are not the models' ({d['trials']} paired trials, "
-        f"{d['object']}, {d['planner']}, {d['budget']} strokes after the scout; guarded strokes over the protocol; "
-        "the loop's posterior assumes the encoder's 0.3 mm only)",
-        f"the models' constants: {cond(conds['0'])}"
-        + "".join(f"; constants drawn at {k}× their spread: {cond(conds[k])}" for k in drawn)
-        + ". The loop does not model the bending pose error yet",
+        f"{d['object']}, {d['planner']}, {d['budget']} strokes after the scout; guarded strokes over the protocol, "
+        "the encoder's 0.3 mm; the reference is the models' finger with the encoder noise only)",
+        "; ".join(cond(c) for c in conds.values()),
         "`bench_explore_bend` (`benchmarks/results/explore_bend.json`)",
     )
 
