@@ -80,7 +80,7 @@ def test_held_ensemble_of_a_spread_of_nothing_is_zero(nominal):
     """Fingers drawn with no spread are the nominal one: every error is zero (the host's own chain against itself)."""
     wire, rod = nominal
     none = pose.FingerSpread(0.0, (wire.prestrain, wire.prestrain), 0.0, (1.0, 1.0), 0.0)
-    ens = pose.held_error_ensemble(wire, rod, HOLD, np.linspace(0.0, 1.0, 9), spread=none, draws=3)
+    ens = pose.held_error_ensemble(wire, rod, HOLD, np.linspace(0.0, 1.5, 24), spread=none, draws=2)
     np.testing.assert_allclose(ens, 0.0, atol=1e-12)
 
 

@@ -92,7 +92,7 @@ def test_calibrate_bending_writes_the_fingers_law_and_says_what_it_did(bent_fing
     sim, finger, nominal = bent_finger
     ball = _ball_file(tmp_path / "ball.toml", 0.02)
     out = tmp_path / "law.toml"
-    argv = ["device", "calibrate-bending", "--port", sim.port, "--object", str(ball), "--draws", "24"]
+    argv = ["device", "calibrate-bending", "--port", sim.port, "--object", str(ball), "--draws", "16"]
     assert main([*argv, "--out", str(out)]) == 0
     cap = capsys.readouterr()
     assert "wrote" in cap.out and "mm with the calibrated law" in cap.out and "misfit" not in cap.err
@@ -167,7 +167,7 @@ def test_a_calibration_of_the_models_own_finger_invents_no_error():
     from bayestouch.planning.device_prober import VirtualFingerProber, calibrate_bending
 
     with VirtualFingerProber(_ball(), seed=4) as prober:
-        law = calibrate_bending(prober, _ball(), seed=4, draws=12, span=3.0).law
+        law = calibrate_bending(prober, _ball(), seed=4, draws=16).law
     post = law.mean + law.lead @ law.z_mean
     assert np.max(np.linalg.norm(post, axis=1)) < 3e-4
     assert np.median(np.sqrt(np.sum(law.lead**2, axis=(1, 2)))) > 1e-3

@@ -228,6 +228,13 @@ class DeviceProber:
             write_recording(self.dataset(), self.recording_path, overwrite=True)  # this run's, after each stroke
         return pts, free
 
+    def host_constants(self) -> tuple:
+        """The bending constants (WireParams, RodParams) the device's pose estimate uses: ``constants``, or
+        ``models/finger.toml``'s (loaded once)."""
+        if self.constants is None:
+            self.constants = (sma.load_wire(), bending.load_rod())
+        return self.constants
+
     def contacts(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Every contact so far as :meth:`probe` returned them (M, 3) m, with its approach direction (M, 3) (the
         pad moved along it), its stroke (M,) (index in :attr:`probes`) and its time since the stroke's start (M,) s:
@@ -282,9 +289,7 @@ class DeviceProber:
                 )
             grid, held = self.pose_law.grid, law_members(self.pose_law, int(draws), seed)
         else:
-            if self.constants is None:
-                self.constants = (sma.load_wire(), bending.load_rod())
-            wire, rod = self.constants
+            wire, rod = self.host_constants()
             key = (int(draws), int(seed), spread, tuple(self.hold_currents))
             grid, held = self._held.get(key, (np.zeros(1), None))
             if held is None or grid[-1] < span:  # one chain run covers every stroke up to the next whole second
@@ -293,20 +298,10 @@ class DeviceProber:
                     wire, rod, self.hold_currents, grid, spread=spread, draws=draws, seed=seed
                 )
                 self._held[key] = (grid, held)
-        out, labels, times = [], [], []
-        for s, p in enumerate(self.probes):
-            hit = np.asarray(p.probe) == 0
-            if not hit.any():
-                continue
-            t = np.asarray(p.plan.time, float)[hit] - float(p.plan.time[0])
-            e = np.stack([np.stack([np.interp(t, grid, hk[:, c]) for c in range(3)], -1) for hk in held])  # (K, m, 3)
-            rot = np.stack([pose.rotation_between([0.0, 0.0, 1.0], -n) for n in np.asarray(p.plan.normal)[hit]])
-            out.append(np.einsum("mij,kmj->kmi", rot, e))
-            labels.append(np.full(int(hit.sum()), s))
-            times.append(t)
-        if not out:
-            return np.zeros((int(draws), 0, 3)), np.zeros(0, int), np.zeros(0)
-        return np.concatenate(out, axis=1), np.concatenate(labels), np.concatenate(times)
+        _, approach, labels, times = self.contacts()
+        e = np.stack([np.stack([np.interp(times, grid, hk[:, c]) for c in range(3)], -1) for hk in held])  # (K, M, 3)
+        rot = np.array([pose.rotation_between([0.0, 0.0, 1.0], u) for u in approach]).reshape(-1, 3, 3)
+        return np.einsum("mij,kmj->kmi", rot, e), labels, times
 
     def dataset(self):
         """All strokes so far as the ``xarray.Dataset`` of :mod:`bayestouch.io.recording` (the schema of
@@ -464,9 +459,7 @@ def calibrate_bending(
         raise BadInput(
             f"object: the calibration touched {len(pts)} points; is the object where its file says, within reach?"
         )
-    if prober.constants is None:
-        prober.constants = (sma.load_wire(), bending.load_rod())
-    wire, rod = prober.constants
+    wire, rod = prober.host_constants()
     law = prior_held_law(
         wire, rod, prober.hold_currents, max(float(span), float(times.max())), spread=spread, draws=draws, seed=seed
     )
