@@ -27,6 +27,7 @@ import numpy as np
 
 from bayestouch.backend import jax, jnp
 from bayestouch.errors import BadInput
+from bayestouch.inference.pose_error import principal_components
 from bayestouch.physics import bending as bd
 from bayestouch.physics import pose, sma
 from bayestouch.scene.surface import Surface, signed_distance
@@ -114,12 +115,7 @@ def prior_held_law(
         raise BadInput(f"rank: expected an integer in [1, draws) (draws {draws}), got {rank!r}")
     grid = np.arange(0.0, float(span) + 1.5 * HELD_GRID_DT, HELD_GRID_DT)
     e = pose.held_error_ensemble(wire, rod, hold_currents, grid, spread=spread, draws=draws, seed=seed)
-    K, N = e.shape[:2]
-    mu = e.mean(axis=0)
-    dev = (e - mu).reshape(K, 3 * N)
-    _, sv, vt = np.linalg.svd(dev / np.sqrt(K - 1), full_matrices=False)
-    lead = (vt[:rank].T * sv[:rank]).reshape(N, 3, rank)
-    rem = (dev - (dev @ vt[:rank].T) @ vt[:rank]).reshape(K, N, 3)
+    mu, lead, rem = principal_components(e, rank)
     return HeldLaw(np.asarray(hold_currents, float).reshape(3), grid, mu, lead, rem, np.zeros(rank), np.eye(rank))
 
 
@@ -132,17 +128,11 @@ def law_at(law: HeldLaw, times) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             f"times: expected times since a stroke's start within the law's [0, {law.grid[-1]:.3g}] s, got "
             f"{float(np.min(t)) if t.size else 'none'} to {float(np.max(t)) if t.size else 'none'} s"
         )
-    idx = np.clip(np.searchsorted(law.grid, t, side="right") - 1, 0, len(law.grid) - 2)
-    w = (t - law.grid[idx]) / (law.grid[idx + 1] - law.grid[idx])
-
-    def at(a, axis):
-        a0, a1 = np.take(a, idx, axis=axis), np.take(a, idx + 1, axis=axis)
-        shape = [1] * a0.ndim
-        shape[axis] = len(t)
-        ww = w.reshape(shape)
-        return (1 - ww) * a0 + ww * a1
-
-    return at(law.mean, 0), at(law.lead, 0), at(law.remainder, 1)
+    return (
+        pose.interp_grid(law.grid, law.mean, t),
+        pose.interp_grid(law.grid, law.lead, t),
+        pose.interp_grid(law.grid, law.remainder, t, axis=1),
+    )
 
 
 def law_members(law: HeldLaw, count: int, seed: int = 0) -> np.ndarray:
@@ -235,27 +225,24 @@ def condition_held_law(
     base = p + np.einsum("mij,mj->mi", rot, mu)
     rem_w = np.einsum("mij,kmj->kmi", rot, rem)
     r = lead.shape[2]
+
+    def linearised(z):
+        """Signed distances (M,) at the contacts moved by z, their Jacobian in z (M, r) and weights (M,)."""
+        phi, nrm = (np.asarray(a) for a in _phi_and_normal(surf, jnp.asarray(base + lead_w @ z)))
+        var = noise_sd**2 + np.mean(np.einsum("mi,kmi->km", nrm, rem_w) ** 2, axis=0)
+        return phi, np.einsum("mi,mir->mr", nrm, lead_w), 1.0 / var
+
     z = np.zeros(r)
     done = 0
     while done < int(iterations):
         done += 1
-        x = base + lead_w @ z
-        phi, nrm = (np.asarray(a) for a in _phi_and_normal(surf, jnp.asarray(x)))
-        var = noise_sd**2 + np.mean(np.einsum("mi,kmi->km", nrm, rem_w) ** 2, axis=0)
-        J = np.einsum("mi,mir->mr", nrm, lead_w)
-        W = 1.0 / var
-        H = J.T @ (W[:, None] * J) + np.eye(r)
-        g = J.T @ (W * phi) + z
-        step = np.linalg.solve(H, g)
+        phi, J, W = linearised(z)
+        step = np.linalg.solve(J.T @ (W[:, None] * J) + np.eye(r), J.T @ (W * phi) + z)
         z = z - step
         if np.max(np.abs(step)) < 1e-6:
             break
-    x = base + lead_w @ z
-    phi, nrm = (np.asarray(a) for a in _phi_and_normal(surf, jnp.asarray(x)))
-    var = noise_sd**2 + np.mean(np.einsum("mi,kmi->km", nrm, rem_w) ** 2, axis=0)
-    J = np.einsum("mi,mir->mr", nrm, lead_w)
-    H = J.T @ ((1.0 / var)[:, None] * J) + np.eye(r)
-    cov = np.linalg.inv(H)
+    phi, J, W = linearised(z)
+    cov = np.linalg.inv(J.T @ (W[:, None] * J) + np.eye(r))
     chol = np.linalg.cholesky(0.5 * (cov + cov.T))
     phi0 = np.asarray(_phi_and_normal(surf, jnp.asarray(base))[0])
     return Conditioned(

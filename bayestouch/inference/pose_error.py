@@ -58,6 +58,7 @@ __all__ = [
     "RELINEARISE",
     "OFFSET_SD",
     "EnsembleModel",
+    "principal_components",
     "ensemble_model",
     "correlation_time",
     "ensemble_log_likelihood",
@@ -261,6 +262,20 @@ def correlation_time(remainder, strokes, times) -> float:
     return float(grid[int(np.argmin(err))])
 
 
+def principal_components(ensemble, rank: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """An ensemble of K curves e_k (K, N, 3) as its mean (N, 3), its ``rank`` leading principal components
+    (N, 3, rank), scaled so that z ~ N(0, I) in e = mean + lead z reproduces the ensemble's covariance in them, and
+    each member's remainder outside them (K, N, 3), in the ensemble's units."""
+    e = np.asarray(ensemble, dtype=float)
+    K, N = e.shape[:2]
+    mu = e.mean(axis=0)
+    dev = (e - mu).reshape(K, 3 * N)
+    _, sv, vt = np.linalg.svd(dev / np.sqrt(K - 1), full_matrices=False)
+    lead = (vt[:rank].T * sv[:rank]).reshape(N, 3, rank)
+    rem = (dev - (dev @ vt[:rank].T) @ vt[:rank]).reshape(K, N, 3)
+    return mu, lead, rem
+
+
 def ensemble_model(
     points, ensemble, strokes, times, rank: int | None = None, offset_sd: float = OFFSET_SD
 ) -> EnsembleModel:
@@ -306,12 +321,8 @@ def ensemble_model(
     r = min(RANK, K - 1) if rank is None else int(rank)
     if not 1 <= r <= K - 1:
         raise BadInput(f"rank: expected an integer in [1, {K - 1}] (the ensemble has {K} draws), got {rank!r}")
-    mu = e.mean(axis=0)
-    dev = (e - mu).reshape(K, 3 * M) / np.sqrt(K - 1)
-    _, sv, vt = np.linalg.svd(dev, full_matrices=False)
-    lead = (vt[:r].T * sv[:r]).reshape(M, 3, r)
-    rem = (dev - (dev @ vt[:r].T) @ vt[:r]).reshape(K, M, 3)
-    resid = np.einsum("kmc,kme->cem", rem, rem)
+    mu, lead, rem = principal_components(e, r)
+    resid = np.einsum("kmc,kme->cem", rem, rem) / (K - 1)
     ell = correlation_time(rem, lab, t)
     S = int(lab.max()) + 1
     m = int(np.bincount(lab).max())

@@ -46,6 +46,7 @@ __all__ = [
     "ffd_contact_model",
     "NATURAL_NAMES",
     "natural_draws",
+    "natural_names",
     "start_ball",
     "smc_stage",
     "smc_moves",
@@ -264,6 +265,11 @@ _EXTRA_NATURAL = {
     "w_out": ("w_out", None),
     "log_pose_scale": ("pose_scale", np.exp),
 }
+
+
+def natural_names(sampled: tuple = cm.PARAM_NAMES) -> tuple:
+    """The names of :func:`natural_draws`' columns for θ with parameter names ``sampled``."""
+    return NATURAL_NAMES + tuple(_EXTRA_NATURAL[k][0] for k in sampled[11:])
 
 
 def natural_draws(flat: np.ndarray, sampled: tuple = cm.PARAM_NAMES) -> np.ndarray:
@@ -609,7 +615,7 @@ def contact_model(
     pts = jnp.asarray(points, dtype=jnp.float64)
     m = len(points)
     sampled = cm.param_names(normals is not None, noise)
-    names = NATURAL_NAMES + tuple(_EXTRA_NATURAL[k][0] for k in sampled[11:])
+    names = natural_names(sampled)
     lo, hi = np.asarray(points).min(axis=0), np.asarray(points).max(axis=0)
     half_diag = 0.5 * float(np.linalg.norm(hi - lo))
     centroid = np.asarray(points).mean(axis=0)

@@ -44,7 +44,7 @@ from typing import NamedTuple
 import numpy as np
 
 from bayestouch.errors import BadInput, file_problem
-from bayestouch.io.files import write_text
+from bayestouch.io.files import toml_array, toml_value, write_text
 from bayestouch.params import read_toml
 
 __all__ = [
@@ -91,20 +91,6 @@ class DeviceCalibration(NamedTuple):
     response_scale_sd: float | None = None
 
 
-def _floats(values) -> str:
-    return "[" + ", ".join(repr(float(v)) for v in values) + "]"
-
-
-def _toml_value(v) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, float):
-        return repr(v)
-    return '"' + str(v).replace("\\", "\\\\").replace('"', '\\"') + '"'
-
-
 def write_device_file(path, cal: DeviceCalibration) -> Path:
     """Write ``cal`` to ``path`` (TOML, atomically; the module docstring gives the layout); refused
     (:class:`BadInput`) when :func:`read_device_file` would refuse it."""
@@ -123,11 +109,11 @@ def device_file_text(cal: DeviceCalibration) -> str:
     lines = [
         "# bayestouch device file: per-taxel log-gains of one finger from `bayestouch calibrate` (dimensionless)",
         "[device]",
-        *(f"{k} = {_toml_value(v)}" for k, v in head.items()),
+        *(f"{k} = {toml_value(v)}" for k, v in head.items()),
         "",
         "[gains]",
-        f"log_gain = {_floats(cal.log_gain)}",
-        f"log_gain_sd = {_floats(cal.log_gain_sd)}",
+        f"log_gain = {toml_array(cal.log_gain)}",
+        f"log_gain_sd = {toml_array(cal.log_gain_sd)}",
         "",
     ]
     if cal.response_scale_sd is not None:

@@ -39,6 +39,8 @@ __all__ = [
     "read_csv_records",
     "file_error",
     "ragged_error",
+    "toml_value",
+    "toml_array",
 ]
 
 
@@ -435,3 +437,26 @@ def write_json(path: str | os.PathLike[str], obj: Any) -> Path:
     """
     text = json.dumps(_jsonable(obj), indent=2, allow_nan=False, ensure_ascii=False) + "\n"
     return atomic_write(path, lambda fh: fh.write(text))
+
+
+# ---------------------------------------------------------------------------------------------------------
+# TOML values (the writers of device and pose-law files; tomllib only reads)
+
+
+def toml_value(v) -> str:
+    """A TOML scalar: a bool, an integer, a float (``repr``: read back exactly) or a quoted, escaped string."""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        return repr(v)
+    return '"' + str(v).replace("\\", "\\\\").replace('"', '\\"') + '"'
+
+
+def toml_array(values) -> str:
+    """A TOML array of floats, nested as ``values`` is (each float's ``repr``: read back exactly)."""
+    a = np.asarray(values, dtype=float)
+    if a.ndim == 1:
+        return "[" + ", ".join(repr(float(v)) for v in a) + "]"
+    return "[" + ", ".join(toml_array(b) for b in a) + "]"

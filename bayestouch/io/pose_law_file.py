@@ -32,7 +32,8 @@ import numpy as np
 
 from bayestouch.errors import BadInput, file_problem
 from bayestouch.inference.held_law import HeldLaw
-from bayestouch.io.files import write_text
+from bayestouch.io.files import toml_array, toml_value, write_text
+from bayestouch.params import read_toml
 
 __all__ = ["POSE_LAW_FORMAT", "write_pose_law", "read_pose_law", "pose_law_text"]
 
@@ -51,21 +52,6 @@ _ARRAYS = (
 _HEAD_KEYS = ("format", "object", "finger", "contacts", "residual_rms_m", "residual_rms_prior_m", "software")
 
 
-def _nested(a) -> str:
-    a = np.asarray(a, float)
-    if a.ndim == 1:
-        return "[" + ", ".join(repr(float(v)) for v in a) + "]"
-    return "[" + ", ".join(_nested(b) for b in a) + "]"
-
-
-def _value(v) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int | float):
-        return repr(v)
-    return '"' + str(v).replace("\\", "\\\\").replace('"', '\\"') + '"'
-
-
 def pose_law_text(law: HeldLaw, info: dict) -> str:
     """The TOML text of ``law`` with the provenance ``info`` (keys of the module docstring's ``[pose_law]``),
     checked as :func:`read_pose_law` checks a file (:class:`BadInput`)."""
@@ -73,10 +59,10 @@ def pose_law_text(law: HeldLaw, info: dict) -> str:
     lines = [
         "# bayestouch pose-law file: a finger's held pad-pose error law from a bending calibration (SI units)",
         "[pose_law]",
-        *(f"{k} = {_value(v)}" for k, v in head.items()),
+        *(f"{k} = {toml_value(v)}" for k, v in head.items()),
         "",
         "[law]",
-        *(f"{key} = {_nested(getattr(law, field))}" for key, field, _ in _ARRAYS),
+        *(f"{key} = {toml_array(getattr(law, field))}" for key, field, _ in _ARRAYS),
         "",
     ]
     text = "\n".join(lines)
@@ -101,11 +87,7 @@ def read_pose_law(path) -> tuple[HeldLaw, dict]:
     where = f"pose-law file {p}"
     if problem := file_problem(p):
         raise BadInput(f"{where}: {problem}; expected the TOML written by `bayestouch device calibrate-bending`")
-    try:
-        doc = tomllib.loads(p.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, tomllib.TOMLDecodeError) as e:
-        raise BadInput(f"{where}: not valid TOML ({e}); expected the file `device calibrate-bending` writes") from None
-    return _law_of(doc, where)
+    return _law_of(read_toml(p, "pose-law file", "LAW.toml from `bayestouch device calibrate-bending`"), where)
 
 
 def _law_of(doc: dict, where: str) -> tuple[HeldLaw, dict]:

@@ -47,6 +47,7 @@ __all__ = [
     "held_error_ensemble",
     "HELD_DT",
     "HELD_BUCKET",
+    "interp_grid",
 ]
 
 
@@ -784,6 +785,19 @@ def _held_tips(wires, rods, currents, dt, substeps):
     return jax.vmap(one)(wires, rods)
 
 
+def interp_grid(grid, values, times, axis: int = 0) -> np.ndarray:
+    """``values`` sampled on ``grid`` (N ≥ 2,) seconds along ``axis``, linearly interpolated at ``times`` (M,)
+    seconds (held at the end values beyond the grid, as :func:`numpy.interp`): the same array with that axis of
+    length M."""
+    g, t = np.asarray(grid, dtype=float), np.asarray(times, dtype=float).reshape(-1)
+    v = np.asarray(values, dtype=float)
+    idx = np.clip(np.searchsorted(g, t, side="right") - 1, 0, len(g) - 2)
+    shape = [1] * v.ndim
+    shape[axis] = len(t)
+    w = np.clip((t - g[idx]) / (g[idx + 1] - g[idx]), 0.0, 1.0).reshape(shape)
+    return (1 - w) * np.take(v, idx, axis=axis) + w * np.take(v, idx + 1, axis=axis)
+
+
 def _held_tips_at(fingers, hold_currents, time, warmup: float, dt: float) -> np.ndarray:
     """Tip positions (K, T, 3) metres of K fingers ((wire, rod) pairs) holding ``hold_currents`` from cold,
     switched on ``warmup`` seconds before ``time[0]``, on a chain of step ``dt`` whose length is rounded up to a
@@ -796,8 +810,7 @@ def _held_tips_at(fingers, hold_currents, time, warmup: float, dt: float) -> np.
     n = -(-(int(np.ceil(span / dt)) + 2) // HELD_BUCKET) * HELD_BUCKET
     tips = np.asarray(_held_tips(wires, rods, jnp.asarray(np.tile(cur, (n, 1))), float(dt), 10))
     grid = -warmup + dt * np.arange(1, n + 1)  # the chain's frame k holds the state after k + 1 steps
-    at = t - t[0]
-    return np.stack([np.stack([np.interp(at, grid, tk[:, c]) for c in range(3)], axis=-1) for tk in tips])
+    return interp_grid(grid, tips, t - t[0], axis=1)
 
 
 def held_pose_error(

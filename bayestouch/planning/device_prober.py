@@ -299,7 +299,7 @@ class DeviceProber:
                 )
                 self._held[key] = (grid, held)
         _, approach, labels, times = self.contacts()
-        e = np.stack([np.stack([np.interp(times, grid, hk[:, c]) for c in range(3)], -1) for hk in held])  # (K, M, 3)
+        e = pose.interp_grid(grid, held, times, axis=1)  # (K, M, 3)
         rot = np.array([pose.rotation_between([0.0, 0.0, 1.0], u) for u in approach]).reshape(-1, 3, 3)
         return np.einsum("mij,kmj->kmi", rot, e), labels, times
 

@@ -20,6 +20,7 @@ progress bar) and :func:`wilson_interval`.
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import logging
 import math
@@ -41,7 +42,7 @@ from bayestouch.physics import bending, pose, sma
 from bayestouch.planning.device_prober import VirtualFingerProber, calibrate_bending
 from bayestouch.planning.loop import ExploreSettings, check_settings, explore, settings_from
 from bayestouch.planning.policies import check_policy
-from bayestouch.scene.objects import OBJECTS_DIR, load_object, object_from_dict, resolve_object
+from bayestouch.scene.objects import OBJECTS_DIR, SceneObject, load_object, object_from_dict, resolve_object
 
 __all__ = [
     "COLUMNS",
@@ -92,10 +93,12 @@ OBJECTS = ("egg", "sphere", "box", "cylinder")
 MAX_BEND_SPREAD = 3.0
 
 
-#: the known object a trial's finger is calibrated on (``bend_calibration``): a sphere of 2 cm radius in its fixture
-CALIBRATION_OBJECT = object_from_dict(
-    {"object": {"name": "calibration sphere"}, "shape": {"centre_m": [0.0, 0.0, 0.0], "axes_m": [0.02] * 3, "n": 2.0}}
-)
+@functools.cache
+def calibration_object() -> SceneObject:
+    """The known object a trial's finger is calibrated on (``bend_calibration``): a sphere of 2 cm radius in its
+    fixture at the origin (built on first use: it holds JAX arrays)."""
+    shape = {"centre_m": [0.0, 0.0, 0.0], "axes_m": [0.02] * 3, "n": 2.0}
+    return object_from_dict({"object": {"name": "calibration sphere"}, "shape": shape})
 
 
 def trial_finger(seed: int, bend_spread: float):
@@ -118,8 +121,9 @@ def run_trial(task: dict) -> list[dict]:
         finger = trial_finger(task["seed"], task.get("bend_spread", 0.0))
         law = None
         if task.get("bend_calibration"):
-            with VirtualFingerProber(CALIBRATION_OBJECT, seed=task["seed"], finger=finger) as cal:
-                law = calibrate_bending(cal, CALIBRATION_OBJECT, seed=task["seed"]).law
+            sphere = calibration_object()
+            with VirtualFingerProber(sphere, seed=task["seed"], finger=finger) as cal:
+                law = calibrate_bending(cal, sphere, seed=task["seed"]).law
         with VirtualFingerProber(obj, seed=task["seed"], finger=finger, pose_law=law) as prober:
             res = explore(obj, task["planner"], task["budget"], seed=task["seed"], settings=settings, prober=prober)
     else:
@@ -330,7 +334,7 @@ def run_experiment(
         constants; at most :data:`MAX_BEND_SPREAD`); part of the key when not 0.
     bend_calibration : bool
         With ``prober="finger"`` and ``settings["pose_draws"]``: each trial's finger is first calibrated on
-        :data:`CALIBRATION_OBJECT` (:func:`~bayestouch.planning.device_prober.calibrate_bending`) and the loop
+        :func:`calibration_object` (:func:`~bayestouch.planning.device_prober.calibrate_bending`) and the loop
         marginalises the calibrated pose-error law; part of the key when set.
     plot : bool
         Write ``error_vs_strokes.png``.

@@ -32,7 +32,7 @@ from bayestouch.inference import contact as cm
 from bayestouch.inference import pose_error as pe
 from bayestouch.inference.freespace import Free, with_free
 from bayestouch.inference.posterior import interval
-from bayestouch.inference.run import NATURAL_NAMES, initial_theta, natural_draws, start_ball
+from bayestouch.inference.run import initial_theta, natural_draws, natural_names, start_ball
 from bayestouch.inference.sampler import sample
 from bayestouch.planning.candidates import Strokes, make_candidates, select
 from bayestouch.planning.policies import check_policy, choose
@@ -343,8 +343,8 @@ def _density(pts: np.ndarray, free: Free, priors, prober, s: ExploreSettings) ->
     return with_free(logp, bounds, free), bounds, pe.ENSEMBLE_PARAM_NAMES
 
 
-def _summary(k: int, nat: np.ndarray, errors: dict, n_points: int, policy: str) -> dict:
-    names = NATURAL_NAMES + (("pose_scale",) if nat.shape[1] > len(NATURAL_NAMES) else ())
+def _summary(k: int, nat: np.ndarray, errors: dict, n_points: int, policy: str, sampled: tuple) -> dict:
+    names = natural_names(sampled)
     return {
         "stroke": k,
         "planner": policy,
@@ -515,7 +515,7 @@ def explore(
             decision_s,
             ch.seconds,
             time.perf_counter() - t0,
-            _summary(k, nat, err, len(pts), policy),
+            _summary(k, nat, err, len(pts), policy, sampled),
             refused,
         )
         records.append(rec)
