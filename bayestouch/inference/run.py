@@ -23,6 +23,7 @@ from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.symmetry import aliases, align_batch, canonicalize_batch
 from bayestouch.inference import contact as cm
 from bayestouch.inference import ffd_marginal as fm
+from bayestouch.inference import pose_error as pe
 from bayestouch.inference.de import de_search
 from bayestouch.inference.misfit import residual_structure
 from bayestouch.inference.modes import find_modes, gaussian_mixture
@@ -44,6 +45,7 @@ __all__ = [
     "MIN_WALKERS",
     "contact_model",
     "ffd_contact_model",
+    "pose_contact_model",
     "NATURAL_NAMES",
     "natural_draws",
     "natural_names",
@@ -125,7 +127,7 @@ NATURAL_NAMES = ("x_G", "y_G", "z_G", "a", "b", "c", "xi", "psi", "zeta", "n", "
 CONTACT_UNITS = {
     **dict.fromkeys(("x_G", "y_G", "z_G", "a", "b", "c", "sigma", "points", "free_points", "radius"), "m"),
     **dict.fromkeys(("xi", "psi", "zeta"), "rad"),
-    **dict.fromkeys(("n", "kappa", "epsilon", "w_outlier", "w_in", "w_out", "normals"), "1"),
+    **dict.fromkeys(("n", "kappa", "epsilon", "w_outlier", "w_in", "w_out", "pose_scale", "normals"), "1"),
 }
 #: dims of the contact level's observations (ArviZ ``observed_data``, ``posterior_predictive``, ``log_likelihood``).
 #: ``radius`` is each contact's distance from the contacts' centroid (m), the scalar per point that ``az.loo_pit``
@@ -702,6 +704,63 @@ def contact_model(
     )
 
 
+def _check_pose(pose, points, **others) -> None:
+    """Refuse a pose-error law that is not one of ``points``, or options the pose-marginalised fit does not take."""
+    if not isinstance(pose, pe.EnsembleModel):
+        raise BadInput(
+            f"pose: expected an EnsembleModel (bayestouch.inference.pose_error.ensemble_model) or None, got "
+            f"{type(pose).__name__}"
+        )
+    if np.shape(pose.moved) != np.shape(points):
+        raise BadInput(
+            f"pose: its law covers {len(pose.moved)} contacts, the fit has {len(points)}; build it from these points"
+        )
+    given = {
+        "ffd": others["ffd"] is not None,
+        "normals": others["normals"] is not None,
+        "free": others["free"] is not None,
+        "noise": others["noise"] not in ("auto", "gaussian", "student") or others["nu"] not in (None, np.inf),
+        "precision": others["precision"] == "mixed",
+    }
+    bad = [k for k, v in given.items() if v]
+    if bad:
+        raise BadInput(
+            f"pose: the pose-marginalised fit has Gaussian contact noise in float64 and no {', '.join(bad)}; drop "
+            f"{'it' if len(bad) == 1 else 'them'} or the pose-error law"
+        )
+
+
+def pose_contact_model(points, pose: pe.EnsembleModel) -> PosteriorModel:
+    """The contact level with the pad's pose error marginalised (:func:`run_contact_fit`'s ``pose``) as a
+    :class:`~bayestouch.inference.posterior.PosteriorModel`. Its likelihood couples the contacts of a stroke (and,
+    through the law's leading components, all strokes), so it has no pointwise log-likelihood and no replicated
+    data; the observed group holds the contacts as the host computed them."""
+    sampled = pe.ENSEMBLE_PARAM_NAMES
+    return PosteriorModel(
+        natural_names(sampled),
+        lambda flat: natural_draws(flat, sampled),
+        lambda nat: nat[:, :10],
+        None,
+        None,
+        {"points": np.asarray(points, float)},
+        {
+            "level": "contact",
+            "likelihood": (
+                f"Gaussian, the pad's pose error marginalised (ensemble law of {pose.lead.shape[2]} columns, "
+                f"per-stroke offset sd {pose.offset_sd:g} m)"
+            ),
+            "noise": "gaussian",
+            "normals_used": False,
+            "n_points": int(len(points)),
+            "n_free_points": 0,
+            "parameters_sampled": list(sampled),
+            "pose_error": {"offset_sd_m": float(pose.offset_sd), "correlation_time_s": float(pose.ell)},
+        },
+        dims=CONTACT_DIMS,
+        units=CONTACT_UNITS,
+    )
+
+
 def _theta_of_natural(nat) -> np.ndarray:
     """Natural contact-level parameters (11,) → the sampled θ (11,)."""
     nat = np.asarray(nat, float)
@@ -816,6 +875,7 @@ def run_contact_fit(
     size_prior: tuple[float, float] | None = None,
     init: str = "auto",
     overwrite: bool = False,
+    pose=None,
 ) -> dict:
     """Sample the contact-level posterior of ``points (M, 3)`` m and write the run folder ``out``.
 
@@ -870,6 +930,14 @@ def run_contact_fit(
         (:func:`smc_moves`: EM, components by BIC), so separated modes are found and walked between;
         ``"optimize"`` from a small ball around the evolutionary-search optimum (:func:`initial_theta`) with the
         adaptive t proposal. Ignored with ``start`` or ``ffd``.
+    pose : EnsembleModel, optional
+        The contacts' pose-error law (:func:`bayestouch.inference.pose_error.ensemble_model` of these ``points``,
+        e.g. from :meth:`bayestouch.planning.device_prober.DeviceProber.pose_ensemble`): the pad's pose error is
+        marginalised (:func:`~bayestouch.inference.pose_error.make_ensemble_pose_log_prob`, Gaussian contact
+        noise) and its scale sampled (``pose_scale``). Not combined with ``normals``, ``ffd``, ``free`` or another
+        noise model. The likelihood couples the contacts of a stroke, so ``posterior.nc`` has no pointwise
+        log-likelihood or replicated data, and the residuals' neighbour check (``misfit``) is not made: the pose
+        error correlates neighbouring residuals by design.
     ffd : (l, m, k) int, optional
         Refine the n-ellipsoid with an FFD lattice of this size, marginalised analytically (Gaussian noise);
         ``ffd_tau`` (m) is the prior sd of the control-point displacements. Not combined with normals or another
@@ -923,10 +991,13 @@ def run_contact_fit(
         if nu is not None and not np.isinf(nu):
             raise BadInput(f"nu: the gaussian noise model has no degrees of freedom (nu = inf), got nu={nu}")
         noise, nu = "student", float("inf")
+    if pose is not None:
+        _check_pose(pose, points, ffd=ffd, normals=normals, free=free, noise=noise, nu=nu, precision=precision)
+        noise, nu, precision = "student", float("inf"), "float64"
     theta0 = None
     if init == "auto":
         init = "smc"
-        if start is None and ffd is None and len(points) >= DENSE_POINTS:
+        if start is None and ffd is None and pose is None and len(points) >= DENSE_POINTS:
             theta0 = initial_theta(points, seed, priors)
             if surrounds(points, theta0):
                 init = "optimize"
@@ -939,7 +1010,11 @@ def run_contact_fit(
     if normals is not None:
         check_normals_outward(points, normals)
     sampled = cm.PARAM_NAMES
-    if ffd is None:
+    if pose is not None:
+        logp, bounds = pe.make_ensemble_pose_log_prob(pose, priors)
+        sampled = pe.ENSEMBLE_PARAM_NAMES
+        model = pose_contact_model(points, pose)
+    elif ffd is None:
         if precision not in ("auto", "float64", "mixed"):
             raise BadInput(f"precision: expected 'auto', 'float64' or 'mixed', got {precision!r}")
         if precision == "auto":
@@ -978,11 +1053,15 @@ def run_contact_fit(
         "ffd_tau": None if ffd is None else tau,
         "precision": precision,
         "init": init,
+        "pose": None if pose is None else {"offset_sd": pose.offset_sd, "rank": int(pose.lead.shape[2])},
         "walkers": int(walkers),
         "seed": int(seed),
         "priors": {k: float(v) for k, v in priors._asdict().items()},
     }
-    fp = fingerprint("contact", {"points": points, "normals": normals, "free-space points": free}, options)
+    data = {"points": points, "normals": normals, "free-space points": free}
+    if pose is not None:  # the law itself: another law over the same points is another run
+        data.update({"pose-error law": np.concatenate([pose.moved.ravel(), pose.lead.ravel(), pose.resid.ravel()])})
+    fp = fingerprint("contact", data, options)
     prepare_run_folder(out, fp, resume=resume, overwrite=overwrite)
 
     def initial():
@@ -1060,7 +1139,8 @@ def run_contact_fit(
     summary = write_posterior(out, ch, model, seed=seed, t0=t0)
     if ffd is None:  # a lattice moves the surface off the n-ellipsoid the draws describe
         _write_occupancy(out, ch, summary, seed)
-        _report_misfit(summary, ch, points, seed)
+        if pose is None:  # a pose error correlates neighbouring residuals by design
+            _report_misfit(summary, ch, points, seed)
         _report_noise_size(summary, ch)
     summary = _report_modes(out, summary, ch, model, seed, smc)
     release_run_folder(out)
