@@ -1,12 +1,19 @@
 """The main job on the built-in default: ``bayestouch demo`` (and ``make demo``).
 
-1. **Explore.** The eig planner explores the default egg (``models/objects/egg.toml``: a tilted, textured
-   n-ellipsoid) for a few strokes after the scout; the contact-level posterior is sampled after each stroke
-   (:func:`bayestouch.planning.loop.explore`).
-2. **Posterior.** The contact-level posterior of all the points touched, continued from the exploration's last
-   ensemble until converged or out of its time budget (:func:`bayestouch.inference.run.run_contact_fit`):
-   ``summary.json``, ``posterior.nc``, ``chain.h5``, ``mean_shape.ply``, ``uncertainty_mesh.ply``. (The
-   exploration's "no contact" observations are not in this final likelihood, only the contact points.)
+1. **Explore through the finger.** A virtual finger whose bending constants are its own (drawn at 1× their stated
+   spread, :func:`bayestouch.planning.experiment.trial_finger`: not ``models/``'s) runs guarded strokes over the
+   serial protocol; its pad goes where its bent rod puts it, and the host knows the pose only from the models'
+   constants. It is first calibrated on a 2-cm sphere
+   (:func:`bayestouch.planning.device_prober.calibrate_bending`); then the eig planner explores the default egg
+   (``models/objects/egg.toml``: a tilted, textured n-ellipsoid) for a few strokes after the scout, the contact-level
+   posterior sampled after each stroke with the calibrated pose-error law marginalised
+   (:func:`bayestouch.planning.loop.explore`, ``pose_draws``). ``finger=False`` explores in the ray world instead
+   (contacts with the encoders' noise only, the earlier demo).
+2. **Posterior.** The contact-level posterior of all the points touched, the pose-error law marginalised, continued
+   from the exploration's last ensemble until converged or out of its time budget
+   (:func:`bayestouch.inference.run.run_contact_fit`, ``pose``): ``summary.json``, ``posterior.nc``, ``chain.h5``,
+   ``mean_shape.ply``, ``uncertainty_mesh.ply``. (The exploration's "no contact" observations are not in this final
+   likelihood, only the contact points.)
 3. **Taxels.** The strokes as the virtual finger feels them: taxel currents of every stroke (``recording.nc``, the
    schema of ``bayestouch simulate``) and the posterior of one contact patch (a, b, n of eq. 16–18,
    :func:`bayestouch.inference.patch.patch_posterior`), ``patch_summary.json``.
@@ -29,6 +36,7 @@ from bayestouch import __version__
 from bayestouch.backend import jnp
 from bayestouch.errors import BadInput, check_bools, check_int, check_number, check_path, shown
 from bayestouch.geometry import nellipsoid as ne
+from bayestouch.inference import pose_error as pe
 from bayestouch.inference.patch import patch_posterior
 from bayestouch.inference.run import run_contact_fit
 from bayestouch.io.contacts import save_contact_points
@@ -37,6 +45,8 @@ from bayestouch.io.meshes import read_spread_mesh
 from bayestouch.io.recording import read_recording, write_recording
 from bayestouch.params import MODELS
 from bayestouch.physics.virtual import load_finger, recording_dataset
+from bayestouch.planning.device_prober import VirtualFingerProber, calibrate_bending
+from bayestouch.planning.experiment import calibration_object, trial_finger
 from bayestouch.planning.loop import ExploreSettings, explore, truth_of
 from bayestouch.report import figures as rp
 from bayestouch.report.page import Figure, Table, check_in_browser, find_browser, write_report
@@ -49,6 +59,10 @@ __all__ = ["DemoSizes", "FULL", "QUICK", "run_demo", "replay_strokes"]
 _log = logging.getLogger(__name__)
 
 DEFAULT_OBJECT = MODELS / "objects" / "egg.toml"
+#: the demo finger's bending constants: drawn at this many times their stated spread (pose.FingerSpread)
+BEND_SPREAD = 1.0
+#: fingers of the pose-error law the exploration and the final posterior marginalise
+POSE_DRAWS = 24
 #: taxel response of the replay: the empirical mode (Δ ln I = S_p p, device-like sensitivity). The physics mode's
 #: response at 1 kPa is Δ ln I ≈ 3e-5, far below the noise (physics.md, finding 2), so its images show only noise.
 TAXEL_MODE = "empirical"
@@ -159,6 +173,7 @@ def run_demo(
     object_path=DEFAULT_OBJECT,
     progress: bool = True,
     check_browser: bool = True,
+    finger: bool = True,
 ) -> dict:
     """Run the demo into the folder ``out`` and return its headline numbers.
 
@@ -177,6 +192,9 @@ def run_demo(
         INFO).
     check_browser : bool
         Load ``report.html`` in headless Chromium when one is installed and say whether every image rendered.
+    finger : bool
+        Explore through a virtual finger with its own bending constants, calibrated first, the pose-error law
+        marginalised (default); False: in the ray world, contacts with the encoders' noise only.
 
     Returns
     -------
@@ -196,7 +214,7 @@ def run_demo(
             check_number(value, "sizes.fit_budget_s", 0, above=True, what="a number of seconds")
         else:
             check_int(value, f"sizes.{name}", 1)
-    check_bools(progress=progress, check_browser=check_browser)
+    check_bools(progress=progress, check_browser=check_browser, finger=finger)
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise BadInput(f"--out {out} exists and is not a folder")
@@ -207,10 +225,22 @@ def run_demo(
     say = _log.info if progress else (lambda msg: None)
 
     # 1. explore
-    say(f"[1/4] exploring {obj.name} with the eig planner: scout + {sizes.budget} strokes")
     settings = ExploreSettings(
-        candidates=sizes.candidates, draws=sizes.draws, steps=sizes.steps, init_steps=sizes.init_steps
+        candidates=sizes.candidates,
+        draws=sizes.draws,
+        steps=sizes.steps,
+        init_steps=sizes.init_steps,
+        pose_draws=POSE_DRAWS if finger else 0,
     )
+    calibration = None
+    bent = trial_finger(seed, BEND_SPREAD) if finger else None
+    if finger:
+        say("[1/4] calibrating the virtual finger's bending on a 2-cm sphere (its constants are its own, not models/')")
+        sphere = calibration_object()
+        with VirtualFingerProber(sphere, seed=seed, finger=bent) as cal:
+            calibration = calibrate_bending(cal, sphere, seed=seed)
+    where = "through the finger's bending chain, pose error marginalised" if finger else "in the ray world"
+    say(f"[1/4] exploring {obj.name} {where} with the eig planner: scout + {sizes.budget} strokes")
     bar = tqdm(total=sizes.budget + 1, desc="strokes", unit="stroke", disable=not progress)
 
     def on_stroke(rec):
@@ -221,7 +251,16 @@ def run_demo(
         bar.set_postfix(points=rec.n_points, chamfer=f"{rec.chamfer:.3f}", vol_err=f"{rec.volume_error:.3f}")
         bar.update(1)
 
-    res = explore(obj, "eig", sizes.budget, seed=seed, settings=settings, on_stroke=on_stroke, truth=truth)
+    pose_model = None
+    if finger:
+        with VirtualFingerProber(obj, seed=seed, finger=bent, pose_law=calibration.law) as prober:
+            res = explore(
+                obj, "eig", sizes.budget, seed=seed, settings=settings, on_stroke=on_stroke, truth=truth, prober=prober
+            )
+            ens, labels, times = prober.pose_ensemble(POSE_DRAWS)
+        pose_model = pe.ensemble_model(res.points, ens, labels, times, offset_sd=settings.pose_offset_sd)
+    else:
+        res = explore(obj, "eig", sizes.budget, seed=seed, settings=settings, on_stroke=on_stroke, truth=truth)
     bar.close()
     save_contact_points(out / "points.csv", res.points, overwrite=True)
 
@@ -239,6 +278,7 @@ def run_demo(
         progress=progress,
         start=res.ensemble,
         overwrite=True,  # the demo's folder is rebuilt by every run
+        pose=pose_model,
     )
 
     # 3. the strokes as the finger feels them
@@ -247,7 +287,7 @@ def run_demo(
 
     # 4. report
     say("[4/4] report")
-    page = _report(out, obj, truth, res, summary, patch_summary, patch_post, recording, gains)
+    page = _report(out, obj, truth, res, summary, patch_summary, patch_post, recording, gains, calibration)
     check = None
     if check_browser:
         if find_browser():
@@ -261,13 +301,15 @@ def run_demo(
             "planner": "eig",
             "seed": seed,
             "sizes": sizes._asdict(),
+            "prober": "finger" if finger else "rays",
+            "finger": None if not finger else _finger_record(calibration),
             "strokes": rows,
             "seconds": seconds,
             "browser_check": None if check is None else check._asdict(),
         },
     )
     return {
-        "table": _table(res, summary, patch_summary, truth, page, check, seconds),
+        "table": _table(res, summary, patch_summary, truth, page, check, seconds, calibration),
         "strokes": rows,
         "summary": summary,
         "patch": patch_summary,
@@ -275,6 +317,31 @@ def run_demo(
         "browser": check,
         "seconds": seconds,
     }
+
+
+def _finger_record(calibration) -> dict:
+    """What ``demo.json`` records of the finger: its constants' spread, the law's fingers and the calibration."""
+    return {
+        "bend_spread": BEND_SPREAD,
+        "pose_draws": POSE_DRAWS,
+        "calibration": {
+            "object": "sphere, radius 0.02 m",
+            "contacts": int(calibration.contacts),
+            "residual_rms_nominal_m": float(calibration.residual_rms_prior),
+            "residual_rms_calibrated_m": float(calibration.residual_rms),
+        },
+    }
+
+
+def _calibration_text(calibration) -> str:
+    """One sentence on the bending calibration (empty without one)."""
+    if calibration is None:
+        return ""
+    return (
+        f"bending calibration on a 2-cm sphere: {calibration.contacts} contacts lie "
+        f"{1e3 * calibration.residual_rms_prior:.2f} mm (RMS) off it where the models' constants put the pad, "
+        f"{1e3 * calibration.residual_rms:.2f} mm after calibration"
+    )
 
 
 def _taxels(obj, res, out: Path, seed: int, sizes: DemoSizes, progress: bool):
@@ -324,7 +391,9 @@ def _taxels(obj, res, out: Path, seed: int, sizes: DemoSizes, progress: bool):
     return patch_summary, post, recording, np.asarray(vf.finger.gains).ravel()
 
 
-def _report(out: Path, obj, truth, res, summary: dict, patch_summary: dict, patch_post, recording, gains) -> Path:
+def _report(
+    out: Path, obj, truth, res, summary: dict, patch_summary: dict, patch_post, recording, gains, calibration
+) -> Path:
     um = _read_ply(out / "uncertainty_mesh.ply")
     rp.plot_shape(out, obj.shape, (um[0], um[1]), um[2], res.points, _posterior_shapes(out / "posterior.nc", 30))
     rp.plot_errors(out, res.records, true_volume=truth.volume)
@@ -342,9 +411,17 @@ def _report(out: Path, obj, truth, res, summary: dict, patch_summary: dict, patc
         "run <code>bayestouch fit points.csv --out DIR --resume</code> to continue it)"
     )
     vol = summary["derived"]["volume_m3"]
+    how = (
+        "Its contacts are where rays meet the object, with the encoders' noise only (no bending chain)."
+        if calibration is None
+        else "It ran guarded strokes over the serial protocol. Its bending constants are its own (drawn at "
+        f"{BEND_SPREAD:g}× their stated spread), so its pad goes where its bent rod puts it while the host computes "
+        f"the pose from the models' constants; {_calibration_text(calibration)}. The pad's pose error is "
+        f"marginalised with the calibrated law of {POSE_DRAWS} fingers, in every update and in the posterior below."
+    )
     intro = (
         f"<p>The virtual finger explored <b>{obj.name}</b> ({obj.description}) with the <b>eig</b> planner: a "
-        f"scout stroke and {len(res.records) - 1} planned strokes, {len(res.points)} contact points. The "
+        f"scout stroke and {len(res.records) - 1} planned strokes, {len(res.points)} contact points. {how} The "
         f"posterior of the shape is {conv}: max R-hat {d['max_r_hat']:.4f}, min bulk ESS "
         f"{d['min_ess_bulk']:.0f}, {d['n_samples']} samples, {d['seconds']:.0f} s.</p>"
         f'<p class="note">Volume {1e6 * vol["mean"]:.3f} cm³ (90 % interval {1e6 * vol["q05"]:.3f}–'
@@ -532,9 +609,10 @@ def _read_ply(path: Path):
     return np.asarray(m.vertices), np.asarray(m.faces), np.asarray(spread, float)
 
 
-def _table(res, summary: dict, patch: dict, truth, page: Path, check, seconds: float) -> str:
-    """The demo's result as text: errors per stroke, the final posterior, the patch, the report."""
-    lines = [f"{'stroke':>6} {'points':>6} {'EIG':>7} {'chamfer':>8} {'vol.err':>8} {'vol.sd cm3':>10}"]
+def _table(res, summary: dict, patch: dict, truth, page: Path, check, seconds: float, calibration=None) -> str:
+    """The demo's result as text: the calibration, errors per stroke, the final posterior, the patch, the report."""
+    lines = [_calibration_text(calibration)] if calibration is not None else []
+    lines += [f"{'stroke':>6} {'points':>6} {'EIG':>7} {'chamfer':>8} {'vol.err':>8} {'vol.sd cm3':>10}"]
     for r in res.records:
         lines.append(
             f"{r.stroke:>6} {r.n_points:>6} {_fmt(r.eig):>7} {r.chamfer:>8.4f} {r.volume_error:>8.4f} "

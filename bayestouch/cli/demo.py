@@ -27,16 +27,23 @@ def add_parser(sub) -> argparse.ArgumentParser:
     dp = sub.add_parser(
         "demo",
         help="the main job: eig exploration of the egg, its posterior and report.html",
-        description="The virtual finger explores the default egg with the eig planner (a scout and "
-        "5 planned strokes, the posterior sampled after each), then samples the posterior of every "
-        "point touched, replays the strokes through the taxels (currents and a contact-patch "
-        "posterior) and writes report.html with its figures, summary.json, posterior.nc and the "
-        "meshes into --out.",
+        description="A virtual finger with bending constants of its own (not models/') is calibrated on a "
+        "2-cm sphere, then explores the default egg with guarded strokes over the serial protocol and the eig "
+        "planner (a scout and 5 planned strokes, the posterior sampled after each with the pad's pose error "
+        "marginalised); then the posterior of every point touched is sampled, the strokes are replayed through "
+        "the taxels (currents and a contact-patch posterior) and report.html is written with its figures, "
+        "summary.json, posterior.nc and the meshes into --out.",
     )
     dp.add_argument("--out", type=out_path, default=Path("out/demo"), help="output folder (default out/demo)")
     dp.add_argument("--seed", type=seed_arg, default=0, help="seed of every stage (default 0)")
     dp.add_argument("--quick", action="store_true", help="small sizes (scout + 1 stroke, short chains): a smoke run")
     dp.add_argument("--quiet", action="store_true", help="no progress bars")
+    dp.add_argument(
+        "--rays",
+        action="store_true",
+        help="explore in the ray world (contacts with the encoders' noise only; the demo before the bending chain) "
+        "instead of through the finger",
+    )
     dp.add_argument(
         "--overwrite",
         action="store_true",
@@ -79,6 +86,8 @@ def run(args) -> int:
                     f"bayestouch demo: the earlier demo in {out} is kept in {aside} (delete it when no longer needed)",
                     file=sys.stderr,
                 )
-        result = run_demo(args.out, seed=args.seed, sizes=QUICK if args.quick else FULL, progress=not args.quiet)
+        result = run_demo(
+            args.out, seed=args.seed, sizes=QUICK if args.quick else FULL, progress=not args.quiet, finger=not args.rays
+        )
     print(result["table"])
     return 0
