@@ -270,6 +270,38 @@ def _explore_bend(d: dict) -> tuple[str, str, str]:
     )
 
 
+def _bend_coverage(d: dict) -> tuple[str, str, str]:
+    names = {
+        "reference": "the models' finger (pose known to the encoders' 0.3 mm)",
+        "ignoring": "a finger with its own constants, the pose error ignored",
+        "calibrated": "the same finger calibrated on a sphere, its law marginalised in the loop and the fit",
+    }
+
+    def arm(name: str, a: dict) -> str:
+        wide = a["width_over_reference"]
+        return (
+            f"{names[name]}: the truth within the 90 % volume interval in {a['volume_covered']}/{a['scenarios']} "
+            f"{_ci(a['volume_coverage_wilson95'])}, semi-axes {a['axes_covered']}/{a['axes_of']} "
+            f"{_ci(a['axes_coverage_wilson95'])}, {a['beyond_3sd']} beyond 3 sd (median \\|z\\| "
+            f"{a['median_abs_volume_z']:.1f}), volume error {_pct(a['volume_error']['median'], 2)} "
+            f"[{_pct(a['volume_error']['lo'], 2)}, {_pct(a['volume_error']['hi'], 2)}], {a['converged']} converged"
+            + (
+                f", interval {wide['median']:.2f}× the reference's [{wide['lo']:.2f}, {wide['hi']:.2f}]"
+                if name != "reference"
+                else ""
+            )
+        )
+
+    return (
+        f"Shape posteriors through the bending chain over {d['scenarios']} drawn objects (n-ellipsoids, semi-axes "
+        f"{1e3 * d['axes_m'][0]:.0f}–{1e3 * d['axes_m'][1]:.0f} mm, n {d['n_range'][0]:g}–{d['n_range'][1]:g}, "
+        f"uniform rotations; eig, {d['budget']} strokes after the scout through a virtual finger over the protocol; "
+        f"the final posterior of every contact; fingers drawn at {d['bend_spread']:g}× the constants' spread)",
+        "; ".join(arm(k, a) for k, a in d["arms"].items()),
+        "`bench_bend_coverage` (`benchmarks/results/bend_coverage.json`)",
+    )
+
+
 def _link_loss(doc: dict) -> tuple[str, str, str]:
     rows = [r for r in doc["results"] if r["benchmark"] == "bench_link_loss"]
     first = rows[0]
@@ -430,6 +462,7 @@ ROWS: tuple[tuple[str, Callable[[dict], tuple[str, str, str]]], ...] = (
     ("pose.json", _pose),
     ("pose_fit.json", _pose_fit),
     ("explore_bend.json", _explore_bend),
+    ("bend_coverage.json", _bend_coverage),
     ("bench_sparse.json", _sparse),
     ("bench_planners.json", _planners),
     ("bench_samplers.json", _samplers),

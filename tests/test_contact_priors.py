@@ -176,3 +176,27 @@ def test_angles_are_periodic_and_wrap_to_the_same_surface():
     z = x[:1].copy()
     z[0, 0] = float(hi[0]) + 1.0
     assert np.isinf(np.asarray(cm.log_prior(jnp.asarray(z), b))[0])
+
+
+def test_a_warm_start_keeps_its_angles_and_an_ensemble_across_xi_zero_stays_one():
+    """``walkers_inside`` moves walkers into the box in every non-angle column and leaves the angles alone: an
+    ensemble of an orientation near ξ = 0 (half its walkers at ξ < 0, which the prior and the likelihood allow) keeps
+    its spread in ξ. Clipping every column (what the exploration loop did before) leaves ξ with zero spread, and
+    emcee refuses such a start (the control)."""
+    import emcee
+
+    pts = _sphere_points()
+    b = cm.bounds_for(pts, cm.load_priors())
+    lo, hi = np.asarray(b.lower), np.asarray(b.upper)
+    x = cm.sample_prior(b, 32, np.random.default_rng(3))
+    x[:, 6] = -np.abs(np.random.default_rng(4).normal(0.0, 0.02, 32))  # just below ξ = 0, as a chain can wander
+    x[:5, 0] = hi[0] + 0.01  # five centres beyond the (moved) box
+    got = cm.walkers_inside(x, b)
+    np.testing.assert_array_equal(got[:, 6:9], x[:, 6:9])
+    assert np.all(got[:5, 0] < hi[0]) and np.all(got[:5, 0] > hi[0] - 1e-6)
+    np.testing.assert_array_equal(got[5:], x[5:])
+    assert np.all(np.isfinite(np.asarray(cm.log_prior(jnp.asarray(got), b))))
+    sampler = emcee.EnsembleSampler(32, x.shape[1], lambda t: float(cm.log_prior(jnp.asarray(t), b)))
+    sampler.run_mcmc(got, 2)  # accepted as a start
+    clipped = np.clip(x, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
+    assert np.std(clipped[:, 6]) < 1e-12  # every walker at the edge: the ensemble has lost a dimension

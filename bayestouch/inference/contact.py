@@ -38,6 +38,7 @@ __all__ = [
     "log_prior",
     "wrap_angles",
     "clip_to_box",
+    "walkers_inside",
     "ANGLE_COLUMNS",
     "sample_prior",
     "size_prior",
@@ -562,6 +563,31 @@ def clip_to_box(theta, bounds: Bounds):
     edge, a plateau on which the posterior is improper)."""
     mask = _ANGLE_MASK[: theta.shape[-1]]
     return jnp.where(mask, theta, jnp.clip(theta, bounds.lower, bounds.upper))
+
+
+def walkers_inside(theta, bounds: Bounds, margin: float = 1e-9) -> np.ndarray:
+    """Walkers θ (W, D) moved just inside the prior box (``margin`` of its width from each edge) except in their
+    Euler angles, which pass unchanged (NumPy; a warm start for a density whose box moved with new data).
+
+    Clipping the angles too would put every walker beyond an edge at the same value: an ensemble of the orientation
+    near ξ = 0, half its walkers at ξ < 0, became one with a dimension of zero spread, which emcee refuses.
+
+    Parameters
+    ----------
+    theta : (W, D) float
+    bounds : Bounds
+    margin : float
+        Fraction of the box's width kept from each edge.
+
+    Returns
+    -------
+    (W, D) float
+    """
+    th = np.array(theta, dtype=float, copy=True)
+    lo, hi = np.asarray(bounds.lower, float), np.asarray(bounds.upper, float)
+    box = ~_ANGLE_MASK[: th.shape[-1]]
+    th[..., box] = np.clip(th[..., box], (lo + margin * (hi - lo))[box], (hi - margin * (hi - lo))[box])
+    return th
 
 
 def sample_prior(bounds: Bounds, count: int, rng: np.random.Generator) -> np.ndarray:

@@ -563,7 +563,5 @@ def explore(
             pts = np.concatenate([pts, new])
         # update, warm-started from the last ensemble
         logp, bounds, sampled = _density(pts, free, priors, prober, s)
-        lo, hi = np.asarray(bounds.lower), np.asarray(bounds.upper)
-        start = np.clip(ch.kept[-1], lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
-        ch = _sample(logp, start, s.walkers, _subseed(seed, pol_id, k), s.steps)
+        ch = _sample(logp, cm.walkers_inside(ch.kept[-1], bounds), s.walkers, _subseed(seed, pol_id, k), s.steps)
     return ExploreResult(records, pts, vecs, ch.kept[-1], strokes)
