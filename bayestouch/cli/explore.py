@@ -51,6 +51,14 @@ def _common(p: argparse.ArgumentParser) -> None:
         help="with --pose-draws: sd of one more offset per stroke, for pose errors the drawn fingers do not make "
         "(a carrier's calibration, the pad's mount; default 0)",
     )
+    p.add_argument(
+        "--carrier",
+        action="store_true",
+        help="on a finger (--port, --prober finger): run the planned strokes as carrier strokes (protocol 1.3), the "
+        "pad slid along the believed surface by base motion and wire currents from the inverse of the bending "
+        "model, corrected by the calibrated law of --pose-law / --bend-calibration, the contacts taken from the pad's "
+        "sensed pose (the scout stays guarded; not with --pose-draws)",
+    )
     p.add_argument("--out", required=True, type=out_path, help="output folder")
 
 
@@ -251,6 +259,13 @@ def run_explore(args) -> int:
         raise BadInput("--pose-law applies to a finger on --port; simulated rays have no pad-pose error")
     if settings.pose_draws and port is None:
         raise BadInput("--pose-draws applies to a finger on --port; simulated rays have no pad-pose error")
+    if args.carrier and port is None:
+        raise BadInput("--carrier applies to a finger on --port; simulated rays have no carrier strokes")
+    if args.carrier and settings.pose_draws:
+        raise BadInput(
+            "--carrier: carrier strokes take their contacts from the pad's sensed pose; there is no pose-error law to "
+            "marginalise (drop --pose-draws; --pose-law alone corrects the programs)"
+        )
     args.law = None
     if getattr(args, "pose_law", None) is not None:
         from bayestouch.io.pose_law_file import read_pose_law
@@ -295,8 +310,8 @@ def _explore_into(out: Path, args, obj, name, port, centre, settings) -> int:
     out.mkdir(parents=True, exist_ok=True)
     truthless = obj is None
     object_name = name if name is not None else "unknown (a finger without --object)"
-    pose_model = _pose_model(port, settings, getattr(args, "pose_law", None))
-    if port is not None and not settings.pose_draws:
+    pose_model = _pose_model(port, settings, getattr(args, "pose_law", None), args.carrier)
+    if port is not None and not settings.pose_draws and not args.carrier:
         print(
             "bayestouch explore: note: the pad's pose error is not modelled: the contacts are taken where the finger "
             "reports them, and a finger whose bending constants differ from models/ gets intervals too narrow "
@@ -357,10 +372,19 @@ def _explore_into(out: Path, args, obj, name, port, centre, settings) -> int:
     return 0
 
 
-def _pose_model(port, settings, law_path) -> str | None:
+def _pose_model(port, settings, law_path, carrier: bool = False) -> str | None:
     """What the summaries say about the pad's pose error on a finger (None in simulation)."""
     if port is None:
         return None
+    if carrier:
+        if law_path is None:
+            return (
+                "carrier strokes: contacts from the pad's sensed pose, programs not corrected; the scout's as reported"
+            )
+        return (
+            f"carrier strokes: contacts from the pad's sensed pose, programs corrected by the calibrated law of "
+            f"{law_path}; the guarded scout's moved by its mean"
+        )
     if not settings.pose_draws:
         return "not modelled: contacts as the finger reports them"
     src = f"the calibrated law of {law_path}" if law_path is not None else "fingers drawn about models/'s constants"
@@ -388,7 +412,7 @@ def _explore_device(obj, args, port: str, out: Path, kw: dict):
     prober = None
     try:
         with dev:
-            prober = DeviceProber(dev, recording=rec, attrs=attrs, pose_law=args.law)
+            prober = DeviceProber(dev, recording=rec, attrs=attrs, pose_law=args.law, carrier=args.carrier)
             res = explore(obj, args.planner, args.budget, prober=prober, **kw)
     except DeviceError as e:
         n = len(prober.strokes) if prober is not None else 0
@@ -398,7 +422,13 @@ def _explore_device(obj, args, port: str, out: Path, kw: dict):
         return None
     print(
         f"wrote {rec}: {len(prober.strokes)} stroke(s) from {dev.info.firmware}, "
-        f"{len(prober.refused)} unsafe candidate(s) refused before sending",
+        f"{len(prober.refused)} unsafe candidate(s) refused before sending"
+        + (
+            f"; {len(prober.carriers)} carrier stroke(s), {prober.aborted} stopped at the force limit (their frames "
+            "before the stop kept)"
+            if prober.carrier
+            else ""
+        ),
         file=sys.stderr,
     )
     return res
@@ -486,6 +516,7 @@ def run_experiment(args) -> int:
         prober=args.prober,
         bend_spread=args.bend_spread,
         bend_calibration=args.bend_calibration,
+        carrier=args.carrier,
         scheduler=args.scheduler,
         resume=args.resume,
         overwrite=args.overwrite,

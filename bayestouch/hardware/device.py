@@ -41,6 +41,7 @@ __all__ = [
     "FingerDevice",
     "DeviceError",
     "HeaterFault",
+    "ForceAbort",
     "finger_of",
     "StrokeData",
     "read_journal",
@@ -52,6 +53,8 @@ __all__ = [
     "ProbeData",
     "CarrierData",
     "winkler_depth",
+    "winkler_force",
+    "pad_radius",
     "depth_for_force",
     "frame_problem",
     "AUTO_SEGMENT",
@@ -76,6 +79,19 @@ class HeaterFault(DeviceError):
     def __init__(self, message: str, frames=None):
         super().__init__(message)
         self.frames = frames  # (frames, device times, stroke id) as _run collected them
+        self.data = None
+
+
+class ForceAbort(DeviceError):
+    """The device stopped a stroke at its force limit: the pad pressed deeper than planned.
+
+    The frames it sent up to and including the one over the limit are kept: ``data`` holds them where the command's
+    result can be shortened (:class:`CarrierData` from :meth:`FingerDevice.run_carrier`, its program cut to those
+    frames), else None, so a caller keeps what the stroke touched before it stopped."""
+
+    def __init__(self, message: str, frames=None):
+        super().__init__(message)
+        self.frames = frames  # (frames, device times, stroke id): the contiguous frames received from the first
         self.data = None
 
 
@@ -181,6 +197,21 @@ def winkler_depth(force, skin=None, tip_radius: float | None = None) -> np.ndarr
     skin, R = _skin_and_radius(skin, tip_radius)
     M = float(sk.bonded_layer_modulus(skin.E, skin.nu))
     return np.sqrt(np.maximum(np.asarray(force, float), 0.0) * float(skin.h) / (np.pi * M * R))
+
+
+def winkler_force(depth, skin=None, tip_radius: float | None = None) -> np.ndarray:
+    """Normal force (N) of the fingertip pressed ``depth`` (m) into a flat surface, the thin-layer Winkler model
+    F = π M R δ² / h (:func:`winkler_depth`'s inverse); 0 where the pad is clear (depth ≤ 0)."""
+    skin, R = _skin_and_radius(skin, tip_radius)
+    M = float(sk.bonded_layer_modulus(skin.E, skin.nu))
+    d = np.maximum(np.asarray(depth, float), 0.0)
+    return np.pi * M * R * d * d / float(skin.h)
+
+
+def pad_radius(skin=None) -> float:
+    """Radius (m) of the pad's outer (skin) surface as ``models/`` state it: the rod's radius plus the skin's
+    thickness."""
+    return _skin_and_radius(skin)[1]
 
 
 def depth_for_force(force: float, skin=None, tip_radius: float | None = None) -> float:
@@ -877,19 +908,31 @@ class FingerDevice:
             )
 
         def result(got, dev_t, sid):
-            return CarrierData(program, _frames_to_arrays(got)[0], dev_t, sid)
+            k = len(got)  # all frames, or those up to a force abort
+            cut = program._replace(
+                time=np.asarray(program.time)[:k],
+                base_position=np.asarray(program.base_position)[:k],
+                currents=np.asarray(program.currents)[:k],
+            )
+            return CarrierData(cut, _frames_to_arrays(got)[0], dev_t, sid)
 
         unknown = (pr.CarrierStroke, "carrier strokes (protocol revision 1.3)")
-        return self._run_to(command, len(program.time), result, unknown=unknown)
+        return self._run_to(command, len(program.time), result, unknown=unknown, partial=True)
 
-    def _run_to(self, command, T: int, result, unknown: tuple[type, str] | None = None):
+    def _run_to(self, command, T: int, result, unknown: tuple[type, str] | None = None, partial: bool = False):
         """:meth:`_run`, its frames made into ``result(frames, device_time, stroke_id)``. A stroke complete but for
-        heaters left on goes with the :class:`HeaterFault` as its ``data``; ``unknown`` (the command's message type,
-        what to call it) names a command the device never answers (a device of an earlier revision drops the type)."""
+        heaters left on goes with the :class:`HeaterFault` as its ``data``; with ``partial`` (``result`` takes fewer
+        frames than T) a stroke stopped at the force limit goes with the :class:`ForceAbort`; ``unknown`` (the
+        command's message type, what to call it) names a command the device never answers (a device of an earlier
+        revision drops the type)."""
         try:
             got, dev_t, sid = self._run(command, T)
         except HeaterFault as e:  # the stroke is complete: it goes with the fault
             e.data = result(*e.frames)
+            raise
+        except ForceAbort as e:
+            if partial and e.frames is not None and len(e.frames[0]):
+                e.data = result(*e.frames)
             raise
         except DeviceError as e:
             if unknown is not None and f"no answer to {unknown[0].__name__}" in str(e):
@@ -992,10 +1035,15 @@ class FingerDevice:
             now = time.monotonic()
             if total is not None:
                 if reason == 3:
-                    raise DeviceError(
+                    k = 0
+                    while k < min(total, T) and k in frames:
+                        k += 1
+                    got = [frames[i] for i in range(k)]
+                    raise ForceAbort(
                         f"{self.url}: stroke {sid} aborted by the device: contact force over "
                         f"{self.limits.max_force:g} N (the pad pressed deeper than planned: is the object where the "
-                        "plan says, and does each normal point out of it?)"
+                        "plan says, and does each normal point out of it?)",
+                        frames=(got, np.array([x.time for x in got], float), sid),
                     )
                 if reason != 0:
                     return None  # watchdog or abort: the stroke is incomplete, run it again

@@ -15,7 +15,7 @@ import numpy as np
 
 from bayestouch.backend import jax, jnp
 from bayestouch.geometry import nellipsoid as ne
-from bayestouch.hardware.device import winkler_depth
+from bayestouch.hardware.device import pad_radius, winkler_depth, winkler_force
 from bayestouch.hardware.safety import (
     StrokePlan,
     predicted_force,
@@ -231,6 +231,46 @@ class GuardedModel:
     def __call__(self, plan: StrokePlan, index: int) -> dict[str, np.ndarray]:
         """An ordinary stroke: the wrapped model's frames."""
         return self.frames(plan, index)
+
+    def carrier(self, program, index: int) -> dict[str, np.ndarray]:
+        """A carrier stroke (protocol revision 1.3) through this finger's bending chain: the pad goes where the
+        base and this finger's constants (``finger``, else ``assumed``) put it (:func:`~bayestouch.physics.pose
+        .carrier_pad_path`, the wires cold at the start); its force is the Winkler force of its overlap with the true
+        object (:func:`~bayestouch.physics.pose.chain_stroke_arrays`, :func:`~bayestouch.hardware.device
+        .winkler_force`; none where it is clear). The finger senses its own bend (``finger_tip_position``,
+        ``finger_curvature`` are the chain's). The taxel currents come from the wrapped model on the path the pad
+        met (cosmetic for the synthetic model).
+
+        Parameters
+        ----------
+        program : CarrierProgram or CarrierStroke
+        index : int
+
+        Returns
+        -------
+        dict of :data:`FRAME_KEYS` arrays (T, ...)
+        """
+        wire, rod = self.finger if self.finger is not None else (self.assumed or (sma.load_wire(), bending.load_rod()))
+        prog = pose.CarrierProgram(
+            np.asarray(program.time, float),
+            np.asarray(program.base_position, float),
+            np.asarray(program.base_rotation, float).reshape(3, 3),
+            np.asarray(program.currents, float),
+        )
+        pad = pose.carrier_pad_path(wire, rod, prog)
+        R = pad_radius()
+        contact, normal, _, depth = (np.asarray(a, float) for a in pose.chain_stroke_arrays(self.obj.surface(), pad, R))
+        touched = depth > 0
+        met = StrokePlan(
+            prog.time, contact, normal, float(np.median(depth[touched])) if touched.any() else 3e-4, prog.currents[0]
+        )
+        out = {k: np.array(v, float) for k, v in self.frames(met, index).items()}
+        out["contact_force"] = np.asarray(winkler_force(depth, tip_radius=R), float)
+        out["wire_current"] = prog.currents.copy()
+        out["wire_temperature"] = np.asarray(pad.tip.wire_temperature, float)
+        out["finger_tip_position"] = np.asarray(pad.tip.tip_position, float)
+        out["finger_curvature"] = np.asarray(pad.tip.curvature, float)
+        return out
 
     def probe(self, plan: StrokePlan, travel: float, threshold: float, index: int) -> dict[str, np.ndarray]:
         """A guarded stroke (``plan.contact`` holds the approach starts): :data:`FRAME_KEYS` arrays plus

@@ -771,6 +771,9 @@ def carrier_pad_path(wire: sma.WireParams, rod: bd.RodParams, program: CarrierPr
 #: :func:`held_error_ensemble`: one compilation serves every stroke whose warm-up and duration fit the same multiple
 HELD_DT = 0.05
 HELD_BUCKET = 32
+#: seconds the wires hold their currents before a guarded stroke's first frame (from cold), in the device and in
+#: :func:`held_pose_error` and :func:`held_error_ensemble`
+HELD_WARMUP = 5.0
 
 
 @partial(jax.jit, static_argnums=(4,))
@@ -819,7 +822,7 @@ def held_pose_error(
     hold_currents,
     time,
     *,
-    warmup: float = 5.0,
+    warmup: float = HELD_WARMUP,
 ) -> np.ndarray:
     """The tip's error (T, 3) metres, finger-base frame, of a finger holding ``hold_currents`` through a stroke, as
     a host that assumes other constants sees it: tip(finger) − tip(assumed), both wires switched on ``warmup``
@@ -856,7 +859,7 @@ def held_error_ensemble(
     spread: FingerSpread | None = None,
     draws: int = 24,
     seed: int = 0,
-    warmup: float = 5.0,
+    warmup: float = HELD_WARMUP,
     dt: float = HELD_DT,
 ) -> np.ndarray:
     """What a host that knows only the nominal constants and their spread can say about the pad's error while the

@@ -1,6 +1,9 @@
 """The exploration loop drives a finger: :class:`DeviceProber` runs planned strokes on a
 :class:`~bayestouch.hardware.device.FingerDevice` as guarded strokes and turns what it reports into contact points
-(K, 3) in metres and :class:`~bayestouch.inference.freespace.Free` observations (misses and starts inside).
+(K, 3) in metres and :class:`~bayestouch.inference.freespace.Free` observations (misses and starts inside); with
+``carrier=True`` it runs them as carrier strokes (protocol revision 1.3): the pad slid along the believed surface by
+base motion and wire currents from the inverse of the bending chain, corrected by a calibrated pose-error law, and
+the contacts taken from the pad's sensed pose.
 
 Every stroke's frames are kept (:attr:`DeviceProber.strokes`, rewritten to ``recording`` after each stroke when
 given, with the schema of ``bayestouch simulate``). How a finger knows where it touched, and the errors of that
@@ -17,17 +20,26 @@ from bayestouch.errors import BadInput
 from bayestouch.hardware.device import (
     CarrierData,
     FingerDevice,
+    ForceAbort,
     HeaterFault,
     ProbeData,
     ProbePlan,
     StrokeData,
     build_recording,
     depth_for_force,
+    pad_radius,
     winkler_depth,
 )
 from bayestouch.hardware.safety import StrokePlan, UnsafePlan
 from bayestouch.inference.freespace import Free
-from bayestouch.inference.held_law import Conditioned, HeldLaw, condition_held_law, law_members, prior_held_law
+from bayestouch.inference.held_law import (
+    Conditioned,
+    HeldLaw,
+    condition_held_law,
+    law_at,
+    law_members,
+    prior_held_law,
+)
 from bayestouch.io.recording import write_recording
 from bayestouch.physics import bending, pose, sma
 from bayestouch.planning.candidates import Strokes, make_candidates, select
@@ -44,6 +56,7 @@ __all__ = [
     "CALIBRATION_STROKES",
     "CALIBRATION_TILT",
     "LAW_SPAN",
+    "CARRIER_DEPTH",
 ]
 
 #: contact force that counts as the touch, newtons (a fifth of the smallest planned force, 0.1 N)
@@ -58,6 +71,15 @@ CALIBRATION_STROKES = 6
 LAW_SPAN = 4.0
 #: tilt of a calibration stroke's approaches from the surface normal, radians (:func:`calibration_strokes`)
 CALIBRATION_TILT = 0.5
+#: designed overlap of a carrier stroke's pad with the believed surface, metres: its Winkler force is 0.29 N, in
+#: the middle of the window between the 0.02 N contact threshold (0.13 mm) and the 1 N abort (0.93 mm), so ±0.4 mm
+#: of surface or pose error keeps a frame in contact and under the limit
+CARRIER_DEPTH = 5e-4
+#: a carrier stroke's lead-in: the pad held this far out along the first normal, metres, while the wires warm for
+#: :data:`bayestouch.physics.pose.HELD_WARMUP` (the thermal state the held pose-error law assumes), then brought to
+#: the path's start in :data:`CARRIER_APPROACH` seconds
+CARRIER_STANDOFF = 0.015
+CARRIER_APPROACH = 0.5
 
 
 def probe_points(data: ProbeData, threshold_depth: float) -> tuple[np.ndarray, Free]:
@@ -136,7 +158,12 @@ class DeviceProber:
     pose_law : HeldLaw, optional
         This finger's held pose-error law, conditioned on a bending calibration
         (:func:`bayestouch.inference.held_law.condition_held_law`): :meth:`pose_ensemble` draws from it instead of
-        drawing fingers about ``constants``.
+        drawing fingers about ``constants``, and carrier strokes are corrected by its mean (:meth:`carrier_plan`).
+    carrier : bool
+        Run each planned stroke as a carrier stroke (:meth:`carrier_plan`) instead of a guarded one; the contacts
+        come from the pad's sensed pose (:func:`carrier_points`), so there is no pose-error law to marginalise.
+    carrier_depth : float, metres
+        Designed overlap of a carrier stroke's pad with the believed surface.
 
     Attributes
     ----------
@@ -146,6 +173,10 @@ class DeviceProber:
     probes : list of ProbeData
     refused : list of str
         Why each refused stroke was refused (nothing was sent for them).
+    carriers : list of CarrierData
+        Every carrier stroke run, whole or up to a force abort.
+    aborted : int
+        Carrier strokes the device stopped at its force limit.
     """
 
     def __init__(
@@ -158,7 +189,16 @@ class DeviceProber:
         attrs: dict | None = None,
         constants=None,
         pose_law: HeldLaw | None = None,
+        carrier: bool = False,
+        carrier_depth: float = CARRIER_DEPTH,
     ):
+        if not isinstance(carrier, bool):
+            raise BadInput(f"carrier: expected True or False, got {carrier!r}")
+        if not (isinstance(carrier_depth, int | float) and 0 < carrier_depth <= 2e-3):
+            raise BadInput(f"carrier_depth: expected a designed overlap in (0, 0.002] m, got {carrier_depth!r}")
+        self.carrier, self.carrier_depth = carrier, float(carrier_depth)
+        self.carriers: list[CarrierData] = []
+        self.aborted = 0
         self.device, self.threshold = device, float(threshold)
         self._held: dict = {}
         self.hold_currents = np.asarray(hold_currents, float)
@@ -188,9 +228,55 @@ class DeviceProber:
             self.threshold,
         )
 
+    def carrier_plan(self, stroke: Strokes) -> tuple[pose.CarrierProgram, np.ndarray]:
+        """The carrier program of ``stroke`` (a batch of one) and the believed outward normals (F, 3) of its frames.
+
+        The wires hold :attr:`hold_currents` from the first frame, from cold. For
+        :data:`~bayestouch.physics.pose.HELD_WARMUP` seconds the pad waits :data:`CARRIER_STANDOFF` out along the
+        path's first normal (the state a guarded stroke's law assumes), comes in over :data:`CARRIER_APPROACH`
+        seconds, then slides along the stroke's path over the believed surface, pressed :attr:`carrier_depth` into
+        it, at the path's frame interval (its duration over its T − 1 intervals). The base motion comes from the
+        inverse of the bending chain on the host's constants (:func:`bayestouch.physics.pose.carrier_program`); with
+        :attr:`pose_law` the base also moves by −R μ(t), μ(t) the calibrated law's mean tip error in the base frame
+        at t seconds after the warm-up (its value at 0 before), so that the finger's own pad, not the host's nominal
+        one, follows the path.
+
+        Raises
+        ------
+        UnsafePlan
+            The path outlasts the calibrated law's grid (nothing is sent).
+        """
+        path = np.asarray(stroke.path[0], float)
+        normal = -np.asarray(stroke.dirs[0], float)
+        T = len(path)
+        dt = float(stroke.duration[0]) / (T - 1)
+        lead, approach = int(np.ceil(pose.HELD_WARMUP / dt)), int(np.ceil(CARRIER_APPROACH / dt))
+        away = path[0] + CARRIER_STANDOFF * normal[0]
+        come = np.linspace(1.0, 0.0, approach, endpoint=False)[:, None] * CARRIER_STANDOFF * normal[0] + path[0]
+        contact = np.concatenate([np.tile(away, (lead, 1)), come, path])
+        normals = np.concatenate([np.tile(normal[0], (lead + approach, 1)), normal])
+        t = np.arange(len(contact)) * dt
+        wire, rod = self.host_constants()
+        held = np.tile(self.hold_currents, (len(t), 1))
+        prog = pose.carrier_program(wire, rod, contact, normals, t, self.carrier_depth, pad_radius(), currents=held)
+        if self.pose_law is not None:
+            since = np.maximum(t - pose.HELD_WARMUP, 0.0)
+            if since[-1] > self.pose_law.grid[-1] + 1e-9:
+                raise UnsafePlan(
+                    f"carrier plan: the path ends {since[-1]:.3g} s after the warm-up, the calibrated law covers "
+                    f"{self.pose_law.grid[-1]:.3g} s; calibrate with a longer span"
+                )
+            mean, lead_cols, _ = law_at(self.pose_law, since)
+            mu = mean + lead_cols @ np.asarray(self.pose_law.z_mean, float)
+            prog = prog._replace(base_position=prog.base_position - mu @ np.asarray(prog.base_rotation).T)
+        return prog, normals
+
     def probe(self, stroke: Strokes, rng=None) -> tuple[np.ndarray, Free]:
         """Run ``stroke`` (a batch of one) on the finger: contact points (K, 3) m and
         :class:`~bayestouch.inference.freespace.Free` observations. ``rng`` is unused (the finger's noise is its own).
+        As a carrier stroke (:attr:`carrier`): the frames over the force threshold are contacts, a stroke the device
+        stopped at its force limit gives those before the stop, and the clear frames give no observation (free space
+        is a guarded stroke's).
 
         Raises
         ------
@@ -199,6 +285,25 @@ class DeviceProber:
         DeviceError
             The device failed; the strokes so far are kept (and in ``recording``).
         """
+        return self._probe_carrier(stroke) if self.carrier else self._probe_guarded(stroke)
+
+    def scout(self, stroke: Strokes, rng=None) -> tuple[np.ndarray, Free]:
+        """A stroke that finds the object (the exploration loop's scout): always guarded, since a carrier stroke
+        over a surface not yet known would press into it or slide past it. With :attr:`carrier` and
+        :attr:`pose_law` its contacts are moved by the calibrated law's mean error, R_j μ(t_j) (the carrier loop
+        marginalises no law); otherwise as :meth:`probe`."""
+        pts, free = self._probe_guarded(stroke)
+        if self.carrier and self.pose_law is not None and len(pts):
+            p = self.probes[-1]
+            hit = np.asarray(p.probe) == 0
+            t = np.asarray(p.plan.time, float)[hit] - float(p.plan.time[0])
+            mean, lead, _ = law_at(self.pose_law, t)
+            mu = mean + lead @ np.asarray(self.pose_law.z_mean, float)
+            rot = np.array([pose.rotation_between([0.0, 0.0, 1.0], -n) for n in np.asarray(p.plan.normal)[hit]])
+            pts = pts + np.einsum("mij,mj->mi", rot.reshape(-1, 3, 3), mu)
+        return pts, free
+
+    def _probe_guarded(self, stroke: Strokes) -> tuple[np.ndarray, Free]:
         plan = self.plan(stroke)
         try:
             data = self.device.run_probe(plan)
@@ -210,6 +315,27 @@ class DeviceProber:
                 self._keep(plan, e.data)
             raise
         return self._keep(plan, data)
+
+    def _probe_carrier(self, stroke: Strokes) -> tuple[np.ndarray, Free]:
+        prog, normal = self.carrier_plan(stroke)
+        none = Free(np.zeros((0, 3)), np.zeros((0, 3)), float(stroke.t_max), np.zeros((0, 3)))
+        try:
+            data = self.device.run_carrier(prog)
+        except UnsafePlan as e:
+            self.refused.append(str(e))
+            raise
+        except HeaterFault as e:
+            if e.data is not None:
+                self.carriers.append(e.data)
+            raise
+        except ForceAbort as e:  # the frames before the stop are contacts like any others
+            self.aborted += 1
+            if e.data is None:
+                return np.zeros((0, 3)), none
+            data = e.data
+        self.carriers.append(data)
+        pts, _ = carrier_points(data, normal[: len(data.device_time)], pad_radius(), threshold=self.threshold)
+        return pts, none
 
     def _keep(self, plan: ProbePlan, data: ProbeData) -> tuple[np.ndarray, Free]:
         """Record one guarded stroke (and rewrite the recording); its contact points and free-space observations."""
@@ -280,6 +406,11 @@ class DeviceProber:
         times : (M,) float, seconds
             Each contact's waypoint time in its stroke.
         """
+        if self.carrier:
+            raise BadInput(
+                "pose_ensemble: carrier strokes take their contacts from the pad's sensed pose; there is no pose-error "
+                "law to marginalise (use pose_draws 0)"
+            )
         span = max((float(p.plan.time[-1] - p.plan.time[0]) for p in self.probes), default=0.0)
         if self.pose_law is not None:
             if span > self.pose_law.grid[-1] + 1e-9:
@@ -337,11 +468,14 @@ class VirtualFingerProber:
         :func:`bayestouch.physics.pose.draw_finger`).
     pose_law : HeldLaw, optional
         The :class:`DeviceProber`'s calibrated pose-error law (:func:`calibrate_bending`).
+    carrier : bool
+        The :class:`DeviceProber` runs carrier strokes (the virtual finger runs them through its own bending chain,
+        :meth:`~bayestouch.hardware.frame_models.GuardedModel.carrier`).
     """
 
-    def __init__(self, obj, *, seed: int = 0, pose_sd: float = POSE_SD, finger=None, pose_law=None):
+    def __init__(self, obj, *, seed: int = 0, pose_sd: float = POSE_SD, finger=None, pose_law=None, carrier=False):
         self.obj, self.seed, self.pose_sd, self.finger = obj, int(seed), float(pose_sd), finger
-        self.pose_law = pose_law
+        self.pose_law, self.carrier = pose_law, carrier
         self._sim = self._dev = None
 
     def __enter__(self) -> DeviceProber:
@@ -355,7 +489,7 @@ class VirtualFingerProber:
         except BaseException:
             self._sim.close(timeout=5.0)
             raise
-        return DeviceProber(self._dev, pose_law=self.pose_law)
+        return DeviceProber(self._dev, pose_law=self.pose_law, carrier=self.carrier)
 
     def __exit__(self, *exc) -> None:
         if self._dev is not None:

@@ -124,7 +124,8 @@ def run_trial(task: dict) -> list[dict]:
             sphere = calibration_object()
             with VirtualFingerProber(sphere, seed=task["seed"], finger=finger) as cal:
                 law = calibrate_bending(cal, sphere, seed=task["seed"]).law
-        with VirtualFingerProber(obj, seed=task["seed"], finger=finger, pose_law=law) as prober:
+        carrier = bool(task.get("carrier", False))
+        with VirtualFingerProber(obj, seed=task["seed"], finger=finger, pose_law=law, carrier=carrier) as prober:
             res = explore(obj, task["planner"], task["budget"], seed=task["seed"], settings=settings, prober=prober)
     else:
         res = explore(obj, task["planner"], task["budget"], seed=task["seed"], settings=settings)
@@ -300,6 +301,7 @@ def run_experiment(
     prober: str = "rays",
     bend_spread: float = 0.0,
     bend_calibration: bool = False,
+    carrier: bool = False,
     plot: bool = True,
     log=None,
 ) -> dict:
@@ -335,7 +337,12 @@ def run_experiment(
     bend_calibration : bool
         With ``prober="finger"`` and ``settings["pose_draws"]``: each trial's finger is first calibrated on
         :func:`calibration_object` (:func:`~bayestouch.planning.device_prober.calibrate_bending`) and the loop
-        marginalises the calibrated pose-error law; part of the key when set.
+        marginalises the calibrated pose-error law; part of the key when set. With ``carrier`` the calibrated law
+        corrects the carrier programs instead (no ``pose_draws``).
+    carrier : bool
+        With ``prober="finger"``: the planned strokes run as carrier strokes
+        (:meth:`~bayestouch.planning.device_prober.DeviceProber.carrier_plan`; the scout stays guarded), the
+        contacts taken from the pad's sensed pose; not with ``settings["pose_draws"]``; part of the key when set.
     plot : bool
         Write ``error_vs_strokes.png``.
     log : callable, optional
@@ -418,8 +425,19 @@ def run_experiment(
     if (settings or {}).get("pose_draws") and prober != "finger":
         raise BadInput("settings.pose_draws: the pose-error law is a finger's; use it with prober 'finger'")
     check_bool(bend_calibration, "bend_calibration")
-    if bend_calibration and not (settings or {}).get("pose_draws"):
-        raise BadInput("bend_calibration: the calibrated pose-error law needs settings pose_draws ≥ 2 to be used")
+    check_bool(carrier, "carrier")
+    if carrier and prober != "finger":
+        raise BadInput("carrier: carrier strokes run on a finger; use them with prober 'finger'")
+    if carrier and (settings or {}).get("pose_draws"):
+        raise BadInput(
+            "carrier: carrier strokes take their contacts from the pad's sensed pose; there is no pose-error law to "
+            "marginalise (drop pose_draws)"
+        )
+    if bend_calibration and not ((settings or {}).get("pose_draws") or carrier):
+        raise BadInput(
+            "bend_calibration: the calibrated pose-error law needs settings pose_draws ≥ 2 (or carrier strokes) to be "
+            "used"
+        )
     # the folder is this run's from the check of an earlier results.csv to the plot: a second experiment into it at
     # the same time is refused in one line, not left to replace the first's rows (the lock goes with a killed run)
     with locked_run_folder(out):
@@ -432,6 +450,8 @@ def run_experiment(
             options["bend_spread"] = float(bend_spread)
         if bend_calibration:
             options["bend_calibration"] = True
+        if carrier:
+            options["carrier"] = True
         # the objects' contents are part of the key: an object file edited between runs is another experiment
         contents = {f"object {names[o]}": p.read_bytes() for o, p in paths.items()}
         meta = fingerprint("experiment", contents, options)
@@ -495,6 +515,7 @@ def run_experiment(
                 "prober": prober,
                 "bend_spread": float(bend_spread),
                 "bend_calibration": bool(bend_calibration),
+                "carrier": bool(carrier),
             }
             for t in range(trials)
             for o in paths

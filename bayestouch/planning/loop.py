@@ -441,6 +441,11 @@ def explore(
         truth = truth_of(obj)
     if prober is None:
         prober = RayProber(obj, s.noise_sd)
+    if s.pose_draws and getattr(prober, "carrier", False):
+        raise BadInput(
+            "settings.pose_draws: carrier strokes take their contacts from the pad's sensed pose; there is no "
+            "pose-error law to marginalise (use 0)"
+        )
     if s.pose_draws and not callable(getattr(prober, "pose_ensemble", None)):
         raise BadInput(
             f"settings.pose_draws: the prober ({type(prober).__name__}) reports no pose-error law "
@@ -466,7 +471,7 @@ def explore(
         arc = select(scout, i)
         for attempt in range(1, SCOUT_REDRAWS + 1):
             try:
-                p, fr = prober.probe(arc, rng_common)
+                p, fr = getattr(prober, "scout", prober.probe)(arc, rng_common)
                 break
             except UnsafePlan:  # nothing was sent: try a new random arc instead
                 refused += 1
