@@ -129,17 +129,31 @@ def _arm(obj, seed: int, arm: str, out: Path) -> dict:
     return row
 
 
+def _failed(arm: str, error: Exception) -> dict:
+    """The row of an arm that raised: not covered, an infinite error, not converged, and why."""
+    row = {"arm": arm, "volume_covered": False, "volume_error": np.inf, "volume_z": np.inf, "chamfer_ratio": np.inf}
+    row.update({f"{x}_covered": False for x in "abc"})
+    row.update({"converged": False, "seconds": np.nan, "volume_q05_m3": np.nan, "volume_q95_m3": np.nan})
+    row.update({"points": 0, "volume_m3": np.nan, "volume_mean_m3": np.nan, "pose_scale": np.nan})
+    row["error"] = f"{type(error).__name__}: {error}"[:200]
+    return row
+
+
 def scenario(k: int) -> list[dict]:
-    """Scenario ``k``'s three arms (rows of ``bend_coverage.csv``)."""
+    """Scenario ``k``'s three arms (rows of ``bend_coverage.csv``; an arm that raised counts as a failure)."""
     obj = scenario_object(k)
     seed = 1000 + k
+    rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        rows = [_arm(obj, seed, arm, Path(tmp)) for arm in ARMS]
+        for arm in ARMS:
+            try:
+                rows.append(_arm(obj, seed, arm, Path(tmp)))
+            except Exception as e:  # noqa: BLE001 - a failed arm is a result, not the end of the benchmark
+                rows.append(_failed(arm, e))
     for r in rows:
-        r.update({"scenario": k, "seed": seed, "n_true": float(obj.shape.n)})
-        r["width_over_reference"] = (r["volume_q95_m3"] - r["volume_q05_m3"]) / (
-            rows[0]["volume_q95_m3"] - rows[0]["volume_q05_m3"]
-        )
+        r.update({"scenario": k, "seed": seed, "n_true": float(obj.shape.n), "error": r.get("error", "")})
+        width = (r["volume_q95_m3"] - r["volume_q05_m3"]) / (rows[0]["volume_q95_m3"] - rows[0]["volume_q05_m3"])
+        r["width_over_reference"] = width if np.isfinite(width) else np.inf  # a failed arm or reference
     print(f"[bend_coverage] scenario {k}: " + ", ".join(f"{r['arm']} z {r['volume_z']:+.1f}" for r in rows), flush=True)
     return rows
 
@@ -153,7 +167,7 @@ def _summary(rows: list[dict]) -> dict:
         axes = sum(r[f"{x}_covered"] for r in a for x in "abc")
         med = {
             key: dict(zip(("median", "lo", "hi"), bootstrap_median([r[key] for r in a]), strict=True))
-            for key in ("volume_error", "chamfer_ratio", "width_over_reference", "seconds")
+            for key in ("volume_error", "chamfer_ratio", "width_over_reference")
         }
         out[arm] = {
             "scenarios": n,
@@ -165,6 +179,8 @@ def _summary(rows: list[dict]) -> dict:
             "median_abs_volume_z": float(np.median([abs(r["volume_z"]) for r in a])),
             "beyond_3sd": int(sum(abs(r["volume_z"]) > 3 for r in a)),
             "converged": int(sum(r["converged"] for r in a)),
+            "failed": int(sum(bool(r["error"]) for r in a)),
+            "seconds_median": float(np.nanmedian([r["seconds"] for r in a])),
             **med,
         }
     return out
@@ -184,7 +200,8 @@ def bench_bend_coverage(scenarios: int | None = None) -> list[dict]:
         for k in range(n):
             rows += scenario(k)
     rows.sort(key=lambda r: (r["scenario"], ARMS.index(r["arm"])))
-    write_csv_rows(RESULTS / "bend_coverage.csv", rows)
+    cols = list(dict.fromkeys(k for r in rows for k in r))
+    write_csv_rows(RESULTS / "bend_coverage.csv", [{k: r.get(k, "") for k in cols} for r in rows], cols)
     summary = {
         "scenarios": n,
         "budget": BUDGET,

@@ -192,11 +192,28 @@ def test_a_warm_start_keeps_its_angles_and_an_ensemble_across_xi_zero_stays_one(
     x[:, 6] = -np.abs(np.random.default_rng(4).normal(0.0, 0.02, 32))  # just below ξ = 0, as a chain can wander
     x[:5, 0] = hi[0] + 0.01  # five centres beyond the (moved) box
     got = cm.walkers_inside(x, b)
-    np.testing.assert_array_equal(got[:, 6:9], x[:, 6:9])
+    for col, period in zip((6, 7, 8), cm.ANGLE_PERIODS, strict=True):  # the same angles, up to whole periods
+        np.testing.assert_allclose(np.mod(got[:, col] - x[:, col] + 0.5 * period, period), 0.5 * period, atol=1e-12)
+    np.testing.assert_allclose(got[:, 6], x[:, 6], atol=1e-15)  # ξ's spread kept where it was
     assert np.all(got[:5, 0] < hi[0]) and np.all(got[:5, 0] > hi[0] - 1e-6)
-    np.testing.assert_array_equal(got[5:], x[5:])
+    keep = np.r_[0:6, 9 : x.shape[1]]
+    np.testing.assert_array_equal(got[5:][:, keep], x[5:][:, keep])
     assert np.all(np.isfinite(np.asarray(cm.log_prior(jnp.asarray(got), b))))
     sampler = emcee.EnsembleSampler(32, x.shape[1], lambda t: float(cm.log_prior(jnp.asarray(t), b)))
     sampler.run_mcmc(got, 2)  # accepted as a start
     clipped = np.clip(x, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
     assert np.std(clipped[:, 6]) < 1e-12  # every walker at the edge: the ensemble has lost a dimension
+
+    # angles that drifted by whole periods (a million radians: what a periodic likelihood lets a chain do) come back
+    # within half a period of their circular mean, the surface and the density unchanged
+    far = x.copy()
+    turns = np.random.default_rng(5).integers(-300_000, 300_000, (32, 3))
+    far[:, 6:9] += turns * np.asarray(cm.ANGLE_PERIODS)
+    back = cm.walkers_inside(far, b)
+    for col, period in zip((6, 7, 8), cm.ANGLE_PERIODS, strict=True):
+        assert np.ptp(back[:, col]) < period
+        np.testing.assert_allclose(np.mod(back[:, col] - x[:, col] + 0.5 * period, period), 0.5 * period, atol=1e-6)
+    np.testing.assert_allclose(
+        np.asarray(cm.log_prior(jnp.asarray(back), b)), np.asarray(cm.log_prior(jnp.asarray(got), b)), atol=1e-6
+    )
+    assert np.ptp(far[:, 7]) > 1e5  # the control: as they were, the walkers span 10^5 radians

@@ -39,6 +39,7 @@ __all__ = [
     "wrap_angles",
     "clip_to_box",
     "walkers_inside",
+    "ANGLE_PERIODS",
     "ANGLE_COLUMNS",
     "sample_prior",
     "size_prior",
@@ -565,12 +566,20 @@ def clip_to_box(theta, bounds: Bounds):
     return jnp.where(mask, theta, jnp.clip(theta, bounds.lower, bounds.upper))
 
 
-def walkers_inside(theta, bounds: Bounds, margin: float = 1e-9) -> np.ndarray:
-    """Walkers θ (W, D) moved just inside the prior box (``margin`` of its width from each edge) except in their
-    Euler angles, which pass unchanged (NumPy; a warm start for a density whose box moved with new data).
+#: periods of the Euler angles (ξ, ψ, ζ) as separate coordinates: the surface is the same after a whole turn of ξ or
+#: ζ and after half a turn of ψ (the n-ellipsoid's symmetry under R(z, π) in its own frame; :func:`wrap_angles`)
+ANGLE_PERIODS = (2 * np.pi, np.pi, 2 * np.pi)
 
-    Clipping the angles too would put every walker beyond an edge at the same value: an ensemble of the orientation
-    near ξ = 0, half its walkers at ξ < 0, became one with a dimension of zero spread, which emcee refuses.
+
+def walkers_inside(theta, bounds: Bounds, margin: float = 1e-9) -> np.ndarray:
+    """Walkers θ (W, D) made a sound warm start for a density whose box may have moved with new data (NumPy): moved
+    just inside the box (``margin`` of its width from each edge) in every non-angle column; each Euler angle shifted
+    by whole periods (:data:`ANGLE_PERIODS`, the same surface) to within half a period of the walkers' circular mean.
+
+    The angles are neither clipped nor wrapped into the box: clipping put every walker beyond an edge at the same
+    value (an ensemble near ξ = 0 with its walkers at ξ < 0 lost its spread in ξ), and wrapping splits an ensemble
+    near a box edge between the two ends. Left alone they drift without bound (a periodic likelihood): one chain's
+    ψ and ζ had walkers a million radians apart. Either way emcee refuses the start.
 
     Parameters
     ----------
@@ -587,6 +596,12 @@ def walkers_inside(theta, bounds: Bounds, margin: float = 1e-9) -> np.ndarray:
     lo, hi = np.asarray(bounds.lower, float), np.asarray(bounds.upper, float)
     box = ~_ANGLE_MASK[: th.shape[-1]]
     th[..., box] = np.clip(th[..., box], (lo + margin * (hi - lo))[box], (hi - margin * (hi - lo))[box])
+    for col, period in zip(ANGLE_COLUMNS, ANGLE_PERIODS, strict=True):
+        if col >= th.shape[-1]:
+            continue
+        phase = np.exp(2j * np.pi * np.mod(th[..., col], period) / period)
+        ref = np.angle(np.mean(phase)) * period / (2 * np.pi)
+        th[..., col] = ref + np.mod(th[..., col] - ref + 0.5 * period, period) - 0.5 * period
     return th
 
 
