@@ -302,6 +302,31 @@ def _bend_coverage(d: dict) -> tuple[str, str, str]:
     )
 
 
+def _explore_carrier(d: dict) -> tuple[str, str, str]:
+    names = {"guarded": "guarded strokes, the law marginalised", "carrier": "carrier strokes corrected by the law"}
+
+    def arm(name: str, a: dict) -> str:
+        stops = (
+            f", {a['aborted']} of {a['carrier_strokes']} carrier strokes stopped at 1 N (their frames before kept)"
+            if name == "carrier"
+            else ""
+        )
+        return (
+            f"{names[name]}: Chamfer {a['chamfer']['median']:.4f} [{a['chamfer']['lo']:.4f}, {a['chamfer']['hi']:.4f}]"
+            f", volume error {_pct(a['volume_error']['median'], 2)}, the truth within the 90 % volume interval in "
+            f"{a['covered']}/{a['of']} {_ci(a['coverage_wilson95'])}, contacts "
+            f"{1e3 * a['contact_distance_median_m']['median']:.2f} mm from the true surface (median){stops}"
+        )
+
+    return (
+        f"Exploring with carrier strokes ({d['trials']} paired trials, {d['object']}, {d['planner']}, {d['budget']} "
+        f"strokes after the scout; each finger drawn at {d['bend_spread']:g}× the constants' spread and calibrated on "
+        "a 2-cm sphere first)",
+        "; ".join(arm(k, a) for k, a in d["arms"].items()),
+        "`bench_explore_carrier` (`benchmarks/results/explore_carrier.json`)",
+    )
+
+
 def _link_loss(doc: dict) -> tuple[str, str, str]:
     rows = [r for r in doc["results"] if r["benchmark"] == "bench_link_loss"]
     first = rows[0]
@@ -463,6 +488,7 @@ ROWS: tuple[tuple[str, Callable[[dict], tuple[str, str, str]]], ...] = (
     ("pose_fit.json", _pose_fit),
     ("explore_bend.json", _explore_bend),
     ("bend_coverage.json", _bend_coverage),
+    ("explore_carrier.json", _explore_carrier),
     ("bench_sparse.json", _sparse),
     ("bench_planners.json", _planners),
     ("bench_samplers.json", _samplers),
