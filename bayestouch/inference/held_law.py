@@ -39,6 +39,7 @@ __all__ = [
     "prior_held_law",
     "law_at",
     "law_members",
+    "law_mean_at",
     "condition_held_law",
     "Conditioned",
 ]
@@ -133,6 +134,13 @@ def law_at(law: HeldLaw, times) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         pose.interp_grid(law.grid, law.lead, t),
         pose.interp_grid(law.grid, law.remainder, t, axis=1),
     )
+
+
+def law_mean_at(law: HeldLaw, times) -> np.ndarray:
+    """The law's posterior-mean tip error (M, 3) metres, finger-base frame, at ``times`` (M,) seconds since each
+    stroke's start: mean + lead z_mean (the remainders average to about zero)."""
+    mean, lead, _ = law_at(law, times)
+    return mean + lead @ np.asarray(law.z_mean, float)
 
 
 def law_members(law: HeldLaw, count: int, seed: int = 0) -> np.ndarray:

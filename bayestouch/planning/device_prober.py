@@ -36,7 +36,7 @@ from bayestouch.inference.held_law import (
     Conditioned,
     HeldLaw,
     condition_held_law,
-    law_at,
+    law_mean_at,
     law_members,
     prior_held_law,
 )
@@ -266,8 +266,7 @@ class DeviceProber:
                     f"carrier plan: the path ends {since[-1]:.3g} s after the warm-up, the calibrated law covers "
                     f"{self.pose_law.grid[-1]:.3g} s; calibrate with a longer span"
                 )
-            mean, lead_cols, _ = law_at(self.pose_law, since)
-            mu = mean + lead_cols @ np.asarray(self.pose_law.z_mean, float)
+            mu = law_mean_at(self.pose_law, since)
             prog = prog._replace(base_position=prog.base_position - mu @ np.asarray(prog.base_rotation).T)
         return prog, normals
 
@@ -297,8 +296,7 @@ class DeviceProber:
             p = self.probes[-1]
             hit = np.asarray(p.probe) == 0
             t = np.asarray(p.plan.time, float)[hit] - float(p.plan.time[0])
-            mean, lead, _ = law_at(self.pose_law, t)
-            mu = mean + lead @ np.asarray(self.pose_law.z_mean, float)
+            mu = law_mean_at(self.pose_law, t)
             rot = np.array([pose.rotation_between([0.0, 0.0, 1.0], -n) for n in np.asarray(p.plan.normal)[hit]])
             pts = pts + np.einsum("mij,mj->mi", rot.reshape(-1, 3, 3), mu)
         return pts, free
