@@ -27,7 +27,6 @@ reference's on the same object (median, bootstrap interval). Outputs ``benchmark
 from __future__ import annotations
 
 import json
-import multiprocessing as mp
 import os
 import tempfile
 import time
@@ -46,7 +45,7 @@ from bayestouch.planning.experiment import calibration_object, trial_finger
 from bayestouch.planning.loop import ExploreSettings, explore
 from bayestouch.scene.objects import object_from_dict
 from benchmarks.bench_user_sets import bootstrap_median, wilson_interval
-from benchmarks.harness import RESULTS, worker_init
+from benchmarks.harness import RESULTS, pool_rows
 
 #: scenarios, planned strokes after the scout, fingers of the pose-error law, the drawn fingers' spread factor
 SCENARIOS = 50
@@ -191,14 +190,7 @@ def bench_bend_coverage(scenarios: int | None = None) -> list[dict]:
     (default 2) and return the harness rows."""
     n = int(os.environ.get("BAYESTOUCH_BEND_SCENARIOS", SCENARIOS)) if scenarios is None else scenarios
     workers = int(os.environ.get("BAYESTOUCH_BEND_WORKERS", "2"))
-    rows: list[dict] = []
-    if workers > 1:
-        with mp.get_context("spawn").Pool(workers, initializer=worker_init) as pool:
-            for r in pool.imap_unordered(scenario, range(n)):
-                rows += r
-    else:
-        for k in range(n):
-            rows += scenario(k)
+    rows = pool_rows(scenario, n, workers)
     rows.sort(key=lambda r: (r["scenario"], ARMS.index(r["arm"])))
     cols = list(dict.fromkeys(k for r in rows for k in r))
     write_csv_rows(RESULTS / "bend_coverage.csv", [{k: r.get(k, "") for k in cols} for r in rows], cols)

@@ -19,7 +19,6 @@ how many the device stopped at its 1 N limit. Outputs ``benchmarks/results/explo
 from __future__ import annotations
 
 import json
-import multiprocessing as mp
 import os
 
 import numpy as np
@@ -31,7 +30,7 @@ from bayestouch.planning.loop import ExploreSettings, explore, truth_of
 from bayestouch.scene.objects import load_object
 from bayestouch.scene.surface import signed_distance
 from benchmarks.bench_user_sets import bootstrap_median, wilson_interval
-from benchmarks.harness import RESULTS, worker_init
+from benchmarks.harness import RESULTS, pool_rows
 
 TRIALS = 16
 BUDGET = 4
@@ -85,14 +84,7 @@ def bench_explore_carrier(trials: int | None = None) -> list[dict]:
     2) and return the harness rows."""
     n = int(os.environ.get("BAYESTOUCH_CARRIER_TRIALS", TRIALS)) if trials is None else trials
     workers = int(os.environ.get("BAYESTOUCH_CARRIER_WORKERS", "2"))
-    rows: list[dict] = []
-    if workers > 1:
-        with mp.get_context("spawn").Pool(workers, initializer=worker_init) as pool:
-            for r in pool.imap_unordered(trial, range(n)):
-                rows += r
-    else:
-        for k in range(n):
-            rows += trial(k)
+    rows = pool_rows(trial, n, workers)
     summary = {"object": "egg", "planner": "eig", "trials": n, "budget": BUDGET, "bend_spread": BEND_SPREAD, "arms": {}}
     res = []
     for arm in ARMS:

@@ -43,6 +43,22 @@ def worker_init() -> None:
     os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 
+def pool_rows(fn, count: int, workers: int) -> list:
+    """The rows ``fn(k)`` (each a list) for k in ``range(count)``, flattened in the order they arrive, on ``workers``
+    spawned processes (:func:`worker_init`; 1: in this process, in order). ``fn`` is a module-level function."""
+    rows: list = []
+    if workers > 1:
+        import multiprocessing as mp
+
+        with mp.get_context("spawn").Pool(workers, initializer=worker_init) as pool:
+            for r in pool.imap_unordered(fn, range(count)):
+                rows += r
+    else:
+        for k in range(count):
+            rows += fn(k)
+    return rows
+
+
 def best_of(fn, repeat: int = 5, number: int = 1) -> float:
     """Best wall-clock seconds per call of ``fn`` over ``repeat`` rounds of ``number`` calls."""
     best = float("inf")
