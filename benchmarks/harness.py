@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import importlib
 import json
+import multiprocessing as mp
 import os
 import platform
 import resource
@@ -48,8 +49,6 @@ def pool_rows(fn, count: int, workers: int) -> list:
     spawned processes (:func:`worker_init`; 1: in this process, in order). ``fn`` is a module-level function."""
     rows: list = []
     if workers > 1:
-        import multiprocessing as mp
-
         with mp.get_context("spawn").Pool(workers, initializer=worker_init) as pool:
             for r in pool.imap_unordered(fn, range(count)):
                 rows += r
