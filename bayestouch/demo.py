@@ -36,7 +36,6 @@ from bayestouch import __version__
 from bayestouch.backend import jnp
 from bayestouch.errors import BadInput, check_bools, check_int, check_number, check_path, shown
 from bayestouch.geometry import nellipsoid as ne
-from bayestouch.inference import pose_error as pe
 from bayestouch.inference.patch import patch_posterior
 from bayestouch.inference.run import run_contact_fit
 from bayestouch.io.contacts import save_contact_points
@@ -257,8 +256,7 @@ def run_demo(
             res = explore(
                 obj, "eig", sizes.budget, seed=seed, settings=settings, on_stroke=on_stroke, truth=truth, prober=prober
             )
-            ens, labels, times = prober.pose_ensemble(POSE_DRAWS)
-        pose_model = pe.ensemble_model(res.points, ens, labels, times, offset_sd=settings.pose_offset_sd)
+            pose_model = prober.pose_model(res.points, POSE_DRAWS, offset_sd=settings.pose_offset_sd)
     else:
         res = explore(obj, "eig", sizes.budget, seed=seed, settings=settings, on_stroke=on_stroke, truth=truth)
     bar.close()

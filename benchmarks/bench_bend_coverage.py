@@ -37,7 +37,6 @@ import numpy as np
 from bayestouch.backend import jnp
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.compare import chamfer_surfaces
-from bayestouch.inference import pose_error as pe
 from bayestouch.inference.run import run_contact_fit
 from bayestouch.io.files import write_csv_rows, write_text
 from bayestouch.planning.device_prober import VirtualFingerProber, calibrate_bending
@@ -90,8 +89,7 @@ def _arm(obj, seed: int, arm: str, out: Path) -> dict:
     with VirtualFingerProber(obj, seed=seed, finger=finger, pose_law=law) as prober:
         res = explore(obj, "eig", BUDGET, seed=seed, settings=settings, prober=prober)
         if arm == "calibrated":
-            ens, labels, times = prober.pose_ensemble(POSE_DRAWS)
-            model = pe.ensemble_model(res.points, ens, labels, times, offset_sd=0.0)
+            model = prober.pose_model(res.points, POSE_DRAWS)
     s = run_contact_fit(
         res.points,
         out / arm,

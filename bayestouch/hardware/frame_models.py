@@ -146,12 +146,7 @@ class ForwardModel:
         chain's own (what the finger senses of its bend, without sensor error).
         """
         vf = self.vf
-        prog = pose.CarrierProgram(
-            np.asarray(program.time, float),
-            np.asarray(program.base_position, float),
-            np.asarray(program.base_rotation, float).reshape(3, 3),
-            np.asarray(program.currents, float),
-        )
+        prog = _as_program(program)
         dt = pose.program_dt(prog.time)
         surf = self.obj.surface()
         with self._lock:  # one compilation at a time
@@ -178,6 +173,17 @@ class ForwardModel:
         kw = {"finger": None if same else own, "assumed": self.assumed}
         guarded = GuardedModel(self.obj, self, pose_sd=self.pose_sd, seed=self.seed, **kw)
         return guarded.probe(plan, travel, threshold, index)
+
+
+def _as_program(program) -> pose.CarrierProgram:
+    """A CarrierProgram or a CarrierStroke message as a :class:`~bayestouch.physics.pose.CarrierProgram` of float
+    arrays."""
+    return pose.CarrierProgram(
+        np.asarray(program.time, float),
+        np.asarray(program.base_position, float),
+        np.asarray(program.base_rotation, float).reshape(3, 3),
+        np.asarray(program.currents, float),
+    )
 
 
 class GuardedModel:
@@ -251,12 +257,7 @@ class GuardedModel:
         dict of :data:`FRAME_KEYS` arrays (T, ...)
         """
         wire, rod = self.finger if self.finger is not None else (self.assumed or (sma.load_wire(), bending.load_rod()))
-        prog = pose.CarrierProgram(
-            np.asarray(program.time, float),
-            np.asarray(program.base_position, float),
-            np.asarray(program.base_rotation, float).reshape(3, 3),
-            np.asarray(program.currents, float),
-        )
+        prog = _as_program(program)
         pad = pose.carrier_pad_path(wire, rod, prog)
         R = pad_radius()
         contact, normal, _, depth = (np.asarray(a, float) for a in pose.chain_stroke_arrays(self.obj.surface(), pad, R))

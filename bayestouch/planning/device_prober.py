@@ -31,6 +31,7 @@ from bayestouch.hardware.device import (
     winkler_depth,
 )
 from bayestouch.hardware.safety import StrokePlan, UnsafePlan
+from bayestouch.inference import pose_error as pe
 from bayestouch.inference.freespace import Free
 from bayestouch.inference.held_law import (
     Conditioned,
@@ -431,6 +432,23 @@ class DeviceProber:
         e = pose.interp_grid(grid, held, times, axis=1)  # (K, M, 3)
         rot = np.array([pose.rotation_between([0.0, 0.0, 1.0], u) for u in approach]).reshape(-1, 3, 3)
         return np.einsum("mij,kmj->kmi", rot, e), labels, times
+
+    def pose_model(self, points, draws: int = 24, *, offset_sd: float = 0.0) -> pe.EnsembleModel:
+        """The pose-error law of :meth:`pose_ensemble` over ``points`` (M, 3) m, the contacts as :meth:`probe`
+        returned them (:func:`bayestouch.inference.pose_error.ensemble_model`; ``offset_sd`` metres per stroke).
+
+        Raises
+        ------
+        BadInput
+            ``points`` are not this prober's contacts (another count).
+        """
+        ens, labels, times = self.pose_ensemble(draws)
+        if ens.shape[1] != len(points):
+            raise BadInput(
+                f"prober: its pose law covers {ens.shape[1]} contacts, the loop holds {len(points)}; use a fresh "
+                "prober per exploration"
+            )
+        return pe.ensemble_model(points, ens, labels, times, offset_sd=float(offset_sd))
 
     def dataset(self):
         """All strokes so far as the ``xarray.Dataset`` of :mod:`bayestouch.io.recording` (the schema of

@@ -332,13 +332,7 @@ def _density(pts: np.ndarray, free: Free, priors, prober, s: ExploreSettings) ->
     if not s.pose_draws:
         logp, bounds = cm.make_log_prob(pts, priors)
         return with_free(logp, bounds, free), bounds, cm.PARAM_NAMES
-    ens, labels, times = prober.pose_ensemble(s.pose_draws)
-    if ens.shape[1] != len(pts):
-        raise BadInput(
-            f"prober: its pose law covers {ens.shape[1]} contacts, the loop holds {len(pts)}; use a fresh prober per "
-            "exploration"
-        )
-    model = pe.ensemble_model(pts, ens, labels, times, offset_sd=float(s.pose_offset_sd))
+    model = prober.pose_model(pts, s.pose_draws, offset_sd=s.pose_offset_sd)
     logp, bounds = pe.make_ensemble_pose_log_prob(model, priors)
     return with_free(logp, bounds, free), bounds, pe.ENSEMBLE_PARAM_NAMES
 
