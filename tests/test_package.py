@@ -76,7 +76,11 @@ def test_installed_package_runs_from_an_empty_folder(installed):
     d = rng.normal(size=(150, 3))
     pts = 0.02 * d / np.linalg.norm(d, axis=1, keepdims=True) + rng.normal(0, 3e-4, (150, 3))
     save_contact_points(work / "pts.csv", pts)
-    _run([cli, "fit", "pts.csv", "--out", "run", "--quiet"], work)
+    # no wall-clock budget and a fixed length: a run the budget cut short (a loaded machine) is one the resume below
+    # would rightly continue, and its volume would then differ
+    _run(
+        [cli, "fit", "pts.csv", "--out", "run", "--quiet", "--budget", "0", "--steps", "6000", "--no-early-stop"], work
+    )
     v = json.loads((work / "run" / "summary.json").read_text())["derived"]["volume_m3"]["mean"]
     assert v == pytest.approx(4 / 3 * np.pi * 0.02**3, rel=0.05)
 
@@ -86,7 +90,8 @@ def test_installed_package_runs_from_an_empty_folder(installed):
     script = (
         "import numpy as np, arviz as az, bayestouch as bt\n"
         "x = np.loadtxt('pts.csv', delimiter=',', skiprows=1)[:, :3]\n"
-        "f = bt.fit(x, seed=0, progress=False, out='run', resume=True)\n"
+        "f = bt.fit(x, seed=0, progress=False, out='run', resume=True, budget_s=None, steps=6000,\n"
+        "           stop_when_converged=False)\n"
         "assert isinstance(f.idata, az.InferenceData) and 'volume' in f.idata.posterior\n"
         "print(bt.__file__, float(f.idata.posterior['volume'].mean()))\n"
     )
