@@ -9,6 +9,7 @@ from bayestouch.backend import jnp
 from bayestouch.cli import main
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.mesh import sample_surface
+from bayestouch.inference import contact as cm
 from bayestouch.io.contacts import save_contact_points
 
 TRUE = ne.NEllipsoid(
@@ -103,6 +104,21 @@ def _check_posterior_file(out, n_points):
     # Student-t optimum (σ ≈ 0.3 mm → log density ≈ −log σ ≈ 8 per point)
     ll = idata.log_likelihood["points"].values.sum(axis=-1)
     assert np.isfinite(ll).all() and 5 * n_points < ll.mean() < 9 * n_points
+    # sample_stats' lp is the log-posterior of θ (the chain's semi-axes sampled in metres, the Jacobian's Σ log a
+    # taken back out: left in, it would be off by ≈ 12 nats), recomputed in float64 from the draws themselves. The
+    # posterior group holds each draw's canonical alias, whose Haar density log|sin ξ| differs from the sampled
+    # alias's: the sampled one is among the 24 (aliases), so the nearest of their log-posteriors matches
+    from bayestouch.geometry.symmetry import aliases
+
+    post = idata.posterior
+    names = ("x_G", "y_G", "z_G", "a", "b", "c", "xi", "psi", "zeta", "n", "sigma", "w_in", "w_out")
+    flat = np.column_stack([post[k].values.reshape(-1) for k in names])[::397][:10]
+    lp = idata.sample_stats["lp"].values.reshape(-1)[::397][:10]
+    theta = flat.copy()
+    theta[:, [3, 4, 5, 9, 10]] = np.log(flat[:, [3, 4, 5, 9, 10]])
+    logp, _ = cm.make_log_prob(obs, cm.load_priors(), None, noise="outlier", precision="float64")
+    nearest = [np.min(np.abs(np.asarray(logp(aliases(t))) - v)) for t, v in zip(theta, lp, strict=True)]
+    assert max(nearest) < 0.01, nearest  # mixed precision in the run
 
 
 def _check_uncertainty_mesh(out, summary):

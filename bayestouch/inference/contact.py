@@ -37,6 +37,10 @@ __all__ = [
     "log_likelihood",
     "log_prior",
     "wrap_angles",
+    "AXIS_COLUMNS",
+    "to_sampling",
+    "from_sampling",
+    "sampling_log_prob",
     "clip_to_box",
     "walkers_inside",
     "ANGLE_PERIODS",
@@ -530,6 +534,47 @@ def pointwise_log_likelihood(
 #: the Euler angles' columns of θ (periodic: no box, :func:`wrap_angles`)
 ANGLE_COLUMNS = (6, 7, 8)
 _ANGLE_MASK = np.isin(np.arange(32), ANGLE_COLUMNS)  # long enough for any parameter set
+
+
+#: the columns of θ holding the log semi-axes (log m), which the contact fit's emcee stage moves in metres
+AXIS_COLUMNS = (3, 4, 5)
+
+
+def to_sampling(theta) -> np.ndarray:
+    """θ (..., D) in the coordinates the contact fit's emcee stage moves: the semi-axes (:data:`AXIS_COLUMNS`) in
+    metres instead of log metres, every other column as it is.
+
+    Why: contacts on one side of an object bound an unseen semi-axis on that side only, and the centre and that axis
+    then trade along the line x_G − a e = (the touched side), e the axis's direction. In metres the ridge is straight,
+    which the affine-invariant moves and the t-mixture proposals follow; in log metres it is curved, and the chain
+    crawled along it (``docs/contact_model.md``, "Sampling coordinates")."""
+    u = np.array(theta, dtype=float)
+    u[..., AXIS_COLUMNS] = np.exp(u[..., AXIS_COLUMNS])
+    return u
+
+
+def from_sampling(u) -> np.ndarray:
+    """θ (..., D) from the sampling coordinates of :func:`to_sampling` (semi-axes in metres, > 0)."""
+    theta = np.array(u, dtype=float)
+    theta[..., AXIS_COLUMNS] = np.log(theta[..., AXIS_COLUMNS])
+    return theta
+
+
+def sampling_log_prob(logp):
+    """The log-density in :func:`to_sampling`'s coordinates of a log-posterior ``logp`` over θ ((W, D) → (W,)):
+    log p(θ(u)) + log|dθ/du| = log p(θ) − Σ log(semi-axis), −∞ where a semi-axis is not positive. The posterior is
+    the same; only the coordinates the sampler moves in change, so θ-space draws follow by :func:`from_sampling` and
+    their log-posterior by adding back Σ log(semi-axis)."""
+
+    def logp_u(u):
+        u = np.asarray(u, dtype=float)
+        ok = np.all(u[:, AXIS_COLUMNS] > 0, axis=1)
+        theta = from_sampling(np.where(ok[:, None], u, 1.0))
+        with np.errstate(invalid="ignore"):
+            lp = np.asarray(logp(theta), dtype=float) - np.sum(theta[:, AXIS_COLUMNS], axis=1)
+        return np.where(ok, lp, -np.inf)
+
+    return logp_u
 
 
 def wrap_angles(theta) -> np.ndarray:

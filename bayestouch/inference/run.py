@@ -1057,6 +1057,8 @@ def run_contact_fit(
         "walkers": int(walkers),
         "seed": int(seed),
         "priors": {k: float(v) for k, v in priors._asdict().items()},
+        # the coordinates chain.h5 holds (cm.to_sampling): a chain of another version's log-axis draws is not resumed
+        "sampling": "log axes" if ffd is not None else "axes in metres",
     }
     data = {"points": points, "normals": normals, "free-space points": free}
     if pose is not None:  # the law itself: another law over the same points is another run
@@ -1084,6 +1086,12 @@ def run_contact_fit(
         t0_ = initial_theta(points, seed, priors) if theta0 is None else theta0
         return start_ball(t0_, bounds, walkers, np.random.default_rng(seed), sampled)
 
+    # emcee moves the semi-axes in metres (cm.to_sampling: the ridge of an unseen axis is straight there); the FFD fit
+    # keeps its own coordinates
+    logp_s = logp if ffd is not None else cm.sampling_log_prob(logp)
+    monitor = judged_quantities(model.names, model.natural)
+    if ffd is None:
+        monitor = _composed(monitor, cm.from_sampling)
     smc, moves = None, None
     if init == "smc" and start is None and ffd is None:
         if not resume:
@@ -1099,13 +1107,15 @@ def run_contact_fit(
         # one compact cloud: the particles as the aliases nearest the best particle's (or the missed optimum's) frame
         aligned = align_particles(smc["particles"], post, opt["theta"] if missed else None)
         positive = [i for i, name in enumerate(sampled) if name in POSITIVE_NEAR_ZERO]
+        mode = _mode_for_sampling(opt) if missed else None
         moves, smc_start = smc_moves(
-            aligned, walkers, seed, extra_mode=opt if missed else None, logp=logp, log_columns=positive
+            cm.to_sampling(aligned), walkers, seed, extra_mode=mode, logp=logp_s, log_columns=positive
         )
+        smc_start = cm.from_sampling(smc_start)
 
     ch = sample(
-        logp,
-        initial,
+        logp_s,
+        initial if ffd is not None else lambda: cm.to_sampling(initial()),
         out / "chain.h5",
         walkers=walkers,
         ndim=len(sampled),
@@ -1119,8 +1129,10 @@ def run_contact_fit(
         stop_when_converged=stop_when_converged,
         adapt=True,
         moves=moves,
-        monitor=judged_quantities(model.names, model.natural),
+        monitor=monitor,
     )
+    if ffd is None:
+        ch = _chain_from_sampling(ch)
     info = {**model.info, "precision": precision, "init": "start" if start is not None else init}
     if smc is not None:
         info["smc"] = {
@@ -1145,6 +1157,32 @@ def run_contact_fit(
     summary = _report_modes(out, summary, ch, model, seed, smc)
     release_run_folder(out)
     return summary
+
+
+def _composed(f, g):
+    """x ↦ f(g(x))."""
+
+    def h(x):
+        return f(g(x))
+
+    return h
+
+
+def _mode_for_sampling(opt: dict) -> dict:
+    """:func:`optimum_mode`'s Laplace approximation N(θ*, Σ) in :func:`bayestouch.inference.contact.to_sampling`'s
+    coordinates: u* = u(θ*) and J Σ Jᵀ, J = du/dθ = diag(1, …, e^θ_axes, …, 1)."""
+    theta = np.asarray(opt["theta"], float)
+    jac = np.ones(len(theta))
+    jac[list(cm.AXIS_COLUMNS)] = np.exp(theta[list(cm.AXIS_COLUMNS)])
+    return {**opt, "theta": cm.to_sampling(theta), "cov": np.asarray(opt["cov"], float) * np.outer(jac, jac)}
+
+
+def _chain_from_sampling(ch):
+    """A :func:`~bayestouch.inference.sampler.sample` result in :func:`bayestouch.inference.contact.to_sampling`'s
+    coordinates as θ: draws mapped back, log-posteriors of θ (the sampled density plus Σ log semi-axis)."""
+    theta = cm.from_sampling(ch.kept)
+    lp = np.asarray(ch.log_prob, float) + np.sum(theta[..., list(cm.AXIS_COLUMNS)], axis=-1)
+    return ch._replace(kept=theta, log_prob=lp)
 
 
 #: thinned draws the occupancy grid of a contact fit averages
