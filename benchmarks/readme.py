@@ -94,7 +94,8 @@ def _user_sets(d: dict) -> tuple[str, str, str]:
         f"{_ci(vc['wilson95'])}, semi-axis intervals {ac['k']}/{ac['n']} {_ci(ac['wilson95'])}; "
         f"{b['off_by_more_than_3_sd']}/{b['sets']} off by more than 3 sds; {b['converged']}/{b['sets']} converged "
         f"(the others say so). Median {b['seconds']['median']:.0f} s a set, 95th percentile "
-        f"{b['seconds']['p95']:.0f} s",
+        f"{b['seconds']['p95']:.0f} s (sage {s['seconds']['median']:.2f} s, GPIS {g['seconds']['median']:.2f} s in the "
+        "same run: the machine's speed varies between runs)",
         "`bench_user_sets` (`benchmarks/results/user_sets.json`)",
     )
 
