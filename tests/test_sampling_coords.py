@@ -1,5 +1,5 @@
 """The contact fit's sampling coordinates (semi-axes in metres, :func:`bayestouch.inference.contact.to_sampling`):
-the map, the Jacobian of the density, and a run's outputs back in θ."""
+the map and the Jacobian of the density. A run's log-posterior back in θ is checked in ``tests/test_fit_cli.py``."""
 
 import numpy as np
 import pytest

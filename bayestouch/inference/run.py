@@ -1088,10 +1088,9 @@ def run_contact_fit(
 
     # emcee moves the semi-axes in metres (cm.to_sampling: the ridge of an unseen axis is straight there); the FFD fit
     # keeps its own coordinates
-    logp_s = logp if ffd is not None else cm.sampling_log_prob(logp)
-    monitor = judged_quantities(model.names, model.natural)
+    logp_s, monitor = logp, judged_quantities(model.names, model.natural)
     if ffd is None:
-        monitor = _composed(monitor, cm.from_sampling)
+        logp_s, monitor = cm.sampling_log_prob(logp), _composed(monitor, cm.from_sampling)
     smc, moves = None, None
     if init == "smc" and start is None and ffd is None:
         if not resume:
