@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.cluster.hierarchy import fcluster, linkage
-from scipy.linalg import solve_triangular
 
 __all__ = [
     "find_modes",
@@ -95,17 +94,16 @@ def find_modes(features, rng: np.random.Generator) -> np.ndarray:
 
 
 def _log_gauss(z, means, covs):
-    """log N(z_i | means_k, covs_k) (N, K) of rows ``z (N, D)``, and whether every covariance is positive definite."""
+    """log N(z_i | means_k, covs_k) (N, K) of rows ``z (N, D)``, and whether every covariance is positive definite
+    (all K components at once: batched Cholesky factors and triangular inverses)."""
     n, d = z.shape
-    out = np.empty((n, len(means)))
-    for k, (mu, cov) in enumerate(zip(means, covs, strict=True)):
-        try:
-            chol = np.linalg.cholesky(cov)
-        except np.linalg.LinAlgError:
-            return out, False
-        y = solve_triangular(chol, (z - mu).T, lower=True)
-        out[:, k] = -0.5 * np.sum(y * y, axis=0) - np.sum(np.log(np.diag(chol))) - 0.5 * d * np.log(2 * np.pi)
-    return out, True
+    try:
+        chol = np.linalg.cholesky(covs)  # (K, D, D)
+    except np.linalg.LinAlgError:
+        return np.empty((n, len(means))), False
+    y = (z[None] - means[:, None]) @ np.swapaxes(np.linalg.inv(chol), 1, 2)  # (K, N, D): L⁻¹ (z − μ) per row
+    half_log_det = np.sum(np.log(np.diagonal(chol, axis1=1, axis2=2)), axis=1)
+    return (-0.5 * np.sum(y * y, axis=2) - half_log_det[:, None] - 0.5 * d * np.log(2 * np.pi)).T, True
 
 
 def _em(z, labels, k):
@@ -119,7 +117,8 @@ def _em(z, labels, k):
         if nk.min() < d + 1:
             return None
         means = (resp.T @ z) / nk[:, None]
-        covs = np.array([((resp[:, j, None] * (z - means[j])).T @ (z - means[j])) / nk[j] for j in range(k)])
+        zc = z[None] - means[:, None]  # (K, N, D)
+        covs = (np.swapaxes(zc * resp.T[:, :, None], 1, 2) @ zc) / nk[:, None, None]
         covs += _EM_RIDGE * np.eye(d)[None]
         weights = nk / n
         lg, ok = _log_gauss(z, means, covs)
