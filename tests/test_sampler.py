@@ -701,3 +701,22 @@ def test_burn_in_lasts_until_the_last_walker_reaches_the_typical_set():
     stuck[:, 5] -= 40
     assert arrival_step(stuck) == n
     assert _tau_and_burn(x, adapt=False, log_prob=stuck)[1] == n // 2
+
+
+def test_a_falling_autocorrelation_time_counts_as_settled_a_growing_one_does_not():
+    """The length rule trusts τ_max only once it has stopped growing between checks. A chain whose kernel speeds up
+    (an adaptive proposal refitted: the first 1,500 steps mix with τ ≈ 66, the rest with τ = 9) shows a τ_max that
+    falls from one check to the next, by far more than 5 %: settled (the earlier two-sided rule refused it and kept
+    users'-like fits running thousands of steps past R-hat and ESS). The same two estimates in the other order, a
+    τ_max still growing, are not settled (negative control), nor is a non-finite one."""
+    from bayestouch.inference.sampler import TAU_GROWTH, integrated_time, tau_settled
+
+    rng = np.random.default_rng(3)
+    x = np.concatenate([_ar1(1500, 32, 2, 0.97, rng), _ar1(3000, 32, 2, 0.8, rng)])
+    early = integrated_time(x[500:2000])  # a check's kept stretch (burn-in a quarter) at 2,000 steps
+    late = integrated_time(x[1125:4500])  # and at 4,500
+    assert late.max() < (1 - 2 * TAU_GROWTH) * early.max(), (early, late)
+    assert tau_settled(late, early)
+    assert not tau_settled(early, late)
+    assert tau_settled(early * 1.04, early) and not tau_settled(early * 1.06, early)
+    assert not tau_settled(np.array([np.nan, 3.0]), early) and not tau_settled(late, np.array([np.inf, 1.0]))
