@@ -280,33 +280,43 @@ def _prepare(
     pad: bool = False,
     outlier_scale: float = OUTLIER_SCALE,
 ) -> _Data:
-    p = jnp.asarray(points, dtype=jnp.float64)
+    # NumPy for concrete data, put on the device once at the end: eager jnp operations compile a small program for
+    # every new data length (dozens per fit, ~30 ms each); traced data (inside a jitted caller) stay jnp
+    traced = any(isinstance(a, jax.core.Tracer) for a in (points, normals, origin, free))
+    xp = jnp if traced else np
+    p = xp.asarray(points, dtype=xp.float64)
     m = p.shape[0]
     k = 0 if free is None else len(free)
-    allp = p if k == 0 else jnp.concatenate([p, jnp.asarray(free, dtype=jnp.float64)], axis=0)
+    allp = p if k == 0 else xp.concatenate([p, xp.asarray(free, dtype=xp.float64)], axis=0)
     extra = padded_size(m + k) - (m + k) if pad else 0
     use = None
     if extra:  # copies of the first contact, masked out of every sum (finite terms and gradients, as the data's)
-        allp = jnp.concatenate([allp, jnp.repeat(p[:1], extra, axis=0)], axis=0)
-        use = jnp.concatenate([jnp.ones(m + k), jnp.zeros(extra)])
-    hom = jnp.concatenate([allp.T, jnp.ones((1, m + k + extra))], axis=0)
+        allp = xp.concatenate([allp, xp.repeat(p[:1], extra, axis=0)], axis=0)
+        use = xp.concatenate([xp.ones(m + k), xp.zeros(extra)])
+    hom = xp.concatenate([allp.T, xp.ones((1, m + k + extra))], axis=0)
     nrm = None
     if normals is not None:
-        nrm = jnp.concatenate([jnp.asarray(normals, dtype=jnp.float64).T, jnp.zeros((3, k + extra))], axis=1)
+        nrm = xp.concatenate([xp.asarray(normals, dtype=xp.float64).T, xp.zeros((3, k + extra))], axis=1)
     lever2 = log_u = None
     out_inv = 0.0
     if noise == "multiplicative":
-        o = jnp.mean(p, axis=0) if origin is None else jnp.asarray(origin, dtype=jnp.float64)
+        o = xp.mean(p, axis=0) if origin is None else xp.asarray(origin, dtype=xp.float64)
         lever2 = ((allp - o) ** 2).T
     elif noise == "mixture":
-        diag = jnp.sqrt(jnp.sum((jnp.max(p, axis=0) - jnp.min(p, axis=0)) ** 2))
-        log_u = -jnp.log(2.0 * jnp.maximum(diag, 1e-9))
+        diag = xp.sqrt(xp.sum((xp.max(p, axis=0) - xp.min(p, axis=0)) ** 2))
+        log_u = -xp.log(2.0 * xp.maximum(diag, 1e-9))
     elif noise == "outlier":
         if not (np.isfinite(outlier_scale) and outlier_scale > 0):
             raise BadInput(f"outlier_scale: expected a positive length in metres, got {outlier_scale!r}")
-        log_u = jnp.asarray(np.log(2.0 / (np.pi * outlier_scale)))
+        log_u = xp.asarray(np.log(2.0 / (np.pi * outlier_scale)))
         out_inv = 1.0 / float(outlier_scale)
-    mask = None if k == 0 else jnp.concatenate([jnp.zeros(m), jnp.ones(k), jnp.zeros(extra)])
+    mask = None if k == 0 else xp.concatenate([xp.zeros(m), xp.ones(k), xp.zeros(extra)])
+    arrays = (hom, nrm, lever2, log_u, mask)
+    if not traced:
+        arrays = tuple(None if a is None else jax.device_put(np.asarray(a, dtype=np.float64)) for a in arrays)
+    hom, nrm, lever2, log_u, mask = arrays
+    if use is not None and not traced:
+        use = jax.device_put(use)
     return _Data(hom, nrm, lever2, log_u, mask, float(np.log(free_miss)), use, out_inv)
 
 
@@ -525,10 +535,10 @@ def pointwise_log_likelihood(
     """Log-likelihood of each observation (W, M + K) for walkers ``thetas (W, D)``: the M contact points, then the
     K free-space points (NumPy edge; the ArviZ ``log_likelihood`` group). Arguments as :func:`log_prob_batch`;
     the sum over observations is the log-likelihood that :func:`make_log_prob` samples."""
-    data = _prepare(
-        points, normals, _check_noise(noise), origin, _free_or_none(free), free_miss, outlier_scale=outlier_scale
-    )
-    return np.asarray(_log_lik_terms_jit(jnp.asarray(thetas, dtype=jnp.float64), data, noise, float(nu)))
+    fr = _free_or_none(free)
+    data = _prepare(points, normals, _check_noise(noise), origin, fr, free_miss, pad=True, outlier_scale=outlier_scale)
+    count = len(points) + (0 if fr is None else len(fr))  # the padding columns (copies of a contact) cut off
+    return np.asarray(_log_lik_terms_jit(jnp.asarray(thetas, dtype=jnp.float64), data, noise, float(nu)))[:, :count]
 
 
 #: the Euler angles' columns of θ (periodic: no box, :func:`wrap_angles`)

@@ -18,6 +18,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.stats import rankdata
 
+from bayestouch.backend import jax, pad_pow2
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.inference import contact as cm
 
@@ -63,9 +64,24 @@ def surface_feet(theta, points) -> np.ndarray:
     displaced millimetres off the surface is otherwise nearest to other displaced ones, and their shared large
     residuals would read as structure."""
     p = np.asarray(points, float)
-    s = cm.shape_of(np.asarray(theta, float)[:10])
-    d = np.asarray(cm.residuals(np.asarray(theta, float)[:10], p))
-    return p - d[:, None] * np.asarray(ne.normals(s, p))
+    d, nrm = _residuals_and_normals(theta, p)
+    return p - d[:, None] * nrm
+
+
+@jax.jit
+def _residuals_normals_jit(theta, pts):
+    return cm.residuals(theta, pts), ne.normals(cm.shape_of(theta), pts)
+
+
+def _residuals_and_normals(theta, points) -> tuple[np.ndarray, np.ndarray]:
+    """First-order residuals (M,) m of ``points (M, 3)`` m under θ (≥ 10,) and the unit normals (M, 3) there: one
+    compiled program per power-of-two point count (:func:`~bayestouch.backend.pad_pow2`), not one per data set and
+    none of the dozens of single operations an eager call compiles for each new length."""
+    m = len(points)
+    d, nrm = _residuals_normals_jit(
+        jax.device_put(np.asarray(theta, float)[:10]), jax.device_put(pad_pow2(np.asarray(points, float)))
+    )
+    return np.asarray(d)[:m], np.asarray(nrm)[:m]
 
 
 def rank_correlation(values, pairs) -> float:
@@ -98,7 +114,7 @@ def residual_structure(points, thetas, seed: int = 0) -> dict:
         return {"rho": None, "z": None, "pairs": int(len(pairs)), "misfit": False}
     rhos, last = [], None
     for t in th[pick]:
-        last = np.asarray(cm.residuals(t[:10], p))
+        last = _residuals_and_normals(t, p)[0]
         rhos.append(rank_correlation(last, pairs))
     rho = float(np.median(rhos))
     null = [rank_correlation(rng.permutation(last), pairs) for _ in range(PERMUTATIONS)]

@@ -35,7 +35,7 @@ import numpy as np
 import xarray as xr
 
 from bayestouch import __version__
-from bayestouch.backend import jax, jnp
+from bayestouch.backend import jax, jnp, pad_pow2
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.integrals import surface_integrals_batch
 from bayestouch.geometry.mesh import cube_sphere, to_trimesh
@@ -57,6 +57,8 @@ __all__ = [
     "MIN_DIAGNOSTIC_DRAWS",
     "uncertainty_spread",
     "vmf_sample",
+    "draw_volumes",
+    "VOLUME_BLOCK",
     "PREDICTIVE_DRAWS",
     "DERIVED_DRAWS",
     "OBSERVATION_VALUES",
@@ -229,6 +231,21 @@ def vmf_sample(mean, kappa, rng: np.random.Generator) -> np.ndarray:
 
 
 _volumes = jax.jit(jax.vmap(lambda v: ne.volume(ne.from_vector(v))))
+#: most rows per call of the volumes' compiled program
+VOLUME_BLOCK = 16384
+
+
+def draw_volumes(vectors) -> np.ndarray:
+    """Closed-form volumes (N,) m³ (eq. 11, :func:`bayestouch.geometry.nellipsoid.volume`) of n-ellipsoid draws
+    ``vectors (N, ≥ 10)`` (the first 10 columns: centre m, semi-axes m, Euler angles rad, n), in blocks of at most
+    :data:`VOLUME_BLOCK` rows, each padded to a power of two (copies of its first row, cut off again): a few compiled
+    programs for every chain length, not one per length."""
+    v = np.asarray(vectors, dtype=np.float64)[:, :10]
+    out = [
+        np.asarray(_volumes(jax.device_put(pad_pow2(v[s : s + VOLUME_BLOCK]))))[: len(v[s : s + VOLUME_BLOCK])]
+        for s in range(0, len(v), VOLUME_BLOCK)
+    ]
+    return np.concatenate(out) if out else np.empty(0)
 
 
 def _draw_meshes(shape_vectors, res: int):
@@ -339,9 +356,7 @@ def _posterior_group(nat, model: PosteriorModel) -> xr.Dataset:
     }
     vecs = np.asarray(model.shape_vectors(nat.reshape(S * W, -1)))
     # eq. 11 in closed form for an n-ellipsoid (the FFD lattice's mean displacement is not in it)
-    vol = np.concatenate(
-        [np.asarray(_volumes(jnp.asarray(c))) for c in np.array_split(vecs, max(1, len(vecs) // 20000))]
-    )
+    vol = draw_volumes(vecs)
     data["volume"] = (("chain", "draw"), np.swapaxes(vol.reshape(S, W), 0, 1), {"units": "m3"})
     return xr.Dataset(data, coords={"chain": np.arange(W), "draw": np.arange(S)})
 

@@ -17,7 +17,7 @@ import emcee
 import numpy as np
 from scipy.optimize import minimize
 
-from bayestouch.backend import jax, jnp
+from bayestouch.backend import jax, jnp, pad_pow2
 from bayestouch.errors import BadInput, check_bools, check_int, check_path, check_seed, shown
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.symmetry import aliases, align_batch, canonicalize_batch
@@ -29,7 +29,14 @@ from bayestouch.inference.misfit import residual_structure
 from bayestouch.inference.modes import find_modes, gaussian_mixture
 from bayestouch.inference.optimize import fd_hessian
 from bayestouch.inference.parts import occupancy_grid
-from bayestouch.inference.posterior import PosteriorModel, interval, judged_quantities, vmf_sample, write_posterior
+from bayestouch.inference.posterior import (
+    PosteriorModel,
+    draw_volumes,
+    interval,
+    judged_quantities,
+    vmf_sample,
+    write_posterior,
+)
 from bayestouch.inference.sampler import IndependenceMixture, prune_stuck_walkers, sample
 from bayestouch.inference.smc import tempered_smc
 from bayestouch.io.contacts import check_normals_outward
@@ -614,8 +621,9 @@ def contact_model(
     contacts; with measured ``normals``, replicated normals are von Mises–Fisher (κ of the draw) about the draw's normal
     (:func:`~bayestouch.inference.posterior.vmf_sample`), and the observed group holds the normalised measured
     normals too."""
-    pts = jnp.asarray(points, dtype=jnp.float64)
     m = len(points)
+    # padded to a power of two (copies of the first point, cut off again): one compiled program per size bucket
+    pts = jax.device_put(pad_pow2(np.asarray(points, dtype=np.float64)))
     sampled = cm.param_names(normals is not None, noise)
     names = natural_names(sampled)
     lo, hi = np.asarray(points).min(axis=0), np.asarray(points).max(axis=0)
@@ -624,7 +632,7 @@ def contact_model(
     lever = np.asarray(points) - centroid
 
     def predictive(thetas, rng):
-        foot, nrm = (np.asarray(a) for a in _foot_and_normal(jnp.asarray(thetas[:, :11]), pts))
+        foot, nrm = (np.asarray(a)[:, :m] for a in _foot_and_normal(jnp.asarray(thetas[:, :11]), pts))
         shape = (len(thetas), m)
         sigma = np.exp(thetas[:, 10])[:, None]
         if noise == "student":
@@ -1252,29 +1260,20 @@ def surrounds(points, theta, fraction: float = SURROUND_FRACTION) -> bool:
     return bool(np.all((q > 0.5).mean(axis=0) >= fraction) and np.all((q < -0.5).mean(axis=0) >= fraction))
 
 
-# closed-form volumes (eq. 11, :func:`bayestouch.geometry.nellipsoid.volume`) of draws' first 10 natural columns
-_volumes_of = jax.jit(jax.vmap(lambda v: ne.volume(ne.from_vector(v))))
-
-
-def _volumes(nat) -> np.ndarray:
-    """Volumes (N,) m³ of canonical natural draws (N, ≥ 10)."""
-    return np.asarray(_volumes_of(jnp.asarray(np.asarray(nat)[:, :10], dtype=jnp.float64)))
-
-
 def _report_modes(out: Path, summary: dict, ch, model: PosteriorModel, seed: int, smc) -> dict:
     """Add the posterior's separated modes (:func:`describe_modes`, from the kept draws) and, from the SMC
     particles, the modes the global stage found, to ``summary.json``; a multimodal posterior or an SMC stage that
     did not reach β = 1 is a warning, and a multimodal one is never reported as converged."""
     kept = ch.kept.reshape(-1, ch.kept.shape[2])
     nat = model.natural(kept)
-    modes = describe_modes(nat, _volumes(nat), seed)
+    modes = describe_modes(nat, draw_volumes(nat), seed)
     diag = summary["diagnostics"]
     diag["modes"] = modes
     diag["multimodal"] = len(modes) > 1
     warnings = list(diag.get("warnings", []))
     if smc is not None:
         pn = model.natural(np.asarray(smc["particles"]))
-        diag["smc_modes"] = describe_modes(pn, _volumes(pn), seed)
+        diag["smc_modes"] = describe_modes(pn, draw_volumes(pn), seed)
         if not smc["complete"]:
             warnings.append("tempering stopped before the posterior (beta < 1): the start is not a posterior sample")
         if len(diag["smc_modes"]) > 1 and len(modes) == 1:
