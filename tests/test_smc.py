@@ -301,3 +301,63 @@ def test_adaptive_mixture_resume_replays_the_refits(tmp_path):
     np.testing.assert_array_equal(a, b)
     with pytest.raises(ValueError, match="defensive"):
         IndependenceMixture(G_MEAN[None], np.eye(2)[None], emcee.moves.DEMove(), defensive=1.0)
+
+
+def test_hmc_steps_reuse_the_gradients_at_the_particles_and_move_them_exactly_as_without():
+    """Three HMC steps with the gradient cache move the particles exactly as three without it (same seeds), with
+    one gradient call fewer per step after the first; a cache holding wrong gradients changes the moves (the
+    control: the cached values are really used)."""
+    from bayestouch.inference.smc import hmc_step
+
+    def run(cache, calls):
+        def counted(y):
+            calls.append(len(y))
+            return _gradients(y)
+
+        rng = np.random.default_rng(5)
+        x = rng.normal(4.0, 1.0, (256, 2))
+        lp, ll = _log_prior(x), _log_lik(x)
+        chol = np.broadcast_to(0.5 * np.eye(2), (256, 2, 2))
+        acc = [hmc_step(x, lp, ll, chol, 0.7, 0.4, 5, counted, rng, cache=cache) for _ in range(3)]
+        return x, lp, ll, acc
+
+    plain_calls, cached_calls = [], []
+    plain = run(None, plain_calls)
+    cached = run({}, cached_calls)
+    for a, b in zip(plain, cached, strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert len(plain_calls) == 3 * 6 and len(cached_calls) == 3 * 6 - 2
+    wrong_calls: list = []
+    rng = np.random.default_rng(5)
+    x0 = rng.normal(4.0, 1.0, (256, 2))
+    wrong = run({"ga": np.zeros_like(x0), "gb": np.full_like(x0, 50.0)}, wrong_calls)
+    assert not np.array_equal(wrong[0], plain[0])
+
+
+def test_tempered_smc_with_the_gradient_cache_is_the_smc_without_it(monkeypatch):
+    """The whole tempering with gradients: its particles, temperatures and evidence are those of the same run whose
+    HMC steps recompute every gradient (the cache dropped), bit for bit, with fewer gradient calls."""
+    from bayestouch.inference import smc
+
+    calls = {"n": 0}
+
+    def counted(y):
+        calls["n"] += 1
+        return _gradients(y)
+
+    def run():
+        calls["n"] = 0
+        r = tempered_smc(
+            _log_lik, _log_prior, _sample_prior, np.random.default_rng(4), particles=500, gradients=counted
+        )
+        return r, calls["n"]
+
+    cached, n_cached = run()
+    plain_step = smc.hmc_step
+    monkeypatch.setattr(smc, "hmc_step", lambda *a, cache=None, **k: plain_step(*a, **k))
+    plain, n_plain = run()
+    np.testing.assert_array_equal(cached.particles, plain.particles)
+    np.testing.assert_array_equal(cached.betas, plain.betas)
+    assert cached.log_evidence == plain.log_evidence
+    stages = len(plain.betas) - 1
+    assert n_plain - n_cached == 2 * stages  # the second and third HMC steps of every stage start from the cache

@@ -119,14 +119,27 @@ def nearest_rows(x, centres) -> np.ndarray:
     return np.argmin(np.sum(za * za, axis=1)[None] - 2.0 * z @ za.T, axis=1)
 
 
-def hmc_step(x, lp, ll, chol, beta: float, eps: float, steps: int, gradients, rng) -> int:
+def hmc_step(x, lp, ll, chol, beta: float, eps: float, steps: int, gradients, rng, cache: dict | None = None) -> int:
     """One HMC step of every particle in place (``x``, ``lp``, ``ll`` updated where accepted) for the target
     p(θ) L(θ)^β, momentum r ~ N(0, I) in coordinates whitened by ``chol (N, D, D)``, ``steps`` leapfrog steps of
-    size ``eps``, ``gradients`` as :func:`tempered_smc`'s; returns the accepted count."""
+    size ``eps``, ``gradients`` as :func:`tempered_smc`'s; returns the accepted count.
+
+    ``cache``: a dict that carries ∇log p and ∇log L at ``x`` (keys ``"ga"``, ``"gb"``, (N, D) each) from one step
+    to the next while nothing else moves the particles: the first leapfrog gradient is then read, not recomputed
+    (the same numbers: each row's gradient depends on that row alone), and the cache is left holding the gradients
+    at the particles after the step. An empty dict is filled."""
     n, d = x.shape
+    start: dict = {}
+    end: dict = {}
 
     def grad(y):
-        a, b, ga, gb = gradients(y)
+        if not start and cache and "ga" in cache:
+            a, b, ga, gb = lp, ll, cache["ga"], cache["gb"]
+        else:
+            a, b, ga, gb = (np.asarray(v, float) for v in gradients(y))
+        if not start:
+            start["ga"], start["gb"] = ga, gb
+        end["ga"], end["gb"] = ga, gb
         return (a, b), np.einsum("nji,nj->ni", chol, ga + beta * gb)  # Lᵀ ∇log π
 
     r0 = rng.standard_normal((n, d))
@@ -135,6 +148,9 @@ def hmc_step(x, lp, ll, chol, beta: float, eps: float, steps: int, gradients, rn
         log_a = (a + beta * b - 0.5 * np.sum(r * r, axis=1)) - (lp + beta * ll - 0.5 * np.sum(r0 * r0, axis=1))
     acc = np.log(rng.random(n)) < np.where(np.isfinite(log_a), log_a, -np.inf)
     x[acc], lp[acc], ll[acc] = y[acc], a[acc], b[acc]
+    if cache is not None:
+        cache["ga"] = np.where(acc[:, None], end["ga"], start["ga"])
+        cache["gb"] = np.where(acc[:, None], end["gb"], start["gb"])
     return int(acc.sum())
 
 
@@ -144,10 +160,11 @@ def tune_step_size(x, chol, gradients, rng, eps: float = 0.5, iterations: int = 
     eps ← eps · exp(2 (acceptance − ``target``)). Returns (eps, the walkers after the pilot (N, D)): a warm-up,
     not part of any chain."""
     x = np.array(x, float)
-    lp, ll, _, _ = gradients(x)
+    lp, ll, ga, gb = gradients(x)
     lp, ll = np.array(lp, float), np.array(ll, float)
+    held = {"ga": np.asarray(ga, float), "gb": np.asarray(gb, float)}
     for _ in range(iterations):
-        acc = hmc_step(x, lp, ll, chol, 1.0, eps, 4, gradients, rng) / len(x)
+        acc = hmc_step(x, lp, ll, chol, 1.0, eps, 4, gradients, rng, cache=held) / len(x)
         eps *= float(np.exp(2.0 * (acc - target)))
     return eps, x
 
@@ -266,9 +283,11 @@ def tempered_smc(
             m = int(final_steps)
         if gradients is not None:
             n_acc_h = 0
-            for _ in range(hmc_steps):
-                n_acc_h += hmc_step(x, lp, ll, chol, beta, eps, rng.integers(1, leapfrog + 1), gradients, rng)
-                evals += n * leapfrog
+            held: dict = {}  # the gradients at the particles, from one HMC step to the next (none yet this stage)
+            for i in range(hmc_steps):
+                frogs = int(rng.integers(1, leapfrog + 1))
+                n_acc_h += hmc_step(x, lp, ll, chol, beta, eps, frogs, gradients, rng, cache=held)
+                evals += n * (frogs + (1 if i == 0 else 0))  # gradient calls: the first step's start, then 1 a frog
             acc_h = n_acc_h / (n * hmc_steps)
             eps *= float(np.exp(np.clip(acc_h - 0.65, -0.3, 0.3) * 3.0))
         n_acc = 0
