@@ -34,10 +34,9 @@ def test_pointwise_log_likelihood_of_two_lengths_in_one_bucket_compiles_once_and
         terms = cm.pointwise_log_likelihood(thetas, pts, np.inf)
         assert terms.shape == (4, m)
         # the padding columns are cut off: the terms sum to the batched log-likelihood (prior added back)
-        bounds = cm.bounds_for(pts, cm.load_priors())
-        lp = np.asarray(cm.log_prob_batch(thetas, pts, bounds, np.inf))
-        prior = np.asarray(cm.log_prior(thetas, bounds))
-        np.testing.assert_allclose(terms.sum(axis=1), lp - prior, rtol=1e-10, atol=1e-8)
+        logp, bounds = cm.make_log_prob(pts, nu=np.inf)
+        lp, ll, _, _ = logp.parts(thetas)
+        np.testing.assert_allclose(terms.sum(axis=1), ll, rtol=1e-10, atol=1e-8)
         sizes.append(cm._log_lik_terms_jit._cache_size())
     assert sizes == [1, 1]
 
