@@ -4,12 +4,12 @@ comparison with NUTS is :mod:`benchmarks.bench_samplers`: compiled contestants, 
 from __future__ import annotations
 
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 
 from bayestouch.inference.sbc import simulate_points
+from benchmarks.harness import cli_fit
 
 # a tilted, unequal-axes n-ellipsoid (centre m, log axes, Euler angles rad, log n, log σ) and 1000 points
 THETA = np.array([0.0, 0.0, 0.0, np.log(0.03), np.log(0.022), np.log(0.015), 0.4, 0.3, -0.5, np.log(2.2), np.log(3e-4)])
@@ -21,23 +21,12 @@ def _points():
 
 
 def _cli_fit(csv: Path, out: Path, cache: str) -> tuple[dict, float]:
-    """``bayestouch fit`` in a fresh process with the JAX compilation cache at ``cache`` ("0": none): the summary's
-    diagnostics and the process's wall time (interpreter start and imports included)."""
-    import json
-    import os
-    import subprocess
-    import sys
-
-    env = {**os.environ, "BAYESTOUCH_JAX_CACHE": cache, "OMP_NUM_THREADS": "1"}
-    t = time.perf_counter()
-    subprocess.run(
-        [sys.executable, "-m", "bayestouch.cli", "fit", str(csv), "--out", str(out), "--seed", "0", "--quiet"],
-        check=True,
-        env=env,
-        capture_output=True,
-    )
-    wall = time.perf_counter() - t
-    return json.loads((out / "summary.json").read_text())["diagnostics"], wall
+    """:func:`benchmarks.harness.cli_fit` with seed 0: the summary's diagnostics and the process's wall time; a
+    failed process raises."""
+    summary, wall, rc, err = cli_fit(csv, out, 0, cache)
+    if summary is None:
+        raise RuntimeError(f"bayestouch fit exited with {rc}: {err}")
+    return summary["diagnostics"], wall
 
 
 def bench_time_to_converged():

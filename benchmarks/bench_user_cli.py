@@ -18,10 +18,8 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
@@ -29,30 +27,13 @@ import numpy as np
 from bayestouch.io.contacts import save_contact_points
 from bayestouch.io.files import write_csv_rows, write_text
 from benchmarks.bench_user_sets import bayestouch_metrics, bootstrap_median, make_user_sets, wilson_interval
-from benchmarks.harness import RESULTS
+from benchmarks.harness import RESULTS, cli_fit
 
 #: sets fitted (the first SETS of bench_user_sets' seed-0 sets)
 SETS = 50
 #: the targets: median and 95th percentile of the process's wall time (seconds)
 TARGET_MEDIAN_S = 20.0
 TARGET_P95_S = 60.0
-
-
-def cli_fit(csv: Path, out: Path, seed: int, cache: Path) -> tuple[dict, float, int, str]:
-    """``bayestouch fit`` of ``csv`` in a fresh process (one BLAS thread, the compilation cache ``cache``): the
-    summary (None when the process failed), the process's wall time (s), its exit code and its stderr's tail."""
-    env = {**os.environ, "BAYESTOUCH_JAX_CACHE": str(cache), "OMP_NUM_THREADS": "1"}
-    t0 = time.perf_counter()
-    proc = subprocess.run(
-        [sys.executable, "-m", "bayestouch.cli", "fit", str(csv), "--out", str(out), "--seed", str(seed), "--quiet"],
-        env=env,
-        capture_output=True,
-        text=True,
-        check=False,
-    )
-    wall = time.perf_counter() - t0
-    summary = json.loads((out / "summary.json").read_text()) if proc.returncode == 0 else None
-    return summary, wall, proc.returncode, proc.stderr[-300:]
 
 
 def bench_user_cli(count: int | None = None):

@@ -14,6 +14,7 @@ import multiprocessing as mp
 import os
 import platform
 import resource
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -56,6 +57,24 @@ def pool_rows(fn, count: int, workers: int) -> list:
         for k in range(count):
             rows += fn(k)
     return rows
+
+
+def cli_fit(csv: Path, out: Path, seed: int, cache) -> tuple[dict | None, float, int, str]:
+    """``bayestouch fit CSV --out OUT --seed SEED --quiet`` in a fresh process (one BLAS thread, the JAX compilation
+    cache ``cache``, a folder or "0" for none): the run's summary (None when the process failed), the process's wall
+    time (s, interpreter start and imports included), its exit code and its stderr's tail."""
+    env = {**os.environ, "BAYESTOUCH_JAX_CACHE": str(cache), "OMP_NUM_THREADS": "1"}
+    t0 = time.perf_counter()
+    proc = subprocess.run(
+        [sys.executable, "-m", "bayestouch.cli", "fit", str(csv), "--out", str(out), "--seed", str(seed), "--quiet"],
+        env=env,
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    wall = time.perf_counter() - t0
+    summary = json.loads((out / "summary.json").read_text()) if proc.returncode == 0 else None
+    return summary, wall, proc.returncode, proc.stderr[-300:]
 
 
 def best_of(fn, repeat: int = 5, number: int = 1) -> float:
