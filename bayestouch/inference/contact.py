@@ -311,12 +311,11 @@ def _prepare(
         log_u = xp.asarray(np.log(2.0 / (np.pi * outlier_scale)))
         out_inv = 1.0 / float(outlier_scale)
     mask = None if k == 0 else xp.concatenate([xp.zeros(m), xp.ones(k), xp.zeros(extra)])
-    arrays = (hom, nrm, lever2, log_u, mask)
     if not traced:
-        arrays = tuple(None if a is None else jax.device_put(np.asarray(a, dtype=np.float64)) for a in arrays)
-    hom, nrm, lever2, log_u, mask = arrays
-    if use is not None and not traced:
-        use = jax.device_put(use)
+        hom, nrm, lever2, log_u, mask, use = (
+            None if a is None else jax.device_put(np.asarray(a, dtype=np.float64))
+            for a in (hom, nrm, lever2, log_u, mask, use)
+        )
     return _Data(hom, nrm, lever2, log_u, mask, float(np.log(free_miss)), use, out_inv)
 
 

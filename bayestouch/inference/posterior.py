@@ -241,10 +241,8 @@ def draw_volumes(vectors) -> np.ndarray:
     :data:`VOLUME_BLOCK` rows, each padded to a power of two (copies of its first row, cut off again): a few compiled
     programs for every chain length, not one per length."""
     v = np.asarray(vectors, dtype=np.float64)[:, :10]
-    out = [
-        np.asarray(_volumes(jax.device_put(pad_pow2(v[s : s + VOLUME_BLOCK]))))[: len(v[s : s + VOLUME_BLOCK])]
-        for s in range(0, len(v), VOLUME_BLOCK)
-    ]
+    blocks = [v[s : s + VOLUME_BLOCK] for s in range(0, len(v), VOLUME_BLOCK)]
+    out = [np.asarray(_volumes(jax.device_put(pad_pow2(b))))[: len(b)] for b in blocks]
     return np.concatenate(out) if out else np.empty(0)
 
 
