@@ -909,3 +909,21 @@ def test_recover_names_every_stroke_it_leaves_out(device, tmp_path):
     out = tmp_path / "rec.nc"
     assert run_device(_parser().parse_args(["device", "recover", str(damaged), "--out", str(out)])) == 0
     assert read_recording(out).attrs["incomplete"] == "true"
+
+
+def test_a_late_result_of_an_abandoned_stroke_does_not_take_the_current_strokes_place():
+    """A stroke abandoned while its frames were being computed (the watchdog tripped: a loaded machine paused the
+    host for over a second) is redone under a new id while the first computation still runs; when that one ends
+    last, its result must be dropped, else the redone stroke's frames are lost and the host waits out its stroke
+    time-out (a CI run hung 300 s this way). White-box: the order of the two worker threads cannot be forced
+    through the pty, so the device's result slot is read directly."""
+    sim = VirtualDevice(Recorded())
+    plan = make_plan()
+    sim.stroke_id = 8  # the redone stroke is the current one
+    sim._compute(plan, 1, 8)  # its frames are ready first
+    sim._compute(plan, 0, 7)  # then the abandoned stroke's computation ends
+    sid, res = sim._result
+    assert sid == 8 and np.array_equal(res["taxel_current"], sim.model.out[1]["taxel_current"])
+    sim._result = None
+    sim._compute(plan, 2, 8)  # control: the current stroke's own result is kept
+    assert sim._result[0] == 8

@@ -441,7 +441,8 @@ class VirtualDevice:
             self.stroke_id, self._cmd, self._frames, self._n_sent, self._done = msg.stroke_id, msg, None, 0, 255
             self.state, self.heater_on, self.watchdog_tripped = 1, True, False
             self._wire_current = np.asarray(msg.currents[0] if carrier else msg.hold_currents, float)
-            self._result = None
+            with self._lock:
+                self._result = None
             index = self._index
             self._index += 1
             extra = "carrier" if carrier else (float(msg.travel), float(msg.threshold)) if probe else None
@@ -501,7 +502,10 @@ class VirtualDevice:
         except Exception as e:  # the device reports a fault instead of dying
             res = e
         with self._lock:
-            self._result = (sid, res)
+            # a stroke abandoned meanwhile (watchdog, abort) may finish after the stroke that replaced it: its late
+            # result must not take the place of the current stroke's, which would then never be streamed
+            if sid == self.stroke_id:
+                self._result = (sid, res)
 
     def _send_frame(self, i: int) -> None:
         f = self._frames
