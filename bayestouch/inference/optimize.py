@@ -8,12 +8,15 @@ variables with lo = hi are held fixed. Scales (D,) are in the units of θ.
 
 from __future__ import annotations
 
+import threading
+import time
+
 import numpy as np
-from scipy.optimize import minimize
+from scipy.optimize import OptimizeResult, minimize
 
 from bayestouch.backend import jnp
 
-__all__ = ["fd_hessian", "diag_scale", "scaled_lbfgs", "laplace", "laplace_ball"]
+__all__ = ["fd_hessian", "diag_scale", "scaled_lbfgs", "lockstep_lbfgs", "laplace", "laplace_ball"]
 
 
 def fd_hessian(fn, th, steps, lo, hi) -> np.ndarray:
@@ -99,6 +102,108 @@ def scaled_lbfgs(fn, th, lo, hi, scale, maxiter: int = 3000, rounds: int = 3, re
         if gain < 1e-3:
             break
     return th, best
+
+
+class _Stopped(Exception):
+    """Raised inside a run of :func:`lockstep_lbfgs` once its deadline has passed or another run failed."""
+
+
+def lockstep_lbfgs(fn_batch, starts, bounds, maxiter: int = 1000, deadline: float | None = None) -> list:
+    """L-BFGS-B from each of K starts at once, every step's objective evaluated for all unfinished runs in one call.
+
+    Each run is SciPy's L-BFGS-B (``minimize(method="L-BFGS-B")``) in its own thread; a run that asks for a value
+    waits until every unfinished run has asked, then one ``fn_batch`` call answers them all. Where the batched
+    function gives each row the value it gives that row alone (a row-wise vectorised log-density), every run takes
+    exactly the steps it would take on its own, in the time of the slowest run's calls instead of the sum of all.
+
+    Parameters
+    ----------
+    fn_batch : callable
+        θ (k, D) float → (values (k,), gradients (k, D)); k ≤ K. A non-finite value is the run's objective as it is
+        (L-BFGS-B then backs off).
+    starts : sequence of (D,) float
+        The starting points, in θ's units.
+    bounds : sequence of (low, high)
+        SciPy's bounds for every run (None: unbounded).
+    maxiter : int
+        Each run's iteration limit.
+    deadline : float, optional
+        A ``time.perf_counter()`` value after which no run asks for another value: each returns the best point it
+        has evaluated (``message`` says so).
+
+    Returns
+    -------
+    list of scipy.optimize.OptimizeResult
+        One per start, in order: ``x``, ``fun`` and SciPy's fields (a run stopped by the deadline: ``x``, ``fun``,
+        ``success`` False).
+    """
+    starts = [np.asarray(s, dtype=float) for s in starts]
+    k_runs = len(starts)
+    cond = threading.Condition()
+    asked: dict[int, np.ndarray] = {}
+    answers: dict[int, tuple] = {}
+    state = {"running": k_runs, "failed": None}
+    best: list = [(np.inf, s) for s in starts]
+    results: list = [None] * k_runs
+
+    def run(k: int) -> None:
+        def fg(x):
+            with cond:
+                if state["failed"] is not None or (deadline is not None and time.perf_counter() > deadline):
+                    raise _Stopped
+                asked[k] = np.array(x, dtype=float)
+                cond.notify_all()
+                while k not in answers:
+                    if state["failed"] is not None:
+                        raise _Stopped
+                    cond.wait()
+                v, g = answers.pop(k)
+            if v < best[k][0]:
+                best[k] = (v, np.array(x, dtype=float))
+            return v, g
+
+        try:
+            opts = {"maxiter": maxiter}
+            results[k] = minimize(fg, starts[k], jac=True, method="L-BFGS-B", bounds=bounds, options=opts)
+        except _Stopped:
+            v, x = best[k]
+            results[k] = OptimizeResult(x=x, fun=v, success=False, message="stopped at the deadline")
+        except Exception as e:  # passed on to the caller
+            with cond:
+                state["failed"] = state["failed"] or e
+        finally:
+            with cond:
+                state["running"] -= 1
+                cond.notify_all()
+
+    threads = [threading.Thread(target=run, args=(k,), daemon=True) for k in range(k_runs)]
+    for t in threads:
+        t.start()
+    try:
+        while True:
+            with cond:
+                cond.wait_for(lambda: state["running"] == 0 or len(asked) == state["running"])
+                if state["running"] == 0:
+                    break
+                ks = sorted(asked)
+                x = np.stack([asked.pop(k) for k in ks])
+            v, g = fn_batch(x)
+            v, g = np.asarray(v, dtype=float), np.asarray(g, dtype=float)
+            with cond:
+                for i, k in enumerate(ks):
+                    answers[k] = (float(v[i]), g[i].copy())
+                cond.notify_all()
+    except BaseException as e:
+        with cond:
+            state["failed"] = state["failed"] or e
+            cond.notify_all()
+        raise
+    finally:
+        for t in threads:
+            t.join()
+    if state["failed"] is not None:
+        raise state["failed"]
+    return results
 
 
 def laplace(neg_log_post, theta, lo, hi, scale) -> tuple[np.ndarray, np.ndarray]:

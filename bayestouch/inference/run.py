@@ -27,7 +27,7 @@ from bayestouch.inference import pose_error as pe
 from bayestouch.inference.de import de_search
 from bayestouch.inference.misfit import residual_structure
 from bayestouch.inference.modes import find_modes, gaussian_mixture
-from bayestouch.inference.optimize import fd_hessian
+from bayestouch.inference.optimize import fd_hessian, lockstep_lbfgs
 from bayestouch.inference.parts import occupancy_grid
 from bayestouch.inference.posterior import (
     PosteriorModel,
@@ -453,7 +453,8 @@ def optimum_mode(
         ``logp.parts`` is called on blocks of this many rows (padded), the walkers' count, whose program the
         chain compiles anyway.
     budget_s : float, seconds, optional
-        No further search result is polished once this much time has passed (the first always is).
+        The polishes (run in lockstep, :func:`~bayestouch.inference.optimize.lockstep_lbfgs`) stop once this much
+        time has passed, each at the best point it had reached.
 
     Returns
     -------
@@ -479,19 +480,28 @@ def optimum_mode(
         v, g = grad(x)
         return (float(-v[0]), -g[0]) if np.isfinite(v[0]) else (1e300, np.zeros(d))
 
-    x, fx = None, np.inf
-    began = time.perf_counter()
-    for th in starts:  # each search result polished on the sampled posterior: the robust cost ranks them otherwise
-        if x is not None and budget_s is not None and time.perf_counter() - began > budget_s:
-            break
-        x0 = np.clip(
+    # each search result polished on the sampled posterior (the robust cost ranks them otherwise), all at once: the
+    # runs' steps share the calls of logp.parts, whose rows are computed alike whatever the others hold
+    x0s = [
+        np.clip(
             np.concatenate([th[:11], [_EXTRA_START[k] for k in sampled[11:]]]),
             lo + 1e-9 * (hi - lo),
             hi - 1e-9 * (hi - lo),
         )
-        f0 = fg(x0)[0]
-        res = minimize(fg, x0, jac=True, method="L-BFGS-B", bounds=box, options={"maxiter": 1000})
-        xi, fi = (res.x, float(res.fun)) if res.fun <= f0 else (x0, f0)
+        for th in starts
+    ]
+    v0, _ = grad(np.stack(x0s))
+    f0 = np.where(np.isfinite(v0), -v0, 1e300)
+    deadline = None if budget_s is None else time.perf_counter() + budget_s
+
+    def fg_batch(xs):
+        v, g = grad(xs)
+        ok = np.isfinite(v)
+        return np.where(ok, -v, 1e300), np.where(ok[:, None], -g, 0.0)
+
+    x, fx = None, np.inf
+    for x0, f0_, res in zip(x0s, f0, lockstep_lbfgs(fg_batch, x0s, box, 1000, deadline), strict=True):
+        xi, fi = (res.x, float(res.fun)) if res.fun <= f0_ else (x0, float(f0_))
         if fi < fx:
             x, fx = xi, fi
     hess = fd_hessian(fg, x, np.full(d, 1e-6), np.where(angle, -np.inf, lo), np.where(angle, np.inf, hi))
