@@ -469,16 +469,20 @@ def optimum_mode(
     angle = np.isin(np.arange(d), cm.ANGLE_COLUMNS)  # periodic: no bounds
     box = [(None, None) if angle[j] else (lo[j], hi[j]) for j in range(d)]
 
-    def grad(x):
-        x = np.atleast_2d(x)
-        rows = -(-len(x) // batch) * batch
-        lp, ll, glp, gll = logp.parts(np.concatenate([x, np.repeat(x[-1:], rows - len(x), axis=0)]))
-        v = np.asarray(lp, float) + np.asarray(ll, float)
-        return v[: len(x)], (np.asarray(glp, float) + np.asarray(gll, float))[: len(x)]
+    def fg_batch(xs):
+        """The negative log-posterior (k,) and its gradient (k, D) at the rows of ``xs`` (k, D) (1e300 and zeros
+        where it is not finite), through ``logp.parts`` on blocks of ``batch`` rows (padded with the last row)."""
+        xs = np.atleast_2d(xs)
+        rows = -(-len(xs) // batch) * batch
+        lp, ll, glp, gll = logp.parts(np.concatenate([xs, np.repeat(xs[-1:], rows - len(xs), axis=0)]))
+        v = (np.asarray(lp, float) + np.asarray(ll, float))[: len(xs)]
+        g = (np.asarray(glp, float) + np.asarray(gll, float))[: len(xs)]
+        ok = np.isfinite(v)
+        return np.where(ok, -v, 1e300), np.where(ok[:, None], -g, 0.0)
 
     def fg(x):
-        v, g = grad(x)
-        return (float(-v[0]), -g[0]) if np.isfinite(v[0]) else (1e300, np.zeros(d))
+        v, g = fg_batch(x)
+        return float(v[0]), g[0]
 
     # each search result polished on the sampled posterior (the robust cost ranks them otherwise), all at once: the
     # runs' steps share the calls of logp.parts, whose rows are computed alike whatever the others hold
@@ -490,14 +494,8 @@ def optimum_mode(
         )
         for th in starts
     ]
-    v0, _ = grad(np.stack(x0s))
-    f0 = np.where(np.isfinite(v0), -v0, 1e300)
+    f0, _ = fg_batch(np.stack(x0s))
     deadline = None if budget_s is None else time.perf_counter() + budget_s
-
-    def fg_batch(xs):
-        v, g = grad(xs)
-        ok = np.isfinite(v)
-        return np.where(ok, -v, 1e300), np.where(ok[:, None], -g, 0.0)
 
     x, fx = None, np.inf
     for x0, f0_, res in zip(x0s, f0, lockstep_lbfgs(fg_batch, x0s, box, 1000, deadline), strict=True):
