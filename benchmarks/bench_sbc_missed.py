@@ -34,9 +34,9 @@ import numpy as np
 from benchmarks.bench_sbc_users import (
     DRAWS,
     RESULTS,
-    SIZE_PRIOR_M,
     make_sbc_set,
     posterior_climb,
+    sbc_fit,
     truth_theta,
 )
 from benchmarks.bench_user_sets import wilson_interval
@@ -80,22 +80,13 @@ def audit_set(seed: int) -> dict:
     import arviz as az
 
     from bayestouch.inference import contact as cm
-    from bayestouch.inference.run import DEFAULT_BUDGET_S, run_contact_fit
 
     s = make_sbc_set(seed)
     log_post, climb = posterior_climb(s)
     truth = np.asarray(cm.wrap_angles(truth_theta(s)), float)
     local = climb(truth)
     with tempfile.TemporaryDirectory(prefix="bt-sbc-audit-") as tmp:
-        summary = run_contact_fit(
-            s["points"],
-            Path(tmp),
-            seed=seed,
-            progress=False,
-            free=s["free"],
-            size_prior=SIZE_PRIOR_M,
-            budget_s=DEFAULT_BUDGET_S,
-        )
+        summary = sbc_fit(s, Path(tmp), seed)
         x = _sampled(az.from_netcdf(Path(tmp) / "posterior.nc").posterior)
     x = x[np.linspace(0, len(x) - 1, min(DRAWS_SCANNED, len(x))).astype(int)]
     lp = np.array([log_post(t) for t in x])

@@ -61,6 +61,7 @@ __all__ = [
     "truth_theta",
     "local_mode_gap",
     "posterior_climb",
+    "sbc_fit",
     "NOISE_BANDS",
     "noise_bands",
     "thinned_draws",
@@ -345,27 +346,34 @@ def ecdf_outside(ranks, draws: int = DRAWS, prob: float = 0.95) -> np.ndarray:
     return np.any((diff < lo[:, None]) | (diff > hi[:, None]), axis=0)
 
 
+def sbc_fit(s: dict, out: Path, seed: int, budget_s: float | None = None) -> dict:
+    """Fit data set ``s`` (:func:`make_sbc_set`) into run folder ``out`` as every SBC fit is made: the default
+    contact fit from the prior with its free-space points, the size prior :data:`SIZE_PRIOR_M` and the default
+    budget (or ``budget_s`` seconds); its summary."""
+    from bayestouch.inference.run import DEFAULT_BUDGET_S, run_contact_fit
+
+    return run_contact_fit(
+        s["points"],
+        out,
+        seed=seed,
+        progress=False,
+        free=s["free"],
+        size_prior=SIZE_PRIOR_M,
+        budget_s=DEFAULT_BUDGET_S if budget_s is None else budget_s,
+    )
+
+
 def fit_sbc_set(seed: int, budget_s: float | None = None) -> dict:
     """Generate data set ``seed``, fit it with ``run_contact_fit`` (defaults; the size prior of
     :data:`SIZE_PRIOR_M`), and return its CSV row: truths, ranks (nominal and the negative controls), design and
     diagnostics."""
     import arviz as az
 
-    from bayestouch.inference.run import DEFAULT_BUDGET_S, run_contact_fit
-
     s = make_sbc_set(seed)
     truth = truth_invariants(s)
     with tempfile.TemporaryDirectory(prefix="bt-sbc-") as tmp:
         t0 = time.perf_counter()
-        summary = run_contact_fit(
-            s["points"],
-            Path(tmp),
-            seed=seed,
-            progress=False,
-            free=s["free"],
-            size_prior=SIZE_PRIOR_M,
-            budget_s=DEFAULT_BUDGET_S if budget_s is None else budget_s,
-        )
+        summary = sbc_fit(s, Path(tmp), seed, budget_s)
         seconds = time.perf_counter() - t0
         post = az.from_netcdf(Path(tmp) / "posterior.nc").posterior
         values = posterior_invariants(post)

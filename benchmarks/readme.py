@@ -492,6 +492,21 @@ def _texture_mismatch(d: dict) -> tuple[str, str, str]:
     )
 
 
+def _sbc_missed(d: dict) -> tuple[str, str, str]:
+    lo, hi = d["missed_wilson95"]
+    gap = d["missed_gap_nats_median"]
+    return (
+        f"The SBC's misses at low noise: its {d['sets']} sets with the truth beyond every draw of a shape quantity at "
+        f"σ below {_pct(d['noise_ratio_max'], 0)} of the smallest semi-axis, re-fitted; the truth's local mode "
+        "against the fit's best draw, both climbed on the fit's log-posterior",
+        f"sampler missed a mode more than {d['missed_nats']:.0f} nats above its own in {d['missed']}/{d['sets']} "
+        f"[{lo:.2f}, {hi:.2f}]"
+        + (f" (median {gap:.0f} nats)" if gap is not None else "")
+        + f"; {d['missed_flagged']} of them flagged, {d['missed_without_any_warning']} with no warning at all",
+        "`bench_sbc_missed` (`benchmarks/results/sbc_missed.json`, `docs/sbc.md`)",
+    )
+
+
 #: the table's rows, in order: each ``(result file, render)``; ``render`` turns the file's JSON into
 #: ``(what, figure, benchmark)``
 ROWS: tuple[tuple[str, Callable[[dict], tuple[str, str, str]]], ...] = (
@@ -501,6 +516,7 @@ ROWS: tuple[tuple[str, Callable[[dict], tuple[str, str, str]]], ...] = (
     ("user_sets.json", _user_sets),
     ("user_cli.json", _user_cli),
     ("sbc_users.json", _sbc_users),
+    ("sbc_missed.json", _sbc_missed),
     ("objects.json", _objects),
     ("pose.json", _pose),
     ("pose_fit.json", _pose_fit),

@@ -39,12 +39,15 @@ from bayestouch.inference.posterior import (
 )
 from bayestouch.inference.sampler import IndependenceMixture, prune_stuck_walkers, sample
 from bayestouch.inference.smc import tempered_smc
+from bayestouch.inference.trimmed import trimmed_starts
 from bayestouch.io.contacts import check_normals_outward
 from bayestouch.io.files import atomic_path, write_json
 from bayestouch.io.occupancy import OCCUPANCY_FILE, write_occupancy
 from bayestouch.io.runfolder import fingerprint, prepare_run_folder, release_run_folder
 
 __all__ = [
+    "contaminated_share",
+    "TRIM_TRIGGER",
     "initial_theta",
     "run_contact_fit",
     "check_walkers",
@@ -127,6 +130,12 @@ OPTIMUM_STARTS = 8
 MISSED_MODE_NATS = 5.0
 #: share of the walkers started in, and of the independence mixture's components centred on, such a mode
 MISSED_MODE_SHARE = 0.5
+#: the optimum check also starts from fits to the least displaced half of the contacts
+#: (:func:`bayestouch.inference.trimmed.trimmed_starts`) when the SMC's particles put at least this mean share of
+#: the contacts among the outliers (w_in + w_out), with this many evolutionary searches per trimmed fit
+#: (``benchmarks/bench_sbc_missed.py``: heavily contaminated low-noise sets whose dominant mode the SMC missed)
+TRIM_TRIGGER = 0.2
+TRIM_SEARCHES = 4
 
 #: summary names (natural units) of the 11 sampled contact-level parameters
 NATURAL_NAMES = ("x_G", "y_G", "z_G", "a", "b", "c", "xi", "psi", "zeta", "n", "sigma")
@@ -175,6 +184,14 @@ def sampling_budget(budget_s: float | None, output_s: float) -> float | None:
 def initial_theta(points, seed: int, priors: cm.PriorParams, starts: int = 3) -> np.ndarray:
     """A starting point that respects the symmetries and resists outliers: the best of :func:`candidate_thetas`."""
     return candidate_thetas(points, seed, priors, starts)[0]
+
+
+def contaminated_share(particles, sampled: tuple) -> float:
+    """Mean over ``particles (N, D)`` of the outlier fractions w_in + w_out (0 when ``sampled`` has none)."""
+    cols = [i for i, name in enumerate(sampled) if name in ("w_in", "w_out")]
+    if not cols:
+        return 0.0
+    return float(np.mean(np.sum(np.asarray(particles, float)[:, cols], axis=1)))
 
 
 def candidate_thetas(points, seed: int, priors: cm.PriorParams, starts: int = 3) -> list[np.ndarray]:
@@ -427,6 +444,7 @@ def optimum_mode(
     theta0=None,
     batch: int = 32,
     budget_s: float | None = None,
+    extra_starts=(),
 ) -> dict:
     """The best of :data:`OPTIMUM_STARTS` evolutionary searches (:func:`candidate_thetas`, and ``theta0``), each
     polished by L-BFGS on the sampled log-posterior, and its Laplace covariance: the check that a tempered SMC did
@@ -452,6 +470,8 @@ def optimum_mode(
     batch : int
         ``logp.parts`` is called on blocks of this many rows (padded), the walkers' count, whose program the
         chain compiles anyway.
+    extra_starts : sequence of (≥ 11,) float
+        More starts polished alongside the searches' (:func:`bayestouch.inference.trimmed.trimmed_starts`).
     budget_s : float, seconds, optional
         The polishes (run in lockstep, :func:`~bayestouch.inference.optimize.lockstep_lbfgs`) stop once this much
         time has passed, each at the best point it had reached.
@@ -466,6 +486,7 @@ def optimum_mode(
     d = lo.size
     starts = [np.asarray(theta0, float)] if theta0 is not None else []
     starts += candidate_thetas(points, seed + 1 if theta0 is not None else seed, priors, OPTIMUM_STARTS)
+    starts += [np.asarray(t, float) for t in extra_starts]
     angle = np.isin(np.arange(d), cm.ANGLE_COLUMNS)  # periodic: no bounds
     box = [(None, None) if angle[j] else (lo[j], hi[j]) for j in range(d)]
 
@@ -1115,10 +1136,18 @@ def run_contact_fit(
         smc = smc_stage(logp, bounds, seed, out / "smc.npz", progress=progress, budget_s=share)
         post = np.asarray(smc["log_lik"]) + np.asarray(_prior_jit(jnp.asarray(smc["particles"]), bounds))
         left = None if budget_s is None else max(OPTIMUM_BUDGET_SHARE * budget_s - (time.perf_counter() - t0), 0.0)
-        opt = optimum_mode(points, logp, bounds, priors, seed, sampled, theta0, batch=walkers, budget_s=left)
+        trimmed = []
+        if contaminated_share(smc["particles"], sampled) >= TRIM_TRIGGER:
+            trimmed = trimmed_starts(
+                points, lambda sub, step: candidate_thetas(sub, seed + 101 + step, priors, TRIM_SEARCHES)[0]
+            )
+        opt = optimum_mode(
+            points, logp, bounds, priors, seed, sampled, theta0, batch=walkers, budget_s=left, extra_starts=trimmed
+        )
         best_particle = float(np.max(post))
         missed = opt["log_post"] - best_particle > MISSED_MODE_NATS
         smc["optimum_above_particles"] = opt["log_post"] - best_particle
+        smc["trimmed_starts"] = len(trimmed)
         # one compact cloud: the particles as the aliases nearest the best particle's (or the missed optimum's) frame
         aligned = align_particles(smc["particles"], post, opt["theta"] if missed else None)
         positive = [i for i, name in enumerate(sampled) if name in POSITIVE_NEAR_ZERO]
@@ -1161,6 +1190,7 @@ def run_contact_fit(
             # MISSED_MODE_NATS its mode was added to the start and the proposals (optimum_mode)
             "optimum_above_particles": float(smc["optimum_above_particles"]),
             "missed_mode_added": bool(smc["optimum_above_particles"] > MISSED_MODE_NATS),
+            "trimmed_starts": int(smc["trimmed_starts"]),
         }
     model = model._replace(info=info)
     summary = write_posterior(out, ch, model, seed=seed, t0=t0)
