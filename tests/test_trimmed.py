@@ -69,3 +69,18 @@ def test_too_few_contacts_give_no_starts_and_bad_arguments_are_refused():
         tr.trimmed_starts(pts, _sphere_fit, keep=0.0)
     with pytest.raises(ValueError, match="points"):
         tr.local_plane_scores(pts[:5])
+
+
+def test_the_trigger_reads_the_outlier_fractions_of_the_particles():
+    from bayestouch.inference.contact import param_names
+    from bayestouch.inference.run import TRIM_TRIGGER, contaminated_share
+
+    names = param_names(noise="outlier")
+    rng = np.random.default_rng(3)
+    particles = rng.normal(size=(500, len(names)))
+    w = [names.index("w_in"), names.index("w_out")]
+    particles[:, w] = rng.uniform(0.0, 0.2, (500, 2))  # mean sum 0.2
+    assert abs(contaminated_share(particles, names) - 0.2) < 0.01
+    particles[:, w] *= 0.5
+    assert contaminated_share(particles, names) < TRIM_TRIGGER
+    assert contaminated_share(particles[:, :11], param_names()) == 0.0  # no outlier model, no trimmed starts
