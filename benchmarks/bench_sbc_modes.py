@@ -52,16 +52,13 @@ def compare_modes(seed: int) -> dict:
     import arviz as az
 
     from bayestouch.inference import contact as cm
-    from bayestouch.inference.run import run_contact_fit
 
     s = su.make_sbc_set(seed)
     log_post, polish = su.posterior_climb(s)
     truth = np.asarray(cm.wrap_angles(su.truth_theta(s)), float)
     truth_mode = polish(truth)
     with tempfile.TemporaryDirectory(prefix="bt-sbc-modes-") as tmp:
-        summary = run_contact_fit(
-            s["points"], Path(tmp), seed=seed, progress=False, free=s["free"], size_prior=su.SIZE_PRIOR_M
-        )
+        summary = su.sbc_fit(s, Path(tmp), seed)
         idata = az.from_netcdf(Path(tmp) / "posterior.nc")
         post, lp = idata.posterior, np.asarray(idata.sample_stats["lp"].values).ravel()
         i = int(np.argmax(lp))
