@@ -347,9 +347,10 @@ def principal_frame(th, hom) -> PrincipalFrame:
     v = t / (aq * a[:, :, None])  # |q_j|^(n−1)/a_j: ∂G/∂y_j = (G/S) sign(q_j) v_j
     ss = jnp.sum(v * v, axis=1)
     gi = jnp.exp(-jnp.log(S) / n)  # 1/G
-    amax = jnp.max(a, axis=1)[:, None]
-    # (G − 1)/|∇G| with |∇G| = (G/S)√ss floored at 1/max(a): written with one division
-    d = (1.0 - gi) * S / jnp.maximum(jnp.sqrt(ss), S * gi / amax)
+    rmax = jnp.sqrt(jnp.sum(a * a, axis=1))[:, None]
+    # (G − 1)/|∇G| with |∇G| = (G/S)√ss floored at 1/|a| (first_order_distance: never active off the centre),
+    # written with one division
+    d = (1.0 - gi) * S / jnp.maximum(jnp.sqrt(ss), S * gi / rmax)
     return PrincipalFrame(d, q, v, ss, R, a)
 
 
@@ -485,9 +486,9 @@ def _log_lik_mixed(th, data: _Data, noise: str, nu: float):
     log_g = (Lm[:, 0] + jnp.log(Sp)) / n32[:, 0]  # log G
     one_m_gi = -jnp.expm1(-log_g)  # 1 − 1/G without cancellation
     u = tp / (Sp[:, None] * aq * a.astype(_F32)[:, :, None])  # |∂G/∂y_j| / G
-    amax = jnp.max(a, axis=1).astype(_F32)[:, None]
-    # (G − 1)/|∇G| = (1 − 1/G)/(|∇G|/G), |∇G| floored at 1/max(a) as in _geometry
-    d = one_m_gi / jnp.maximum(jnp.sqrt(jnp.sum(u * u, axis=1)), (1.0 - one_m_gi) / amax)
+    rmax = jnp.sqrt(jnp.sum(a * a, axis=1)).astype(_F32)[:, None]
+    # (G − 1)/|∇G| = (1 − 1/G)/(|∇G|/G), |∇G| floored at 1/|a| as in _geometry
+    d = one_m_gi / jnp.maximum(jnp.sqrt(jnp.sum(u * u, axis=1)), (1.0 - one_m_gi) / rmax)
     # per-walker constants stay float64, added once per contact after the sum (a float32 −log σ per point would
     # bias the sum by ~M · 6e-8 · |log σ|)
     z = d * jnp.exp(-ls).astype(_F32)[:, None]
