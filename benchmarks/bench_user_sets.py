@@ -509,7 +509,7 @@ def shape_metrics(estimate, volume: float, truth: ne.NEllipsoid, seed: int = 0) 
     }
 
 
-def fit_bayestouch_default(points, seed: int = 0, steps: int | None = None, free=None) -> dict:
+def fit_bayestouch_default(points, seed: int = 0, steps: int | None = None, free=None, size_prior=None) -> dict:
     """bayestouch's default contact-level fit (:func:`bayestouch.inference.run.run_contact_fit`) of ``points``
     (M, 3) m into a temporary run folder, timed.
 
@@ -521,6 +521,8 @@ def fit_bayestouch_default(points, seed: int = 0, steps: int | None = None, free
         Largest number of emcee steps (default: run_contact_fit's own); every other setting is its default.
     free : (K, 3) float, metres, optional
         Free-space finger positions (what a contact CSV's ``contact = 0`` rows carry).
+    size_prior : (2,) float, metres, optional
+        The size prior a user states (``--size-prior MIN:MAX``); default ``models/priors.toml``'s.
 
     Returns
     -------
@@ -534,7 +536,13 @@ def fit_bayestouch_default(points, seed: int = 0, steps: int | None = None, free
     with tempfile.TemporaryDirectory(prefix="bt-user-") as tmp:
         t0 = time.perf_counter()
         summary = run_contact_fit(
-            np.asarray(points, dtype=np.float64), Path(tmp), seed=seed, progress=False, free=free, **kwargs
+            np.asarray(points, dtype=np.float64),
+            Path(tmp),
+            seed=seed,
+            progress=False,
+            free=free,
+            size_prior=size_prior,
+            **kwargs,
         )
         seconds = time.perf_counter() - t0
     return {"summary": summary, "seconds": seconds}
@@ -605,7 +613,7 @@ def mean_shape(summary: dict) -> ne.NEllipsoid:
     return ne.from_vector(jnp.asarray([summary["derived"]["mean_shape"][k] for k in ne.PARAM_NAMES]))
 
 
-def fit_set(d: UserSet, method: str, index: int = 0, steps: int | None = None) -> dict:
+def fit_set(d: UserSet, method: str, index: int = 0, steps: int | None = None, size_prior=None) -> dict:
     """Fit one set with one method: its CSV row.
 
     Parameters
@@ -616,6 +624,8 @@ def fit_set(d: UserSet, method: str, index: int = 0, steps: int | None = None) -
         Position of the set in the run (seeds the Chamfer samples).
     steps : int, optional
         bayestouch's largest number of steps (default: run_contact_fit's own).
+    size_prior : (2,) float, metres, optional
+        bayestouch's size prior (:func:`fit_bayestouch_default`).
 
     Returns
     -------
@@ -651,7 +661,7 @@ def fit_set(d: UserSet, method: str, index: int = 0, steps: int | None = None) -
     failed = dict.fromkeys(("volume_est_m3", "volume_error", "chamfer_m", "chamfer_se_m", "chamfer_ratio"), nan)
     try:
         if method == "bayestouch":
-            fit = fit_bayestouch_default(d.points, seed=d.seed, steps=steps, free=d.free_space)
+            fit = fit_bayestouch_default(d.points, seed=d.seed, steps=steps, free=d.free_space, size_prior=size_prior)
             s = fit["summary"]
             row["seconds"] = fit["seconds"]
             row.update(shape_metrics(mean_shape(s), s["derived"]["volume_m3"]["mean"], d.truth, seed=index))
@@ -801,24 +811,32 @@ def markdown_table(summary: dict, note: str = "") -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_results(rows: list[dict], out, count: int, seed: int, steps) -> dict:
-    """Summarise the per-set ``rows`` (:func:`summarise`) and, with a folder ``out``, write ``user_sets.csv``,
-    ``user_sets.json`` and ``user_sets.md`` there. Returns the summary."""
+def write_results(
+    rows: list[dict], out, count: int, seed: int, steps, stem: str = "user_sets", size_prior=None
+) -> dict:
+    """Summarise the per-set ``rows`` (:func:`summarise`) and, with a folder ``out``, write ``{stem}.csv``,
+    ``{stem}.json`` and ``{stem}.md`` there (``size_prior`` (2,) metres, bayestouch's stated size prior, noted;
+    None: the default). Returns the summary."""
     from bayestouch.io.files import write_csv_rows, write_json, write_text
 
     summary = summarise(rows, seed)
     note = (
         f"{count} sets (seed {seed}), bayestouch steps: {steps if steps is not None else 'run_contact_fit default'}; "
         "a failed fit counts as an infinite error."
+        + (
+            ""
+            if size_prior is None
+            else f" bayestouch's size prior stated: objects {size_prior[0]:g}–{size_prior[1]:g} m."
+        )
     )
     if out is not None:
         out = Path(out)
-        write_csv_rows(out / "user_sets.csv", rows)
-        write_json(
-            out / "user_sets.json",
-            {"sets": count, "seed": seed, "steps": steps, "bootstrap_resamples": BOOTSTRAP_RESAMPLES, **summary},
-        )
-        write_text(out / "user_sets.md", markdown_table(summary, note))
+        write_csv_rows(out / f"{stem}.csv", rows)
+        meta = {"sets": count, "seed": seed, "steps": steps, "bootstrap_resamples": BOOTSTRAP_RESAMPLES}
+        if size_prior is not None:
+            meta["size_prior_m"] = [float(v) for v in size_prior]
+        write_json(out / f"{stem}.json", {**meta, **summary})
+        write_text(out / f"{stem}.md", markdown_table(summary, note))
     return summary
 
 
@@ -828,6 +846,8 @@ def bench_user_sets(
     methods=METHODS,
     steps: int | None = None,
     out: Path | None = RESULTS,
+    size_prior=None,
+    stem: str = "user_sets",
 ) -> list[dict]:
     """Fit every set with each method; write the per-set CSV, the summary JSON and a Markdown table.
 
@@ -841,7 +861,11 @@ def bench_user_sets(
     steps : int, optional
         bayestouch's largest number of steps (default ``$BAYESTOUCH_USER_STEPS`` or run_contact_fit's own).
     out : Path or None
-        Folder of ``user_sets.csv``, ``user_sets.json`` and ``user_sets.md``; None: nothing written.
+        Folder of ``{stem}.csv``, ``{stem}.json`` and ``{stem}.md``; None: nothing written.
+    size_prior : (2,) float, metres, optional
+        bayestouch's stated size prior ``(min, max)`` across (default: ``models/priors.toml``'s).
+    stem : str
+        Name of the output files.
 
     Returns
     -------
@@ -874,16 +898,16 @@ def bench_user_sets(
         for i in mine:
             for method in methods:
                 bar.set_postfix_str(f"set {i} {method}")
-                rows.append(fit_set(sets[i], method, i, steps))
+                rows.append(fit_set(sets[i], method, i, steps, size_prior))
                 bar.update()
     if shard:
         if out is not None:
-            write_json(Path(out) / f"user_sets.shard{k_of[0]}of{k_of[1]}.json", rows)
-        shards = sorted(Path(out).glob(f"user_sets.shard*of{k_of[1]}.json")) if out is not None else []
+            write_json(Path(out) / f"{stem}.shard{k_of[0]}of{k_of[1]}.json", rows)
+        shards = sorted(Path(out).glob(f"{stem}.shard*of{k_of[1]}.json")) if out is not None else []
         if len(shards) < k_of[1]:
             return []  # the last shard to finish writes the summary
         rows = sorted((r for f in shards for r in json.loads(f.read_text())), key=lambda r: (r["set"], r["method"]))
-    summary = write_results(rows, out, count, seed, steps)
+    summary = write_results(rows, out, count, seed, steps, stem, size_prior)
 
     results = []
     for m, s in summary.items():

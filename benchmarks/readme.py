@@ -100,6 +100,24 @@ def _user_sets(d: dict) -> tuple[str, str, str]:
     )
 
 
+def _user_sets_sized(d: dict) -> tuple[str, str, str]:
+    b = d["bayestouch"]
+    vc, ac = b["volume_coverage_90"], b["axis_interval_coverage_90"]
+    vci = [100 * c for c in b["volume_error"]["ci95"]]
+    lo, hi = d["size_prior_m"]
+    return (
+        f"The same users'-like sets with the size prior stated (`--size-prior {lo:g}:{hi:g}`, objects "
+        f"{100 * lo:.0f}–{100 * hi:.0f} cm across; the default is 1–30 cm)",
+        f"median volume error {_pct(b['volume_error']['median'])} {_ci(vci, 1)} %, Chamfer "
+        f"{b['chamfer_ratio']['median']:.3f} of the mean semi-axis {_ci(b['chamfer_ratio']['ci95'], 3)}; 90 % "
+        f"volume intervals hold the truth in {vc['k']}/{vc['n']} {_ci(vc['wilson95'])}, semi-axis intervals "
+        f"{ac['k']}/{ac['n']} {_ci(ac['wilson95'])}; volume z-scores mean {b['volume_z']['mean']:.2f}, sd "
+        f"{b['volume_z']['sd']:.2f}; {b['off_by_more_than_3_sd']}/{b['sets']} off by more than 3 sds; "
+        f"{b['converged']}/{b['sets']} converged. Median {b['seconds']['median']:.0f} s a set",
+        "`bench_user_sets_sized` (`benchmarks/results/user_sets_sized.json`)",
+    )
+
+
 def _user_cli(d: dict) -> tuple[str, str, str]:
     w = d["wall_s"]
     return (
@@ -514,6 +532,7 @@ ROWS: tuple[tuple[str, Callable[[dict], tuple[str, str, str]]], ...] = (
     ("bench_raw.json", _raw),
     ("mismatch.json", _mismatch),
     ("user_sets.json", _user_sets),
+    ("user_sets_sized.json", _user_sets_sized),
     ("user_cli.json", _user_cli),
     ("sbc_users.json", _sbc_users),
     ("sbc_missed.json", _sbc_missed),

@@ -250,6 +250,30 @@ def test_summary_counts_failures_and_coverage():
     assert "| gpis | 2 | 1 |" in table and "3/4 = 0.75" in table
 
 
+def test_results_of_a_stated_size_prior_go_to_their_own_files(tmp_path):
+    """write_results with a stem and a size prior: its own three files, the prior recorded; user_sets.* untouched."""
+    import json
+
+    bt = {f"bt_axis{j}_covered": True for j in range(3)} | {
+        "bt_volume_covered": True,
+        "bt_axes_covered": True,
+        "bt_converged": True,
+        "bt_at_prior_box": False,
+        "bt_volume_z": 0.1,
+        "bt_max_r_hat": 1.004,
+        "bt_min_ess_bulk": 900.0,
+        "bt_steps": 800,
+    }
+    rows = [_row("bayestouch", 0.02 * (i + 1), 0.03, 12.0, **bt) for i in range(3)]
+    us.write_results(rows, tmp_path, 3, 0, None, stem="user_sets_sized", size_prior=(0.01, 0.1))
+    assert sorted(f.name for f in tmp_path.iterdir()) == [f"user_sets_sized.{e}" for e in ("csv", "json", "md")]
+    d = json.loads((tmp_path / "user_sets_sized.json").read_text())
+    assert d["size_prior_m"] == [0.01, 0.1] and d["bayestouch"]["volume_error"]["median"] == pytest.approx(0.04)
+    assert "objects 0.01–0.1 m" in (tmp_path / "user_sets_sized.md").read_text()
+    us.write_results(rows, tmp_path / "default", 3, 0, None)
+    assert "size_prior_m" not in json.loads((tmp_path / "default" / "user_sets.json").read_text())
+
+
 def test_gpis_exterior_cage_closes_the_surface_on_sparse_strokes():
     assert len(gpis.exterior_cage([0, 0, 0], [1, 1, 1], 6)) == 6 * 36 - 12 * 6 + 8
     d = us.make_user_set(0)
