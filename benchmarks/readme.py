@@ -78,20 +78,34 @@ def _mismatch(d: dict) -> tuple[str, str, str]:
     )
 
 
+def _user_sets_errors(b: dict) -> tuple[str, str]:
+    """'median volume error … %' and 'Chamfer …' of a ``user_sets*.json`` method entry, with their intervals."""
+    vci = [100 * c for c in b["volume_error"]["ci95"]]
+    return (
+        f"median volume error {_pct(b['volume_error']['median'])} {_ci(vci, 1)} %",
+        f"Chamfer {b['chamfer_ratio']['median']:.3f} of the mean semi-axis {_ci(b['chamfer_ratio']['ci95'], 3)}",
+    )
+
+
+def _user_sets_coverage(b: dict) -> str:
+    """The volume and semi-axis interval coverage of bayestouch's ``user_sets*.json`` entry."""
+    vc, ac = b["volume_coverage_90"], b["axis_interval_coverage_90"]
+    return (
+        f"90 % volume intervals hold the truth in {vc['k']}/{vc['n']} {_ci(vc['wilson95'])}, semi-axis intervals "
+        f"{ac['k']}/{ac['n']} {_ci(ac['wilson95'])}"
+    )
+
+
 def _user_sets(d: dict) -> tuple[str, str, str]:
     b, s, g = d["bayestouch"], d["sage"], d["gpis"]
-    vc, ac = b["volume_coverage_90"], b["axis_interval_coverage_90"]
-    vci = [100 * c for c in b["volume_error"]["ci95"]]
+    vol, chamfer = _user_sets_errors(b)
     return (
         f"Users'-like touch data ({d['sets']} sets: n 2–6, axes 12–40 mm, random rotations, 61–100 contacts on 4–6 "
         "strokes within caps of 100–180°, 0–15 % contacts displaced 3–10 mm in or out, free-space positions; "
         "default fit, 60 s budget)",
-        f"median volume error {_pct(b['volume_error']['median'])} {_ci(vci, 1)}"
-        f" % (95 % bootstrap CI), Chamfer {b['chamfer_ratio']['median']:.3f} of the mean semi-axis "
-        f"{_ci(b['chamfer_ratio']['ci95'], 3)}; sage-superquadric {_pct(s['volume_error']['median'], 0)}, "
+        f"{vol} (95 % bootstrap CI), {chamfer}; sage-superquadric {_pct(s['volume_error']['median'], 0)}, "
         f"{s['chamfer_ratio']['median']:.2f}; thin-plate GPIS {_pct(g['volume_error']['median'], 0)}, "
-        f"{g['chamfer_ratio']['median']:.2f}. 90 % volume intervals hold the truth in {vc['k']}/{vc['n']} "
-        f"{_ci(vc['wilson95'])}, semi-axis intervals {ac['k']}/{ac['n']} {_ci(ac['wilson95'])}; "
+        f"{g['chamfer_ratio']['median']:.2f}. {_user_sets_coverage(b)}; "
         f"{b['off_by_more_than_3_sd']}/{b['sets']} off by more than 3 sds; {b['converged']}/{b['sets']} converged "
         f"(the others say so). Median {b['seconds']['median']:.0f} s a set, 95th percentile "
         f"{b['seconds']['p95']:.0f} s (sage {s['seconds']['median']:.2f} s, GPIS {g['seconds']['median']:.2f} s in the "
@@ -102,16 +116,12 @@ def _user_sets(d: dict) -> tuple[str, str, str]:
 
 def _user_sets_sized(d: dict) -> tuple[str, str, str]:
     b = d["bayestouch"]
-    vc, ac = b["volume_coverage_90"], b["axis_interval_coverage_90"]
-    vci = [100 * c for c in b["volume_error"]["ci95"]]
     lo, hi = d["size_prior_m"]
     return (
         f"The same users'-like sets with the size prior stated (`--size-prior {lo:g}:{hi:g}`, objects "
         f"{100 * lo:.0f}–{100 * hi:.0f} cm across; the default is 1–30 cm)",
-        f"median volume error {_pct(b['volume_error']['median'])} {_ci(vci, 1)} %, Chamfer "
-        f"{b['chamfer_ratio']['median']:.3f} of the mean semi-axis {_ci(b['chamfer_ratio']['ci95'], 3)}; 90 % "
-        f"volume intervals hold the truth in {vc['k']}/{vc['n']} {_ci(vc['wilson95'])}, semi-axis intervals "
-        f"{ac['k']}/{ac['n']} {_ci(ac['wilson95'])}; volume z-scores mean {b['volume_z']['mean']:.2f}, sd "
+        ", ".join(_user_sets_errors(b)) + f"; {_user_sets_coverage(b)}; volume z-scores mean "
+        f"{b['volume_z']['mean']:.2f}, sd "
         f"{b['volume_z']['sd']:.2f}; {b['off_by_more_than_3_sd']}/{b['sets']} off by more than 3 sds; "
         f"{b['converged']}/{b['sets']} converged. Median {b['seconds']['median']:.0f} s a set",
         "`bench_user_sets_sized` (`benchmarks/results/user_sets_sized.json`)",
