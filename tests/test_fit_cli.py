@@ -318,4 +318,8 @@ def test_a_chain_too_short_for_diagnostics_reports_them_as_unknown(points_csv, t
     assert main(["fit", str(points_csv), "--out", str(out), "--steps", "5", "--init", "optimize", "--quiet"]) == 0
     printed = capsys.readouterr().out
     assert "NOT converged" in printed and "n/a" in printed
-    assert json.loads((out / "summary.json").read_text())["diagnostics"]["converged"] is False
+    d = json.loads((out / "summary.json").read_text())["diagnostics"]
+    assert d["converged"] is False
+    # and why: the reasons in summary.json, printed one per line under NOT CONVERGED
+    assert d["not_converged_because"] and "step limit" in d["not_converged_because"][-1]
+    assert "NOT CONVERGED" in printed and all(f"  - {w}" in printed for w in d["not_converged_because"])

@@ -149,6 +149,35 @@ def test_convergence_claimed_for_long_chain_only(known, tmp_path):
     assert not convergence(split_gelman_rubin(per_walker), effective_sample_size(per_walker), short)["converged"]
 
 
+def _chain_of(steps: int, tau: float, budget: bool = False) -> Chain:
+    kept = np.zeros((steps, 4, 2))
+    return Chain(kept, np.zeros((steps, 4)), steps, 0, tau, 0.3, budget, 1.0, steps)
+
+
+def test_a_chain_that_fails_convergence_says_which_check_and_how_much_longer():
+    names = ["a", "b", "volume"]
+    ok_r, ok_e = [1.001, 1.002, 1.003], [5000.0, 4000.0, 3000.0]
+    # a converged chain (1000 kept steps > 50 τ of 10) has no reasons
+    d = convergence(ok_r, ok_e, _chain_of(1000, 10.0), names=names)
+    assert d["converged"] and d["not_converged_because"] == []
+    # each failed check is named, the worst quantity first, and nothing that passed
+    d = convergence([1.001, 1.08, 1.02], [5000.0, 120.0, 3000.0], _chain_of(1000, 10.0), names=names)
+    why = d["not_converged_because"]
+    assert not d["converged"] and len(why) == 3, why
+    assert why[0].startswith("R-hat") and "2 quantities (b 1.080, volume 1.020)" in why[0], why[0]
+    assert why[1].startswith("bulk ESS") and "1 quantity (b 120)" in why[1], why[1]
+    assert "--steps" in why[2] and "--budget" not in why[2]
+    # the chain too short for its τ: 400 kept steps of τ = 20 are 20 τ; 50 τ need 601 more steps
+    why = convergence(ok_r, ok_e, _chain_of(400, 20.0, budget=True), names=names)["not_converged_because"]
+    assert len(why) == 2 and "20 autocorrelation times of τ = 20 steps" in why[0] and "601 more steps" in why[0]
+    assert "--budget" in why[1]
+    # NaN (a quantity that never moved) fails and is named first
+    why = convergence([1.001, float("nan"), 1.5], ok_e, _chain_of(1000, 10.0), names=names)["not_converged_because"]
+    assert "(b nan, volume 1.500)" in why[0], why[0]
+    with pytest.raises(ValueError, match="names"):
+        convergence([1.5, 1.0], [10.0, 10.0], _chain_of(1000, 10.0), names=["only one"])
+
+
 def test_seed_reproducible_and_distinct(tmp_path):
     A, y, _, _ = _problem()
     f = _log_prob(A, y, NOISE_SD**2)

@@ -310,9 +310,19 @@ def _run_parts(args) -> int:
         f"min ESS {stat(d['min_ess_bulk'], '.0f')}, {'converged' if d['converged'] else 'NOT converged'}"
         f"{' (stopped by --budget)' if d.get('stopped_by_budget') else ''} ({d['seconds']:.1f} s)"
     )
+    _print_not_converged(d)
     for w in d.get("warnings", []):
         print(f"bayestouch fit: warning: {w}", file=sys.stderr)
     return 0
+
+
+def _print_not_converged(d: dict) -> None:
+    """The reasons a chain failed its convergence checks (``diagnostics.not_converged_because``), one per line."""
+    why = d.get("not_converged_because", [])
+    if not d["converged"] and why:
+        print("NOT CONVERGED: the intervals above are not yet a posterior's:")
+        for line in why:
+            print(f"  - {line}")
 
 
 def run(args) -> int:
@@ -438,6 +448,7 @@ def _run_fit(args) -> int:
         f"{'converged' if d['converged'] else 'NOT converged'}"
         f"{' (stopped by --budget)' if d.get('stopped_by_budget') else ''} ({d['seconds']:.1f} s)"
     )
+    _print_not_converged(d)
     if d.get("multimodal"):
         print(f"MULTIMODAL: {len(d['modes'])} separated shapes; the mean describes none of them:")
         for i, m in enumerate(d["modes"], start=1):

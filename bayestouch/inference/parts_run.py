@@ -120,8 +120,13 @@ def _aligned(particles, log_post, k: int) -> np.ndarray:
 
 def _judged(c, vols, k: int) -> np.ndarray:
     """The label-free quantities of draws ``c`` in volume order (:func:`bayestouch.inference.parts.canonical_order`)
-    with their part volumes ``vols`` (N, K): each part's log volume and log n, and log σ."""
+    with their part volumes ``vols`` (N, K): each part's log volume and log n, and log σ (:func:`_judged_names`)."""
     return np.column_stack([np.log(vols), c[:, [10 * j + 9 for j in range(k)]], c[:, 10 * k]])
+
+
+def _judged_names(k: int) -> list[str]:
+    """Names of :func:`_judged`'s columns for ``k`` parts (part 1 the largest)."""
+    return [f"log_volume_{j + 1}" for j in range(k)] + [f"log_n_{j + 1}" for j in range(k)] + ["log_sigma"]
 
 
 def _monitor(k: int):
@@ -219,7 +224,7 @@ def write_parts_outputs(out: Path, chain, k: int, points, *, seed: int, t0: floa
 
     mds = xr.Dataset({f"q{i}": (("chain", "draw"), mon[..., i]) for i in range(mon.shape[-1])})
     rhat, ess = rhat_and_ess(mds)
-    diag = convergence([float(rhat[v]) for v in mds], [float(ess[v]) for v in mds], chain)
+    diag = convergence([float(rhat[v]) for v in mds], [float(ess[v]) for v in mds], chain, names=_judged_names(k))
 
     rng = np.random.default_rng([seed, 0x7A2])
     thin = c[rng.choice(len(c), min(SUMMARY_DRAWS, len(c)), replace=False)]

@@ -309,8 +309,10 @@ def write_posterior(out: Path, chain, model: PosteriorModel, *, seed: int, t0: f
     um = to_trimesh(verts, faces)
     um.visual.vertex_colors = _spread_colours(spread)
 
-    judged = [p for name, p in params.items() if name not in ANGLE_NAMES]
-    diag = convergence([p["r_hat"] for p in judged], [p["ess_bulk"] for p in judged], chain)
+    judged = {name: p for name, p in params.items() if name not in ANGLE_NAMES}
+    diag = convergence(
+        [p["r_hat"] for p in judged.values()], [p["ess_bulk"] for p in judged.values()], chain, names=list(judged)
+    )
     summary = {
         "parameters": params,
         "derived": {

@@ -46,6 +46,7 @@ __all__ = [
     "arrival_step",
     "tau_settled",
     "TAU_GROWTH",
+    "not_converged_because",
 ]
 
 #: convergence thresholds (Vehtari et al. 2021 for R-hat and bulk ESS; emcee's docs for N > 50 τ)
@@ -990,9 +991,25 @@ def sample(
     )
 
 
-def convergence(r_hat, ess_bulk, chain: Chain) -> dict:
+def convergence(r_hat, ess_bulk, chain: Chain, names=None) -> dict:
     """Diagnostics of a run: converged only when every R-hat < 1.01, every bulk ESS > 400 and the stretch τ was
-    estimated on (the kept draws) is longer than 50 autocorrelation times (never claimed otherwise)."""
+    estimated on (the kept draws) is longer than 50 autocorrelation times (never claimed otherwise).
+
+    Parameters
+    ----------
+    r_hat, ess_bulk : (Q,) float
+        R-hat and bulk ESS of the judged quantities.
+    chain : Chain
+    names : sequence of str, optional
+        The quantities' names (Q,), for the reasons; default ``q0``, ``q1``, …
+
+    Returns
+    -------
+    dict
+        ``converged``, ``max_r_hat``, ``min_ess_bulk``, ``n_samples``, ``steps``, ``burn_in``, ``walkers``,
+        ``autocorr_time_max`` (steps), ``acceptance``, ``stopped_by_budget``, and ``not_converged_because``
+        (:func:`not_converged_because`: one sentence per failed check, empty when converged).
+    """
     max_rhat = float(np.max(r_hat))
     min_ess = float(np.min(ess_bulk))
     length = chain.steps if chain.tau_steps is None else chain.tau_steps
@@ -1013,4 +1030,65 @@ def convergence(r_hat, ess_bulk, chain: Chain) -> dict:
         "autocorr_time_max": chain.tau_max,
         "acceptance": chain.acceptance,
         "stopped_by_budget": chain.stopped_by_budget,
+        "not_converged_because": [] if converged else not_converged_because(r_hat, ess_bulk, chain, names),
     }
+
+
+def not_converged_because(r_hat, ess_bulk, chain: Chain, names=None, shown: int = 3) -> list[str]:
+    """Why a run's chain fails :func:`convergence`'s checks: one sentence per failed check, naming the worst
+    quantities (at most ``shown`` each), how much longer the chain would need to be and how to continue it.
+
+    Parameters
+    ----------
+    r_hat, ess_bulk : (Q,) float
+        R-hat and bulk ESS of the judged quantities.
+    chain : Chain
+    names : sequence of str, optional
+        The quantities' names (Q,); default ``q0``, ``q1``, …
+    shown : int
+        Most quantities named per check.
+
+    Returns
+    -------
+    list of str
+        Empty when every check passes.
+    """
+    r = np.asarray(r_hat, float)
+    e = np.asarray(ess_bulk, float)
+    names = [f"q{i}" for i in range(len(r))] if names is None else [str(n) for n in names]
+    if len(names) != len(r) or len(e) != len(r):
+        raise ValueError(f"not_converged_because: {len(r)} R-hats, {len(e)} ESS values and {len(names)} names")
+    out = []
+    # NaN R-hat or ESS (a quantity that never moved) fails too, and is named first
+    bad_r = np.flatnonzero(~(r < R_HAT_MAX))
+    if bad_r.size:
+        worst = bad_r[np.argsort(-np.nan_to_num(r[bad_r], nan=np.inf))][:shown]
+        listed = ", ".join(f"{names[i]} {r[i]:.3f}" for i in worst)
+        out.append(
+            f"R-hat ≥ {R_HAT_MAX:g} for {bad_r.size} quantit{'y' if bad_r.size == 1 else 'ies'} ({listed}): "
+            "the walkers have not yet agreed on the distribution"
+        )
+    bad_e = np.flatnonzero(~(e > ESS_MIN))
+    if bad_e.size:
+        worst = bad_e[np.argsort(np.nan_to_num(e[bad_e], nan=-np.inf))][:shown]
+        listed = ", ".join(f"{names[i]} {e[i]:.0f}" for i in worst)
+        out.append(
+            f"bulk ESS at most {ESS_MIN:.0f} for {bad_e.size} quantit{'y' if bad_e.size == 1 else 'ies'} ({listed})"
+        )
+    length = chain.steps if chain.tau_steps is None else chain.tau_steps
+    tau = float(chain.tau_max)
+    if not np.isfinite(tau):
+        out.append(f"the autocorrelation time could not be estimated from {length} steps: the chain is too short")
+    elif not length > TAU_FACTOR * tau:
+        need = int(np.ceil(TAU_FACTOR * tau - length)) + 1
+        out.append(
+            f"the kept chain is {length} steps, {length / tau:.0f} autocorrelation times of τ = {tau:.0f} steps "
+            f"(needs {TAU_FACTOR:.0f}): about {need} more steps"
+        )
+    if out:
+        out.append(
+            "the time budget stopped the chain: continue it with --resume (resume=True) and a larger --budget"
+            if chain.stopped_by_budget
+            else "the chain reached its step limit: continue it with --resume (resume=True) and a larger --steps"
+        )
+    return out

@@ -234,7 +234,9 @@ def patch_posterior(
         k: {**interval(draws[k]), "r_hat": float(rhat[k]), "ess_bulk": float(ess[k])} for k in ("area_m2", "force_N")
     }
     checked = [n for n in SUMMARY_NAMES if n != "angle"]
-    diag = convergence([params[n]["r_hat"] for n in checked], [params[n]["ess_bulk"] for n in checked], ch)
+    diag = convergence(
+        [params[n]["r_hat"] for n in checked], [params[n]["ess_bulk"] for n in checked], ch, names=list(checked)
+    )
     k = 1 if np.ndim(currents) == 1 else int(np.shape(currents)[0])
     summary = {
         "parameters": params,
