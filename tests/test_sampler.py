@@ -265,7 +265,7 @@ def test_emcee_snooker_is_biased_and_ours_is_not():
     which the same check catches; the engine's corrected snooker alone passes it."""
     import emcee
 
-    from bayestouch.inference.sampler import _snooker_move
+    from bayestouch.inference.sampler import snooker_move
 
     A, y, mean, cov = _problem()
     run = {"walkers": 64, "steps": 1500}
@@ -286,12 +286,31 @@ def test_emcee_snooker_is_biased_and_ours_is_not():
         ndim=D,
         seed=4,
         progress=False,
-        moves=[(_snooker_move(), 1.0)],
+        moves=[(snooker_move(), 1.0)],
         **run,
     )
     assert not _agrees(stock, mean, cov)
     assert np.all(np.var(stock.kept.reshape(-1, D), axis=0) < 0.8 * np.diag(cov))
     assert _agrees(ours, mean, cov)
+
+
+def test_snooker_leaves_a_walker_whose_archive_point_is_itself_where_it_is():
+    """z = the walker (a copy of it in the other half): no direction to project on; the move proposes the walker
+    itself with a zero log-Jacobian instead of 0/0 = NaN, on which emcee stops the run."""
+    from bayestouch.inference.sampler import snooker_move
+
+    move = snooker_move()
+    s = np.array([[1.0, 2.0, 3.0], [0.5, 0.5, 0.5]])
+    c = [np.array([[1.0, 2.0, 3.0]])] * 3  # every archive draw is the first walker
+    q, log_jac = move.get_proposal(s, c, np.random.RandomState(0))
+    assert np.all(np.isfinite(q)) and np.all(np.isfinite(log_jac))
+    np.testing.assert_array_equal(q[0], s[0])
+    assert log_jac[0] == 0.0
+    # the other walker moves along the line through z, and its log-Jacobian is (d − 1) log(|q − z| / |x − z|)
+    z = c[0][0]
+    u = (s[1] - z) / np.linalg.norm(s[1] - z)
+    assert np.linalg.norm(np.cross(q[1] - z, u)) < 1e-12
+    assert log_jac[1] == 0.0  # z1 − z2 = 0: q = x
 
 
 def test_prune_stuck_walkers_replaces_only_walkers_far_below_the_best():

@@ -37,7 +37,7 @@ from bayestouch.inference.posterior import (
     vmf_sample,
     write_posterior,
 )
-from bayestouch.inference.sampler import IndependenceMixture, prune_stuck_walkers, sample
+from bayestouch.inference.sampler import IndependenceMixture, prune_stuck_walkers, sample, snooker_move
 from bayestouch.inference.smc import tempered_smc
 from bayestouch.inference.trimmed import trimmed_starts
 from bayestouch.io.contacts import check_normals_outward
@@ -558,7 +558,9 @@ def smc_moves(particles, walkers: int, seed: int, extra_mode: dict | None = None
     independence mixture (:class:`~bayestouch.inference.sampler.IndependenceMixture`) is :data:`MIXTURE_SHARE`
     of the moves: a proposal shaped like the posterior is accepted often and is independent of the walker's place,
     so walkers jump between modes in one step; the rest are differential evolution (80 %) and its snooker variant
-    (20 %), which follow the local shape the mixture misses. The walkers start at distinct particles.
+    (20 %, :func:`~bayestouch.inference.sampler.snooker_move`: the published move, which keeps the posterior
+    invariant), which follow the local shape the mixture misses. The walkers start at distinct particles (distinct
+    in value where the particles hold that many: resampling copies a particle that no mutation moved).
 
     ``extra_mode`` (:func:`optimum_mode`'s dict), a mode the particles missed: :data:`MISSED_MODE_SHARE` of the
     walkers start from its Laplace approximation N(θ*, Σ) instead (finite under ``logp``, ``(W, D) -> (W,)``), and
@@ -574,7 +576,13 @@ def smc_moves(particles, walkers: int, seed: int, extra_mode: dict | None = None
     n, d = x.shape
     cols = np.asarray(log_columns, int)
     rng = np.random.default_rng([seed, 0x313])
-    start = rng.choice(n, walkers, replace=n < walkers)
+    # walkers on distinct particles: resampling leaves copies of a particle that no mutation moved (a narrow
+    # posterior), and walkers on one point give the red-blue moves no direction between them
+    distinct = np.unique(x, axis=0, return_index=True)[1]
+    if len(distinct) >= walkers:
+        start = rng.choice(distinct, walkers, replace=False)
+    else:  # every distinct value once, the rest copies
+        start = rng.permutation(np.concatenate([distinct, rng.choice(n, walkers - len(distinct))]))
     ws = x[start].copy()
 
     def to_mixture_space(y):
@@ -605,7 +613,7 @@ def smc_moves(particles, walkers: int, seed: int, extra_mode: dict | None = None
     rest = 1.0 - MIXTURE_SHARE
     if walkers < 2 * d:  # too few walkers for red-blue moves: a random walk with the particles' covariance instead
         return [(mix, MIXTURE_SHARE), (emcee.moves.GaussianMove(ridged(np.cov(x.T)) * 0.25 * 2.38**2 / d), rest)], ws
-    return [(mix, MIXTURE_SHARE), (emcee.moves.DEMove(), 0.8 * rest), (emcee.moves.DESnookerMove(), 0.2 * rest)], ws
+    return [(mix, MIXTURE_SHARE), (emcee.moves.DEMove(), 0.8 * rest), (snooker_move(), 0.2 * rest)], ws
 
 
 def align_particles(particles, log_post, ref=None) -> np.ndarray:

@@ -29,6 +29,7 @@ __all__ = [
     "sample",
     "integrated_time",
     "default_moves",
+    "snooker_move",
     "adaptive_moves",
     "IndependenceT",
     "IndependenceMixture",
@@ -107,7 +108,7 @@ class Chain(NamedTuple):
     tau_steps: int | None = None
 
 
-def _snooker_move():
+def snooker_move():
     """The differential-evolution snooker move of ter Braak & Vrugt (2008, Stat. Comput. 18:435, sect. 3) as
     published: project the DE difference on the unit vector from an archive point z through the walker, and accept
     with the Jacobian factor (d − 1)·log(|q − z| / |x − z|).
@@ -129,6 +130,12 @@ def _snooker_move():
                 z, z1, z2 = w
                 delta = s[i] - z
                 dist = np.linalg.norm(delta)
+                if not dist > 0:
+                    # z is the walker itself (walkers started on copies of one SMC particle): no direction to
+                    # move along, so the walker stays, a null move that leaves π invariant (0/0 was a NaN
+                    # proposal, on which emcee stops the run)
+                    q[i], log_jac[i] = s[i], 0.0
+                    continue
                 u = delta / dist
                 q[i] = s[i] + self.gammas * np.dot(u, z1 - z2) * u
                 log_jac[i] = np.log(np.linalg.norm(q[i] - z)) - np.log(dist)
@@ -140,7 +147,7 @@ def _snooker_move():
 def default_moves():
     """Differential-evolution moves, 80 % parallel-direction DE and 20 % snooker (ter Braak 2006; ter Braak & Vrugt
     2008): the shape parameters are strongly correlated, which affine-invariant stretch moves handle poorly."""
-    return [(emcee.moves.DEMove(), 0.8), (_snooker_move(), 0.2)]
+    return [(emcee.moves.DEMove(), 0.8), (snooker_move(), 0.2)]
 
 
 def adaptation_steps(upto: int) -> list[int]:
@@ -451,7 +458,7 @@ def adaptive_moves(nu: float = 10.0):
     steps and a converged stop after 600–650 steps, against ν = 5 at 60 % (τ 7–8, 750–900 steps), ν = 20 at 90 %
     (τ 4, 900–950 steps: R-hat is slower to settle) and :func:`default_moves` (τ 45, 8000 steps)."""
     indep = IndependenceT(emcee.moves.DEMove(), nu=nu)
-    return [(indep, 0.8), (emcee.moves.DEMove(), 0.15), (_snooker_move(), 0.05)]
+    return [(indep, 0.8), (emcee.moves.DEMove(), 0.15), (snooker_move(), 0.05)]
 
 
 def _buffered_hdf_backend(path: Path, flush_s: float):
