@@ -433,9 +433,10 @@ def _ranks(rows, tag: str) -> np.ndarray:
     return np.array([[int(r[f"{tag}_{q}"]) for q in QUANTITIES] for r in rows])
 
 
-def summarise(rows: list[dict]) -> dict:
-    """Coverage, chi-square p-values and ECDF-band verdicts of the nominal ranks and of the negative controls."""
-    out = {"sets": len(rows), "draws": DRAWS, "bins": BINS, "quantities": list(QUANTITIES)}
+def summarise(rows: list[dict], failed: int = 0) -> dict:
+    """Coverage, chi-square p-values and ECDF-band verdicts of the nominal ranks and of the negative controls, over
+    the fitted sets ``rows``; ``failed`` fits (no ranks) are counted apart."""
+    out = {"sets": len(rows), "failed": int(failed), "draws": DRAWS, "bins": BINS, "quantities": list(QUANTITIES)}
     for tag in ("rank", "rank_squeeze", "rank_stretch"):
         r = _ranks(rows, tag)
         cov, p, band = coverage(r)
@@ -527,24 +528,31 @@ def bench_sbc_users() -> list[dict]:
     workers = int(os.environ.get("BAYESTOUCH_SBC_WORKERS", "2"))
     RESULTS.mkdir(exist_ok=True)
     path = RESULTS / "sbc_users.csv"
-    rows = _read_rows(path)
+    # a set whose fit failed (a row with ``error``) is fitted again; the others are kept
+    rows = [r for r in _read_rows(path) if not r.get("error")]
     done = {int(r["seed"]) for r in rows}
     todo = [s for s in range(count) if s not in done]
     t0 = time.perf_counter()
     ctx = mp.get_context("spawn")
     with ProcessPoolExecutor(workers, mp_context=ctx, initializer=worker_init) as pool:
-        futures = [pool.submit(fit_sbc_set, s) for s in todo]
+        futures = {pool.submit(fit_sbc_set, s): s for s in todo}
         for fut in as_completed(futures):
-            rows.append({k: str(v) for k, v in fut.result().items()})
+            try:
+                rows.append({k: str(v) for k, v in fut.result().items()})
+            except Exception as exc:  # noqa: BLE001 - a fit that fails is a result, recorded; the others go on
+                rows.append({"seed": str(futures[fut]), "error": f"{type(exc).__name__}: {exc}"[:200]})
+                print(f"[sbc_users] set {futures[fut]} failed: {rows[-1]['error']}", flush=True)
             _write_rows(path, rows)
             print(f"[sbc_users] {len(rows)}/{count} sets, {time.perf_counter() - t0:.0f} s", flush=True)
     rows = sorted((r for r in rows if int(r["seed"]) < count), key=lambda r: int(r["seed"]))
+    failed = [r for r in rows if r.get("error")]
+    rows = [r for r in rows if not r.get("error")]
     missing = [r for r in rows if not r.get("local_gap")]  # rows of an earlier version: the check needs no fit
     for r in missing:
         r.update({k: str(v) for k, v in local_mode_gap(make_sbc_set(int(r["seed"]))).items()})
     if missing:
-        _write_rows(path, rows)
-    summary = summarise(rows)
+        _write_rows(path, rows + failed)
+    summary = summarise(rows, failed=len(failed))
     (RESULTS / "sbc_users.json").write_text(json.dumps(summary, indent=1) + "\n")
     plot_ecdf(rows, FIGURE)
     out = []

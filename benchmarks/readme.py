@@ -163,7 +163,9 @@ def _sbc_users(d: dict) -> tuple[str, str, str]:
         f"{lo:.2f}–{hi:.2f}); rank uniformity rejected (χ² p < 0.01) for {len(bad)} of {len(cov)} quantities; the "
         f"30 %-too-narrow control {sq['coverage_90']['volume']:.2f} (volume). {verdict} "
         f"{d['converged']}/{d['sets']} converged; of {beyond['sets']} sets with the truth beyond every draw of a "
-        f"shape quantity, {beyond['flagged']} said so (not converged, multimodal or misfit)" + _noise_bands(d),
+        f"shape quantity, {beyond['flagged']} said so (not converged, multimodal or misfit)"
+        + (f"; {d['failed']} fits failed (no posterior)" if d.get("failed") else "")
+        + _noise_bands(d),
         "`bench_sbc_users` (`benchmarks/results/sbc_users.json`, `docs/img/sbc_users_ecdf.png`)",
     )
 
