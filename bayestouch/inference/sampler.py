@@ -1002,13 +1002,7 @@ def convergence(r_hat, ess_bulk, chain: Chain, names=None) -> dict:
     """Diagnostics of a run: converged only when every R-hat < 1.01, every bulk ESS > 400 and the stretch τ was
     estimated on (the kept draws) is longer than 50 autocorrelation times (never claimed otherwise).
 
-    Parameters
-    ----------
-    r_hat, ess_bulk : (Q,) float
-        R-hat and bulk ESS of the judged quantities.
-    chain : Chain
-    names : sequence of str, optional
-        The quantities' names (Q,), for the reasons; default ``q0``, ``q1``, …
+    ``r_hat``, ``ess_bulk`` (Q,), ``chain`` and ``names`` are those of :func:`not_converged_because`.
 
     Returns
     -------
