@@ -222,9 +222,9 @@ def write_parts_outputs(out: Path, chain, k: int, points, *, seed: int, t0: floa
         c[:, sl] = cm.wrap_angles(c[:, sl])
     post = _parts_dataset(c, k, S, W)
 
-    mds = xr.Dataset({f"q{i}": (("chain", "draw"), mon[..., i]) for i in range(mon.shape[-1])})
+    mds = xr.Dataset({name: (("chain", "draw"), mon[..., i]) for i, name in enumerate(_judged_names(k))})
     rhat, ess = rhat_and_ess(mds)
-    diag = convergence([float(rhat[v]) for v in mds], [float(ess[v]) for v in mds], chain, names=_judged_names(k))
+    diag = convergence([float(rhat[v]) for v in mds], [float(ess[v]) for v in mds], chain, names=list(mds))
 
     rng = np.random.default_rng([seed, 0x7A2])
     thin = c[rng.choice(len(c), min(SUMMARY_DRAWS, len(c)), replace=False)]

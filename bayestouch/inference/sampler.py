@@ -1011,19 +1011,12 @@ def convergence(r_hat, ess_bulk, chain: Chain, names=None) -> dict:
         ``autocorr_time_max`` (steps), ``acceptance``, ``stopped_by_budget``, and ``not_converged_because``
         (:func:`not_converged_because`: one sentence per failed check, empty when converged).
     """
-    max_rhat = float(np.max(r_hat))
-    min_ess = float(np.min(ess_bulk))
-    length = chain.steps if chain.tau_steps is None else chain.tau_steps
-    converged = bool(
-        max_rhat < R_HAT_MAX
-        and min_ess > ESS_MIN
-        and np.isfinite(chain.tau_max)
-        and length > TAU_FACTOR * chain.tau_max
-    )
+    # the checks live in not_converged_because: converged is "no check failed"
+    why = not_converged_because(r_hat, ess_bulk, chain, names)
     return {
-        "converged": converged,
-        "max_r_hat": max_rhat,
-        "min_ess_bulk": min_ess,
+        "converged": not why,
+        "max_r_hat": float(np.max(r_hat)),
+        "min_ess_bulk": float(np.min(ess_bulk)),
         "n_samples": int(chain.kept.shape[0] * chain.kept.shape[1]),
         "steps": chain.steps,
         "burn_in": chain.burn,
@@ -1031,7 +1024,7 @@ def convergence(r_hat, ess_bulk, chain: Chain, names=None) -> dict:
         "autocorr_time_max": chain.tau_max,
         "acceptance": chain.acceptance,
         "stopped_by_budget": chain.stopped_by_budget,
-        "not_converged_because": [] if converged else not_converged_because(r_hat, ess_bulk, chain, names),
+        "not_converged_because": why,
     }
 
 

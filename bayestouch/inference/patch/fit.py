@@ -235,7 +235,7 @@ def patch_posterior(
     }
     checked = [n for n in SUMMARY_NAMES if n != "angle"]
     diag = convergence(
-        [params[n]["r_hat"] for n in checked], [params[n]["ess_bulk"] for n in checked], ch, names=list(checked)
+        [params[n]["r_hat"] for n in checked], [params[n]["ess_bulk"] for n in checked], ch, names=checked
     )
     k = 1 if np.ndim(currents) == 1 else int(np.shape(currents)[0])
     summary = {
