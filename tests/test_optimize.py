@@ -83,3 +83,17 @@ def test_a_failure_of_the_batch_or_of_one_run_reaches_the_caller_without_a_hang(
     # one run fails in its own thread (SciPy refuses a start of another length than its bounds)
     with pytest.raises(ValueError):
         lockstep_lbfgs(_rosenbrock, [*_starts(3), np.zeros(3)], BOX)
+
+
+def test_run_bounds_hold_a_coordinate_where_each_run_says_and_match_the_runs_alone():
+    starts = _starts(3)
+    held = [[(v, v) if j == 1 else b for j, b in enumerate(BOX)] for v in (0.3, -0.5, 1.2)]
+    got = lockstep_lbfgs(_rosenbrock, starts, BOX, maxiter=500, run_bounds=held)
+    for g, s, h in zip(got, starts, held, strict=True):
+        a = minimize(_one, s, jac=True, method="L-BFGS-B", bounds=h, options={"maxiter": 500})
+        assert g.x[1] == h[1][0] and np.array_equal(g.x, a.x) and g.fun == a.fun
+    # negative control: without them the coordinate moves to the minimum's 1
+    free = lockstep_lbfgs(_rosenbrock, starts, BOX, maxiter=500)
+    assert all(abs(g.x[1] - 1.0) < 1e-3 for g in free)
+    with pytest.raises(ValueError, match="run_bounds"):
+        lockstep_lbfgs(_rosenbrock, starts, BOX, run_bounds=held[:2])

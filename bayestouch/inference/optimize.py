@@ -108,7 +108,9 @@ class _Stopped(Exception):
     """Raised inside a run of :func:`lockstep_lbfgs` once its deadline has passed or another run failed."""
 
 
-def lockstep_lbfgs(fn_batch, starts, bounds, maxiter: int = 1000, deadline: float | None = None) -> list:
+def lockstep_lbfgs(
+    fn_batch, starts, bounds, maxiter: int = 1000, deadline: float | None = None, run_bounds=None
+) -> list:
     """L-BFGS-B from each of K starts at once, every step's objective evaluated for all unfinished runs in one call.
 
     Each run is SciPy's L-BFGS-B (``minimize(method="L-BFGS-B")``) in its own thread; a run that asks for a value
@@ -130,6 +132,8 @@ def lockstep_lbfgs(fn_batch, starts, bounds, maxiter: int = 1000, deadline: floa
     deadline : float, optional
         A ``time.perf_counter()`` value after which no run asks for another value: each returns the best point it
         has evaluated (``message`` says so).
+    run_bounds : sequence of K bounds, optional
+        Each run's own bounds in place of ``bounds`` (a coordinate whose low equals its high is held there).
 
     Returns
     -------
@@ -139,6 +143,9 @@ def lockstep_lbfgs(fn_batch, starts, bounds, maxiter: int = 1000, deadline: floa
     """
     starts = [np.asarray(s, dtype=float) for s in starts]
     k_runs = len(starts)
+    if run_bounds is not None and len(run_bounds) != k_runs:
+        raise ValueError(f"run_bounds: expected one bounds sequence per start ({k_runs}), got {len(run_bounds)}")
+    boxes = [bounds] * k_runs if run_bounds is None else list(run_bounds)
     cond = threading.Condition()
     asked: dict[int, np.ndarray] = {}
     answers: dict[int, tuple] = {}
@@ -164,7 +171,7 @@ def lockstep_lbfgs(fn_batch, starts, bounds, maxiter: int = 1000, deadline: floa
 
         try:
             opts = {"maxiter": maxiter}
-            results[k] = minimize(fg, starts[k], jac=True, method="L-BFGS-B", bounds=bounds, options=opts)
+            results[k] = minimize(fg, starts[k], jac=True, method="L-BFGS-B", bounds=boxes[k], options=opts)
         except _Stopped:
             v, x = best[k]
             results[k] = OptimizeResult(x=x, fun=v, success=False, message="stopped at the deadline")
