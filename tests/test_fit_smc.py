@@ -251,7 +251,8 @@ def test_optimum_check_continued_in_sigma_finds_the_mode_the_fit_missed_without_
     wider mode as converged, with no warning (``benchmarks/bench_sbc_missed.py``). The optimum check with the
     trimmed starts, as the fit runs it on such data, polishes to ≈ 628 (negative control); continued downwards in σ
     (``anneal``, :func:`~bayestouch.inference.run.sigma_continuation`) it reaches the truth's mode, now more than
-    :data:`~bayestouch.inference.run.MISSED_MODE_NATS` above the SMC's particles, so the chain starts walkers there."""
+    :data:`~bayestouch.inference.run.MISSED_MODE_NATS` above the SMC's particles, so the chain starts walkers there.
+    On the mixed-precision log-density the same check stops at ≈ 608."""
     from bayestouch.inference import contact as cm
     from bayestouch.inference.run import TRIM_SEARCHES, candidate_thetas, optimum_mode
     from bayestouch.inference.trimmed import trimmed_starts
@@ -270,6 +271,11 @@ def test_optimum_check_continued_in_sigma_finds_the_mode_the_fit_missed_without_
     }
     assert opt[False]["log_post"] < 635, opt[False]["log_post"]
     assert opt[True]["log_post"] > 640, opt[True]["log_post"]
+    # the same on the mixed-precision log-density the sampler uses: its rounding stops the polishes short, which is
+    # why run_contact_fit hands the check a float64 twin
+    mixed, _ = cm.make_log_prob(s["points"], pri, noise="outlier", free=s["free"], precision="mixed")
+    low = optimum_mode(s["points"], mixed, bounds, pri, 19, names, batch=32, extra_starts=trimmed, anneal=True)
+    assert low["log_post"] < 620, low["log_post"]
     th = opt[True]["theta"]
     np.testing.assert_allclose(np.sort(np.exp(th[3:6])), np.sort(s["truth"].axes), rtol=0.03)
     assert abs(np.exp(th[9]) - 1.61) < 0.05 and np.exp(th[10]) < 35e-6
