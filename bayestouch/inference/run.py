@@ -609,31 +609,33 @@ def sigma_continuation(
     """
     j = cm.PARAM_NAMES.index("log_sigma")
     floor = box[j][0]
-    todo, seen = [], set()
+    start, seen = [], set()  # the continued optima (θ, value), best first, of distinct value
     for th, v in sorted(polished, key=lambda r: r[1]):
         key = round(float(v), 3)
-        if np.isfinite(v) and key not in seen and len(todo) < runs:
+        if np.isfinite(v) and key not in seen and len(start) < runs:
             seen.add(key)
-            todo.append([np.asarray(th, float), float(v), np.asarray(th, float), False])  # best, value, current, moved
-    active = list(range(len(todo)))
+            start.append((np.asarray(th, float), float(v)))
+    best = list(start)
+    current = [th for th, _ in start]
+    active = list(range(len(start)))
     for _ in range(int(rounds)):
-        active = [k for k in active if floor is None or todo[k][2][j] - ANNEAL_STEP > floor]
+        active = [k for k in active if floor is None or current[k][j] - ANNEAL_STEP > floor]
         if not active or (deadline is not None and time.perf_counter() > deadline):
             break
         held = []
         for k in active:
-            v = todo[k][2][j] - ANNEAL_STEP
+            v = current[k][j] - ANNEAL_STEP
             held.append([(v, v) if i == j else b for i, b in enumerate(box)])
-        fixed = lockstep_lbfgs(fg_batch, [todo[k][2] for k in active], box, maxiter, deadline, run_bounds=held)
+        fixed = lockstep_lbfgs(fg_batch, [current[k] for k in active], box, maxiter, deadline, run_bounds=held)
         free = lockstep_lbfgs(fg_batch, [r.x for r in fixed], box, maxiter, deadline)
         still = []
         for k, r in zip(active, free, strict=True):
-            todo[k][2] = np.asarray(r.x, float)
-            if np.isfinite(r.fun) and r.fun < todo[k][1] - 1e-6:
-                todo[k][0], todo[k][1], todo[k][3] = np.asarray(r.x, float), float(r.fun), True
+            current[k] = np.asarray(r.x, float)
+            if np.isfinite(r.fun) and r.fun < best[k][1] - 1e-6:
+                best[k] = (current[k], float(r.fun))
                 still.append(k)
         active = still
-    return [(th, v) for th, v, _, moved in todo if moved]
+    return [b for b, s in zip(best, start, strict=True) if b[1] < s[1]]
 
 
 def _laplace_draws(centre, chol, count: int, logp, rng, tries: int = 100) -> np.ndarray:
@@ -1172,19 +1174,20 @@ def run_contact_fit(
             raise BadInput(f"precision: expected 'auto', 'float64' or 'mixed', got {precision!r}")
         if precision == "auto":
             precision = "mixed" if noise in ("student", "outlier") and normals is None else "float64"
-        logp, bounds = cm.make_log_prob(
+        make = partial(
+            cm.make_log_prob,
             points,
             priors,
             nu if noise == "student" else None,
             normals=normals,
             noise=noise,
-            precision=precision,
             free=free,
         )
+        logp, bounds = make(precision=precision)
         # the optimum check polishes in float64: the mixed log-density's float32 rounding (≲ 10⁻³ nat) stops L-BFGS's
         # line searches short of a needle-thin mode (SBC set 19: 605 nats instead of 628, 643 at the truth's mode)
         if precision == "mixed":
-            logp_exact = cm.make_log_prob(points, priors, nu if noise == "student" else None, noise=noise, free=free)[0]
+            logp_exact = make(precision="float64")[0]
         sampled = cm.param_names(normals is not None, noise)
         model = contact_model(
             points, priors, float(priors.student_nu if nu is None else nu), normals=normals, noise=noise, free=free
