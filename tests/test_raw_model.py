@@ -124,6 +124,43 @@ def test_log_prob_finite_at_truth_minus_inf_outside_never_nan(empirical):
     assert np.all(np.isfinite(out[:200][~outside])) and np.all(np.isfinite(out[200:]))
 
 
+def test_one_compiled_log_density_serves_every_recording_of_the_same_shapes(empirical):
+    """The compiled pieces of the raw level take the recording's arrays as arguments (``jit_on_data``): a second
+    recording of the same shapes (here the same strokes' readings with other noise) is evaluated by the program the
+    first one traced, and gives what a jit of a closure over it (its arrays baked in as constants) gives; a
+    recording of other shapes (every second frame) is traced again. ``split_data``/``join_data`` round-trip."""
+    from bayestouch.backend import jax
+    from bayestouch.inference import contact as cm
+    from bayestouch.inference.raw import likelihood as lk
+    from bayestouch.inference.raw.data import join_data, split_data
+
+    ds, obj = empirical
+    data, finger = raw.load_raw_data(ds)
+    arrays, static = split_data(data)
+    assert join_data(arrays, static) == data and hash(static) == hash(split_data(data)[1])
+    noise = 1e-3 * np.random.default_rng(0).normal(size=np.shape(data.log_current))
+    other = data._replace(log_current=np.asarray(data.log_current) + noise)
+    b = lk.raw_bounds(data, cm.load_priors())
+    th = jnp.asarray(_truth(obj, np.log(10.0)) + np.zeros((4, 1)))
+    traces = []
+
+    def counted(thetas, data, finger, bounds, *, nu):
+        traces.append(np.shape(data.log_current))
+        return lk.raw_log_prob_batch(thetas, data, finger, bounds, nu)
+
+    f = lk.jit_on_data(counted)
+    first = np.asarray(f(th, data, finger, b))
+    got = np.asarray(f(th, other, finger, b))
+    assert len(traces) == 1  # new values, same shapes: the same program
+    closure = jax.jit(lambda t: lk.raw_log_prob_batch(t, other, finger, b, lk.STUDENT_NU))
+    np.testing.assert_allclose(got, np.asarray(closure(th)), rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(lk.log_prob_batch(th, other, finger, b)), got, rtol=1e-12)
+    assert np.all(np.abs(got - first) > 1.0)  # the second recording's readings were read, not the first's
+    coarse, _ = raw.load_raw_data(ds, stride=2)
+    f(th, coarse, finger, b)
+    assert len(traces) == 2 and traces[1] != traces[0]
+
+
 def test_truth_beats_wrong_shapes(empirical):
     """Empirical mode: axes ×1.1, ×1.02, a 0.5 mm shift or n ± 10 % are far less likely than the truth (at the same
     noise scale; k = 10 roughly matches the unmodelled texture's residual, see the module docstring)."""

@@ -9,11 +9,11 @@ from typing import NamedTuple
 
 import numpy as np
 
-from bayestouch.backend import jax, jnp
+from bayestouch.backend import jnp
 from bayestouch.inference import contact as cm
 from bayestouch.inference.grating import RawTexture
 from bayestouch.inference.raw.data import RawData
-from bayestouch.inference.raw.likelihood import STUDENT_NU, raw_pointwise
+from bayestouch.inference.raw.likelihood import STUDENT_NU, frame_log_lik_jacobian
 
 __all__ = ["ADJUST_BLOCK_S", "OUTSIDE_PRIOR_WARN", "Adjustment", "curvature_adjustment"]
 
@@ -106,9 +106,8 @@ def curvature_adjustment(
     D = flat.shape[1]
     mean = flat.mean(axis=0)
     S = np.cov(flat.T)
-    G = np.asarray(
-        jax.jit(jax.jacfwd(lambda t: jnp.sum(raw_pointwise(t, data, finger, nu, texture), axis=1)))(jnp.asarray(mean))
-    )  # (F, D): the score of each frame
+    # (F, D): the score of each frame
+    G = np.asarray(frame_log_lik_jacobian(jnp.asarray(mean), data, finger, texture, nu=nu))
     starts = np.flatnonzero(np.asarray(data.start))
     ends = np.append(starts[1:], len(G))
     L = max(1, int(round(block_s / float(data.dt))))

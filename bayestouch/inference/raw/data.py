@@ -43,6 +43,10 @@ __all__ = [
     "frame_interval_problem",
     "MAX_PAD_SPEED",
     "check_taxel_layout",
+    "STATIC_FIELDS",
+    "split_data",
+    "join_data",
+    "on_device",
 ]
 
 #: fewest frames with contact a raw-current fit reads (after --stride): a stride longer than the strokes left
@@ -137,6 +141,33 @@ class RawData(NamedTuple):
     unloaded: np.ndarray | None = None
     lag_stride: int = 1
     lag_prior: tuple[float, float] | None = None
+
+
+#: :class:`RawData`'s fields that are not arrays but shape the computation (the frame interval, the taxel mode, the
+#: lag's stride and prior range): static under ``jax.jit`` (:func:`split_data`)
+STATIC_FIELDS = ("dt", "mode", "lag_stride", "lag_prior")
+
+
+def split_data(data: RawData) -> tuple[RawData, tuple]:
+    """``data`` as a jit argument: (its arrays — :data:`STATIC_FIELDS` set to None — and those fields as a hashable
+    tuple). A compiled log-density that takes the arrays as an argument serves every recording of the same shapes
+    (one compile), where one that closes over ``data`` bakes them in as constants and compiles again per call site.
+    :func:`join_data` inverts it."""
+    lag_prior = None if data.lag_prior is None else tuple(float(v) for v in data.lag_prior)
+    static = (float(data.dt), str(data.mode), int(data.lag_stride), lag_prior)
+    return data._replace(**dict.fromkeys(STATIC_FIELDS)), static
+
+
+def join_data(arrays: RawData, static: tuple) -> RawData:
+    """The :class:`RawData` that :func:`split_data` split into ``arrays`` and ``static``."""
+    return arrays._replace(**dict(zip(STATIC_FIELDS, static, strict=True)))
+
+
+def on_device(data: RawData) -> RawData:
+    """``data`` with every NumPy array field a JAX array (of the same dtype; scalars stay Python numbers), so that
+    the compiled log-densities do not copy them from NumPy at every call."""
+    arrays, static = split_data(data)
+    return join_data(jax.tree.map(lambda v: jnp.asarray(v) if isinstance(v, np.ndarray) else v, arrays), static)
 
 
 def check_stroke_selection(strokes, recorded=None, where: str = "recording") -> np.ndarray:

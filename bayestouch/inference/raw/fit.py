@@ -14,7 +14,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from bayestouch.backend import jax, jnp
+from bayestouch.backend import jnp
 from bayestouch.errors import BadInput, check_path
 from bayestouch.inference import contact as cm
 from bayestouch.inference import grating as gr
@@ -33,6 +33,7 @@ from bayestouch.inference.raw.data import (
     host_device,
     load_raw_data,
     need_variable,
+    on_device,
     open_recording,
     recording_mode,
 )
@@ -40,17 +41,16 @@ from bayestouch.inference.raw.likelihood import (
     LOG_K_PRIOR_SD,
     RAW_OPT_SCALE,
     STUDENT_NU,
+    frame_log_lik_batch,
     make_raw_log_prob,
     nuisance_estimates,
     opt_scale,
-    predict_readings,
     prune_clear,
     prune_clearance,
     raw_bounds,
-    raw_log_prob,
     raw_names,
-    raw_pointwise,
-    reading_scale,
+    raw_objective,
+    readings_batch,
     with_lag_bounds,
     with_nuisance_fixed,
 )
@@ -132,17 +132,15 @@ def raw_polisher(data: RawData, finger, bounds: cm.Bounds, nu: float = STUDENT_N
     θ is polished first with them fixed at their posterior means at θ, a known device's smooth landscape, and
     re-estimated there (:data:`NUISANCE_ROUNDS` rounds), then on the marginal log-posterior itself."""
     lo, hi = np.asarray(bounds.lower), np.asarray(bounds.upper)
-    fn = jax.jit(jax.value_and_grad(lambda t: -raw_log_prob(t, data, finger, bounds, nu)))
+    data = on_device(data)
     marginal = data.gain_sd is not None or data.response_sd is not None
-    fn_fixed = jax.jit(
-        jax.value_and_grad(lambda t, a, d: -raw_log_prob(t, with_nuisance_fixed(data, a, d), finger, bounds, nu))
-    )
+    fn = raw_objective(data, finger, bounds, nu=nu)
 
     def polish(th):
         th = np.clip(np.asarray(th, float), lo + 1e-6 * (hi - lo), hi - 1e-6 * (hi - lo))
         for _ in range(NUISANCE_ROUNDS if marginal else 0):
-            a, d = nuisance_estimates(th, data, finger, nu)
-            th, _ = scaled_lbfgs(partial(fn_fixed, a=a, d=d), th, lo, hi, RAW_OPT_SCALE[:11])
+            fixed = with_nuisance_fixed(data, *nuisance_estimates(th, data, finger, nu))
+            th, _ = scaled_lbfgs(raw_objective(fixed, finger, bounds, nu=nu), th, lo, hi, RAW_OPT_SCALE[:11])
         th, _ = scaled_lbfgs(fn, th, lo, hi, RAW_OPT_SCALE[:11])
         return th, float(fn(jnp.asarray(th))[0])
 
@@ -159,7 +157,7 @@ def texture_start(th0, data: RawData, finger, priors: cm.PriorParams, tp: gr.Tex
     ts = initial_raw_texture(th0, fixed, finger, priors, tp, seed=seed)
     if data.gain_sd is None and data.response_sd is None:
         return ts
-    fn = jax.jit(jax.value_and_grad(lambda t: -raw_log_prob(t, data, finger, ts.bounds, STUDENT_NU, ts.texture)))
+    fn = raw_objective(data, finger, ts.bounds, ts.texture)
     lo, hi = np.asarray(ts.bounds.lower), np.asarray(ts.bounds.upper)
     th, _ = scaled_lbfgs(fn, ts.theta, lo, hi, RAW_OPT_SCALE)
     return ts._replace(theta=th, neg_log_post=fn)
@@ -179,6 +177,15 @@ def _natural(flat: np.ndarray, textured: bool, lag: bool = False) -> np.ndarray:
     return np.column_stack(cols)
 
 
+def _chunks(thetas: np.ndarray, size: int):
+    """``thetas (S, D)`` in chunks of ``size`` rows (the last padded with copies of its last row, so that every
+    chunk has the shape of one compiled program): yields (chunk (size, D), rows of it that are real)."""
+    thetas = np.asarray(thetas, float)
+    for i in range(0, len(thetas), size):
+        c = thetas[i : i + size]
+        yield np.concatenate([c, np.repeat(c[-1:], size - len(c), axis=0)]), len(c)
+
+
 def raw_model(
     data: RawData,
     finger,
@@ -193,23 +200,22 @@ def raw_model(
     :data:`RAW_PREDICTIVE_DRAWS` draws only: 7 MB on the standard scenario) with the Student-t reading noise.
     ``info`` is merged into the model description; ``adjust`` (:func:`curvature_adjustment`) maps the draws before
     every summary, the posterior group and the log-likelihood (``chain.h5`` keeps emcee's draws as sampled)."""
-    pw = jax.jit(jax.vmap(lambda t: jnp.sum(raw_pointwise(t, data, finger, nu, texture), axis=1)))
+    data = on_device(data)
 
     adj = adjust if adjust is not None else (lambda flat: flat)
 
     def ll(thetas):
         thetas = adj(thetas)
-        per_frame = [np.asarray(pw(jnp.asarray(c))) for c in np.array_split(thetas, max(1, len(thetas) // 64))]
+        per_frame = [
+            np.asarray(frame_log_lik_batch(jnp.asarray(c), data, finger, texture, nu=nu))[:n]
+            for c, n in _chunks(thetas, 64)
+        ]
         return {"log_current": np.concatenate(per_frame)}
-
-    one = jax.jit(
-        jax.vmap(lambda t: (predict_readings(t, data, finger, nu, texture), reading_scale(t, data, texture, nu)))
-    )
 
     def predictive(thetas, rng: np.random.Generator):
         reps = []
-        for c in np.array_split(adj(thetas), max(1, len(thetas) // 32)):
-            mu, sc = (np.asarray(a) for a in one(jnp.asarray(c)))
+        for c, n in _chunks(adj(thetas), 32):
+            mu, sc = (np.asarray(a)[:n] for a in readings_batch(jnp.asarray(c), data, finger, texture, nu=nu))
             reps.append((mu + sc * rng.standard_t(nu, size=mu.shape)).astype(np.float32))
         return {"log_current": np.concatenate(reps)}
 
@@ -431,14 +437,14 @@ def _raw_start(setup: _StartSetup, host, priors: cm.PriorParams, th0=None) -> _S
         data = prune_clear(data, theta, tex)
     if tex is None:
         bounds = raw_bounds(data, priors)
-        nlp = jax.jit(jax.value_and_grad(lambda t: -raw_log_prob(t, data, finger, bounds)))
+        nlp = raw_objective(data, finger, bounds)
     objective = None
     if s.sampled:
         # the lag joins θ as its last column, started at the lag assumed and polished with the rest
         data = data._replace(lag_prior=LAG_RANGE)
         bounds = with_lag_bounds(bounds, LAG_RANGE)
         theta = np.append(theta, np.log(float(finger.taxels.lag)))
-        nlp = jax.jit(jax.value_and_grad(lambda t: -raw_log_prob(t, data, finger, bounds, STUDENT_NU, tex)))
+        nlp = raw_objective(data, finger, bounds, tex)
         lo, hi = np.asarray(bounds.lower), np.asarray(bounds.upper)
         theta, objective = scaled_lbfgs(nlp, theta, lo, hi, opt_scale(tex is not None, True))
     return _Start(data, finger, th0, tex, theta, bounds, nlp, search, objective)

@@ -7,6 +7,8 @@ evaluated per draw. Parameters, noise model and reductions: ``docs/raw_model.md`
 
 from __future__ import annotations
 
+from functools import wraps
+
 import numpy as np
 
 from bayestouch.backend import jax, jnp
@@ -14,7 +16,7 @@ from bayestouch.inference import contact as cm
 from bayestouch.inference import grating as gr
 from bayestouch.inference.densities import student_t_logpdf, t_scale_factor
 from bayestouch.inference.grating import RawTexture
-from bayestouch.inference.raw.data import RawData
+from bayestouch.inference.raw.data import RawData, join_data, on_device, split_data
 from bayestouch.inference.raw.priors import (
     LOG_K_PRIOR_SD,
     LOG_K_RANGE,
@@ -62,6 +64,14 @@ __all__ = [
     "raw_log_prob_batch",
     "raw_log_prob",
     "make_raw_log_prob",
+    "jit_on_data",
+    "neg_log_post_vg",
+    "log_prob_value",
+    "log_prob_batch",
+    "frame_log_lik_batch",
+    "frame_log_lik_jacobian",
+    "readings_batch",
+    "raw_objective",
 ]
 
 
@@ -127,11 +137,12 @@ def with_lag_bounds(bounds: cm.Bounds, lag_prior) -> cm.Bounds:
 
 
 def _hom(data: RawData):
-    """Homogeneous positions (4, P) m of the evaluated penetrating-taxel slots (all F·J, or ``data.active``)."""
-    x = np.asarray(data.taxel_position, float).reshape(-1, 3)
+    """Homogeneous positions (4, P) m of the evaluated penetrating-taxel slots (all F·J, or ``data.active``); pure
+    JAX (``data`` may be traced)."""
+    x = jnp.asarray(data.taxel_position, dtype=float).reshape(-1, 3)
     if data.active is not None:
-        x = x[np.asarray(data.active)]
-    return jnp.asarray(np.concatenate([x.T, np.ones((1, len(x)))]))
+        x = x[jnp.asarray(data.active)]
+    return jnp.concatenate([x.T, jnp.ones((1, x.shape[0]))])
 
 
 #: signed distance (m) given to the slots :func:`prune_clear` left out: far enough that the softplus penetration is
@@ -400,11 +411,92 @@ def make_raw_log_prob(
         bounds = raw_bounds(data, priors)
         if data.lag_prior is not None:
             bounds = with_lag_bounds(bounds, data.lag_prior)
-    batched = jax.jit(lambda t: raw_log_prob_batch(t, data, finger, bounds, nu, texture))
+    data = on_device(data)
 
     def f(thetas):
         th = np.atleast_2d(np.asarray(thetas, dtype=float))
-        out = np.asarray(batched(jnp.asarray(np.nan_to_num(th, nan=np.inf))))
+        th_j = jnp.asarray(np.nan_to_num(th, nan=np.inf))
+        out = np.asarray(log_prob_batch(th_j, data, finger, bounds, texture, nu=nu))
         return np.where(np.isfinite(th).all(axis=1) & ~np.isnan(out), out, -np.inf)
 
     return f, bounds, raw_names(texture is not None, data.lag_prior is not None)
+
+
+def jit_on_data(fun):
+    """``fun(theta, data, *args, nu=...)`` compiled with ``data``'s arrays as an argument
+    (:func:`~bayestouch.inference.raw.data.split_data`; its non-array fields and ``nu`` static): one program per
+    shape, shared by every call site and every recording of those shapes, where a ``jax.jit`` of a closure over
+    ``data`` compiles again for each, with the arrays baked in as constants. ``args`` are pytrees of arrays or None
+    (the finger, the prior box, the texture)."""
+
+    def inner(theta, arrays, static, nu, *args):
+        return fun(theta, join_data(arrays, static), *args, nu=nu)
+
+    compiled = jax.jit(inner, static_argnums=(2, 3))
+
+    @wraps(fun)
+    def call(theta, data: RawData, *args, nu: float = STUDENT_NU):
+        arrays, static = split_data(data)
+        return compiled(theta, arrays, static, float(nu), *args)
+
+    return call
+
+
+def _neg_log_post_vg(theta, data: RawData, finger, bounds: cm.Bounds, texture=None, *, nu):
+    """(−:func:`raw_log_prob`, its gradient) at one θ."""
+    return jax.value_and_grad(lambda t: -raw_log_prob(t, data, finger, bounds, nu, texture))(theta)
+
+
+def _log_prob(theta, data: RawData, finger, bounds: cm.Bounds, texture=None, *, nu):
+    """:func:`raw_log_prob` of one θ."""
+    return raw_log_prob(theta, data, finger, bounds, nu, texture)
+
+
+def _log_prob_batch(thetas, data: RawData, finger, bounds: cm.Bounds, texture=None, *, nu):
+    """:func:`raw_log_prob_batch` of walkers θ (W, D)."""
+    return raw_log_prob_batch(thetas, data, finger, bounds, nu, texture)
+
+
+def _frame_log_lik(theta, data: RawData, finger, texture, nu):
+    """Log-likelihood (F,) of each selected frame (its taxels' readings summed) at one θ."""
+    return jnp.sum(raw_pointwise(theta, data, finger, nu, texture), axis=1)
+
+
+def _frame_log_lik_batch(thetas, data: RawData, finger, texture=None, *, nu):
+    """:func:`_frame_log_lik` of draws θ (S, D): (S, F)."""
+    return jax.vmap(lambda t: _frame_log_lik(t, data, finger, texture, nu))(thetas)
+
+
+def _frame_log_lik_jacobian(theta, data: RawData, finger, texture=None, *, nu):
+    """Jacobian (F, D) of :func:`_frame_log_lik` at one θ."""
+    return jax.jacfwd(lambda t: _frame_log_lik(t, data, finger, texture, nu))(theta)
+
+
+def _readings_batch(thetas, data: RawData, finger, texture=None, *, nu):
+    """(:func:`predict_readings`, :func:`reading_scale`), each (S, F, M), of draws θ (S, D)."""
+    return jax.vmap(lambda t: (predict_readings(t, data, finger, nu, texture), reading_scale(t, data, texture, nu)))(
+        thetas
+    )
+
+
+#: (−log-posterior, its gradient) of one θ: ``neg_log_post_vg(θ, data, finger, bounds, texture=None, nu=ν)``,
+#: the optimisers' objective (:func:`jit_on_data`)
+neg_log_post_vg = jit_on_data(_neg_log_post_vg)
+#: log-posterior of one θ: ``log_prob_value(θ, data, finger, bounds, texture=None, nu=ν)``
+log_prob_value = jit_on_data(_log_prob)
+#: log-posterior (W,) of walkers θ (W, D): ``log_prob_batch(θs, data, finger, bounds, texture=None, nu=ν)``
+log_prob_batch = jit_on_data(_log_prob_batch)
+#: log-likelihood (S, F) of each frame for draws θ (S, D): ``frame_log_lik_batch(θs, data, finger, texture, nu=ν)``
+frame_log_lik_batch = jit_on_data(_frame_log_lik_batch)
+#: Jacobian (F, D) of the frames' log-likelihoods at one θ: ``frame_log_lik_jacobian(θ, data, finger, texture, nu=ν)``
+frame_log_lik_jacobian = jit_on_data(_frame_log_lik_jacobian)
+#: (prediction, Student-t scale), each (S, F, M), of draws θ (S, D): ``readings_batch(θs, data, finger, texture,
+#: nu=ν)``
+readings_batch = jit_on_data(_readings_batch)
+
+
+def raw_objective(data: RawData, finger, bounds: cm.Bounds, texture: RawTexture | None = None, nu: float = STUDENT_NU):
+    """The optimisers' objective θ (D,) → (−log-posterior, its gradient (D,)): :data:`neg_log_post_vg` on ``data``
+    (moved to the device once, :func:`~bayestouch.inference.raw.data.on_device`)."""
+    data = on_device(data)
+    return lambda theta: neg_log_post_vg(theta, data, finger, bounds, texture, nu=nu)

@@ -20,14 +20,17 @@ from bayestouch.inference import contact as cm
 from bayestouch.inference import grating as gr
 from bayestouch.inference.grating import RawTexture
 from bayestouch.inference.optimize import diag_scale, scaled_lbfgs
-from bayestouch.inference.raw.data import RawData
+from bayestouch.inference.raw.data import RawData, on_device
 from bayestouch.inference.raw.likelihood import (
     RAW_OPT_SCALE,
     STUDENT_NU,
     distance_log_current,
+    jit_on_data,
+    log_prob_value,
+    neg_log_post_vg,
     predict_log_current,
     raw_bounds,
-    raw_log_prob,
+    raw_objective,
     response_scaled,
     slot_distances,
 )
@@ -67,6 +70,51 @@ def _height_jvp(th, hh, data: RawData, finger, texture: RawTexture | None = None
     )[1]
 
 
+def _pullback(th, data: RawData, finger, *, nu):
+    """The bare prediction's robust score pulled back onto the penetrating taxels, c = Jᵀψ (F, J), and the
+    readings' inverse variances (F, M) at θ (11,)."""
+    sdf0 = slot_distances(th[None], data)[0]
+    pred0, vjp = jax.vjp(
+        lambda h: response_scaled(distance_log_current(sdf0 - h, data, finger), data), jnp.zeros_like(sdf0)
+    )
+    r = jnp.asarray(data.log_current) - pred0
+    wgt = 1.0 / (jnp.exp(th[10]) * jnp.asarray(data.noise_sd)) ** 2
+    return vjp((nu + 1.0) * r * wgt / (nu + r * r * wgt))[0], wgt  # ψ = d log t / d prediction
+
+
+def _energy(th, data: RawData, finger, xy, kb, wgt, *, nu):
+    """Predicted signal energy (K,) of unit gratings of wave vectors ``kb (K, 2)`` 1/m at in-plane foot points
+    ``xy (F, J, 2)`` m, linearised at θ (cos and sin phases summed)."""
+    ph = jnp.einsum("fjd,kd->kfj", xy, kb)
+    out = jax.vmap(lambda hh: _height_jvp(th, hh, data, finger))(jnp.concatenate([jnp.cos(ph), jnp.sin(ph)]))
+    e = jnp.sum(out * out * wgt, axis=(1, 2))
+    return e[: kb.shape[0]] + e[kb.shape[0] :]
+
+
+def _height_power(th, data: RawData, finger, hh, texture, *, nu):
+    """Σ over fields of the squared linear response (F, M) to height fields ``hh (K, F, J)`` m at θ."""
+    return jnp.sum(jax.vmap(lambda h: _height_jvp(th, h, data, finger, texture))(hh) ** 2, axis=0)
+
+
+def _bare_prediction(th, data: RawData, finger, *, nu):
+    """The bare shape's prediction (F, M) at θ, at the data's response factor."""
+    return response_scaled(predict_log_current(th, data, finger), data)
+
+
+def _grating_jacobian(th, data: RawData, finger, zero: RawTexture, *, nu):
+    """∂ ln I / ∂(u, v) (F, M, 2) at θ (16,) with u = v = 0."""
+    return jax.jacfwd(lambda uv: response_scaled(predict_log_current(th.at[11:13].set(uv), data, finger, zero), data))(
+        jnp.zeros(2)
+    )
+
+
+_pullback_jit = jit_on_data(_pullback)
+_energy_jit = jit_on_data(_energy)
+_height_power_jit = jit_on_data(_height_power)
+_bare_prediction_jit = jit_on_data(_bare_prediction)
+_grating_jacobian_jit = jit_on_data(_grating_jacobian)
+
+
 def search_texture(
     theta0,
     data: RawData,
@@ -98,18 +146,8 @@ def search_texture(
     list of (plane, wavelength m, orientation rad, statistic)
     """
     th = jnp.asarray(np.asarray(theta0, float)[:11])
-
-    @jax.jit
-    def pullback(th):  # the prediction, and c = Jᵀψ (F, J)
-        sdf0 = slot_distances(th[None], data)[0]
-        pred0, vjp = jax.vjp(
-            lambda h: response_scaled(distance_log_current(sdf0 - h, data, finger), data), jnp.zeros_like(sdf0)
-        )
-        r = jnp.asarray(data.log_current) - pred0
-        wgt = 1.0 / (jnp.exp(th[10]) * jnp.asarray(data.noise_sd)) ** 2
-        return vjp((nu + 1.0) * r * wgt / (nu + r * r * wgt))[0], wgt  # ψ = d log t / d prediction
-
-    c, wgt = pullback(th)
+    data = on_device(data)
+    c, wgt = _pullback_jit(th, data, finger, nu=nu)
     c = np.asarray(c).ravel()
     x = np.asarray(data.taxel_position, float).reshape(-1, 3)
     foot = gr.foot_points(theta0, x)  # principal frame of θ₀
@@ -124,19 +162,14 @@ def search_texture(
     nb = 16
     kp = jnp.asarray(np.concatenate([kv, np.repeat(kv[-1:], -len(kv) % nb, 0)]))
 
-    @jax.jit
-    def energy(xy_j, kb):
-        ph = jnp.einsum("fjd,kd->kfj", xy_j, kb)
-        out = jax.vmap(lambda hh: _height_jvp(th, hh, data, finger))(jnp.concatenate([jnp.cos(ph), jnp.sin(ph)]))
-        e = jnp.sum(out * out * wgt, axis=(1, 2))
-        return e[: kb.shape[0]] + e[kb.shape[0] :]
-
     found = []
     for plane in planes:
         P = _PLANES[plane]
         xy = (foot @ P)[:, :2] - (yref @ P)[:2]  # coordinates in the frame R P (plane_theta's)
         xy_j = jnp.asarray(xy.reshape(np.shape(data.taxel_position)[:2] + (2,)))
-        A = np.concatenate([np.asarray(energy(xy_j, kp[i : i + nb])) for i in range(0, len(kp), nb)])[: len(kv)]
+        A = np.concatenate(
+            [np.asarray(_energy_jit(th, data, finger, xy_j, kp[i : i + nb], wgt, nu=nu)) for i in range(0, len(kp), nb)]
+        )[: len(kv)]
         A = A.reshape(rings, directions)
         # periodic in angle with period π (A(k) = A(−k)): pad one column each side
         interp = RegularGridInterpolator(
@@ -163,10 +196,10 @@ def roughness_variance(theta, data: RawData, finger, texture: RawTexture, count:
     F, J = np.shape(data.taxel_position)[:2]
     foot = gr.foot_points(theta, np.asarray(data.taxel_position, float).reshape(-1, 3))
     fields = gr.roughness_fields(foot, float(np.exp(theta[13])), count, np.random.default_rng(seed))
-    run = jax.jit(lambda hh: jnp.sum(jax.vmap(lambda h: _height_jvp(th, h, data, finger, texture))(hh) ** 2, axis=0))
+    data = on_device(data)
     acc = np.zeros(np.shape(data.log_current))
     for chunk in np.array_split(fields, max(1, count // 16)):
-        acc += np.asarray(run(jnp.asarray(chunk.reshape(-1, F, J))))
+        acc += np.asarray(_height_power_jit(th, data, finger, jnp.asarray(chunk.reshape(-1, F, J)), texture))
     return acc / count
 
 
@@ -284,8 +317,9 @@ def initial_raw_texture(
     """
     # the bare shape polished on these data (θ₀ may come from other frames): its residuals then hold no first-order
     # shape misfit for the search to mistake for a grating, and its log-posterior is the baseline of the gain
+    data = on_device(data)
     bare_b = raw_bounds(data, priors)
-    bare_fn = jax.jit(jax.value_and_grad(lambda t: -raw_log_prob(t, data, finger, bare_b, nu)))
+    bare_fn = raw_objective(data, finger, bare_b, nu=nu)
     theta0, f_bare = scaled_lbfgs(
         bare_fn, canonical_theta(theta0), np.asarray(bare_b.lower), np.asarray(bare_b.upper), RAW_OPT_SCALE[:11]
     )
@@ -294,17 +328,15 @@ def initial_raw_texture(
     frames = [plane_theta(theta0, p) for p in range(len(_PLANES))]
     cands = search_texture(theta0, data, finger, tp, nu, count, planes=range(len(_PLANES)))
     zero = RawTexture(ref, np.zeros(np.shape(data.log_current)), tp.amplitude_scale)
-    pred0 = jax.jit(lambda t: response_scaled(predict_log_current(t, data, finger), data))(jnp.asarray(theta0))
+    pred0 = _bare_prediction_jit(jnp.asarray(theta0), data, finger, nu=nu)
     w = (1.0 / (np.exp(theta0[10]) * np.asarray(data.noise_sd)) ** 2).ravel()
     r = (np.asarray(data.log_current) - np.asarray(pred0)).ravel()  # the textured prediction at u = v = 0
 
-    @jax.jit
     def jac_uv(th):  # ∂ ln I / ∂(u, v) at u = v = 0, (F, M, 2)
-        return jax.jacfwd(
-            lambda uv: response_scaled(predict_log_current(th.at[11:13].set(uv), data, finger, zero), data)
-        )(jnp.zeros(2))
+        return _grating_jacobian_jit(th, data, finger, zero, nu=nu)
 
-    value = jax.jit(lambda t, b, tex: raw_log_prob(t, data, finger, b, nu, tex))
+    def value(t, b, tex):
+        return log_prob_value(t, data, finger, b, tex, nu=nu)
 
     def profile_k(th, b, tex):  # max over the noise multiplier log k of the log-posterior at θ's other entries
         def neg(lk):
@@ -325,12 +357,15 @@ def initial_raw_texture(
         val, th[10] = profile_k(th, b, zero)
         ranked.append((val, th, b, stat))
     ranked.sort(key=lambda x: -x[0])
+
     # the linearised ranking can put an alias first: a few strokes leave wavelengths ~5–10 % apart nearly as good
     # while the grating's plane is tilted from the search frame's (the egg's frame is fixed about its long axis only
     # to ~4° by four strokes). Short L-BFGS-B runs (roughness at its floor, all else free) from the ``polish`` best
     # rank them; the best is polished to convergence.
     # one compiled program for every box and both roughness models (b and tex are arguments, not constants)
-    fn_any = jax.jit(jax.value_and_grad(lambda t, b, tex: -raw_log_prob(t, data, finger, b, nu, tex)))
+    def fn_any(t, b, tex):
+        return neg_log_post_vg(t, data, finger, b, tex, nu=nu)
+
     fn0 = partial(fn_any, tex=zero)
 
     def floored(b):  # the box with the roughness held at its floor
