@@ -14,7 +14,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from bayestouch.backend import jnp
+from bayestouch.backend import jnp, pad_pow2
 from bayestouch.errors import BadInput, check_path
 from bayestouch.inference import contact as cm
 from bayestouch.inference import grating as gr
@@ -177,13 +177,13 @@ def _natural(flat: np.ndarray, textured: bool, lag: bool = False) -> np.ndarray:
     return np.column_stack(cols)
 
 
-def _chunks(thetas: np.ndarray, size: int):
-    """``thetas (S, D)`` in chunks of ``size`` rows (the last padded with copies of its last row, so that every
-    chunk has the shape of one compiled program): yields (chunk (size, D), rows of it that are real)."""
-    thetas = np.asarray(thetas, float)
+def _blocks(thetas, size: int):
+    """Draws ``thetas (S, D)`` in blocks of ``size`` rows, the last padded to ``size`` (:func:`pad_pow2`; ``size``
+    a power of two), so that one compiled program serves every chain length: yields (block (size, D), its real
+    rows)."""
     for i in range(0, len(thetas), size):
         c = thetas[i : i + size]
-        yield np.concatenate([c, np.repeat(c[-1:], size - len(c), axis=0)]), len(c)
+        yield jnp.asarray(pad_pow2(c, min_size=size)), len(c)
 
 
 def raw_model(
@@ -205,17 +205,15 @@ def raw_model(
     adj = adjust if adjust is not None else (lambda flat: flat)
 
     def ll(thetas):
-        thetas = adj(thetas)
         per_frame = [
-            np.asarray(frame_log_lik_batch(jnp.asarray(c), data, finger, texture, nu=nu))[:n]
-            for c, n in _chunks(thetas, 64)
+            np.asarray(frame_log_lik_batch(c, data, finger, texture, nu=nu))[:n] for c, n in _blocks(adj(thetas), 64)
         ]
         return {"log_current": np.concatenate(per_frame)}
 
     def predictive(thetas, rng: np.random.Generator):
         reps = []
-        for c, n in _chunks(adj(thetas), 32):
-            mu, sc = (np.asarray(a)[:n] for a in readings_batch(jnp.asarray(c), data, finger, texture, nu=nu))
+        for c, n in _blocks(adj(thetas), 32):
+            mu, sc = (np.asarray(a)[:n] for a in readings_batch(c, data, finger, texture, nu=nu))
             reps.append((mu + sc * rng.standard_t(nu, size=mu.shape)).astype(np.float32))
         return {"log_current": np.concatenate(reps)}
 
