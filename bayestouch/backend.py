@@ -12,18 +12,43 @@ fitting, geometry or physics module of bayestouch turns float64 on for it too; g
 
 from __future__ import annotations
 
+import hashlib
 import os
+import platform
 import sys
 from pathlib import Path
 
 import jax
+import jaxlib
 import numpy as np
 
 jax.config.update("jax_enable_x64", True)
 
 import jax.numpy as jnp  # noqa: E402  (must follow the x64 switch)
 
-__all__ = ["jax", "jnp", "pad_pow2", "enable_compilation_cache"]
+__all__ = ["jax", "jnp", "pad_pow2", "enable_compilation_cache", "build_tag"]
+
+
+def build_tag() -> str:
+    """The name of this machine's and JAX build's part of a compilation cache: JAX and jaxlib versions, the machine
+    architecture and a hash of the CPU's instruction-set features (``flags`` of ``/proc/cpuinfo`` on Linux, the
+    processor's name elsewhere).
+
+    JAX's cache keys hold the platform and its version but not the CPU's features, and XLA compiles CPU code for the
+    host's; a cache folder shared between hosts (a home folder on a cluster's network file system) or kept across an
+    upgrade would otherwise hand one machine's compiled programs to another.
+    """
+    features = platform.processor()
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as fh:
+            for line in fh:
+                if line.startswith(("flags", "Features")):
+                    features = " ".join(sorted(line.split(":", 1)[1].split()))
+                    break
+    except OSError:
+        pass
+    digest = hashlib.sha256(features.encode()).hexdigest()[:12]
+    return f"jax{jax.__version__}-jaxlib{jaxlib.__version__}-{platform.machine()}-{digest}"
 
 
 def enable_compilation_cache() -> str | None:
@@ -33,14 +58,15 @@ def enable_compilation_cache() -> str | None:
     its gradient, the evolutionary search, the summaries' maps and many small array operations); later runs read
     them back. The folder is ``$BAYESTOUCH_JAX_CACHE`` when set (``~`` expands; ``0``, ``false``, ``no``, ``off`` or
     an empty value disable the cache; ``1``, ``true``, ``yes``, ``on`` keep the default), else
-    ``$XDG_CACHE_HOME/bayestouch/jax`` (``~/.cache/bayestouch/jax``). A value that cannot be a folder (a file) is
-    said on stderr and the cache stays off. It takes effect only if nothing has been compiled yet in the process;
+    ``$XDG_CACHE_HOME/bayestouch/jax`` (``~/.cache/bayestouch/jax``); programs go into its subfolder
+    :func:`build_tag`, one per JAX build and CPU. A value that cannot be a folder (a file) is said on stderr and the
+    cache stays off. It takes effect only if nothing has been compiled yet in the process;
     results are identical with or without it.
 
     Returns
     -------
     str or None
-        The cache folder, or None when disabled or not writable.
+        The cache folder (the :func:`build_tag` subfolder), or None when disabled or not writable.
     """
     env = os.environ.get("BAYESTOUCH_JAX_CACHE")
     word = None if env is None else env.strip().lower()
@@ -48,8 +74,9 @@ def enable_compilation_cache() -> str | None:
         return None
     default = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "bayestouch" / "jax"
     base = default if word in (None, "1", "true", "yes", "on") else Path(env.strip()).expanduser()
+    folder = base / build_tag()
     try:
-        base.mkdir(parents=True, exist_ok=True)
+        folder.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         print(
             f"bayestouch: BAYESTOUCH_JAX_CACHE: {base} cannot be a cache folder ({e.strerror}); compiling without the "
@@ -57,10 +84,10 @@ def enable_compilation_cache() -> str | None:
             file=sys.stderr,
         )
         return None
-    jax.config.update("jax_compilation_cache_dir", str(base))
+    jax.config.update("jax_compilation_cache_dir", str(folder))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
-    return str(base)
+    return str(folder)
 
 
 def pad_pow2(a, fill=None, min_size: int = 1) -> np.ndarray:

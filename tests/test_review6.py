@@ -91,6 +91,35 @@ def test_currents_beyond_the_read_outs_full_scale_are_refused(tmp_path, capsys):
     assert not (tmp_path / "o").exists() and _snapshot(run) == before
 
 
+def test_the_cache_keeps_each_cpu_and_jax_build_apart(monkeypatch):
+    """JAX's cache keys do not hold the CPU's features: programs compiled on one host of a shared home folder must
+    not reach a host of another CPU, nor survive a JAX upgrade. The tag names both, and changes with either."""
+    import io
+
+    from bayestouch import backend
+
+    def tag_with(flags):
+        real = open
+
+        def fake(path, *a, **k):
+            if str(path) == "/proc/cpuinfo":
+                return io.StringIO(f"processor\t: 0\nflags\t\t: {flags}\n")
+            return real(path, *a, **k)
+
+        monkeypatch.setattr("builtins.open", fake)
+        try:
+            return backend.build_tag()
+        finally:
+            monkeypatch.setattr("builtins.open", real)
+
+    base = tag_with("fpu sse2 avx2")
+    assert tag_with("avx2 sse2 fpu") == base  # the features, not their order
+    assert tag_with("fpu sse2 avx2 avx512f") != base
+    assert backend.jax.__version__ in base and "/" not in base
+    monkeypatch.setattr(backend.jax, "__version__", "0.0.1")
+    assert tag_with("fpu sse2 avx2") != base
+
+
 def test_the_cache_variable_means_what_a_user_writes(tmp_path, monkeypatch, capsys):
     """``~`` expands (it made a folder literally named ~), ``1``/``on`` keep the default place (``1`` made a folder
     named 1), ``off`` turns the cache off, and a file given as the folder is said on stderr."""
@@ -101,11 +130,12 @@ def test_the_cache_variable_means_what_a_user_writes(tmp_path, monkeypatch, caps
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
     monkeypatch.chdir(tmp_path)
     monkeypatch.setenv("BAYESTOUCH_JAX_CACHE", "~/jaxcache")
-    assert backend.enable_compilation_cache() == str(tmp_path / "home" / "jaxcache")
+    tag = backend.build_tag()
+    assert backend.enable_compilation_cache() == str(tmp_path / "home" / "jaxcache" / tag)
     assert not (tmp_path / "~").exists()
     for on in ("1", "on", "True"):
         monkeypatch.setenv("BAYESTOUCH_JAX_CACHE", on)
-        assert backend.enable_compilation_cache() == str(tmp_path / "xdg" / "bayestouch" / "jax")
+        assert backend.enable_compilation_cache() == str(tmp_path / "xdg" / "bayestouch" / "jax" / tag)
     assert not (tmp_path / "1").exists()
     for off in ("0", "off", "no", ""):
         monkeypatch.setenv("BAYESTOUCH_JAX_CACHE", off)
