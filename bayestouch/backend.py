@@ -34,9 +34,10 @@ def build_tag() -> str:
     architecture and a hash of the CPU's instruction-set features (``flags`` of ``/proc/cpuinfo`` on Linux, the
     processor's name elsewhere).
 
-    JAX's cache keys hold the platform and its version but not the CPU's features, and XLA compiles CPU code for the
-    host's; a cache folder shared between hosts (a home folder on a cluster's network file system) or kept across an
-    upgrade would otherwise hand one machine's compiled programs to another.
+    JAX's cache keys hold jaxlib's version and the platform but not the CPU's features, and XLA compiles CPU code for
+    the host's: a cache folder shared between hosts (a home folder on a cluster's network file system) would
+    otherwise hand one machine's compiled programs to another. The versions keep each JAX build's programs in a
+    folder of their own, which can be deleted once that build is gone.
     """
     features = platform.processor()
     try:

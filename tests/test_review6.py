@@ -93,7 +93,7 @@ def test_currents_beyond_the_read_outs_full_scale_are_refused(tmp_path, capsys):
 
 def test_the_cache_keeps_each_cpu_and_jax_build_apart(monkeypatch):
     """JAX's cache keys do not hold the CPU's features: programs compiled on one host of a shared home folder must
-    not reach a host of another CPU, nor survive a JAX upgrade. The tag names both, and changes with either."""
+    not reach a host of another CPU. The tag changes with the CPU's features and with the JAX build."""
     import io
 
     from bayestouch import backend
