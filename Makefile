@@ -21,12 +21,15 @@ demo: $(STAMP)
 	$(VENV)/bin/bayestouch demo --out out/demo
 
 # two workers (the CI machine has 2 cores; the suite is single-threaded per test), whole files per worker so
-# module fixtures are built once
+# module fixtures are built once; a worker that crashes (a segfault) fails the run at once, naming its test, instead
+# of being replaced (xdist's loadfile scheduling can then wait forever: pytest-xdist issue 784)
+XDIST = -n 2 --dist loadfile --max-worker-restart=0
+
 test: $(STAMP)
-	$(PY) -m pytest -q -n 2 --dist loadfile --durations=15
+	$(PY) -m pytest -q $(XDIST) --durations=15
 
 test-fast: $(STAMP)
-	$(PY) -m pytest -q -n 2 --dist loadfile -m "not slow"
+	$(PY) -m pytest -q $(XDIST) -m "not slow"
 
 bench: $(STAMP)
 	$(PY) -m benchmarks
