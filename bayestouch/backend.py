@@ -29,10 +29,10 @@ import jax.numpy as jnp  # noqa: E402  (must follow the x64 switch)
 __all__ = ["jax", "jnp", "pad_pow2", "enable_compilation_cache", "build_tag"]
 
 
-def build_tag() -> str:
+def build_tag(cpuinfo: str | os.PathLike = "/proc/cpuinfo") -> str:
     """The name of this machine's and JAX build's part of a compilation cache: JAX and jaxlib versions, the machine
-    architecture and a hash of the CPU's instruction-set features (``flags`` of ``/proc/cpuinfo`` on Linux, the
-    processor's name elsewhere).
+    architecture and a hash of the CPU's instruction-set features (the ``flags`` line of ``cpuinfo``, Linux's
+    ``/proc/cpuinfo``; the processor's name where there is none).
 
     JAX's cache keys hold jaxlib's version and the platform but not the CPU's features, and XLA compiles CPU code for
     the host's: a cache folder shared between hosts (a home folder on a cluster's network file system) would
@@ -41,7 +41,7 @@ def build_tag() -> str:
     """
     features = platform.processor()
     try:
-        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as fh:
+        with open(cpuinfo, encoding="utf-8", errors="replace") as fh:
             for line in fh:
                 if line.startswith(("flags", "Features")):
                     features = " ".join(sorted(line.split(":", 1)[1].split()))

@@ -91,31 +91,21 @@ def test_currents_beyond_the_read_outs_full_scale_are_refused(tmp_path, capsys):
     assert not (tmp_path / "o").exists() and _snapshot(run) == before
 
 
-def test_the_cache_keeps_each_cpu_and_jax_build_apart(monkeypatch):
+def test_the_cache_keeps_each_cpu_and_jax_build_apart(tmp_path, monkeypatch):
     """JAX's cache keys do not hold the CPU's features: programs compiled on one host of a shared home folder must
     not reach a host of another CPU. The tag changes with the CPU's features and with the JAX build."""
-    import io
-
     from bayestouch import backend
 
     def tag_with(flags):
-        real = open
-
-        def fake(path, *a, **k):
-            if str(path) == "/proc/cpuinfo":
-                return io.StringIO(f"processor\t: 0\nflags\t\t: {flags}\n")
-            return real(path, *a, **k)
-
-        monkeypatch.setattr("builtins.open", fake)
-        try:
-            return backend.build_tag()
-        finally:
-            monkeypatch.setattr("builtins.open", real)
+        info = tmp_path / "cpuinfo"
+        info.write_text(f"processor\t: 0\nflags\t\t: {flags}\n")
+        return backend.build_tag(info)
 
     base = tag_with("fpu sse2 avx2")
     assert tag_with("avx2 sse2 fpu") == base  # the features, not their order
     assert tag_with("fpu sse2 avx2 avx512f") != base
     assert backend.jax.__version__ in base and "/" not in base
+    assert backend.build_tag(tmp_path / "none")  # no cpuinfo: the processor's name stands in
     monkeypatch.setattr(backend.jax, "__version__", "0.0.1")
     assert tag_with("fpu sse2 avx2") != base
 
