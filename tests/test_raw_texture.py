@@ -11,7 +11,6 @@ from bayestouch.backend import jax, jnp
 from bayestouch.inference import contact as cm
 from bayestouch.inference import grating as gr
 from bayestouch.inference import raw
-from bayestouch.inference.raw.priors import LAG_RANGE
 from bayestouch.params import MODELS
 
 EGG = MODELS / "objects" / "egg.toml"
@@ -277,7 +276,7 @@ def test_texture_start_finds_the_grating_the_linearised_ranking_puts_eleventh(tm
     cal_ds, sphere = _record("sphere", models, CAL_STROKES, 1010, device_seed, CAL_DEPTHS)
     cal = raw.calibrate_device(cal_ds, sphere)
     ds, egg = _record("egg", models, STROKES, 2010, device_seed)
-    host = raw.host_device(models, cal).with_lag(np.sqrt(LAG_RANGE[0] * LAG_RANGE[1]))
+    host = raw.host_device(models, cal).with_lag(np.sqrt(raw.LAG_RANGE[0] * raw.LAG_RANGE[1]))
     priors = cm.load_priors()
     dev = {"models": models, "device": host, "calibration": cal}
     bare, _ = raw.load_raw_data(ds, stride=raw.BARE_STRIDE, **dev)
