@@ -217,3 +217,39 @@ def test_a_warm_start_keeps_its_angles_and_an_ensemble_across_xi_zero_stays_one(
         np.asarray(cm.log_prior(jnp.asarray(back), b)), np.asarray(cm.log_prior(jnp.asarray(got), b)), atol=1e-6
     )
     assert np.ptp(far[:, 7]) > 1e5  # the control: as they were, the walkers span 10^5 radians
+
+
+def test_the_angle_window_keeps_one_image_of_every_surface():
+    """``angle_window`` restricts a log-density to one period of each Euler angle around the given centres: inside
+    it is the density itself, outside −∞, and every θ has exactly one image there (``shift_angles``: whole periods,
+    the same surface and density). So a chain held in the windows samples the same posterior over surfaces, and an
+    angle a whole period away (which a periodic density accepts as readily as staying) is refused."""
+    pts = _sphere_points()
+    b = cm.bounds_for(pts, cm.load_priors())
+    x = cm.sample_prior(b, 64, np.random.default_rng(7))
+
+    def logp(t):
+        return np.asarray(cm.log_prior(jnp.asarray(t), b))
+
+    centres = np.array([1.0, -0.4, 2.5])
+    windowed = cm.angle_window(logp, centres)
+    far = x.copy()
+    far[:, 6:9] += np.random.default_rng(8).integers(-1000, 1000, (64, 3)) * np.asarray(cm.ANGLE_PERIODS)
+    home = cm.shift_angles(far, centres)
+    half = 0.5 * np.asarray(cm.ANGLE_PERIODS)
+    assert np.all((home[:, 6:9] >= centres - half) & (home[:, 6:9] < centres + half))
+    np.testing.assert_allclose(cm.wrap_angles(home), cm.wrap_angles(x), atol=1e-9)  # the same surfaces
+    np.testing.assert_allclose(windowed(home), logp(x), atol=1e-9)
+    moved = np.any(np.abs(far[:, 6:9] - home[:, 6:9]) > 1.0, axis=1)
+    assert moved.all() and np.all(np.isneginf(windowed(far)))  # the far images refused
+    # the circular means move with the draws by whole periods only, and sit among the draws they are taken of
+    turn = (cm.angle_centres(home) - cm.angle_centres(x)) / np.asarray(cm.ANGLE_PERIODS)
+    np.testing.assert_allclose(turn, np.round(turn), atol=1e-9)
+    assert np.all(np.abs(cm.angle_centres(far) - np.median(far[:, 6:9], axis=0)) <= half + 1e-9)
+    # just inside and just beyond each window's upper edge
+    for j, col in enumerate((6, 7, 8)):
+        edge = home[:1].copy()
+        edge[0, col] = centres[j] + half[j] - 1e-9
+        beyond = edge.copy()
+        beyond[0, col] += 2e-9
+        assert np.isfinite(windowed(edge)[0]) and np.isneginf(windowed(beyond)[0])

@@ -2,9 +2,11 @@
 
 import json
 
+import emcee
 import numpy as np
 import pytest
 
+from bayestouch.inference import contact as cm
 from bayestouch.inference.run import describe_modes, run_contact_fit, surrounds
 
 
@@ -65,6 +67,11 @@ def test_default_fit_of_a_one_sided_contaminated_set(tmp_path):
     s2 = run_contact_fit(pts, tmp_path, seed=0, steps=450, progress=False, free=free, resume=True, budget_s=None)
     assert s2["diagnostics"]["steps"] == 450
     assert np.array_equal(np.load(tmp_path / "smc.npz")["particles"], before)
+    # a sphere leaves ψ and ζ free: every walker of the chain, resumed run included, holds each Euler angle within
+    # one period (cm.angle_window); a chain free to take whole periods spreads over several
+    chain = emcee.backends.HDFBackend(str(tmp_path / "chain.h5"), read_only=True).get_chain()
+    for col, period in zip(cm.ANGLE_COLUMNS, cm.ANGLE_PERIODS, strict=True):
+        assert np.ptp(chain[:, :, col]) < period
 
 
 def test_the_time_budget_covers_the_smc_and_a_cut_tempering_says_so(tmp_path):
@@ -84,7 +91,6 @@ def test_the_time_budget_covers_the_smc_and_a_cut_tempering_says_so(tmp_path):
 def test_optimum_mode_reaches_the_optimum_with_its_laplace_width():
     """All-round contacts on a sphere (r = 20 mm, 0.3 mm noise): the polished optimum has the radius, a
     log-posterior at least the truth's, and a Laplace sd of log σ near the Gaussian limit 1/√(2M)."""
-    from bayestouch.inference import contact as cm
     from bayestouch.inference.run import optimum_mode
 
     m = 120
@@ -110,7 +116,6 @@ def test_optimum_check_finds_the_low_noise_mode_of_a_heavily_contaminated_set():
     the robust Student-t cost falls into a wide-noise basin (n ≈ 1.5, σ ≈ 0.8 mm, log-posterior ≈ 452), where the
     tempered SMC also ends; the results as found lie in the truth's basin, whose mode (≈ 502.7, climbed from the
     truth) the optimum check reaches by polishing them too on the sampled posterior."""
-    from bayestouch.inference import contact as cm
     from bayestouch.inference.run import optimum_mode
     from benchmarks.bench_sbc_users import SIZE_PRIOR_M, make_sbc_set
 
@@ -253,7 +258,6 @@ def test_optimum_check_continued_in_sigma_finds_the_mode_the_fit_missed_without_
     (``anneal``, :func:`~bayestouch.inference.run.sigma_continuation`) it reaches the truth's mode, now more than
     :data:`~bayestouch.inference.run.MISSED_MODE_NATS` above the SMC's particles, so the chain starts walkers there.
     On the mixed-precision log-density the same check stops at ≈ 608."""
-    from bayestouch.inference import contact as cm
     from bayestouch.inference.run import TRIM_SEARCHES, candidate_thetas, optimum_mode
     from bayestouch.inference.trimmed import trimmed_starts
     from benchmarks.bench_sbc_users import SIZE_PRIOR_M, make_sbc_set
@@ -285,7 +289,6 @@ def test_sigma_continuation_returns_only_runs_it_raised():
     """A 1-D toy whose value falls as σ falls down to log σ = −3 and rises below: a run started at log σ = 0 is
     continued in halvings until a round no longer raises it; a run already at the optimum, or rounds = 0, returns
     nothing; equal values are continued once."""
-    from bayestouch.inference import contact as cm
     from bayestouch.inference.run import ANNEAL_STEP, sigma_continuation
 
     j = cm.PARAM_NAMES.index("log_sigma")

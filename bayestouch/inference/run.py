@@ -1219,6 +1219,8 @@ def run_contact_fit(
         "priors": {k: float(v) for k, v in priors._asdict().items()},
         # the coordinates chain.h5 holds (cm.to_sampling): a chain of another version's log-axis draws is not resumed
         "sampling": "log axes" if ffd is not None else "axes in metres",
+        # a chain of an older version has its Euler angles anywhere, outside this version's windows
+        "angles": "one period around the start",
     }
     data = {"points": points, "normals": normals, "free-space points": free}
     if pose is not None:  # the law itself: another law over the same points is another run
@@ -1251,7 +1253,7 @@ def run_contact_fit(
     logp_s, monitor = logp, judged_quantities(model.names, model.natural)
     if ffd is None:
         logp_s, monitor = cm.sampling_log_prob(logp), _composed(monitor, cm.from_sampling)
-    smc, moves = None, None
+    smc, moves, around = None, None, None
     if init == "smc" and start is None and ffd is None:
         if not resume:
             (out / "smc.npz").unlink(missing_ok=True)
@@ -1284,16 +1286,25 @@ def run_contact_fit(
         smc["trimmed_starts"] = len(trimmed)
         # one compact cloud: the particles as the aliases nearest the best particle's (or the missed optimum's) frame
         aligned = align_particles(smc["particles"], post, opt["theta"] if missed else None)
+        # one period of each Euler angle around the cloud (cm.angle_window): the mixture, the start and the missed
+        # mode in the window the chain is held to (alignment leaves ψ, of period π, anywhere within π of the frame)
+        around = cm.angle_centres(aligned)
+        aligned = cm.shift_angles(aligned, around)
         positive = [i for i, name in enumerate(sampled) if name in POSITIVE_NEAR_ZERO]
-        mode = _mode_for_sampling(opt) if missed else None
+        mode = _mode_for_sampling({**opt, "theta": cm.shift_angles(opt["theta"], around)}) if missed else None
         moves, smc_start = smc_moves(
             cm.to_sampling(aligned), walkers, seed, extra_mode=mode, logp=logp_s, log_columns=positive
         )
         smc_start = cm.from_sampling(smc_start)
 
+    # the chain's start, made on a resume too (the same data, options and seed make the same one): the Euler angles
+    # are held to one period around it, or around the SMC's particles (cm.angle_window), the run's own windows
+    first = initial() if ffd is not None else cm.to_sampling(initial())
+    around = cm.angle_centres(first) if around is None else around
+    logp_s = cm.angle_window(logp_s, around)
     ch = sample(
         logp_s,
-        initial if ffd is not None else lambda: cm.to_sampling(initial()),
+        cm.shift_angles(first, around),
         out / "chain.h5",
         walkers=walkers,
         ndim=len(sampled),
