@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import emcee
 import numpy as np
 import pytest
 
@@ -185,6 +186,13 @@ def test_parts_fit_chooses_two_parts_for_two_spheres_and_one_for_one(tmp_path):
     assert s1["model"]["parts"] == 1, s1["model"]["model_choice"]
     v1 = s1["derived"]["volume_m3"]
     assert v1["q05"] <= 4 / 3 * np.pi * 0.02**3 <= v1["q95"]
+    # spheres leave the angles free: every walker holds each part's Euler angles within one period
+    # (cm.angle_window); a chain free to take whole periods spreads over several
+    for run, k in (("two", 2), ("one", 1)):
+        chain = emcee.backends.HDFBackend(str(tmp_path / run / "chain.h5"), read_only=True).get_chain()
+        for j in range(k):
+            for col, period in zip(cm.ANGLE_COLUMNS, cm.ANGLE_PERIODS, strict=True):
+                assert np.ptp(chain[:, :, 10 * j + col]) < period, (run, j, col)
 
 
 def test_parts_fit_refuses_bad_parts(tmp_path):

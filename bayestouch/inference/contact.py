@@ -657,32 +657,35 @@ def walkers_inside(theta, bounds: Bounds, margin: float = 1e-9) -> np.ndarray:
     return shift_angles(th, angle_centres(th))
 
 
-def angle_centres(theta) -> np.ndarray:
-    """The circular mean (3,) of each Euler angle (:data:`ANGLE_COLUMNS`) over the rows of ``theta (W, D)``, each
-    on its own period (:data:`ANGLE_PERIODS`), radians, written as the value nearest the rows' median: a window
-    around it (:func:`shift_angles`) leaves a compact cloud where it is, so proposals fitted to the cloud stay in
-    it."""
+def angle_centres(theta, columns=ANGLE_COLUMNS, periods=ANGLE_PERIODS) -> np.ndarray:
+    """The circular mean (A,) of each Euler angle over the rows of ``theta (W, D)``, each on its own period,
+    radians, written as the value nearest the rows' median: a window around it (:func:`shift_angles`) leaves a
+    compact cloud where it is, so proposals fitted to the cloud stay in it.
+
+    ``columns`` (A,) and ``periods`` (A,) name the angles (default the contact level's ξ, ψ, ζ:
+    :data:`ANGLE_COLUMNS`, :data:`ANGLE_PERIODS`; a K-part θ passes each part's)."""
     th = np.asarray(theta, dtype=float).reshape(-1, np.shape(theta)[-1])
-    out = np.zeros(len(ANGLE_COLUMNS))
-    for j, (col, period) in enumerate(zip(ANGLE_COLUMNS, ANGLE_PERIODS, strict=True)):
+    out = np.zeros(len(columns))
+    for j, (col, period) in enumerate(zip(columns, periods, strict=True)):
         phase = np.exp(2j * np.pi * np.mod(th[:, col], period) / period)
         c = np.angle(np.mean(phase)) * period / (2 * np.pi)
         out[j] = c + period * np.round((np.median(th[:, col]) - c) / period)
     return out
 
 
-def shift_angles(theta, centres) -> np.ndarray:
+def shift_angles(theta, centres, columns=ANGLE_COLUMNS, periods=ANGLE_PERIODS) -> np.ndarray:
     """θ (…, D) with each Euler angle shifted by whole periods into its window [c − P/2, c + P/2) around
-    ``centres (3,)`` (radians; :data:`ANGLE_PERIODS`): the same surfaces."""
+    ``centres (A,)`` (radians; ``columns`` and ``periods`` as :func:`angle_centres`'s): the same surfaces."""
     th = np.array(theta, dtype=float, copy=True)
-    for col, period, c in zip(ANGLE_COLUMNS, ANGLE_PERIODS, np.asarray(centres, float), strict=True):
+    for col, period, c in zip(columns, periods, np.asarray(centres, float), strict=True):
         th[..., col] = c + np.mod(th[..., col] - c + 0.5 * period, period) - 0.5 * period
     return th
 
 
-def angle_window(logp, centres):
+def angle_window(logp, centres, columns=ANGLE_COLUMNS, periods=ANGLE_PERIODS):
     """``logp`` ((W, D) → (W,)) restricted to one period of each Euler angle: −∞ where an angle lies outside its
-    window [c − P/2, c + P/2) around ``centres (3,)`` (radians; :data:`ANGLE_PERIODS`).
+    window [c − P/2, c + P/2) around ``centres (A,)`` (radians; ``columns`` and ``periods`` as
+    :func:`angle_centres`'s).
 
     The posterior is periodic in the angles, so each surface has exactly one θ in the windows and the restricted
     density is the same posterior over surfaces. Unrestricted, an ensemble sampler's chain is improper in them: a
@@ -693,9 +696,9 @@ def angle_window(logp, centres):
     the starting ensemble (:func:`angle_centres`, the start shifted into them by :func:`shift_angles`), where the
     mass is, so the windows' edges lie half a period from it."""
     c = np.asarray(centres, float)
-    lo = c - 0.5 * np.asarray(ANGLE_PERIODS)
-    hi = c + 0.5 * np.asarray(ANGLE_PERIODS)
-    cols = list(ANGLE_COLUMNS)
+    lo = c - 0.5 * np.asarray(periods, float)
+    hi = c + 0.5 * np.asarray(periods, float)
+    cols = list(columns)
 
     def windowed(x):
         x = np.asarray(x, dtype=float)

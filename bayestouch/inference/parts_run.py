@@ -386,6 +386,8 @@ def run_parts_fit(
         "seed": int(seed),
         "walkers": walkers,
         "priors": {key: float(v) for key, v in priors._asdict().items()},
+        # a chain of an older version has its Euler angles anywhere, outside this version's windows
+        "angles": "one period around the particles",
     }
     fp = fingerprint("parts", {"points": points, "free-space points": free}, options)
     prepare_run_folder(out, fp, resume=resume, overwrite=overwrite)
@@ -420,10 +422,16 @@ def run_parts_fit(
     dim = 10 * k + 3
     walkers = int(walkers or max(32, 2 * dim + 2))
     aligned = _aligned(r["particles"], np.asarray(r["log_lik"]) + np.asarray(r["log_prior"]), k)
+    # each part's Euler angles held to one period around the aligned particles (cm.angle_window), which, the mixture
+    # fitted to them and the start are shifted into those windows first
+    angles = [10 * j + c for j in range(k) for c in cm.ANGLE_COLUMNS]
+    periods = cm.ANGLE_PERIODS * k
+    around = cm.angle_centres(aligned, angles, periods)
+    aligned = cm.shift_angles(aligned, around, angles, periods)
     cols = [10 * k + 1, 10 * k + 2]
     moves, start = smc_moves(aligned, walkers, seed, logp=f, log_columns=cols)
     ch = sample(
-        f,
+        cm.angle_window(f, around, angles, periods),
         start,
         out / "chain.h5",
         walkers=walkers,
