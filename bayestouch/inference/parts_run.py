@@ -422,8 +422,8 @@ def run_parts_fit(
     dim = 10 * k + 3
     walkers = int(walkers or max(32, 2 * dim + 2))
     aligned = _aligned(r["particles"], np.asarray(r["log_lik"]) + np.asarray(r["log_prior"]), k)
-    # each part's Euler angles held to one period around the aligned particles (cm.angle_window), which, the mixture
-    # fitted to them and the start are shifted into those windows first
+    # each part's Euler angles held to one period around the aligned particles (cm.angle_window); the particles are
+    # shifted into those windows first, so the mixture fitted to them and the start lie there too
     angles = [10 * j + c for j in range(k) for c in cm.ANGLE_COLUMNS]
     periods = cm.ANGLE_PERIODS * k
     around = cm.angle_centres(aligned, angles, periods)
