@@ -44,6 +44,7 @@ __all__ = [
     "MAX_PARTS",
     "OVERLAP_SAMPLES",
     "param_names",
+    "angle_columns",
     "PartsPrior",
     "parts_prior",
     "log_prior",
@@ -80,6 +81,13 @@ def param_names(k: int) -> tuple[str, ...]:
     """Names of θ's columns for ``k`` parts: ``x_G_0 … log_n_0, x_G_1 …, log_sigma, w_in, w_out``."""
     k = _check_k(k)
     return tuple(f"{name}_{j}" for j in range(k) for name in PART_PARAMS) + NOISE_PARAMS
+
+
+def angle_columns(k: int) -> list[int]:
+    """The columns of a ``k``-part θ (10 k + 3,) holding the parts' Euler angles: each part's
+    :data:`~bayestouch.inference.contact.ANGLE_COLUMNS`, periodic (:data:`~bayestouch.inference.contact.ANGLE_PERIODS`
+    each)."""
+    return [10 * j + c for j in range(_check_k(k)) for c in cm.ANGLE_COLUMNS]
 
 
 class PartsPrior(NamedTuple):
@@ -205,8 +213,7 @@ def _log_lik(theta, hom, free, k: int, log_u: float, inv_scale: float, log_miss:
 def _clip(theta, prior: PartsPrior):
     """θ clipped into the prior box except the parts' Euler angles (periodic)."""
     mask = np.zeros(10 * prior.k + 3, bool)
-    for j in range(prior.k):
-        mask[10 * j + 6 : 10 * j + 9] = True
+    mask[angle_columns(prior.k)] = True
     return jnp.where(mask, theta, jnp.clip(theta, prior.lower, prior.upper))
 
 

@@ -424,7 +424,7 @@ def run_parts_fit(
     aligned = _aligned(r["particles"], np.asarray(r["log_lik"]) + np.asarray(r["log_prior"]), k)
     # each part's Euler angles held to one period around the aligned particles (cm.angle_window); the particles are
     # shifted into those windows first, so the mixture fitted to them and the start lie there too
-    angles = [10 * j + c for j in range(k) for c in cm.ANGLE_COLUMNS]
+    angles = pm.angle_columns(k)
     periods = cm.ANGLE_PERIODS * k
     around = cm.angle_centres(aligned, angles, periods)
     aligned = cm.shift_angles(aligned, around, angles, periods)
