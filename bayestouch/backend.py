@@ -12,6 +12,7 @@ fitting, geometry or physics module of bayestouch turns float64 on for it too; g
 
 from __future__ import annotations
 
+import gc
 import hashlib
 import os
 import platform
@@ -26,7 +27,7 @@ jax.config.update("jax_enable_x64", True)
 
 import jax.numpy as jnp  # noqa: E402  (must follow the x64 switch)
 
-__all__ = ["jax", "jnp", "pad_pow2", "enable_compilation_cache", "build_tag"]
+__all__ = ["jax", "jnp", "pad_pow2", "enable_compilation_cache", "build_tag", "memory_maps", "release_compiled"]
 
 
 def build_tag(cpuinfo: str | os.PathLike = "/proc/cpuinfo") -> str:
@@ -89,6 +90,56 @@ def enable_compilation_cache() -> str | None:
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
     return str(folder)
+
+
+def memory_maps(maps: str | os.PathLike = "/proc/self/maps", limit: str | os.PathLike = "/proc/sys/vm/max_map_count"):
+    """This process's memory maps and the kernel's limit on them (Linux's ``vm.max_map_count``).
+
+    Returns
+    -------
+    (int, int) or None
+        (maps in use, maps allowed); None where the system does not say (not Linux).
+    """
+    try:
+        with open(limit, encoding="ascii") as fh:
+            allowed = int(fh.read().split()[0])
+        with open(maps, "rb") as fh:
+            used = sum(1 for _ in fh)
+    except (OSError, ValueError, IndexError):
+        return None
+    return used, allowed
+
+
+def release_compiled(fraction: float = 0.5) -> bool:
+    """Drop JAX's in-memory compiled programs when this process's memory maps pass ``fraction`` of the kernel's limit.
+
+    XLA's CPU backend maps ~18 memory regions for every compiled program (its kernels' code, constants and data) and
+    keeps every program a jitted function has compiled, one per shape and static argument, for the life of the
+    process. Linux allows a process ``vm.max_map_count`` maps (65,530 by default), about 3,500 programs; past that the
+    next compilation or compilation-cache read fails inside LLVM ("Cannot allocate memory") and the process dies
+    (a segmentation fault or an abort), whatever it was doing. A notebook session, a benchmark or a test worker that
+    runs many fits of different sizes gets there. Each fit, exploration step and experiment trial calls this first:
+    once the maps pass the threshold, ``jax.clear_caches()`` releases them and programs are compiled again (or read
+    back from the persistent cache, :func:`enable_compilation_cache`) when next called. Results are unchanged.
+
+    Parameters
+    ----------
+    fraction : float
+        The share of the limit above which the programs are dropped, in [0, 1] (0: always).
+
+    Returns
+    -------
+    bool
+        Whether the programs were dropped. Never where :func:`memory_maps` cannot tell.
+    """
+    if not 0.0 <= fraction <= 1.0:
+        raise ValueError(f"fraction: expected a share of the limit in [0, 1], got {fraction}")
+    maps = memory_maps()
+    if maps is None or maps[0] <= fraction * maps[1]:
+        return False
+    jax.clear_caches()
+    gc.collect()  # the executables go with their last Python reference
+    return True
 
 
 def pad_pow2(a, fill=None, min_size: int = 1) -> np.ndarray:

@@ -5,7 +5,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
-from bayestouch.backend import jnp  # noqa: E402
+from bayestouch.backend import jnp, release_compiled  # noqa: E402
 from bayestouch.geometry import nellipsoid as ne  # noqa: E402
 
 
@@ -20,3 +20,12 @@ def shape():
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _release_compiled_programs():
+    """A test worker runs hundreds of test files in one process and keeps every program each one compiled; past
+    ~3,500 of them the kernel's limit on memory maps kills the worker inside XLA (see
+    :func:`bayestouch.backend.release_compiled`). Drop them between files once half the limit is used."""
+    yield
+    release_compiled()

@@ -27,7 +27,7 @@ import numpy as np
 import xarray as xr
 from scipy.stats import qmc
 
-from bayestouch.backend import jnp
+from bayestouch.backend import jnp, release_compiled
 from bayestouch.errors import BadInput, check_bools, check_int, check_path, check_seed
 from bayestouch.geometry.mesh import to_trimesh
 from bayestouch.geometry.symmetry import align_batch
@@ -355,6 +355,7 @@ def run_parts_fit(
         The summary written to ``summary.json``.
     """
     t0 = time.perf_counter()
+    release_compiled()
     # every argument checked before the folder is touched: steps=-1, budget_s=-1 or walkers=-2 had started the
     # tempering, which ran on
     points, _ = cm.check_points(points)

@@ -17,7 +17,7 @@ import emcee
 import numpy as np
 from scipy.optimize import minimize
 
-from bayestouch.backend import jax, jnp, pad_pow2
+from bayestouch.backend import jax, jnp, pad_pow2, release_compiled
 from bayestouch.errors import BadInput, check_bools, check_int, check_path, check_seed, shown
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.symmetry import aliases, align_batch, canonicalize_batch
@@ -1115,6 +1115,7 @@ def run_contact_fit(
         The summary written to ``summary.json``.
     """
     t0 = time.perf_counter()
+    release_compiled()
     points, _ = cm.check_points(points)  # a path, text or a wrong shape refused before any work
     check_path(out, "out")
     check_walkers(walkers)

@@ -12,7 +12,7 @@ import arviz as az
 import numpy as np
 from scipy.optimize import least_squares
 
-from bayestouch.backend import jnp
+from bayestouch.backend import jnp, release_compiled
 from bayestouch.errors import BadInput, check_int, check_seed, shown
 from bayestouch.inference.patch.model import (
     A_MIN,
@@ -183,6 +183,7 @@ def patch_posterior(
         Bad currents, mode, walkers or steps (one line).
     """
     t0 = time.perf_counter()
+    release_compiled()
     if isinstance(finger, VirtualFinger):  # what bt.load_finger returns: its forward-model finger
         finger = finger.finger
     if not isinstance(finger, Finger):

@@ -14,7 +14,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from bayestouch.backend import jnp, pad_pow2
+from bayestouch.backend import jnp, pad_pow2, release_compiled
 from bayestouch.errors import BadInput, check_path
 from bayestouch.inference import contact as cm
 from bayestouch.inference import grating as gr
@@ -529,6 +529,7 @@ def run_raw_fit(
     dict
         The summary written to ``summary.json``.
     """
+    release_compiled()
     if texture not in ("auto", "on", "off"):
         raise BadInput(f"texture must be one of auto, on, off; got {texture!r}")
     if lag not in ("sampled", "known"):
