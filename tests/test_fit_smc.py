@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from bayestouch.inference import contact as cm
+from bayestouch.inference import run as run_module
 from bayestouch.inference.run import describe_modes, run_contact_fit, surrounds
 
 
@@ -40,10 +41,10 @@ def test_describe_modes_weights_and_volumes():
     assert len(describe_modes(nat[~big], vol[~big], 0)) == 1
 
 
-def test_default_fit_of_a_one_sided_contaminated_set(tmp_path):
+def test_default_fit_of_a_one_sided_contaminated_set(tmp_path, monkeypatch):
     """60 contacts on one side of a sphere (r = 20 mm, 0.3 mm noise), 6 displaced 5 mm inwards, free-space points
     beyond the touched side: the SMC-started fit counts the displaced contacts as inward outliers (σ stays near
-    0.3 mm), reports its SMC stage and its modes, and a resumed run reuses the saved particles."""
+    0.3 mm), reports its SMC stage and its modes, and a resumed run reuses the saved particles and optimum check."""
     rng = np.random.default_rng(3)
     pts = _sphere(60, hemisphere=True, seed=1)
     pts += rng.normal(0, 3e-4, pts.shape)
@@ -64,14 +65,22 @@ def test_default_fit_of_a_one_sided_contaminated_set(tmp_path):
     saved = json.loads((tmp_path / "summary.json").read_text())
     assert saved["diagnostics"]["modes"] == diag["modes"]
     before = np.load(tmp_path / "smc.npz")["particles"]
+    first = emcee.backends.HDFBackend(str(tmp_path / "chain.h5"), read_only=True).get_chain()
+
+    def searched_again(*args, **kwargs):  # what a resume must not do: under another deadline it finds another optimum
+        raise AssertionError("the resume ran the optimum check again instead of reading optimum.npz")
+
+    monkeypatch.setattr(run_module, "optimum_mode", searched_again)
     s2 = run_contact_fit(pts, tmp_path, seed=0, steps=450, progress=False, free=free, resume=True, budget_s=None)
     assert s2["diagnostics"]["steps"] == 450
     assert np.array_equal(np.load(tmp_path / "smc.npz")["particles"], before)
+    assert s2["model"]["smc"]["optimum_above_particles"] == s["model"]["smc"]["optimum_above_particles"]
     # a sphere leaves ψ and ζ free: every walker of the chain, resumed run included, holds each Euler angle within
     # one period (cm.angle_window); a chain free to take whole periods spreads over several
     chain = emcee.backends.HDFBackend(str(tmp_path / "chain.h5"), read_only=True).get_chain()
     for col, period in zip(cm.ANGLE_COLUMNS, cm.ANGLE_PERIODS, strict=True):
         assert np.ptp(chain[:, :, col]) < period
+    assert np.array_equal(chain[:400], first)  # the first 400 steps kept bit for bit
 
 
 def test_the_time_budget_covers_the_smc_and_a_cut_tempering_says_so(tmp_path):
@@ -314,3 +323,20 @@ def test_sigma_continuation_returns_only_runs_it_raised():
     assert sigma_continuation(fg_batch, [(x0, 9.0)], box, rounds=0) == []
     floor = [b if i != j else (-0.5 * ANNEAL_STEP, 10.0) for i, b in enumerate(box)]  # no room for a halving
     assert sigma_continuation(fg_batch, [(x0, 9.0)], floor) == []
+
+
+def test_read_optimum_round_trips_and_refuses_a_damaged_file(tmp_path):
+    from bayestouch.errors import BadInput
+    from bayestouch.inference.run import read_optimum
+
+    path = tmp_path / "optimum.npz"
+    assert read_optimum(path) is None  # a run interrupted before its optimum check: searched on the resume
+    opt = {"theta": np.arange(13.0), "log_post": 512.5, "cov": np.eye(13) * 1e-4, "trimmed_starts": 2}
+    with open(path, "wb") as fh:
+        np.savez(fh, **opt)
+    back = read_optimum(path)
+    assert np.array_equal(back["theta"], opt["theta"]) and np.array_equal(back["cov"], opt["cov"])
+    assert back["log_post"] == 512.5 and back["trimmed_starts"] == 2
+    path.write_bytes(path.read_bytes()[:100])  # cut off by a kill mid-write
+    with pytest.raises(BadInput, match="optimum.npz cannot be read"):
+        read_optimum(path)

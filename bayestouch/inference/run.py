@@ -43,7 +43,7 @@ from bayestouch.inference.trimmed import trimmed_starts
 from bayestouch.io.contacts import check_normals_outward
 from bayestouch.io.files import atomic_path, write_json
 from bayestouch.io.occupancy import OCCUPANCY_FILE, write_occupancy
-from bayestouch.io.runfolder import fingerprint, prepare_run_folder, release_run_folder
+from bayestouch.io.runfolder import OPTIMUM_FILE, fingerprint, prepare_run_folder, release_run_folder
 
 __all__ = [
     "contaminated_share",
@@ -61,6 +61,7 @@ __all__ = [
     "natural_names",
     "start_ball",
     "smc_stage",
+    "read_optimum",
     "smc_moves",
     "align_particles",
     "optimum_mode",
@@ -458,6 +459,23 @@ def smc_stage(
         with atomic_path(path) as tmp, open(tmp, "wb") as fh:
             np.savez(fh, **res)
     return res
+
+
+def read_optimum(path: Path) -> dict | None:
+    """The optimum check a run saved in ``path`` (:data:`bayestouch.io.runfolder.OPTIMUM_FILE`): ``theta``
+    (D,), ``log_post`` (nats), ``cov`` (D, D) and ``trimmed_starts``; None when the run has none (it was interrupted
+    before the check finished, or made by a version that did not keep it)."""
+    if not Path(path).exists():
+        return None
+    try:
+        with open(path, "rb") as fh, np.load(fh) as z:
+            opt = {k: (z[k] if z[k].ndim else z[k].item()) for k in ("theta", "log_post", "cov", "trimmed_starts")}
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as e:  # cut off by a kill mid-write
+        raise BadInput(
+            f"--resume: {path} cannot be read as a finished optimum check ({type(e).__name__}); pass --overwrite to "
+            "start the run again (its files are set aside), or choose another folder"
+        ) from None
+    return opt
 
 
 def optimum_mode(
@@ -1257,34 +1275,42 @@ def run_contact_fit(
     smc, moves, around = None, None, None
     if init == "smc" and start is None and ffd is None:
         if not resume:
-            (out / "smc.npz").unlink(missing_ok=True)
+            for name in ("smc.npz", OPTIMUM_FILE):
+                (out / name).unlink(missing_ok=True)
         share = None if budget_s is None else SMC_BUDGET_SHARE * budget_s
         smc = smc_stage(logp, bounds, seed, out / "smc.npz", progress=progress, budget_s=share)
         post = np.asarray(smc["log_lik"]) + np.asarray(_prior_jit(jnp.asarray(smc["particles"]), bounds))
-        left = None if budget_s is None else max(OPTIMUM_BUDGET_SHARE * budget_s - (time.perf_counter() - t0), 0.0)
-        trimmed = []
-        contaminated = contaminated_share(smc["particles"], sampled) >= TRIM_TRIGGER
-        if contaminated:
-            trimmed = trimmed_starts(
-                points, lambda sub, step: candidate_thetas(sub, seed + 101 + step, priors, TRIM_SEARCHES)[0]
+        # the optimum check of the run itself on a resume: searched again under another deadline, it could find
+        # another optimum, and the resumed chain would continue with other angle windows and proposals
+        opt = read_optimum(out / OPTIMUM_FILE) if resume else None
+        if opt is None:
+            left = None if budget_s is None else max(OPTIMUM_BUDGET_SHARE * budget_s - (time.perf_counter() - t0), 0.0)
+            trimmed = []
+            contaminated = contaminated_share(smc["particles"], sampled) >= TRIM_TRIGGER
+            if contaminated:
+                trimmed = trimmed_starts(
+                    points, lambda sub, step: candidate_thetas(sub, seed + 101 + step, priors, TRIM_SEARCHES)[0]
+                )
+            opt = optimum_mode(
+                points,
+                logp if logp_exact is None else logp_exact,
+                bounds,
+                priors,
+                seed,
+                sampled,
+                theta0,
+                batch=walkers,
+                budget_s=left,
+                extra_starts=trimmed,
+                anneal=contaminated,
             )
-        opt = optimum_mode(
-            points,
-            logp if logp_exact is None else logp_exact,
-            bounds,
-            priors,
-            seed,
-            sampled,
-            theta0,
-            batch=walkers,
-            budget_s=left,
-            extra_starts=trimmed,
-            anneal=contaminated,
-        )
+            opt["trimmed_starts"] = len(trimmed)
+            with atomic_path(out / OPTIMUM_FILE) as tmp, open(tmp, "wb") as fh:
+                np.savez(fh, **opt)
         best_particle = float(np.max(post))
         missed = opt["log_post"] - best_particle > MISSED_MODE_NATS
         smc["optimum_above_particles"] = opt["log_post"] - best_particle
-        smc["trimmed_starts"] = len(trimmed)
+        smc["trimmed_starts"] = int(opt["trimmed_starts"])
         # one compact cloud: the particles as the aliases nearest the best particle's (or the missed optimum's) frame
         aligned = align_particles(smc["particles"], post, opt["theta"] if missed else None)
         # one period of each Euler angle around the cloud (cm.angle_window): the mixture, the start and the missed

@@ -50,6 +50,7 @@ __all__ = [
     "FINGERPRINT_FILE",
     "OUTPUTS",
     "RESULT_FILES",
+    "OPTIMUM_FILE",
     "dataset_digest",
     "differences",
     "fingerprint",
@@ -65,6 +66,8 @@ __all__ = [
 FINGERPRINT_FILE = "run.json"
 #: files whose presence means the folder holds a run (finished or resumable)
 RESULT_FILES = ("summary.json", "chain.h5", "posterior.nc")
+#: a contact fit's optimum check (its optimum and Laplace covariance), kept beside smc.npz: a resume reads it back
+OPTIMUM_FILE = "optimum.npz"
 #: files of a run interrupted after its tempering stage (resumable from them)
 STAGE_FILES = ("smc.npz", *(f"smc_parts{k}.npz" for k in range(1, 5)))
 #: every file of a fit's run folder: what ``overwrite`` removes before the new run starts, what
@@ -74,6 +77,7 @@ OUTPUTS = (
     "mean_shape.ply",
     "uncertainty_mesh.ply",
     "smc.npz",
+    OPTIMUM_FILE,
     OCCUPANCY_FILE,
     *(f"smc_parts{k}.npz" for k in range(1, 5)),  # the parts fit's per-K tempering, K = 1 … parts.MAX_PARTS
     FINGERPRINT_FILE,
