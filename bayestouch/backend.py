@@ -118,9 +118,10 @@ def release_compiled(fraction: float = 0.5) -> bool:
     process. Linux allows a process ``vm.max_map_count`` maps (65,530 by default), about 3,500 programs; past that the
     next compilation or compilation-cache read fails inside LLVM ("Cannot allocate memory") and the process dies
     (a segmentation fault or an abort), whatever it was doing. A notebook session, a benchmark or a test worker that
-    runs many fits of different sizes gets there. Each fit, exploration step and experiment trial calls this first:
-    once the maps pass the threshold, ``jax.clear_caches()`` releases them and programs are compiled again (or read
-    back from the persistent cache, :func:`enable_compilation_cache`) when next called. Results are unchanged.
+    runs many fits of different sizes gets there. Each fit and experiment trial calls this first (not each stroke of
+    an exploration, whose virtual finger may be running): once the maps pass the threshold, ``jax.clear_caches()``
+    releases them and programs are compiled again (or read back from the persistent cache,
+    :func:`enable_compilation_cache`) when next called. Results are unchanged.
 
     Parameters
     ----------

@@ -26,6 +26,7 @@ def rng():
 def _release_compiled_programs():
     """A test worker runs hundreds of test files in one process and keeps every program each one compiled; past
     ~3,500 of them the kernel's limit on memory maps kills the worker inside XLA (see
-    :func:`bayestouch.backend.release_compiled`). Drop them between files once half the limit is used."""
+    :func:`bayestouch.backend.release_compiled`). Drop them between files once a third of the limit is used, so that
+    a file starts with room for its own programs and the fits' own check (at half) seldom drops them mid-file."""
     yield
-    release_compiled()
+    release_compiled(1 / 3)

@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
+from bayestouch.backend import release_compiled
 from bayestouch.errors import BadInput, check_bool, check_bools, check_path, shown
 from bayestouch.io.files import read_csv_rows, set_aside, write_csv_rows, write_json
 from bayestouch.io.runfolder import differences, fingerprint, locked_run_folder
@@ -115,6 +116,9 @@ def trial_finger(seed: int, bend_spread: float):
 def run_trial(task: dict) -> list[dict]:
     """Run one (object, planner, trial) and return its rows (a top-level function: picklable for pools). The task
     carries the :class:`~bayestouch.scene.objects.SceneObject` itself (``scene_object``), not a file path."""
+    # before the trial's virtual finger starts: dropped programs compiled again in the middle of a stroke could trip
+    # the device's watchdog
+    release_compiled()
     obj = task["scene_object"]
     settings = ExploreSettings(**task.get("settings", {}))
     if task.get("prober", "rays") == "finger":

@@ -21,7 +21,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from bayestouch.backend import jax, jnp, release_compiled
+from bayestouch.backend import jax, jnp
 from bayestouch.errors import BadInput, as_array, check_bool
 from bayestouch.errors import shown as shown_value
 from bayestouch.geometry import nellipsoid as ne
@@ -523,7 +523,6 @@ def explore(
         if k >= budget or (target_volume_sd is not None and err["volume_sd"] < target_volume_sd):
             break
         k += 1
-        release_compiled()
         t0 = time.perf_counter()
         # plan
         mean_shape = ne.from_vector(jnp.asarray(err["estimate"]))
