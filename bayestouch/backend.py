@@ -27,7 +27,20 @@ jax.config.update("jax_enable_x64", True)
 
 import jax.numpy as jnp  # noqa: E402  (must follow the x64 switch)
 
-__all__ = ["jax", "jnp", "pad_pow2", "enable_compilation_cache", "build_tag", "memory_maps", "release_compiled"]
+__all__ = [
+    "jax",
+    "jnp",
+    "pad_pow2",
+    "enable_compilation_cache",
+    "build_tag",
+    "prune_compilation_cache",
+    "CACHE_MAX_BYTES",
+    "memory_maps",
+    "release_compiled",
+]
+
+#: the persistent compilation cache's bound (all JAX builds' subfolders together), bytes
+CACHE_MAX_BYTES = 2 * 1024**3
 
 
 def build_tag(cpuinfo: str | os.PathLike = "/proc/cpuinfo") -> str:
@@ -62,8 +75,9 @@ def enable_compilation_cache() -> str | None:
     an empty value disable the cache; ``1``, ``true``, ``yes``, ``on`` keep the default), else
     ``$XDG_CACHE_HOME/bayestouch/jax`` (``~/.cache/bayestouch/jax``); programs go into its subfolder
     :func:`build_tag`, one per JAX build and CPU. A value that cannot be a folder (a file) is said on stderr and the
-    cache stays off. It takes effect only if nothing has been compiled yet in the process;
-    results are identical with or without it.
+    cache stays off. The folder is kept under :data:`CACHE_MAX_BYTES` (:func:`prune_compilation_cache`, at every
+    call). It takes effect only if nothing has been compiled yet in the process; results are identical with or
+    without it.
 
     Returns
     -------
@@ -86,10 +100,68 @@ def enable_compilation_cache() -> str | None:
             file=sys.stderr,
         )
         return None
+    prune_compilation_cache(base, CACHE_MAX_BYTES)
     jax.config.update("jax_compilation_cache_dir", str(folder))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
     return str(folder)
+
+
+def prune_compilation_cache(base: str | os.PathLike, max_bytes: int = CACHE_MAX_BYTES, keep: float = 0.75) -> int:
+    """Keep a compilation cache folder under ``max_bytes``: when its files (every JAX build's subfolder together)
+    pass it, the least recently used are deleted until ``keep`` of it is left.
+
+    JAX's own bound (``jax_compilation_cache_max_size``) needs the ``filelock`` package and rescans the folder at
+    every write; without one the folder grows by every new program of every JAX build (a build's subfolder outlives
+    the build, :func:`build_tag`). "Used" is a file's later access or modification time. A program deleted while
+    another process reads it is compiled again there (JAX turns the failed read into a warning and a compilation).
+
+    Parameters
+    ----------
+    base : path
+        The cache's folder (the parent of the :func:`build_tag` subfolders).
+    max_bytes : int
+        The bound, bytes.
+    keep : float
+        The share of ``max_bytes`` left after pruning, in (0, 1].
+
+    Returns
+    -------
+    int
+        Bytes deleted.
+    """
+    if not 0.0 < keep <= 1.0:
+        raise ValueError(f"keep: expected a share of max_bytes in (0, 1], got {keep}")
+    files = []
+    try:
+        subfolders = [e.path for e in os.scandir(base) if e.is_dir(follow_symlinks=False)]
+    except OSError:
+        return 0
+    for sub in subfolders:
+        try:
+            entries = list(os.scandir(sub))
+        except OSError:  # deleted meanwhile by another process
+            continue
+        for e in entries:
+            try:
+                if e.is_file(follow_symlinks=False):
+                    st = e.stat(follow_symlinks=False)
+                    files.append((max(st.st_atime, st.st_mtime), st.st_size, e.path))
+            except OSError:
+                continue
+    total = sum(size for _, size, _ in files)
+    if total <= max_bytes:
+        return 0
+    freed = 0
+    for _, size, path in sorted(files, key=lambda f: f[0]):
+        if total - freed <= keep * max_bytes:
+            break
+        try:
+            os.unlink(path)
+        except OSError:
+            continue
+        freed += size
+    return freed
 
 
 def memory_maps(maps: str | os.PathLike = "/proc/self/maps", limit: str | os.PathLike = "/proc/sys/vm/max_map_count"):
