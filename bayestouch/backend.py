@@ -16,6 +16,7 @@ import gc
 import hashlib
 import os
 import platform
+import re
 import sys
 from pathlib import Path
 
@@ -41,6 +42,8 @@ __all__ = [
 
 #: the persistent compilation cache's bound (all JAX builds' subfolders together), bytes
 CACHE_MAX_BYTES = 2 * 1024**3
+#: the name of a :func:`build_tag` subfolder
+_BUILD = re.compile(r"jax[^-]+-jaxlib[^-]+-")
 
 
 def build_tag(cpuinfo: str | os.PathLike = "/proc/cpuinfo") -> str:
@@ -108,8 +111,9 @@ def enable_compilation_cache() -> str | None:
 
 
 def prune_compilation_cache(base: str | os.PathLike, max_bytes: int = CACHE_MAX_BYTES, keep: float = 0.75) -> int:
-    """Keep a compilation cache folder under ``max_bytes``: when its files (every JAX build's subfolder together)
-    pass it, the least recently used are deleted until ``keep`` of it is left.
+    """Keep a compilation cache folder under ``max_bytes``: when its programs (JAX's ``*-cache`` files in every
+    :func:`build_tag` subfolder together; nothing else in the folder is read or deleted) pass it, the least recently
+    used are deleted until ``keep`` of it is left.
 
     JAX's own bound (``jax_compilation_cache_max_size``) needs the ``filelock`` package and rescans the folder at
     every write; without one the folder grows by every new program of every JAX build (a build's subfolder outlives
@@ -133,8 +137,8 @@ def prune_compilation_cache(base: str | os.PathLike, max_bytes: int = CACHE_MAX_
     if not 0.0 < keep <= 1.0:
         raise ValueError(f"keep: expected a share of max_bytes in (0, 1], got {keep}")
     files = []
-    try:
-        subfolders = [e.path for e in os.scandir(base) if e.is_dir(follow_symlinks=False)]
+    try:  # only the build subfolders' programs: a folder given as the cache may hold other things
+        subfolders = [e.path for e in os.scandir(base) if e.is_dir(follow_symlinks=False) and _BUILD.match(e.name)]
     except OSError:
         return 0
     for sub in subfolders:
@@ -144,7 +148,7 @@ def prune_compilation_cache(base: str | os.PathLike, max_bytes: int = CACHE_MAX_
             continue
         for e in entries:
             try:
-                if e.is_file(follow_symlinks=False):
+                if e.is_file(follow_symlinks=False) and e.name.endswith(("-cache", "-atime")):
                     st = e.stat(follow_symlinks=False)
                     files.append((max(st.st_atime, st.st_mtime), st.st_size, e.path))
             except OSError:
