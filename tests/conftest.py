@@ -24,7 +24,7 @@ def rng():
 
 @pytest.fixture(scope="module", autouse=True)
 def _release_compiled_programs():
-    """A test worker runs hundreds of test files in one process and keeps every program each one compiled; past
+    """A test worker runs about forty test files in one process and keeps every program each one compiled; past
     ~3,500 of them the kernel's limit on memory maps kills the worker inside XLA (see
     :func:`bayestouch.backend.release_compiled`). Drop them between files once a third of the limit is used, so that
     a file starts with room for its own programs and the fits' own check (at half) seldom drops them mid-file."""
