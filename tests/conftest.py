@@ -26,7 +26,7 @@ def rng():
 def _release_compiled_programs():
     """A test worker runs about forty test files in one process and keeps every program each one compiled; past
     ~3,500 of them the kernel's limit on memory maps kills the worker inside XLA (see
-    :func:`bayestouch.backend.release_compiled`). Drop them between files once half the limit is used (at a third,
-    one clean-clone run of the suite took 1,006 s against 867 s at half: more programs compiled again)."""
+    :func:`bayestouch.backend.release_compiled`). Drop them between files once half the limit is used, the fits' own
+    threshold."""
     yield
     release_compiled()
