@@ -61,6 +61,8 @@ __all__ = [
     "natural_names",
     "start_ball",
     "smc_stage",
+    "save_stage",
+    "load_stage",
     "read_optimum",
     "smc_moves",
     "align_particles",
@@ -394,14 +396,7 @@ def smc_stage(
         ``complete`` (reached β = 1), ``evaluations``, ``seconds``.
     """
     if path is not None and Path(path).exists():
-        try:
-            with open(path, "rb") as fh, np.load(fh) as z:  # the file closed whatever np.load makes of it
-                return {k: (z[k] if z[k].ndim else z[k].item()) for k in z.files}
-        except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as e:  # cut off by a kill mid-write
-            raise BadInput(
-                f"--resume: {path} cannot be read as a finished tempering stage ({type(e).__name__}); pass "
-                "--overwrite to start the run again (its files are set aside), or choose another folder"
-            ) from None
+        return load_stage(path, "a finished tempering stage")
 
     if prior is None:
 
@@ -456,9 +451,33 @@ def smc_stage(
         "seconds": float(r.seconds),
     }
     if path is not None:
-        with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-            np.savez(fh, **res)
+        save_stage(path, res)
     return res
+
+
+def save_stage(path: Path, arrays: dict) -> None:
+    """A stage of a run (``arrays``: names → arrays or numbers) written atomically to the ``.npz`` file ``path``,
+    which :func:`load_stage` reads back on a resume."""
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        np.savez(fh, **arrays)
+
+
+def load_stage(path: Path, what: str, keys=None) -> dict:
+    """A stage :func:`save_stage` wrote to ``path``: its arrays (``keys`` of them, default all; 0-d ones as numbers).
+
+    Raises
+    ------
+    BadInput
+        The file cannot be read (cut off by a kill mid-write) or lacks a key: one line naming it as ``what``.
+    """
+    try:
+        with open(path, "rb") as fh, np.load(fh) as z:  # the file closed whatever np.load makes of it
+            return {k: (z[k] if z[k].ndim else z[k].item()) for k in (z.files if keys is None else keys)}
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as e:  # cut off by a kill mid-write
+        raise BadInput(
+            f"--resume: {path} cannot be read as {what} ({type(e).__name__}); pass --overwrite to start the run "
+            "again (its files are set aside), or choose another folder"
+        ) from None
 
 
 def read_optimum(path: Path) -> dict | None:
@@ -467,15 +486,7 @@ def read_optimum(path: Path) -> dict | None:
     before the check finished, or made by a version that did not keep it)."""
     if not Path(path).exists():
         return None
-    try:
-        with open(path, "rb") as fh, np.load(fh) as z:
-            opt = {k: (z[k] if z[k].ndim else z[k].item()) for k in ("theta", "log_post", "cov", "trimmed_starts")}
-    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as e:  # cut off by a kill mid-write
-        raise BadInput(
-            f"--resume: {path} cannot be read as a finished optimum check ({type(e).__name__}); pass --overwrite to "
-            "start the run again (its files are set aside), or choose another folder"
-        ) from None
-    return opt
+    return load_stage(path, "a finished optimum check", ("theta", "log_post", "cov", "trimmed_starts"))
 
 
 def optimum_mode(
@@ -1305,8 +1316,7 @@ def run_contact_fit(
                 anneal=contaminated,
             )
             opt["trimmed_starts"] = len(trimmed)
-            with atomic_path(out / OPTIMUM_FILE) as tmp, open(tmp, "wb") as fh:
-                np.savez(fh, **opt)
+            save_stage(out / OPTIMUM_FILE, opt)
         best_particle = float(np.max(post))
         missed = opt["log_post"] - best_particle > MISSED_MODE_NATS
         smc["optimum_above_particles"] = opt["log_post"] - best_particle
