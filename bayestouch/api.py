@@ -91,6 +91,8 @@ class Fit:
             state += ", MISFIT"
         if d.get("noise_large"):
             state += ", NOISE ~ SIZE"
+        if d.get("extrapolated"):
+            state += ", EXTRAPOLATED"
         return (
             f"<bayestouch.Fit {self.results['model'].get('level', '?')} level: volume {v['mean'] * 1e6:.3f} ± "
             f"{v['sd'] * 1e6:.3f} cm³, {state}, {len(self.warnings)} warning(s); {self.folder}>"
@@ -118,6 +120,14 @@ class Fit:
         """Whether the noise scale σ is above 5 % of the smallest semi-axis (posterior medians), where the distance
         likelihood's intervals are too narrow (``docs/sbc.md``). False where the check does not apply."""
         return bool(self.results["diagnostics"].get("noise_large", False))
+
+    @property
+    def extrapolated(self) -> bool:
+        """Whether the surface runs farther from every contact than 1.5 times the contacts' span (posterior median,
+        ``results["diagnostics"]["reach"]``): there the shape is the model family's extension of the touched part,
+        right only if the object belongs to the family (``docs/contact_model.md``, "Extrapolation"). False where
+        the check does not apply."""
+        return bool(self.results["diagnostics"].get("extrapolated", False))
 
     @property
     def warnings(self) -> list[str]:

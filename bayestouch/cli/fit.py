@@ -468,6 +468,11 @@ def _run_fit(args) -> int:
             f"NOISE: σ is {100 * d['noise_to_smallest_axis']:.0f} % of the smallest semi-axis: the distance "
             "likelihood is an approximation there and the intervals above are too narrow"
         )
+    if d.get("extrapolated"):
+        print(
+            f"EXTRAPOLATED: the surface runs up to {d['reach']['median']:.1f} times the contacts' span from the "
+            "nearest contact: there the shape is the n-ellipsoid family's extension, not the data's"
+        )
     for w in d.get("warnings", []):
         print(f"bayestouch fit: warning: {w}", file=sys.stderr)
     return 0

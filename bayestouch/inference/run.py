@@ -37,6 +37,7 @@ from bayestouch.inference.posterior import (
     vmf_sample,
     write_posterior,
 )
+from bayestouch.inference.reach import REACH_LIMIT, surface_reach
 from bayestouch.inference.sampler import IndependenceMixture, prune_stuck_walkers, sample, snooker_move
 from bayestouch.inference.smc import tempered_smc
 from bayestouch.inference.trimmed import trimmed_starts
@@ -1381,6 +1382,7 @@ def run_contact_fit(
         if pose is None:  # a pose error correlates neighbouring residuals by design
             _report_misfit(summary, ch, points, seed)
         _report_noise_size(summary, ch)
+        _report_reach(summary, ch, points, seed)
     summary = _report_modes(out, summary, ch, model, seed, smc)
     release_run_folder(out)
     return summary
@@ -1469,6 +1471,28 @@ def _report_noise_size(summary: dict, ch) -> None:
             f"noise: σ is {100 * ratio:.0f} % of the smallest semi-axis (posterior median), above "
             f"{100 * NOISE_SIZE_LIMIT:.0f} %: the distance likelihood is a first-order approximation there and its "
             "intervals are too narrow (docs/sbc.md); more precise contacts or a larger object would help",
+        ]
+
+
+def _report_reach(summary: dict, ch, points, seed: int) -> None:
+    """Add how far the surface reaches beyond the contacts (:func:`bayestouch.inference.reach.surface_reach`:
+    posterior median and 5–95 % range) to the summary's diagnostics, ``extrapolated`` and a warning above
+    :data:`~bayestouch.inference.reach.REACH_LIMIT`."""
+    r = surface_reach(points, ch.kept.reshape(-1, ch.kept.shape[2]), seed)
+    diag = summary["diagnostics"]
+    if len(r) == 0:
+        diag["reach"], diag["extrapolated"] = None, False
+        return
+    med = float(np.median(r))
+    diag["reach"] = {"median": med, "q05": float(np.quantile(r, 0.05)), "q95": float(np.quantile(r, 0.95))}
+    diag["extrapolated"] = med > REACH_LIMIT
+    if diag["extrapolated"]:
+        diag["warnings"] = [
+            *diag.get("warnings", []),
+            f"extrapolated: the surface runs up to {med:.1f} times the contacts' span from the nearest contact "
+            "(posterior median): there the shape is the n-ellipsoid family's extension of the touched part, not "
+            "the data's, and its intervals hold only if the object belongs to that family (a tapered, bent or "
+            "composite object does not); touch the far side, or give free-space positions that bound it",
         ]
 
 
