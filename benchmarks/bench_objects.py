@@ -374,6 +374,12 @@ def fit_parts(d: ObjectSet, seed: int = 0) -> dict:
     return {"summary": summary, "seconds": seconds, "mesh": mesh}
 
 
+def _reach(s: dict) -> float:
+    """The posterior median of the surface's reach beyond the contacts (``diagnostics.reach``; NaN without it)."""
+    r = s["diagnostics"].get("reach")
+    return float(r["median"]) if r else float("nan")
+
+
 def _calibration(s: dict, d: ObjectSet) -> dict:
     """A bayestouch run's volume interval against the truth, its convergence and warnings (``bt_`` columns)."""
     vol = s["derived"]["volume_m3"]
@@ -383,6 +389,8 @@ def _calibration(s: dict, d: ObjectSet) -> dict:
         "bt_volume_q95_m3": vol["q95"],
         "bt_converged": bool(s["diagnostics"]["converged"]),
         "bt_max_r_hat": float(s["diagnostics"]["max_r_hat"]),
+        "bt_reach": _reach(s),
+        "bt_extrapolated": bool(s["diagnostics"].get("extrapolated", False)),
         "bt_warnings": "; ".join(s["diagnostics"].get("warnings", [])),
     }
 
@@ -483,9 +491,27 @@ def summarise(rows: list[dict], seed: int = 0) -> dict:
             lo, hi = us.wilson_interval(kc, len(fin))
             s["volume_coverage_90"] = {"k": kc, "n": len(fin), "fraction": kc / len(fin), "wilson95": [lo, hi]}
             s["converged"] = sum(bool(r["bt_converged"]) for r in fin)
+        if fin and np.isfinite(fin[0].get("bt_reach", np.nan)):
+            s["extrapolated"] = _extrapolation(fin)
         if fin and "bt_parts" in fin[0]:
             s["parts_chosen"] = {str(k): sum(int(r["bt_parts"]) == k for r in fin) for k in (1, 2, 3, 4)}
         out[method] = s
+    return out
+
+
+def _fmt(x) -> str:
+    return "–" if x is None else f"{x:.3g}"
+
+
+def _extrapolation(rows: list[dict]) -> dict:
+    """How the fit's extrapolation warning (``diagnostics.extrapolated``) splits the sets: how many it flagged, and
+    the median Chamfer / size and the 90 % volume coverage of the flagged and the other sets."""
+    out = {"flagged": int(sum(bool(r["bt_extrapolated"]) for r in rows)), "sets": len(rows)}
+    for name, flag in (("flagged", True), ("not_flagged", False)):
+        rs = [r for r in rows if bool(r["bt_extrapolated"]) == flag]
+        out[f"chamfer_ratio_median_{name}"] = float(np.median([r["chamfer_ratio"] for r in rs])) if rs else None
+        out[f"volume_covered_{name}"] = int(sum(bool(r["bt_volume_covered"]) for r in rs))
+    out["reach_median"] = float(np.median([r["bt_reach"] for r in rows]))
     return out
 
 
@@ -511,6 +537,15 @@ def markdown_table(summary: dict, note: str = "") -> str:
             f"| {m} | {s['sets']} | {s['failed']} | {ci(s['chamfer_ratio'])} | {ci(s['volume_error'])} | {cov_s} "
             f"| {conv} | {s['seconds']['median']:.3g} | {s['seconds']['p95']:.3g} |"
         )
+    for m, s in summary.items():
+        e = s.get("extrapolated")
+        if e:
+            lines += [
+                "",
+                f"{m}: the extrapolation warning flagged {e['flagged']}/{e['sets']} sets (median Chamfer / size "
+                f"{_fmt(e['chamfer_ratio_median_flagged'])} flagged, {_fmt(e['chamfer_ratio_median_not_flagged'])} "
+                f"not; volume covered {e['volume_covered_flagged']} flagged, {e['volume_covered_not_flagged']} not).",
+            ]
     kinds = list(next(iter(summary.values()))["by_kind"]) if summary else []
     lines += ["", "Median Chamfer / size by kind:", "", "| kind | " + " | ".join(summary) + " |"]
     lines.append("|---|" + "---|" * len(summary))

@@ -602,6 +602,8 @@ def bayestouch_metrics(summary: dict, truth: ne.NEllipsoid) -> dict:
                 or n_lo <= 1.02 * box["n_min"]
                 or n_hi >= 0.98 * box["n_max"]
             ),
+            "reach": float(diag["reach"]["median"]) if diag.get("reach") else float("nan"),
+            "extrapolated": bool(diag.get("extrapolated", False)),
             "warnings": "; ".join(diag.get("warnings", [])),
         }
     )
