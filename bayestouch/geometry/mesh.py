@@ -7,27 +7,19 @@ Meshes are plain arrays: ``vertices (V, 3) float, metres`` and ``faces (F, 3) in
 
 from __future__ import annotations
 
-from functools import lru_cache, partial
+from functools import lru_cache
 
 import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from bayestouch.backend import jax, jnp
+from bayestouch.backend import jnp
 from bayestouch.errors import BadInput, check_int, shown
-from bayestouch.geometry.nellipsoid import (
-    NEllipsoid,
-    check_shape,
-    from_vector,
-    project_to_surface,
-    surface_point,
-    unit_nsphere,
-)
+from bayestouch.geometry.nellipsoid import NEllipsoid, check_shape, project_to_surface, surface_point, unit_nsphere
 
 __all__ = [
     "cube_sphere",
     "nellipsoid_mesh",
-    "nellipsoid_meshes",
     "triangle_areas",
     "sample_mesh",
     "sample_surface",
@@ -133,35 +125,6 @@ def nellipsoid_mesh(s: NEllipsoid, res: int = 32) -> tuple[np.ndarray, np.ndarra
     d, faces = cube_sphere(check_res(res))
     Y = unit_nsphere(jnp.asarray(d), s.n)
     return np.asarray(surface_point(s, Y)), faces
-
-
-# module level, data as arguments: compiled once per array shape and shared by every caller of a process
-@jax.jit
-@partial(jax.vmap, in_axes=(0, None))
-def _vertices(v, dirs):
-    s = from_vector(v)
-    return surface_point(s, unit_nsphere(dirs, s.n))
-
-
-def nellipsoid_meshes(vectors, res: int) -> tuple[np.ndarray, np.ndarray]:
-    """The meshes of :func:`nellipsoid_mesh` of many n-ellipsoids on one cube-sphere topology (one compiled map for
-    all of them, per count of rows).
-
-    Parameters
-    ----------
-    vectors : (N, 10) float
-        Shape vectors of :func:`~bayestouch.geometry.nellipsoid.from_vector` (centre m, semi-axes m, Euler angles
-        rad, n).
-    res : int
-        Cells per cube edge.
-
-    Returns
-    -------
-    vertices : (N, 6·res² + 2, 3) float, metres
-    faces : (12·res², 3) int, outward
-    """
-    dirs, faces = cube_sphere(res)
-    return np.asarray(_vertices(jnp.asarray(np.asarray(vectors, dtype=float)), jnp.asarray(dirs))), faces
 
 
 def triangle_areas(vertices, faces) -> np.ndarray:

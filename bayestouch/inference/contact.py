@@ -33,7 +33,6 @@ __all__ = [
     "NOISE_MODELS",
     "param_names",
     "shape_of",
-    "shape_vectors",
     "residuals",
     "log_likelihood",
     "log_prior",
@@ -235,13 +234,6 @@ def shape_of(theta) -> ne.NEllipsoid:
     """The n-ellipsoid of a parameter vector θ (…, D ≥ 10)."""
     theta = jnp.asarray(theta)
     return ne.NEllipsoid(theta[..., 0:3], jnp.exp(theta[..., 3:6]), theta[..., 6:9], jnp.exp(theta[..., 9]))
-
-
-def shape_vectors(theta) -> np.ndarray:
-    """The n-ellipsoid vectors (N, 10) of :func:`~bayestouch.geometry.nellipsoid.from_vector` (centre m, semi-axes m,
-    Euler angles rad, n) of draws θ (N, ≥ 10) (log semi-axes and log n, as :func:`shape_of` reads them)."""
-    t = np.asarray(theta, float)
-    return np.column_stack([t[:, :3], np.exp(t[:, 3:6]), t[:, 6:9], np.exp(t[:, 9])])
 
 
 def residuals(theta, points):

@@ -298,7 +298,7 @@ def part_volumes(theta, k: int) -> np.ndarray:
     """Closed-form volumes (N, K) m³ (paper eq. 11) of each part of draws θ (N, 10 K + 3); overlaps counted twice."""
     parts, _ = _split(np.asarray(theta, float), k)
     flat = parts.reshape(-1, 10)
-    nat = cm.shape_vectors(flat)
+    nat = np.column_stack([flat[:, :3], np.exp(flat[:, 3:6]), flat[:, 6:9], np.exp(flat[:, 9])])
     vol = jax.vmap(lambda v: ne.volume(ne.from_vector(v)))(jnp.asarray(nat))
     return np.asarray(vol).reshape(len(parts), k)
 

@@ -235,7 +235,7 @@ def write_parts_outputs(out: Path, chain, k: int, points, *, seed: int, t0: floa
     parts = []
     for j in range(k):
         p = c[:, 10 * j : 10 * j + 10]
-        nat = cm.shape_vectors(p)
+        nat = np.column_stack([p[:, :3], np.exp(p[:, 3:6]), p[:, 6:9], np.exp(p[:, 9])])
         axes = np.sort(nat[:, 3:6], axis=1)[:, ::-1]
         parts.append(
             {

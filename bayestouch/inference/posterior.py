@@ -38,7 +38,7 @@ from bayestouch import __version__
 from bayestouch.backend import jax, jnp, pad_pow2
 from bayestouch.geometry import nellipsoid as ne
 from bayestouch.geometry.integrals import surface_integrals_batch
-from bayestouch.geometry.mesh import nellipsoid_meshes, to_trimesh
+from bayestouch.geometry.mesh import cube_sphere, to_trimesh
 from bayestouch.geometry.rotation import euler_from_matrix
 from bayestouch.geometry.symmetry import rotation_matrices
 from bayestouch.inference.sampler import convergence
@@ -204,6 +204,13 @@ def _first_order_distances(v, pts):
     return ne.first_order_distance(s, ne.to_local(s, pts))[0]
 
 
+@jax.jit
+@partial(jax.vmap, in_axes=(0, None))
+def _mesh_vertices(v, dirs):
+    s = ne.from_vector(v)
+    return ne.surface_point(s, ne.unit_nsphere(dirs, s.n))
+
+
 def vmf_sample(mean, kappa, rng: np.random.Generator) -> np.ndarray:
     """Unit vectors (..., 3) drawn from von Mises–Fisher distributions on the sphere with mean directions
     ``mean (..., 3)`` (unit) and concentrations ``kappa`` (broadcast to (...,), > 0): the cosine to the mean is
@@ -239,6 +246,13 @@ def draw_volumes(vectors) -> np.ndarray:
     return np.concatenate(out) if out else np.empty(0)
 
 
+def _draw_meshes(shape_vectors, res: int):
+    """Vertices (N, V, 3) m of the n-ellipsoids ``shape_vectors (N, 10)`` on one cube-sphere topology, and its
+    faces (one compiled map for all draws)."""
+    dirs, faces = cube_sphere(res)
+    return np.asarray(_mesh_vertices(jnp.asarray(np.asarray(shape_vectors, dtype=float)), jnp.asarray(dirs))), faces
+
+
 def _spread_colours(spread: np.ndarray) -> np.ndarray:
     """RGBA colours (V, 4) uint8 of per-vertex spreads (V,) m: viridis up to their 99th percentile."""
     cmap = matplotlib.colormaps["viridis"]
@@ -266,7 +280,7 @@ def write_posterior(out: Path, chain, model: PosteriorModel, *, seed: int, t0: f
     # derived quantities on thinned draws of every walker (a mesh per draw), in the ``derived`` group too
     drows = _thin_rows(S, max(1, DERIVED_DRAWS // W))
     vecs = np.asarray(model.shape_vectors(np.swapaxes(nat[drows], 0, 1).reshape(-1, nat.shape[-1])))
-    meshes, tri = nellipsoid_meshes(vecs, 16)
+    meshes, tri = _draw_meshes(vecs, 16)
     ints = surface_integrals_batch(meshes, tri)
     areas = np.asarray(ints.area)
     inertia = np.linalg.eigvalsh(ints.inertia)[:, ::-1]  # principal moments, largest first
@@ -287,7 +301,7 @@ def write_posterior(out: Path, chain, model: PosteriorModel, *, seed: int, t0: f
     mean_nat = flat.mean(axis=0)
     # the mean shape's mesh (nellipsoid_mesh(mean, 32), through the compiled map of the draws' meshes)
     mean_vec = mean_shape_vector(vecs)
-    verts, faces = nellipsoid_meshes(mean_vec[None], 32)
+    verts, faces = _draw_meshes(mean_vec[None], 32)
     verts = verts[0]
     spread = uncertainty_spread(verts, None, vecs[: min(200, len(vecs))])
     if model.refine_mesh is not None:

@@ -17,7 +17,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from bayestouch.geometry.mesh import nellipsoid_meshes
+from bayestouch.backend import jax, jnp
+from bayestouch.geometry import nellipsoid as ne
+from bayestouch.geometry.mesh import cube_sphere
 from bayestouch.inference import contact as cm
 
 __all__ = ["REACH_LIMIT", "REACH_DRAWS", "REACH_RES", "contact_span", "surface_reach"]
@@ -45,6 +47,17 @@ def contact_span(points) -> float:
     return float(np.max(np.ptp(c @ vt.T, axis=0)))
 
 
+@jax.jit
+def _surfaces(thetas, directions):
+    """Surface points (K, P, 3) m of the n-ellipsoids θ (K, ≥ 10) in the directions (P, 3) of their own frames."""
+
+    def one(t):
+        s = cm.shape_of(t[:10])
+        return ne.surface_point(s, ne.unit_nsphere(directions, s.n))
+
+    return jax.vmap(one)(thetas)
+
+
 def surface_reach(points, thetas, seed: int = 0) -> np.ndarray:
     """The reach of posterior draws beyond contacts ``points (M, 3)`` m: for each of at most :data:`REACH_DRAWS`
     draws of ``thetas (N, ≥ 10)`` (the sampled parametrisation of :func:`bayestouch.inference.contact.shape_of`),
@@ -65,6 +78,7 @@ def surface_reach(points, thetas, seed: int = 0) -> np.ndarray:
     pick = rng.choice(len(th), min(REACH_DRAWS, len(th)), replace=False)
     # a fixed number of rows (padded with the first draw): one compiled program whatever the chain's length
     rows = np.concatenate([th[pick], np.repeat(th[pick[:1]], REACH_DRAWS - len(pick), axis=0)])
-    surf = nellipsoid_meshes(cm.shape_vectors(rows), REACH_RES)[0][: len(pick)]
+    dirs, _ = cube_sphere(REACH_RES)
+    surf = np.asarray(_surfaces(jnp.asarray(rows[:, :10]), jnp.asarray(dirs)))[: len(pick)]
     d, _ = cKDTree(p).query(surf.reshape(-1, 3))
     return d.reshape(len(pick), -1).max(axis=1) / span

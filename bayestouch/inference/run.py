@@ -331,7 +331,7 @@ def natural_names(sampled: tuple = cm.PARAM_NAMES) -> tuple:
 def natural_draws(flat: np.ndarray, sampled: tuple = cm.PARAM_NAMES) -> np.ndarray:
     """θ draws (S, D) with parameter names ``sampled`` → canonicalised natural parameters (S, D): centre,
     a ≥ b ≥ c, angles, n, σ, then the optional parameters (κ, ε, w) in natural units."""
-    v = cm.shape_vectors(flat)
+    v = np.column_stack([flat[:, :3], np.exp(flat[:, 3:6]), flat[:, 6:9], np.exp(flat[:, 9])])
     extra = [np.exp(flat[:, 10])]
     for j, name in enumerate(sampled[11:], start=11):
         fn = _EXTRA_NATURAL[name][1]
